@@ -1,0 +1,1 @@
+"""gonio-brdf: simulator package."""
