@@ -1,0 +1,184 @@
+"""Direction geometry: spherical angles, in-plane samples, Rusinkiewicz half/difference angles.
+
+Conventions (see README): the local frame has z along the surface normal. ``theta`` is the polar angle
+from the normal, ``phi`` the azimuth from +x towards +y. All functions here take radians and unit vectors
+and broadcast over any batch shape; direction arrays have a trailing axis of length 3.
+
+An in-plane sample (theta_i, theta_o) puts the light on the -x side and a positive, signed theta_o on the
+specular (+x) side, so theta_o = theta_i is the mirror direction and theta_o = -theta_i the retro direction.
+
+The thesis (Tramontina 2023) calls the elevation above the surface "phi" and the azimuth "theta"; only
+:func:`thesis_to_vec` and :func:`vec_to_thesis` speak that language.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+Array = NDArray[np.float64]
+
+__all__ = [
+    "sph_to_vec",
+    "vec_to_sph",
+    "normalize",
+    "safe_acos",
+    "inplane_to_dirs",
+    "dirs_to_inplane",
+    "half_diff_from_dirs",
+    "dirs_from_half_diff",
+    "rotate_z",
+    "rotate_y",
+    "rodrigues",
+    "thesis_to_vec",
+    "vec_to_thesis",
+    "thesis_points_from_slice",
+    "slice_from_thesis_points",
+]
+
+
+def safe_acos(x: ArrayLike) -> Array:
+    """arccos clipped to [-1, 1], so 1 + eps from rounding gives 0, not NaN."""
+    return np.arccos(np.clip(np.asarray(x, dtype=np.float64), -1.0, 1.0))
+
+
+def normalize(v: ArrayLike) -> Array:
+    """Unit vectors along ``v`` (..., 3); zero vectors stay zero instead of becoming NaN."""
+    v = np.asarray(v, dtype=np.float64)
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return np.divide(v, n, out=np.zeros_like(v), where=n > 0)
+
+
+def sph_to_vec(theta: ArrayLike, phi: ArrayLike) -> Array:
+    """Unit vector(s) (..., 3) from polar angle ``theta`` and azimuth ``phi`` (radians)."""
+    theta = np.asarray(theta, dtype=np.float64)
+    phi = np.asarray(phi, dtype=np.float64)
+    st = np.sin(theta)
+    return np.stack(np.broadcast_arrays(st * np.cos(phi), st * np.sin(phi), np.cos(theta)), axis=-1)
+
+
+def vec_to_sph(v: ArrayLike) -> tuple[Array, Array]:
+    """(theta, phi) in radians of direction(s) ``v`` (..., 3); phi in (-pi, pi], 0 at the pole.
+
+    Uses atan2 of the in-plane radius and z, which is accurate near the pole (unlike acos).
+    """
+    v = np.asarray(v, dtype=np.float64)
+    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    theta = np.arctan2(np.hypot(x, y), z)
+    phi = np.arctan2(y, x)
+    return theta, phi
+
+
+def inplane_to_dirs(theta_i: ArrayLike, theta_o: ArrayLike) -> tuple[Array, Array]:
+    """(wi, wo) unit vectors for in-plane samples; radians, signed theta_o (+ = specular side).
+
+    wi = (-sin theta_i, 0, cos theta_i) points to the light; wo = (sin theta_o, 0, cos theta_o).
+    """
+    ti = np.asarray(theta_i, dtype=np.float64)
+    to = np.asarray(theta_o, dtype=np.float64)
+    ti, to = np.broadcast_arrays(ti, to)
+    zero = np.zeros_like(ti)
+    wi = np.stack([-np.sin(ti), zero, np.cos(ti)], axis=-1)
+    wo = np.stack([np.sin(to), zero, np.cos(to)], axis=-1)
+    return wi, wo
+
+
+def dirs_to_inplane(wi: ArrayLike, wo: ArrayLike) -> tuple[Array, Array]:
+    """Inverse of :func:`inplane_to_dirs` for directions in the x-z plane: (theta_i, signed theta_o)."""
+    wi = np.asarray(wi, dtype=np.float64)
+    wo = np.asarray(wo, dtype=np.float64)
+    return np.arctan2(-wi[..., 0], wi[..., 2]), np.arctan2(wo[..., 0], wo[..., 2])
+
+
+def rotate_z(v: Array, angle: ArrayLike) -> Array:
+    """Rotate vectors (..., 3) by ``angle`` (radians) about +z (counter-clockwise seen from +z)."""
+    c, s = np.cos(angle), np.sin(angle)
+    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    return np.stack(np.broadcast_arrays(c * x - s * y, s * x + c * y, z), axis=-1)
+
+
+def rotate_y(v: Array, angle: ArrayLike) -> Array:
+    """Rotate vectors (..., 3) by ``angle`` (radians) about +y (right-handed)."""
+    c, s = np.cos(angle), np.sin(angle)
+    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    return np.stack(np.broadcast_arrays(c * x + s * z, y, -s * x + c * z), axis=-1)
+
+
+def rodrigues(v: ArrayLike, k: ArrayLike, angle: ArrayLike) -> Array:
+    """Rotate vectors ``v`` (..., 3) about unit axis ``k`` (..., 3) by ``angle`` (radians), counter-clockwise.
+
+    v_rot = v cos a + (k x v) sin a + k (k . v)(1 - cos a)   (Rodrigues 1840).
+    """
+    v = np.asarray(v, dtype=np.float64)
+    k = normalize(k)
+    a = np.asarray(angle, dtype=np.float64)[..., None]
+    c, s = np.cos(a), np.sin(a)
+    kv = np.sum(k * v, axis=-1, keepdims=True)
+    return v * c + np.cross(k, v) * s + k * kv * (1.0 - c)
+
+
+def half_diff_from_dirs(wi: ArrayLike, wo: ArrayLike) -> tuple[Array, Array, Array, Array]:
+    """Rusinkiewicz (1998) angles (theta_h, phi_h, theta_d, phi_d), radians, of direction pairs (..., 3).
+
+    h = normalize(wi + wo); d = wi rotated by -phi_h about z, then by -theta_h about y.
+    Finite for normal incidence and theta_h = 0; for wi = -wo (h undefined) h is taken as the normal.
+    """
+    wi = normalize(wi)
+    wo = normalize(wo)
+    h = wi + wo
+    n = np.linalg.norm(h, axis=-1, keepdims=True)
+    degenerate = n[..., 0] < 1e-12
+    h = np.divide(h, n, out=np.zeros_like(h), where=n > 1e-12)
+    h[degenerate] = (0.0, 0.0, 1.0)
+    theta_h, phi_h = vec_to_sph(h)
+    d = rotate_y(rotate_z(wi, -phi_h), -theta_h)
+    theta_d, phi_d = vec_to_sph(d)
+    return theta_h, phi_h, theta_d, phi_d
+
+
+def dirs_from_half_diff(
+    theta_h: ArrayLike, phi_h: ArrayLike, theta_d: ArrayLike, phi_d: ArrayLike
+) -> tuple[Array, Array]:
+    """Inverse of :func:`half_diff_from_dirs`: (wi, wo) unit vectors (..., 3) from radians."""
+    h = sph_to_vec(theta_h, phi_h)
+    d = sph_to_vec(theta_d, phi_d)
+    wi = rotate_z(rotate_y(d, theta_h), phi_h)
+    # wo is wi reflected about h: wo = 2 (wi . h) h - wi
+    wo = 2.0 * np.sum(wi * h, axis=-1, keepdims=True) * h - wi
+    return wi, normalize(wo)
+
+
+# --- the thesis's language -------------------------------------------------------------------------------
+
+
+def thesis_to_vec(elevation: ArrayLike, azimuth: ArrayLike, intensity: ArrayLike = 1.0) -> Array:
+    """Thesis point (elevation "phi" above the surface, azimuth "theta", intensity) -> vector (..., 3).
+
+    Angles in radians; the result has length ``intensity``. Elevation = pi/2 - our theta.
+    """
+    v = sph_to_vec(np.pi / 2 - np.asarray(elevation, dtype=np.float64), azimuth)
+    return v * np.asarray(intensity, dtype=np.float64)[..., None]
+
+
+def vec_to_thesis(p: ArrayLike) -> tuple[Array, Array, Array]:
+    """Vector(s) (..., 3) -> thesis (elevation, azimuth, intensity); angles in radians."""
+    p = np.asarray(p, dtype=np.float64)
+    r = np.linalg.norm(p, axis=-1)
+    theta, phi = vec_to_sph(p)
+    return np.pi / 2 - theta, phi, r
+
+
+def thesis_points_from_slice(theta_o: ArrayLike, value: ArrayLike) -> Array:
+    """In-plane slice -> the thesis's ordered 2D polar curve, points (N, 2) as (x, z).
+
+    Each point is ``value`` times the outgoing direction in the plane of incidence (x to the specular side).
+    """
+    to = np.asarray(theta_o, dtype=np.float64)
+    val = np.asarray(value, dtype=np.float64)
+    return np.stack([val * np.sin(to), val * np.cos(to)], axis=-1)
+
+
+def slice_from_thesis_points(points: ArrayLike) -> tuple[Array, Array]:
+    """Inverse of :func:`thesis_points_from_slice`: (signed theta_o in radians, value) of 2D points (N, 2)."""
+    p = np.asarray(points, dtype=np.float64)
+    return np.arctan2(p[..., 0], p[..., 1]), np.hypot(p[..., 0], p[..., 1])

@@ -1,0 +1,332 @@
+"""MERL binary BRDF tables (Matusik et al. 2003): read, write, index, look up and tabulate.
+
+A table in memory is a float64 array ``f`` of shape (3, 90, 90, 180) holding the BRDF f_r in 1/sr, indexed
+``[channel, i_theta_h, j_theta_d, k_phi_d]``; NaN marks an invalid (unmeasured or below-horizon) cell.
+On disk (see ../shared/reference/merl-format.md): an int32 header ``90 90 180``, then all red, all green,
+all blue as little-endian float64, each divided by its channel scale; invalid cells are stored as -1.
+
+A cell stands for its bin centre: theta_h = ((i + 0.5) / 90)^2 * 90 deg, theta_d = (j + 0.5) deg,
+phi_d = (k + 0.5) deg, with phi_h = 0.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Callable
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .geometry import dirs_from_half_diff, half_diff_from_dirs
+
+Array = NDArray[np.float64]
+
+N_TH, N_TD, N_PD = 90, 90, 180
+SHAPE = (3, N_TH, N_TD, N_PD)
+N_CELLS = N_TH * N_TD * N_PD  # 1,458,000
+FILE_SIZE = 12 + 3 * N_CELLS * 8  # 34,992,012 bytes
+SCALES = np.array([1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0])  # stored * scale = f_r
+_HEADER = np.array([N_TH, N_TD, N_PD], dtype="<i4").tobytes()
+
+__all__ = [
+    "SHAPE",
+    "N_CELLS",
+    "FILE_SIZE",
+    "SCALES",
+    "MerlError",
+    "read",
+    "write",
+    "theta_h_index",
+    "theta_d_index",
+    "phi_d_index",
+    "cell_angles",
+    "cell_to_dirs",
+    "dirs_to_cell",
+    "valid_mask",
+    "lookup",
+    "tabulate",
+]
+
+
+class MerlError(ValueError):
+    """A MERL file or table is invalid; the message names the file and the problem."""
+
+
+# --- index functions (the reference reader's) ------------------------------------------------------------
+
+
+def theta_h_index(theta_h: ArrayLike) -> NDArray[np.intp]:
+    """Cell index of theta_h (radians): int(sqrt(theta_h / (pi/2)) * 90), 0 for theta_h <= 0, in [0, 89]."""
+    th = np.asarray(theta_h, dtype=np.float64)
+    u = np.sqrt(np.maximum(th, 0.0) / (np.pi / 2)) * N_TH
+    return np.clip(np.floor(u), 0, N_TH - 1).astype(np.intp)
+
+
+def theta_d_index(theta_d: ArrayLike) -> NDArray[np.intp]:
+    """Cell index of theta_d (radians): int(theta_d / (pi/2) * 90) in [0, 89]."""
+    td = np.asarray(theta_d, dtype=np.float64)
+    return np.clip(np.floor(td / (np.pi / 2) * N_TD), 0, N_TD - 1).astype(np.intp)
+
+
+def phi_d_index(phi_d: ArrayLike) -> NDArray[np.intp]:
+    """Cell index of phi_d (radians): fold phi_d < 0 by +pi, then int(phi_d / pi * 180) in [0, 179]."""
+    pd = np.asarray(phi_d, dtype=np.float64)
+    pd = np.where(pd < 0, pd + np.pi, pd)
+    return np.clip(np.floor(pd / np.pi * N_PD), 0, N_PD - 1).astype(np.intp)
+
+
+def _continuous_index(theta_h: Array, theta_d: Array, phi_d: Array) -> tuple[Array, Array, Array]:
+    """Fractional cell coordinates whose integer values are bin centres (x = index + 0.5 at the centre)."""
+    xh = np.sqrt(np.maximum(theta_h, 0.0) / (np.pi / 2)) * N_TH - 0.5
+    xd = theta_d / (np.pi / 2) * N_TD - 0.5
+    pd = np.mod(phi_d, np.pi)  # reciprocity: phi_d and phi_d + pi are the same cell
+    xp = pd / np.pi * N_PD - 0.5
+    return xh, xd, xp
+
+
+@lru_cache(maxsize=1)
+def cell_angles() -> tuple[Array, Array, Array]:
+    """Bin-centre angles (theta_h, theta_d, phi_d) in radians, each broadcastable to (90, 90, 180)."""
+    i = np.arange(N_TH, dtype=np.float64)
+    th = ((i + 0.5) / N_TH) ** 2 * (np.pi / 2)
+    td = (np.arange(N_TD) + 0.5) / N_TD * (np.pi / 2)
+    pd = (np.arange(N_PD) + 0.5) / N_PD * np.pi
+    return th[:, None, None], td[None, :, None], pd[None, None, :]
+
+
+def cell_to_dirs(i: ArrayLike, j: ArrayLike, k: ArrayLike) -> tuple[Array, Array]:
+    """Direction pairs (wi, wo), (..., 3), standing for cells (i, j, k): their bin centres with phi_h = 0."""
+    i = np.asarray(i, dtype=np.float64)
+    j = np.asarray(j, dtype=np.float64)
+    k = np.asarray(k, dtype=np.float64)
+    th = ((i + 0.5) / N_TH) ** 2 * (np.pi / 2)
+    td = (j + 0.5) / N_TD * (np.pi / 2)
+    pd = (k + 0.5) / N_PD * np.pi
+    return dirs_from_half_diff(th, np.zeros_like(th), td, pd)
+
+
+def dirs_to_cell(wi: ArrayLike, wo: ArrayLike) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp]]:
+    """Cell indices (i, j, k) of direction pairs (..., 3), with the reference reader's index functions."""
+    th, _, td, pd = half_diff_from_dirs(wi, wo)
+    return theta_h_index(th), theta_d_index(td), phi_d_index(pd)
+
+
+@lru_cache(maxsize=1)
+def _cell_dirs() -> tuple[Array, Array]:
+    """Bin-centre direction pairs (90, 90, 180, 3), computed separably (d depends on theta_d, phi_d only)."""
+    th, td, pd = cell_angles()
+    st, ct = np.sin(td), np.cos(td)
+    d = np.stack(np.broadcast_arrays(st * np.cos(pd), st * np.sin(pd), ct), axis=-1)  # (1, 90, 180, 3)
+    c, s = np.cos(th)[..., None], np.sin(th)[..., None]  # (90, 1, 1, 1)
+    wi = np.empty((N_TH, N_TD, N_PD, 3))
+    wi[..., 0] = (c * d[..., 0:1] + s * d[..., 2:3])[..., 0]
+    wi[..., 1] = d[..., 1]
+    wi[..., 2] = (-s * d[..., 0:1] + c * d[..., 2:3])[..., 0]
+    # wo = 2 (wi . h) h - wi with h = (sin th, 0, cos th); wi . h = d_z = cos theta_d
+    h = np.concatenate([s, np.zeros_like(s), c], axis=-1)  # (90, 1, 1, 3)
+    wo = 2.0 * d[..., 2:3] * h - wi
+    wi.setflags(write=False)
+    wo.setflags(write=False)
+    return wi, wo
+
+
+def valid_mask() -> NDArray[np.bool_]:
+    """(90, 90, 180) bool: cells whose bin-centre directions both lie above the horizon."""
+    wi, wo = _cell_dirs()
+    return (wi[..., 2] > 0) & (wo[..., 2] > 0)
+
+
+# --- lookups ---------------------------------------------------------------------------------------------
+
+
+def lookup(table: ArrayLike, wi: ArrayLike, wo: ArrayLike, interpolate: bool = False) -> Array:
+    """f_r (..., 3) of ``table`` (3, 90, 90, 180) at direction pairs (..., 3).
+
+    ``interpolate=False``: the nearest cell, as the reference reader does. ``interpolate=True``: trilinear
+    between bin centres (phi_d wraps with period pi; theta_h and theta_d clamp at the ends), ignoring NaN
+    neighbours; NaN only where every neighbour is NaN. Directions below the horizon give NaN.
+    """
+    t = np.asarray(table, dtype=np.float64)
+    if t.shape != SHAPE:
+        raise MerlError(f"table has shape {t.shape}, expected {SHAPE}")
+    wi = np.asarray(wi, dtype=np.float64)
+    wo = np.asarray(wo, dtype=np.float64)
+    th, _, td, pd = half_diff_from_dirs(wi, wo)
+    below = (wi[..., 2] <= 0) | (wo[..., 2] <= 0)
+    if not interpolate:
+        out = t[:, theta_h_index(th), theta_d_index(td), phi_d_index(pd)]
+        out = np.moveaxis(out, 0, -1)
+        out[below] = np.nan
+        return out
+    xh, xd, xp = _continuous_index(th, td, pd)
+    xh = np.clip(xh, 0.0, N_TH - 1.0)
+    xd = np.clip(xd, 0.0, N_TD - 1.0)
+    ih = np.minimum(np.floor(xh).astype(np.intp), N_TH - 2)
+    idd = np.minimum(np.floor(xd).astype(np.intp), N_TD - 2)
+    ip = np.floor(xp).astype(np.intp)  # in [-1, 179]
+    fh, fd, fp = xh - ih, xd - idd, xp - ip
+    acc = np.zeros(th.shape + (3,))
+    wsum = np.zeros(th.shape + (3,))
+    for a in (0, 1):  # the 8 corners of the interpolation cube
+        wa = fh if a else 1.0 - fh
+        for b in (0, 1):
+            wb = fd if b else 1.0 - fd
+            for c in (0, 1):
+                wc = fp if c else 1.0 - fp
+                v = np.moveaxis(t[:, ih + a, idd + b, (ip + c) % N_PD], 0, -1)
+                w = (wa * wb * wc)[..., None] * np.isfinite(v)
+                acc += w * np.nan_to_num(v, nan=0.0)
+                wsum += w
+    out = np.divide(acc, wsum, out=np.full_like(acc, np.nan), where=wsum > 1e-12)
+    out[below] = np.nan
+    return out
+
+
+# --- tabulation ------------------------------------------------------------------------------------------
+
+
+def _as_rgb(v: Array, n: int) -> Array:
+    v = np.asarray(v, dtype=np.float64)
+    if v.ndim == 1:
+        v = v[:, None]
+    if v.shape != (n, 1) and v.shape != (n, 3):
+        raise MerlError(f"the BRDF function returned shape {v.shape}, expected ({n}, 1) or ({n}, 3)")
+    return np.broadcast_to(v, (n, 3))
+
+
+def tabulate(
+    f: Callable[[Array, Array], ArrayLike],
+    supersample: tuple[int, int, int] | int | None = None,
+    chunk_cells: int = 200_000,
+) -> Array:
+    """Fill a (3, 90, 90, 180) table from a vectorised BRDF ``f(wi, wo) -> (N, 1 | 3)`` (1/sr).
+
+    ``supersample=None``: the value at each cell's bin centre. ``supersample=(nh, nd, np)`` (or one int for
+    all three): the average over the cell of nh x nd x np stratified samples, uniform in the table's own
+    coordinates (sqrt theta_h, theta_d, phi_d) and weighted by the measure of the direction pairs they stand
+    for (sin theta_h * d theta_h/du * sin theta_d cos theta_d), so a lobe narrower than a cell keeps its
+    energy. Cells whose bin-centre directions lie below the horizon are NaN; sub-samples below the horizon
+    count as 0.
+    """
+    valid = valid_mask()
+    out = np.full(SHAPE, np.nan)
+    if supersample is None:
+        wi, wo = _cell_dirs()
+        wiv, wov = wi[valid], wo[valid]
+        vals = np.empty((wiv.shape[0], 3))
+        for s in range(0, wiv.shape[0], chunk_cells):  # chunks bound memory; each chunk is vectorised
+            vals[s:s + chunk_cells] = _as_rgb(f(wiv[s:s + chunk_cells], wov[s:s + chunk_cells]),
+                                               min(chunk_cells, wiv.shape[0] - s))
+        out[:, valid] = vals.T
+        return out
+    ns = (supersample,) * 3 if isinstance(supersample, int) else tuple(supersample)
+    if len(ns) != 3 or min(ns) < 1:
+        raise MerlError(f"supersample must be a positive int or three positive ints, got {supersample!r}")
+    # Sub-sample offsets inside a unit cell (stratified, at sub-cell centres).
+    oh = (np.arange(ns[0]) + 0.5) / ns[0]
+    od = (np.arange(ns[1]) + 0.5) / ns[1]
+    op = (np.arange(ns[2]) + 0.5) / ns[2]
+    oh, od, op = (a.ravel() for a in np.meshgrid(oh, od, op, indexing="ij"))
+    n_sub = oh.size
+    idx = np.argwhere(valid)  # (M, 3) valid cells
+    per_chunk = max(1, chunk_cells // n_sub)
+    vals = np.empty((idx.shape[0], 3))
+    for s in range(0, idx.shape[0], per_chunk):  # chunks of cells, each vectorised over cells x sub-samples
+        c = idx[s:s + per_chunk]
+        u = (c[:, 0:1] + oh[None, :]) / N_TH  # sqrt(theta_h / (pi/2))
+        th = u * u * (np.pi / 2)
+        td = (c[:, 1:2] + od[None, :]) / N_TD * (np.pi / 2)
+        pd = (c[:, 2:3] + op[None, :]) / N_PD * np.pi
+        w = np.sin(th) * u * np.sin(td) * np.cos(td)
+        wi, wo = dirs_from_half_diff(th, np.zeros_like(th), td, pd)
+        up = (wi[..., 2] > 0) & (wo[..., 2] > 0)
+        fv = _as_rgb(f(wi.reshape(-1, 3), wo.reshape(-1, 3)), wi.shape[0] * n_sub).reshape(c.shape[0], n_sub, 3)
+        fv = np.where(up[..., None], fv, 0.0)
+        wsum = w.sum(axis=1)
+        vals[s:s + per_chunk] = np.einsum("cs,csk->ck", w, fv) / np.maximum(wsum, 1e-300)[:, None]
+    out[:, valid] = vals.T
+    return out
+
+
+# --- file I/O --------------------------------------------------------------------------------------------
+
+
+def _describe_cells(mask: NDArray[np.bool_], limit: int = 5) -> str:
+    where = np.argwhere(mask)
+    names = "rgb"
+    shown = ", ".join(f"{names[c]}[{i},{j},{k}]" for c, i, j, k in where[:limit])
+    more = f" and {len(where) - limit} more" if len(where) > limit else ""
+    return f"{len(where)} cell(s) ({shown}{more})"
+
+
+def write(path: str | Path, f: ArrayLike, require_above_horizon: bool = False) -> None:
+    """Write a table (3, 90, 90, 180) of f_r in 1/sr to ``path`` in the MERL binary layout, atomically.
+
+    NaN cells are written as -1 (invalid). Infinite or negative values raise :class:`MerlError`; with
+    ``require_above_horizon`` so does a NaN in any cell above the horizon. The file is written to a temporary
+    name in the same folder, fsynced, then renamed, so a failure never leaves a half-written file.
+    """
+    path = Path(path)
+    t = np.asarray(f)
+    if t.shape != SHAPE:
+        raise MerlError(f"{path}: table has shape {t.shape}, expected {SHAPE} [channel, theta_h, theta_d, phi_d]")
+    t = t.astype(np.float64, copy=False)
+    bad = np.isinf(t)
+    if bad.any():
+        raise MerlError(f"{path}: infinite value in {_describe_cells(bad)}")
+    neg = t < 0
+    if neg.any():
+        raise MerlError(f"{path}: negative BRDF value in {_describe_cells(neg)}; a BRDF is >= 0")
+    if require_above_horizon:
+        missing = np.isnan(t) & valid_mask()[None]
+        if missing.any():
+            raise MerlError(f"{path}: no value (NaN) above the horizon in {_describe_cells(missing)}")
+    stored = t / SCALES[:, None, None, None]
+    stored = np.where(np.isnan(stored), -1.0, stored).astype("<f8", copy=False)
+    directory = path.parent if str(path.parent) else Path(".")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(_HEADER)
+            fh.write(memoryview(np.ascontiguousarray(stored)).cast("B"))
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+def read(path: str | Path) -> Array:
+    """Read a MERL binary file -> (3, 90, 90, 180) float64 f_r in 1/sr; negative (invalid) cells -> NaN."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read(FILE_SIZE + 1)
+    except FileNotFoundError:
+        raise MerlError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise MerlError(f"{path}: is a directory, expected a .binary file") from None
+    if len(data) < 12:
+        raise MerlError(f"{path}: {len(data)} bytes, too short for the 12-byte header")
+    dims = np.frombuffer(data[:12], dtype="<i4")
+    if tuple(dims) != (N_TH, N_TD, N_PD):
+        raise MerlError(f"{path}: header says {tuple(int(x) for x in dims)}, expected (90, 90, 180)")
+    if len(data) < FILE_SIZE:
+        raise MerlError(f"{path}: truncated: {len(data)} bytes, expected {FILE_SIZE}")
+    if len(data) > FILE_SIZE:
+        size = path.stat().st_size
+        raise MerlError(f"{path}: oversized: {size} bytes, expected {FILE_SIZE}")
+    stored = np.frombuffer(data, dtype="<f8", offset=12).reshape(SHAPE)
+    bad = ~np.isfinite(stored)
+    if bad.any():
+        raise MerlError(f"{path}: NaN or infinite value stored in {_describe_cells(bad)}")
+    t = stored.astype(np.float64) * SCALES[:, None, None, None]
+    t[stored < 0] = np.nan
+    return t

@@ -1,0 +1,395 @@
+"""Slice files: the versioned CSV format in which captured in-plane slices travel.
+
+The contract between acquisition (which writes them, one durable row per sample) and reconstruction (which
+reads them). Format version 1 (documented in docs/slice-format.md)::
+
+    # gonio-brdf slice
+    # meta: {"format_version": 1, "quantity": "brdf", "material": "blue-plastic", ...}
+    theta_i_deg,theta_o_deg,R,G,B,R_std,G_std,B_std,repeats,unix_time_s
+    30,-80,0.0123,0.0234,0.1012,0.0002,0.0003,0.0011,4,1795000000.25
+    ...
+
+Value columns are ``value`` (one channel), ``R,G,B``, or spectral columns named by wavelength (``550nm``);
+each has a ``<name>_std`` column (standard deviation of the mean of the repeats, same unit). Angles in
+degrees; theta_o is signed (+ = specular side). ``quantity`` says what the values are: ``brdf`` (f_r, 1/sr),
+``reflectance_factor`` (pi f_r) or ``brdf_cos`` (f_r cos theta_o).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import re
+import tempfile
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+Array = NDArray[np.float64]
+
+FORMAT_VERSION = 1
+MAGIC = "# gonio-brdf slice"
+META_PREFIX = "# meta: "
+QUANTITIES = ("brdf", "reflectance_factor", "brdf_cos")
+_WAVELENGTH = re.compile(r"^(\d+(?:\.\d+)?)nm$")
+
+__all__ = [
+    "FORMAT_VERSION",
+    "QUANTITIES",
+    "Slice",
+    "SliceError",
+    "SliceWriter",
+    "read_slice",
+    "write_slice",
+    "channel_kind",
+    "wavelengths_of",
+    "to_brdf",
+]
+
+
+class SliceError(ValueError):
+    """A slice file or slice is invalid; the message names file, line and column where it can."""
+
+
+def channel_kind(channels: Sequence[str]) -> str:
+    """"grey" for ``["value"]``, "rgb" for ``["R", "G", "B"]``, "spectral" for wavelength names."""
+    ch = list(channels)
+    if ch == ["value"]:
+        return "grey"
+    if ch == ["R", "G", "B"]:
+        return "rgb"
+    if ch and all(_WAVELENGTH.match(c) for c in ch):
+        return "spectral"
+    raise SliceError(
+        f"value columns {ch} are not one of: value | R,G,B | wavelength columns such as 550nm"
+    )
+
+
+def wavelengths_of(channels: Sequence[str]) -> Array | None:
+    """Wavelengths in nm of spectral channel names, or None for grey/RGB."""
+    if channel_kind(channels) != "spectral":
+        return None
+    return np.array([float(_WAVELENGTH.match(c).group(1)) for c in channels])  # type: ignore[union-attr]
+
+
+def to_brdf(values: ArrayLike, theta_o_deg: ArrayLike, quantity: str) -> Array:
+    """Convert ``values`` (N, C) of ``quantity`` to f_r in 1/sr (theta_o in degrees)."""
+    v = np.asarray(values, dtype=np.float64)
+    if quantity == "brdf":
+        return v
+    if quantity == "reflectance_factor":
+        return v / np.pi
+    if quantity == "brdf_cos":
+        c = np.cos(np.radians(np.asarray(theta_o_deg, dtype=np.float64)))
+        return v / np.maximum(c, 1e-6)[:, None]
+    raise SliceError(f"unknown quantity {quantity!r}; expected one of {', '.join(QUANTITIES)}")
+
+
+@dataclass
+class Slice:
+    """One or more in-plane slices: N samples with C value channels.
+
+    ``theta_i_deg``, ``theta_o_deg``: (N,) degrees; ``values``, ``std``: (N, C) in the unit of
+    ``meta["quantity"]``; ``repeats``: (N,) ints; ``unix_time_s``: (N,) seconds since the epoch.
+    """
+
+    theta_i_deg: Array
+    theta_o_deg: Array
+    values: Array
+    channels: list[str]
+    std: Array | None = None
+    repeats: NDArray[np.int64] | None = None
+    unix_time_s: Array | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+    source: str = "<memory>"
+
+    def __post_init__(self) -> None:
+        self.theta_i_deg = np.asarray(self.theta_i_deg, dtype=np.float64).reshape(-1)
+        self.theta_o_deg = np.asarray(self.theta_o_deg, dtype=np.float64).reshape(-1)
+        n = self.theta_i_deg.size
+        self.values = np.asarray(self.values, dtype=np.float64).reshape(n, -1)
+        channel_kind(self.channels)
+        if self.values.shape[1] != len(self.channels):
+            raise SliceError(f"{self.source}: {self.values.shape[1]} value columns for channels {self.channels}")
+        self.std = (np.zeros_like(self.values) if self.std is None
+                    else np.asarray(self.std, dtype=np.float64).reshape(self.values.shape))
+        self.repeats = (np.ones(n, dtype=np.int64) if self.repeats is None
+                        else np.asarray(self.repeats, dtype=np.int64).reshape(n))
+        self.unix_time_s = (np.zeros(n) if self.unix_time_s is None
+                            else np.asarray(self.unix_time_s, dtype=np.float64).reshape(n))
+        self.meta = {"format_version": FORMAT_VERSION, "quantity": "brdf", **dict(self.meta)}
+        if self.meta["quantity"] not in QUANTITIES:
+            raise SliceError(f"{self.source}: unknown quantity {self.meta['quantity']!r}; "
+                             f"expected one of {', '.join(QUANTITIES)}")
+
+    def __len__(self) -> int:
+        return int(self.theta_i_deg.size)
+
+    @property
+    def quantity(self) -> str:
+        return str(self.meta["quantity"])
+
+    @property
+    def kind(self) -> str:
+        """"grey", "rgb" or "spectral"."""
+        return channel_kind(self.channels)
+
+    @property
+    def wavelengths_nm(self) -> Array | None:
+        return wavelengths_of(self.channels)
+
+    def brdf(self) -> tuple[Array, Array]:
+        """(f_r, std of f_r), each (N, C) in 1/sr, whatever quantity the file holds."""
+        return (to_brdf(self.values, self.theta_o_deg, self.quantity),
+                to_brdf(self.std, self.theta_o_deg, self.quantity))
+
+    def incidences(self) -> Array:
+        """Sorted distinct theta_i (degrees)."""
+        return np.unique(self.theta_i_deg)
+
+    def take(self, idx: ArrayLike) -> Slice:
+        """A new Slice holding the samples ``idx`` (index array or boolean mask)."""
+        idx = np.asarray(idx)
+        assert self.std is not None and self.repeats is not None and self.unix_time_s is not None
+        return Slice(self.theta_i_deg[idx], self.theta_o_deg[idx], self.values[idx], list(self.channels),
+                     self.std[idx], self.repeats[idx], self.unix_time_s[idx], dict(self.meta), self.source)
+
+    def sorted(self) -> Slice:
+        """Samples sorted by (theta_i, theta_o)."""
+        return self.take(np.lexsort((self.theta_o_deg, self.theta_i_deg)))
+
+    def validate(self) -> None:
+        """Raise :class:`SliceError` for non-finite values, angles outside (-90, 90) or duplicate samples."""
+        for name, arr in (("theta_i_deg", self.theta_i_deg), ("theta_o_deg", self.theta_o_deg)):
+            bad = ~np.isfinite(arr) | (np.abs(arr) >= 90.0)
+            if bad.any():
+                i = int(np.argmax(bad))
+                raise SliceError(f"{self.source}: sample {i}: {name} = {arr[i]} is outside (-90, 90) degrees")
+        bad_v = ~np.isfinite(self.values)
+        if bad_v.any():
+            i, c = (int(x) for x in np.argwhere(bad_v)[0])
+            raise SliceError(f"{self.source}: sample {i}, column {self.channels[c]}: value is {self.values[i, c]}")
+        key = np.stack([self.theta_i_deg, self.theta_o_deg], axis=1)
+        _, first, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
+        if (counts > 1).any():
+            i = int(first[np.argmax(counts > 1)])
+            raise SliceError(f"{self.source}: duplicate sample theta_i_deg = {self.theta_i_deg[i]}, "
+                             f"theta_o_deg = {self.theta_o_deg[i]}")
+
+
+# --- writing ---------------------------------------------------------------------------------------------
+
+
+def _columns(channels: Sequence[str]) -> list[str]:
+    return ["theta_i_deg", "theta_o_deg", *channels, *(f"{c}_std" for c in channels), "repeats", "unix_time_s"]
+
+
+def _header(channels: Sequence[str], meta: Mapping[str, Any]) -> str:
+    m = {"format_version": FORMAT_VERSION, "quantity": "brdf", **dict(meta)}
+    if m["quantity"] not in QUANTITIES:
+        raise SliceError(f"unknown quantity {m['quantity']!r}; expected one of {', '.join(QUANTITIES)}")
+    channel_kind(channels)
+    return f"{MAGIC}\n{META_PREFIX}{json.dumps(m, sort_keys=True)}\n{','.join(_columns(channels))}\n"
+
+
+def _fmt(x: float) -> str:
+    return repr(float(x))
+
+
+def _row(theta_i: float, theta_o: float, values: Sequence[float], std: Sequence[float], repeats: int,
+         t: float) -> str:
+    return ",".join([_fmt(theta_i), _fmt(theta_o), *map(_fmt, values), *map(_fmt, std), str(int(repeats)),
+                     _fmt(t)]) + "\n"
+
+
+def write_slice(path: str | Path, s: Slice) -> None:
+    """Write a whole slice to ``path`` atomically (temporary file, fsync, rename)."""
+    path = Path(path)
+    assert s.std is not None and s.repeats is not None and s.unix_time_s is not None
+    buf = io.StringIO()
+    buf.write(_header(s.channels, s.meta))
+    for k in range(len(s)):
+        buf.write(_row(s.theta_i_deg[k], s.theta_o_deg[k], s.values[k], s.std[k], s.repeats[k],
+                       s.unix_time_s[k]))
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as fh:
+            fh.write(buf.getvalue())
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+class SliceWriter:
+    """Append samples to a slice file durably: each :meth:`append` writes one row, flushes and fsyncs.
+
+    Opening an existing file (a resumed capture) checks that its columns match and cuts off a torn last
+    line left by a crash, so appending continues cleanly. Use as a context manager.
+    """
+
+    def __init__(self, path: str | Path, channels: Sequence[str], meta: Mapping[str, Any] | None = None
+                 ) -> None:
+        self.path = Path(path)
+        self.channels = list(channels)
+        header = _header(self.channels, meta or {})
+        if self.path.exists() and self.path.stat().st_size > 0:
+            existing = read_slice(self.path)  # validates; warns on a torn last line
+            if existing.channels != self.channels:
+                raise SliceError(f"{self.path}: has value columns {existing.channels}, "
+                                 f"cannot append {self.channels}")
+            self._cut_torn_tail()
+            self._fh = open(self.path, "a", encoding="utf-8", newline="\n")
+        else:
+            self._fh = open(self.path, "w", encoding="utf-8", newline="\n")
+            self._fh.write(header)
+            self._sync()
+
+    def _cut_torn_tail(self) -> None:
+        with open(self.path, "rb+") as fh:
+            data = fh.read()
+            if data and not data.endswith(b"\n"):
+                fh.truncate(data.rfind(b"\n") + 1)
+                fh.flush()
+                os.fsync(fh.fileno())
+
+    def _sync(self) -> None:
+        self._fh.flush()
+        os.fsync(self._fh.fileno())
+
+    def append(self, theta_i_deg: float, theta_o_deg: float, values: Sequence[float],
+               std: Sequence[float], repeats: int, unix_time_s: float) -> None:
+        """Write one sample and make it durable before returning."""
+        if len(values) != len(self.channels) or len(std) != len(self.channels):
+            raise SliceError(f"{self.path}: expected {len(self.channels)} values and stds, "
+                             f"got {len(values)} and {len(std)}")
+        self._fh.write(_row(theta_i_deg, theta_o_deg, values, std, repeats, unix_time_s))
+        self._sync()
+
+    def close(self) -> None:
+        if not self._fh.closed:
+            self._sync()
+            self._fh.close()
+
+    def __enter__(self) -> SliceWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+# --- reading ---------------------------------------------------------------------------------------------
+
+
+def _parse_float(text: str, where: str, column: str) -> float:
+    try:
+        x = float(text)
+    except ValueError:
+        raise SliceError(f"{where}, column {column}: expected a number, got {text!r}") from None
+    if not math.isfinite(x):
+        raise SliceError(f"{where}, column {column}: value is {text!r}; NaN and infinity are not allowed")
+    return x
+
+
+def read_slice(path: str | Path) -> Slice:
+    """Read and validate a slice file; a torn last line (from a crash) is dropped with a warning."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise SliceError(f"{path}: no such file") from None
+    except UnicodeDecodeError as e:
+        raise SliceError(f"{path}: not a text file ({e})") from None
+    lines = text.split("\n")
+    torn = not text.endswith("\n") and bool(text)
+    if lines and lines[-1] == "":
+        lines.pop()
+    if not lines or lines[0].strip() != MAGIC:
+        raise SliceError(f"{path}:1: expected the first line {MAGIC!r}, got "
+                         f"{lines[0][:60]!r}" if lines else f"{path}: empty file")
+    meta: dict[str, Any] = {}
+    lineno = 1
+    while lineno < len(lines) and lines[lineno].startswith("#"):
+        line = lines[lineno]
+        if line.startswith(META_PREFIX):
+            try:
+                meta = json.loads(line[len(META_PREFIX):])
+            except json.JSONDecodeError as e:
+                raise SliceError(f"{path}:{lineno + 1}: metadata is not valid JSON: {e}") from None
+            if not isinstance(meta, dict):
+                raise SliceError(f"{path}:{lineno + 1}: metadata must be a JSON object")
+        lineno += 1
+    version = meta.get("format_version")
+    if version != FORMAT_VERSION:
+        raise SliceError(f"{path}: unsupported format_version {version!r}; this reader supports {FORMAT_VERSION}")
+    quantity = meta.get("quantity")
+    if quantity not in QUANTITIES:
+        raise SliceError(f"{path}: unknown quantity {quantity!r}; expected one of {', '.join(QUANTITIES)}")
+    if lineno >= len(lines):
+        raise SliceError(f"{path}: no column header line")
+    header = [c.strip() for c in lines[lineno].split(",")]
+    header_line = lineno + 1
+    for required in ("theta_i_deg", "theta_o_deg", "repeats", "unix_time_s"):
+        if required not in header:
+            raise SliceError(f"{path}:{header_line}: missing column {required!r}")
+    channels = [c for c in header if c not in ("theta_i_deg", "theta_o_deg", "repeats", "unix_time_s")
+                and not c.endswith("_std")]
+    try:
+        channel_kind(channels)
+    except SliceError as e:
+        raise SliceError(f"{path}:{header_line}: {e}") from None
+    for c in channels:
+        if f"{c}_std" not in header:
+            raise SliceError(f"{path}:{header_line}: missing column {c + '_std'!r}")
+    if len(set(header)) != len(header):
+        raise SliceError(f"{path}:{header_line}: repeated column names")
+    col = {c: k for k, c in enumerate(header)}
+    rows = lines[lineno + 1:]
+    if torn and rows:
+        warnings.warn(f"{path}:{lineno + 1 + len(rows)}: torn last line (interrupted write) dropped: "
+                      f"{rows[-1][:60]!r}", stacklevel=2)
+        rows = rows[:-1]
+    data = np.empty((len(rows), len(header)))
+    for r, line in enumerate(rows):
+        where = f"{path}:{lineno + 2 + r}"
+        cells = line.split(",")
+        if len(cells) != len(header):
+            raise SliceError(f"{where}: {len(cells)} fields, expected {len(header)} ({','.join(header)})")
+        for k, (name, cell) in enumerate(zip(header, cells, strict=True)):
+            data[r, k] = _parse_float(cell.strip(), where, name)
+        for name in ("theta_i_deg", "theta_o_deg"):
+            x = data[r, col[name]]
+            if not -90.0 < x < 90.0:
+                raise SliceError(f"{where}, column {name}: {x} is outside (-90, 90) degrees")
+        if data[r, col["repeats"]] < 1 or data[r, col["repeats"]] != int(data[r, col["repeats"]]):
+            raise SliceError(f"{where}, column repeats: expected a positive integer, got {cells[col['repeats']]!r}")
+    key = data[:, [col["theta_i_deg"], col["theta_o_deg"]]]
+    if len(rows):
+        _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        dup = np.nonzero(np.arange(len(rows)) != first[inverse.reshape(-1)])[0]
+        if dup.size:
+            r = int(dup[0])
+            raise SliceError(f"{path}:{lineno + 2 + r}: duplicate sample theta_i_deg = {key[r, 0]}, "
+                             f"theta_o_deg = {key[r, 1]} (first at line "
+                             f"{lineno + 2 + int(first[inverse.reshape(-1)[r]])})")
+    return Slice(
+        theta_i_deg=data[:, col["theta_i_deg"]],
+        theta_o_deg=data[:, col["theta_o_deg"]],
+        values=data[:, [col[c] for c in channels]],
+        channels=channels,
+        std=data[:, [col[f"{c}_std"] for c in channels]],
+        repeats=data[:, col["repeats"]].astype(np.int64),
+        unix_time_s=data[:, col["unix_time_s"]],
+        meta=meta,
+        source=str(path),
+    )

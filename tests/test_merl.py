@@ -1,0 +1,215 @@
+"""MERL binary tables: exact bytes, round trips, index functions, lookups, tabulation, errors."""
+
+import os
+import struct
+
+import numpy as np
+import pytest
+
+from reconstruction import merl
+from reconstruction.geometry import dirs_from_half_diff
+
+RNG = np.random.default_rng(3)
+
+
+def test_exact_bytes_of_a_hand_computed_table(tmp_path):
+    f = np.zeros(merl.SHAPE)
+    f[0] = 1.0 / 1500.0  # stored red = f * 1500 = 1
+    f[1] = 2.3 / 1500.0  # stored green = f * 1500 / 1.15 = 2
+    f[2] = 4.98 / 1500.0  # stored blue = f * 1500 / 1.66 = 3
+    f[:, 0, 0, 1] = np.nan  # an invalid cell, stored as -1
+    p = tmp_path / "tiny.binary"
+    merl.write(p, f)
+    data = p.read_bytes()
+    assert len(data) == 34_992_012
+    assert data[:12] == bytes.fromhex("5a000000" "5a000000" "b4000000")  # int32 LE 90 90 180
+    first = {"r": 12, "g": 12 + 8 * 1_458_000, "b": 12 + 16 * 1_458_000}
+    assert struct.unpack("<d", data[first["r"]:first["r"] + 8])[0] == pytest.approx(1.0, rel=1e-15)
+    assert struct.unpack("<d", data[first["g"]:first["g"] + 8])[0] == pytest.approx(2.0, rel=1e-15)
+    assert struct.unpack("<d", data[first["b"]:first["b"] + 8])[0] == pytest.approx(3.0, rel=1e-15)
+    # cell (0, 0, 1) is the second value of each channel (phi_d is the fastest index)
+    assert struct.unpack("<d", data[first["r"] + 8:first["r"] + 16])[0] == -1.0
+    assert data[first["b"] + 8:first["b"] + 16] == struct.pack("<d", -1.0)
+    # linear index i = k + 180 j + 180 * 90 i: cell (2, 3, 4) -> 4 + 540 + 32400
+    f2 = np.zeros(merl.SHAPE)
+    f2[1, 2, 3, 4] = 1.15 / 1500.0 * 7.0
+    merl.write(p, f2)
+    data = p.read_bytes()
+    off = 12 + 8 * (1_458_000 + 4 + 180 * 3 + 180 * 90 * 2)
+    assert struct.unpack("<d", data[off:off + 8])[0] == pytest.approx(7.0, rel=1e-15)
+
+
+def test_random_table_round_trip(tmp_path):
+    f = RNG.uniform(0, 50, merl.SHAPE)
+    f[RNG.uniform(size=merl.SHAPE) < 0.05] = np.nan
+    p = tmp_path / "r.binary"
+    merl.write(p, f)
+    g = merl.read(p)
+    assert g.shape == merl.SHAPE and g.dtype == np.float64
+    np.testing.assert_array_equal(np.isnan(g), np.isnan(f))
+    np.testing.assert_allclose(g, f, rtol=1e-15)
+
+
+def test_cell_to_directions_to_cell_for_every_cell():
+    i, j, k = np.meshgrid(np.arange(90), np.arange(90), np.arange(180), indexing="ij")
+    wi, wo = merl.cell_to_dirs(i, j, k)
+    a, b, c = merl.dirs_to_cell(wi, wo)
+    assert np.array_equal(a, i) and np.array_equal(b, j) and np.array_equal(c, k)
+
+
+def test_reference_index_functions_by_hand():
+    deg = np.radians
+    # theta_h: boundaries at (i / 90)^2 * 90 deg; i = 1 starts at 0.0111.. deg, i = 10 at 1.111.. deg
+    assert merl.theta_h_index(deg([0.0, 0.0110, 0.0112, 1.1110, 1.1112, 89.99, 95.0])).tolist() == [
+        0, 0, 1, 9, 10, 89, 89]
+    assert merl.theta_h_index(-0.1) == 0
+    assert merl.theta_d_index(deg([0.0, 9.9999, 10.0001, 89.9999, 90.0])).tolist() == [0, 9, 10, 89, 89]
+    # phi_d: negative values fold by +pi (reciprocity)
+    assert merl.phi_d_index(deg([0.0, 0.9999, 1.0001, 179.9999, -0.5, -179.5])).tolist() == [
+        0, 0, 1, 179, 179, 0]
+
+
+def coded_table():
+    i, j, k = np.meshgrid(np.arange(90), np.arange(90), np.arange(180), indexing="ij")
+    code = i * 1e5 + j * 1e3 + k
+    return np.stack([code, code + 0.25, code + 0.5])
+
+
+def pair(th_deg, td_deg, pd_deg, ph=0.7):
+    return dirs_from_half_diff(np.radians(th_deg), ph, np.radians(td_deg), np.radians(pd_deg))
+
+
+def test_nearest_lookup_at_bin_boundaries():
+    t = coded_table()
+    # just either side of the (i=1 | i=2) theta_h boundary at (2/90)^2*90 = 0.04444 deg, theta_d = 10 deg
+    v = merl.lookup(t, *pair([0.0444, 0.0445], [20.5, 20.5], [10.5, 10.5]))
+    assert v[:, 0].tolist() == [1 * 1e5 + 20e3 + 10, 2 * 1e5 + 20e3 + 10]
+    v = merl.lookup(t, *pair([30.0, 30.0], [9.999, 10.001], [-0.5, 0.5]))
+    i30 = int(np.sqrt(30 / 90) * 90)  # 51
+    assert v[:, 0].tolist() == [i30 * 1e5 + 9e3 + 179, i30 * 1e5 + 10e3 + 0]
+    np.testing.assert_allclose(v[:, 2] - v[:, 0], 0.5)
+
+
+def test_interpolated_lookup_by_hand():
+    t = coded_table()
+    # at a bin centre: exactly that cell
+    th = ((10 + 0.5) / 90) ** 2 * 90
+    v = merl.lookup(t, *pair(th, 20.5, 40.5), interpolate=True)
+    assert v[0] == pytest.approx(10e5 + 20e3 + 40)
+    # halfway between phi_d centres 40.5 and 41.5 -> mean of k = 40 and 41
+    v = merl.lookup(t, *pair(th, 20.5, 41.0), interpolate=True)
+    assert v[0] == pytest.approx(10e5 + 20e3 + 40.5)
+    # phi_d = 0 lies halfway between the centres of k = 179 (179.5 deg) and k = 0 (0.5 deg): wraps
+    v = merl.lookup(t, *pair(th, 20.5, 0.0), interpolate=True)
+    assert v[0] == pytest.approx(10e5 + 20e3 + (179 + 0) / 2)
+    # halfway between theta_d centres 20.5 and 21.5
+    v = merl.lookup(t, *pair(th, 21.0, 40.5), interpolate=True)
+    assert v[0] == pytest.approx(10e5 + 20.5e3 + 40)
+    # a NaN neighbour is skipped, not propagated
+    t2 = t.copy()
+    t2[:, 10, 20, 41] = np.nan
+    v = merl.lookup(t2, *pair(th, 20.5, 41.0), interpolate=True)
+    assert v[0] == pytest.approx(10e5 + 20e3 + 40)
+    # below the horizon -> NaN
+    assert np.isnan(merl.lookup(t, [0, 0, 1.0], [1.0, 0, -0.1])).all()
+
+
+def test_tabulate_constant_and_horizon():
+    albedo = np.array([0.2, 0.5, 0.8])
+
+    def lambert(wi, wo):
+        up = (wi[:, 2] > 0) & (wo[:, 2] > 0)
+        return np.where(up[:, None], albedo / np.pi, 0.0)
+
+    t = merl.tabulate(lambert)
+    valid = merl.valid_mask()
+    assert 0.5 < valid.mean() < 0.95
+    np.testing.assert_allclose(t[:, valid], np.broadcast_to((albedo / np.pi)[:, None], t[:, valid].shape), rtol=1e-15)
+    assert np.isnan(t[:, ~valid]).all()
+    # cells with theta_d + theta_h well past 90 deg at phi_d = 0 are below the horizon
+    assert np.isnan(t[0, 89, 89, 0])
+    assert np.isfinite(t[0, 0, 0, 0])
+    ts = merl.tabulate(lambert, supersample=(3, 2, 2))
+    np.testing.assert_array_equal(np.isnan(ts), np.isnan(t))
+    # cells whose every point lies above the horizon (theta_h + theta_d < 90 deg at the upper edges);
+    # near the horizon some sub-samples fall below it and count as 0
+    th_hi = (np.arange(1, 91) / 90) ** 2 * 90
+    td_hi = np.arange(1, 91)
+    inner = np.broadcast_to((th_hi[:, None] + td_hi[None, :] < 90)[:, :, None], valid.shape)
+    np.testing.assert_allclose(ts[:, inner], np.broadcast_to((albedo / np.pi)[:, None], ts[:, inner].shape), rtol=1e-12)
+
+
+def test_tabulate_grey_function_broadcasts_to_rgb():
+    t = merl.tabulate(lambda wi, wo: np.full((wi.shape[0], 1), 0.25))
+    v = merl.valid_mask()
+    assert np.all(t[:, v] == 0.25)
+
+
+def test_supersampling_resolves_a_lobe_narrower_than_a_cell():
+    # a narrow bump in theta_h inside cell i = 40: point samples at the bin centre miss it, averages don't
+    lo, hi = (40 / 90) ** 2 * (np.pi / 2), (41 / 90) ** 2 * (np.pi / 2)
+    mid = ((40.5 / 90) ** 2) * (np.pi / 2)
+
+    def bump(wi, wo):
+        h = wi + wo
+        th = np.arctan2(np.hypot(h[:, 0], h[:, 1]), h[:, 2])
+        return (np.abs(th - (mid + 0.3 * (hi - mid))) < 0.1 * (hi - lo)).astype(float)[:, None]
+
+    c = merl.tabulate(bump)
+    s = merl.tabulate(bump, supersample=(10, 1, 1))
+    assert np.nanmax(c[0, 40]) == 0.0
+    assert np.nanmean(s[0, 40, 10:30]) == pytest.approx(0.2, rel=0.05)
+
+
+def test_read_errors(tmp_path):
+    with pytest.raises(merl.MerlError, match="no such file"):
+        merl.read(tmp_path / "missing.binary")
+    good = tmp_path / "good.binary"
+    merl.write(good, np.ones(merl.SHAPE))
+    data = good.read_bytes()
+    (tmp_path / "trunc.binary").write_bytes(data[:-8])
+    with pytest.raises(merl.MerlError, match="truncated"):
+        merl.read(tmp_path / "trunc.binary")
+    (tmp_path / "big.binary").write_bytes(data + b"\0")
+    with pytest.raises(merl.MerlError, match="oversized"):
+        merl.read(tmp_path / "big.binary")
+    (tmp_path / "hdr.binary").write_bytes(struct.pack("<3i", 90, 90, 360) + data[12:])
+    with pytest.raises(merl.MerlError, match=r"header says \(90, 90, 360\)"):
+        merl.read(tmp_path / "hdr.binary")
+    bad = bytearray(data)
+    bad[12 + 8 * 5:12 + 8 * 6] = struct.pack("<d", float("nan"))
+    (tmp_path / "nan.binary").write_bytes(bytes(bad))
+    with pytest.raises(merl.MerlError, match=r"1 cell\(s\) \(r\[0,0,5\]\)"):
+        merl.read(tmp_path / "nan.binary")
+
+
+def test_write_errors_name_cells(tmp_path):
+    f = np.ones(merl.SHAPE)
+    f[2, 1, 2, 3] = np.inf
+    with pytest.raises(merl.MerlError, match=r"infinite value in 1 cell\(s\) \(b\[1,2,3\]\)"):
+        merl.write(tmp_path / "x.binary", f)
+    f[2, 1, 2, 3] = -0.5
+    with pytest.raises(merl.MerlError, match="negative"):
+        merl.write(tmp_path / "x.binary", f)
+    f = np.ones(merl.SHAPE)
+    f[:, 0, 0, 0] = np.nan  # above the horizon
+    with pytest.raises(merl.MerlError, match=r"3 cell\(s\)"):
+        merl.write(tmp_path / "x.binary", f, require_above_horizon=True)
+    with pytest.raises(merl.MerlError, match="shape"):
+        merl.write(tmp_path / "x.binary", np.ones((3, 90, 90, 90)))
+    assert not (tmp_path / "x.binary").exists()
+
+
+def test_failed_write_leaves_no_half_file(tmp_path, monkeypatch):
+    target = tmp_path / "m.binary"
+    merl.write(target, np.full(merl.SHAPE, 0.5))
+    before = target.read_bytes()
+
+    def boom(*a, **k):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(os, "fsync", boom)
+    with pytest.raises(OSError, match="disk full"):
+        merl.write(target, np.full(merl.SHAPE, 0.25))
+    assert target.read_bytes() == before  # the old file is untouched
+    assert [p.name for p in tmp_path.iterdir()] == ["m.binary"]  # no temporary left behind
