@@ -1,0 +1,120 @@
+"""The virtual bench: clock, physics, Dynamixel bus and/or serial controller built from one config."""
+
+from __future__ import annotations
+
+import logging
+import threading
+
+import numpy as np
+
+from .clock import SimClock
+from .config import BenchConfig
+from .dxl_device import DynamixelBus, Servo
+from .faults import FaultInjector
+from .physics import BRDF, BenchPhysics
+from .serial_controller import SerialController, StepperAxis
+
+log = logging.getLogger("simulator.bench")
+
+PORT_NAMES = ("dynamixel", "serial")
+
+
+class VirtualBench:
+    """Everything behind the two ports. Thread-safe: :meth:`process` serialises access with one lock.
+
+    Random streams (all from ``[simulator].seed``): detector noise, Dynamixel comm faults, serial comm faults,
+    motion faults, detector saturation faults - independent, so enabling one fault does not change another.
+    """
+
+    def __init__(self, cfg: BenchConfig, material: BRDF | None = None, reference: BRDF | None = None) -> None:
+        self.cfg = cfg
+        s = cfg.sim
+        self.clock = SimClock(s.time_scale)
+        self.lock = threading.RLock()
+        seeds = np.random.SeedSequence(int(s.seed)).spawn(5)
+        rngs = [np.random.default_rng(sq) for sq in seeds]
+        f = s.faults
+        self.dxl_comm_faults = FaultInjector(f, rngs[1])
+        self.serial_comm_faults = FaultInjector(f, rngs[2], comm=f.serial_comm_faults)
+        self.motion_faults = FaultInjector(f, rngs[3])
+        self.detector_faults = FaultInjector(f, rngs[4])
+        self.physics = BenchPhysics(cfg, rngs[0], self.detector_faults, material=material, reference=reference)
+        self.vanished: set[str] = set()
+
+        self.bus: DynamixelBus | None = None
+        steppers: list[StepperAxis] = []
+        if cfg.motion == "dynamixel":
+            servos = []
+            for name, ax in cfg.axes.items():
+                if not isinstance(ax.id, int):
+                    raise ValueError(f"[axes.{name}].id must be an integer Dynamixel ID on a Dynamixel bench")
+                upd = abs(ax.units_per_deg)
+                servos.append(Servo(
+                    ax.id, ax.model_number, self.clock, self.motion_faults, axis=ax,
+                    position=ax.deg_to_units(ax.park_deg),
+                    backlash_units=s.backlash_deg * upd, ringing_units=s.settle_ringing_deg * upd,
+                    settle_time=s.settle_time_s, stall_overload_s=f.stall_overload_s,
+                ))
+            self.bus = DynamixelBus(servos, self.clock, self.dxl_comm_faults, collision_check=self.collides)
+        else:
+            steppers = [StepperAxis(ax, s, self.clock) for ax in cfg.axes.values()]
+        self.controller = SerialController(
+            cfg, self.clock, self.physics, self.serial_comm_faults, self.motion_faults, steppers,
+            arm_angles=self.arm_angles if self.bus is not None else None, collision=self.collides,
+        )
+
+    # -- geometry --------------------------------------------------------------------------------------------
+    def collides(self, goals_deg: dict[str, float]) -> bool:
+        """True if light and detector goals are closer than ``min_separation_deg`` (|theta_i + theta_o|)."""
+        ti = goals_deg.get("light")
+        to = goals_deg.get("detector")
+        if ti is None or to is None:
+            return False
+        return abs(ti + to) < self.cfg.min_separation_deg
+
+    def arm_angles(self, t: float | None = None) -> tuple[float, float]:
+        """Physical (theta_i, theta_o) in degrees at simulated time ``t`` (default: now)."""
+        t = self.clock.now() if t is None else t
+        if self.bus is not None:
+            ang = {}
+            for sv in self.bus.servos:
+                if sv.axis is not None:
+                    ang[sv.axis.name] = sv.physical_deg(t)
+            return ang.get("light", 0.0), ang.get("detector", 0.0)
+        return self.controller.arm_angles(t)
+
+    # -- ports -----------------------------------------------------------------------------------------------
+    @property
+    def ports(self) -> tuple[str, ...]:
+        """Names of the ports this bench offers."""
+        return ("dynamixel", "serial") if self.bus is not None else ("serial",)
+
+    def check_vanish(self) -> None:
+        """Mark ports as vanished once simulated time passes ``port_vanish_after_s``."""
+        f = self.cfg.sim.faults
+        if f.port_vanish_after_s > 0 and self.clock.now() >= f.port_vanish_after_s:
+            which = set(self.ports) if f.vanish_ports == "all" else {f.vanish_ports}
+            new = which - self.vanished
+            if new:
+                log.warning("fault: port(s) %s vanish at t=%.3f s", sorted(new), self.clock.now())
+                self.vanished |= new
+
+    def process(self, port: str, data: bytes) -> bytes:
+        """Bytes received on ``port`` -> bytes to send back. Raises nothing (device errors become replies)."""
+        with self.lock:
+            if port in self.vanished:
+                return b""
+            if port == "dynamixel":
+                if self.bus is None:
+                    return b""
+                out = self.bus.process(data)
+            else:
+                out = self.controller.process(data)
+            self.check_vanish()
+            if port in self.vanished:
+                return b""
+            return out
+
+    def sim_time(self) -> float:
+        """Total simulated time so far (s)."""
+        return self.clock.now()

@@ -1,0 +1,118 @@
+"""``gonio-sim``: run the virtual gonioreflectometer.
+
+``gonio-sim serve --config configs/simulated.toml`` starts the bench on pseudo-terminals, prints one JSON line
+with the port paths on stdout (``{"dynamixel": "/dev/pts/5", "serial": "/dev/pts/6"}``; ``dynamixel`` is null on
+a stepper bench) and serves until SIGINT/SIGTERM, then exits 0. Logs go to stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import signal
+import sys
+import threading
+
+log = logging.getLogger("simulator")
+
+EPILOG = """\
+examples:
+  gonio-sim serve --config configs/simulated.toml
+  gonio-sim serve --config configs/simulated.toml --seed 7 --time-scale 0 --log-level debug
+
+protocols:
+  dynamixel port: Dynamixel Protocol 2.0 (X-series control table), open with dynamixel_sdk.PortHandler
+  serial port:    text protocol of docs/serial-protocol.md (detector; axes on a stepper bench), 115200 8N1
+"""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="gonio-sim",
+        description="Virtual in-plane gonioreflectometer: Dynamixel servos or a stepper controller, a detector "
+                    "and BRDF ground truth, served on pseudo-terminals for the real SDK and pyserial.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+    s = sub.add_parser(
+        "serve",
+        help="start the virtual bench on pseudo-terminals and serve until SIGINT/SIGTERM",
+        description="Start the virtual bench, print one JSON line {\"dynamixel\": PATH|null, \"serial\": PATH} "
+                    "on stdout, serve until SIGINT/SIGTERM, then exit 0.",
+    )
+    s.add_argument("--config", required=True, help="bench config TOML (e.g. configs/simulated.toml)")
+    s.add_argument("--seed", type=int, default=None, help="override [simulator].seed (noise and faults)")
+    s.add_argument("--time-scale", type=float, default=None,
+                   help="override [simulator].time_scale: 0 = as fast as possible, 1 = real time, "
+                        "10 = ten times faster than real time")
+    s.add_argument("--motion", choices=("dynamixel", "serial"), default=None,
+                   help="override [bench].motion: which virtual motion hardware to serve")
+    s.add_argument("--log-level", default="info", choices=("debug", "info", "warning", "error"),
+                   help="stderr log level (default: info)")
+    s.add_argument("--exit-with-parent", action="store_true",
+                   help="exit when the parent process dies (for child processes of a capture)")
+    b = sub.add_parser("bench", help="(not built yet) run a scripted capture against the virtual bench")
+    b.add_argument("args", nargs=argparse.REMAINDER)
+    return p
+
+
+def _serve(args: argparse.Namespace) -> int:
+    from .bench import VirtualBench
+    from .config import load_config
+    from .transports import PtyServer
+
+    try:
+        cfg = load_config(args.config, seed=args.seed, time_scale=args.time_scale)
+        if args.motion:
+            cfg.motion = args.motion
+        bench = VirtualBench(cfg)
+    except (OSError, ValueError) as e:
+        print(f"gonio-sim: {e}", file=sys.stderr)
+        return 2
+
+    stop = threading.Event()
+
+    def _on_signal(signum, frame):
+        stop.set()
+
+    signal.signal(signal.SIGINT, _on_signal)
+    signal.signal(signal.SIGTERM, _on_signal)
+
+    server = PtyServer(bench)
+    try:
+        print(json.dumps(server.paths()), flush=True)
+        log.info("serving %s: %s (motion=%s, detector=%s, seed=%d, time_scale=%g)", cfg.name, server.paths(),
+                 cfg.motion, cfg.detector.type, cfg.sim.seed, cfg.sim.time_scale)
+        parent = os.getppid()
+        while not stop.wait(0.2):
+            if args.exit_with_parent and os.getppid() != parent:
+                log.info("parent process gone; exiting")
+                break
+    finally:
+        server.close()
+        log.info("stopped; total simulated time %.6f s; fault counts: dynamixel %s, serial %s, motion %s, "
+                 "detector %s", bench.sim_time(), bench.dxl_comm_faults.counts, bench.serial_comm_faults.counts,
+                 bench.motion_faults.counts, bench.detector_faults.counts)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``gonio-sim`` console script."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 2
+    if args.command == "bench":
+        print("gonio-sim bench: not built yet", file=sys.stderr)
+        return 2
+    logging.basicConfig(level=getattr(logging, args.log_level.upper()), stream=sys.stderr,
+                        format="%(asctime)s %(name)s %(levelname)s: %(message)s")
+    return _serve(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,60 @@
+"""Simulated time.
+
+``time_scale > 0``: simulated time runs at ``time_scale`` x wall-clock time (1 = real time) and waiting really
+sleeps ``dt / time_scale`` wall seconds. ``time_scale == 0``: "as fast as possible" - simulated time stands
+still and only moves when the bench advances it (a detector integration, a dwell, or a status query that
+completes a pending motion); nothing ever sleeps.
+
+Packet round trips are never scaled: the Dynamixel SDK's reply deadline is wall-clock.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+
+class SimClock:
+    """Monotonic simulated clock in seconds, starting at 0."""
+
+    def __init__(self, time_scale: float = 0.0) -> None:
+        if time_scale < 0:
+            raise ValueError("time_scale must be >= 0")
+        self.time_scale = float(time_scale)
+        self._offset = 0.0
+        self._wall0 = time.monotonic()
+        self._lock = threading.Lock()
+
+    @property
+    def fast(self) -> bool:
+        """True when time_scale == 0 (time jumps instead of flowing)."""
+        return self.time_scale == 0.0
+
+    def now(self) -> float:
+        """Current simulated time (s)."""
+        if self.fast:
+            return self._offset
+        return self._offset + self.time_scale * (time.monotonic() - self._wall0)
+
+    def advance_to(self, t: float) -> None:
+        """Make simulated time at least ``t``: jump (fast mode) or sleep until then (scaled mode)."""
+        dt = t - self.now()
+        if dt > 0:
+            self.advance(dt)
+
+    def advance(self, dt: float) -> None:
+        """Let ``dt`` simulated seconds pass (jump in fast mode, sleep ``dt / time_scale`` otherwise)."""
+        if dt <= 0:
+            return
+        if self.fast:
+            with self._lock:
+                self._offset += dt
+        else:
+            time.sleep(dt / self.time_scale)
+
+    def jump_to(self, t: float) -> None:
+        """Fast mode only: move simulated time forward to ``t`` without waiting (no-op in scaled mode)."""
+        if self.fast:
+            with self._lock:
+                if t > self._offset:
+                    self._offset = t

@@ -1,0 +1,242 @@
+"""Bench physics: what the detector reads for given arm angles.
+
+Signal model (counts, before noise)::
+
+    S = source_power * f_r(wi, wo) * cos(theta_o) * Omega_d * (t_int / t_int_ref)
+
+with ``Omega_d`` = ``detector_solid_angle_sr``, ``t_int_ref`` = ``[detector].integration_time_s`` (so
+``source_power`` is "counts per (1/sr * sr) at gain 1 and the configured integration time"). With
+``aperture_samples > 1`` the factor ``f_r * cos(theta_o)`` is averaged over a cone of solid angle ``Omega_d``
+around wo (a deterministic Vogel spiral, no randomness).
+
+A reading is ``round(gain * (S + shot) + dark_offset + read_noise)`` clipped to ``[0, min(saturation,
+2**adc_bits - 1)]``; ``shot`` is Poisson(S) - S when ``shot_noise`` is on. The source arm shadows the detector
+when ``|theta_i + theta_o| < blind_spot_half_width_deg``: then S = 0 and the reading is the dark level.
+
+Channels: a photodiode sees one channel, the mean over the material's channels (grey, RGB or spectral). A
+spectrometer evaluates a spectral material on its own grid (linear interpolation, clamped at the ends); an RGB
+material is upsampled by linear interpolation between B = 465 nm, G = 545 nm and R = 610 nm (clamped outside);
+a grey material is flat.
+"""
+
+from __future__ import annotations
+
+import csv
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from .config import BenchConfig
+
+log = logging.getLogger("simulator.physics")
+
+RGB_CENTRES_NM = np.array([465.0, 545.0, 610.0])
+GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
+
+
+class BRDF(Protocol):
+    """What the physics needs from a material (``reconstruction.models.Material`` satisfies it)."""
+
+    n_channels: int
+    wavelengths_nm: Any
+
+    def eval(self, wi: np.ndarray, wo: np.ndarray) -> np.ndarray: ...
+
+
+def load_material(cfg: BenchConfig) -> BRDF:
+    """The ground-truth material of the config's ``[material]`` table."""
+    from reconstruction.models import Material
+
+    return Material.from_dict(cfg.material, cfg.base_dir)
+
+
+def white_reference(cfg: BenchConfig) -> BRDF:
+    """Lambertian white reference: ``reference_reflectance`` (grey) or ``reference_spectrum`` (CSV
+    ``wavelength_nm,reflectance``, relative to the config file)."""
+    from reconstruction.models import Material
+
+    if cfg.reference_spectrum:
+        path = Path(cfg.reference_spectrum)
+        if not path.is_absolute():
+            path = cfg.base_dir / path
+        wl, val = _read_spectrum_csv(path)
+        albedo: Any = {"wavelengths_nm": wl, "values": val}
+    else:
+        albedo = float(cfg.reference_reflectance)
+    return Material.from_dict({"name": "white-reference", "lobes": [{"type": "lambert", "albedo": albedo}]},
+                              cfg.base_dir)
+
+
+def _read_spectrum_csv(path: Path) -> tuple[list[float], list[float]]:
+    wl, val = [], []
+    with open(path, newline="") as fh:
+        for row in csv.reader(fh):
+            if not row or row[0].strip().startswith("#"):
+                continue
+            try:
+                w, v = float(row[0]), float(row[1])
+            except (ValueError, IndexError):
+                continue  # header line
+            wl.append(w)
+            val.append(v)
+    if len(wl) < 2:
+        raise ValueError(f"{path}: need at least two wavelength_nm,reflectance rows")
+    return wl, val
+
+
+@dataclass
+class Detector:
+    """Detector state that the serial protocol can change (integration time, gain)."""
+
+    type: str
+    integration_time_s: float
+    ref_integration_time_s: float
+    gain: float
+    adc_bits: int
+    saturation: float
+    wavelengths_nm: np.ndarray | None = None
+
+    @property
+    def max_code(self) -> float:
+        return float(min(self.saturation, 2 ** int(self.adc_bits) - 1))
+
+    @property
+    def n_channels(self) -> int:
+        return 1 if self.wavelengths_nm is None else int(self.wavelengths_nm.size)
+
+
+class BenchPhysics:
+    """Turns arm angles (degrees) into detector readings; noise from ``rng``, saturation faults from ``faults``."""
+
+    def __init__(self, cfg: BenchConfig, rng: np.random.Generator, faults=None, material: BRDF | None = None,
+                 reference: BRDF | None = None) -> None:
+        self.cfg = cfg
+        s = cfg.sim
+        self.rng = rng
+        self.faults = faults
+        self.material = material if material is not None else load_material(cfg)
+        self._reference = reference
+        self.sample = "TARGET"
+        wl = s.spectrometer.grid() if cfg.detector.type == "spectrometer" else None
+        self.detector = Detector(
+            type=cfg.detector.type,
+            integration_time_s=float(cfg.detector.integration_time_s),
+            ref_integration_time_s=float(cfg.detector.integration_time_s),
+            gain=float(s.gain),
+            adc_bits=int(s.adc_bits),
+            saturation=float(cfg.detector.saturation),
+            wavelengths_nm=wl,
+        )
+        self.source_power = float(s.source_power)
+        self.solid_angle = float(s.detector_solid_angle_sr)
+        self.aperture_samples = max(1, int(s.aperture_samples))
+        self.dark_offset = float(s.dark_offset)
+        self.read_noise = float(s.read_noise)
+        self.shot_noise = bool(s.shot_noise)
+        self.blind_half_width = float(cfg.blind_spot_half_width_deg)
+
+    @property
+    def reference(self) -> BRDF:
+        if self._reference is None:
+            self._reference = white_reference(self.cfg)
+        return self._reference
+
+    @property
+    def active_material(self) -> BRDF:
+        return self.reference if self.sample == "REF" else self.material
+
+    # -- channels ----------------------------------------------------------------------------------------------
+    def to_detector_channels(self, f: np.ndarray, mat: BRDF) -> np.ndarray:
+        """Map material channels (..., C) to detector channels (..., n_det)."""
+        det = self.detector
+        if det.wavelengths_nm is None:
+            return f.mean(axis=-1, keepdims=True)
+        grid = det.wavelengths_nm
+        c = f.shape[-1]
+        wl = getattr(mat, "wavelengths_nm", None)
+        if c == 1:
+            return np.broadcast_to(f, f.shape[:-1] + (grid.size,)).copy()
+        if wl is not None and np.asarray(wl).size == c:
+            src = np.asarray(wl, dtype=float)
+        elif c == 3:
+            src = RGB_CENTRES_NM
+            f = f[..., ::-1]  # R, G, B -> B, G, R to match increasing wavelength
+        else:
+            raise ValueError(f"cannot map {c} material channels to a spectrometer grid")
+        flat = f.reshape(-1, c)
+        out = np.stack([np.interp(grid, src, row) for row in flat])
+        return out.reshape(f.shape[:-1] + (grid.size,))
+
+    # -- geometry ----------------------------------------------------------------------------------------------
+    def _aperture_dirs(self, theta_o: np.ndarray) -> np.ndarray:
+        """Detector sample directions (..., K, 3) around wo = (sin to, 0, cos to) for angles ``theta_o`` (rad)."""
+        k = self.aperture_samples
+        to = np.asarray(theta_o, dtype=float)[..., None]
+        wo = np.stack(np.broadcast_arrays(np.sin(to), np.zeros_like(to), np.cos(to)), axis=-1)
+        if k == 1:
+            return wo
+        half = np.arccos(1.0 - self.solid_angle / (2.0 * np.pi))  # cone half angle for Omega_d
+        j = np.arange(k)
+        r = half * np.sqrt((j + 0.5) / k)
+        ph = j * GOLDEN_ANGLE
+        u = np.stack(np.broadcast_arrays(np.cos(to), np.zeros_like(to), -np.sin(to)), axis=-1)
+        v = np.array([0.0, 1.0, 0.0])
+        d = (np.cos(r)[:, None] * wo + np.sin(r)[:, None] * (np.cos(ph)[:, None] * u + np.sin(ph)[:, None] * v))
+        return d
+
+    def f_cos(self, theta_i_deg, theta_o_deg, mat: BRDF | None = None) -> np.ndarray:
+        """f_r * cos(theta_o), aperture-averaged, on the detector channels: (..., n_det)."""
+        from reconstruction.geometry import inplane_to_dirs
+
+        mat = mat if mat is not None else self.active_material
+        ti = np.radians(np.asarray(theta_i_deg, dtype=float))
+        to = np.radians(np.asarray(theta_o_deg, dtype=float))
+        ti, to = np.broadcast_arrays(ti, to)
+        wi, _ = inplane_to_dirs(ti, to)
+        dirs = self._aperture_dirs(to)  # (..., K, 3)
+        f = mat.eval(wi[..., None, :], dirs)  # (..., K, C)
+        cos_o = np.clip(dirs[..., 2], 0.0, None)[..., None]
+        fc = (f * cos_o).mean(axis=-2)
+        return self.to_detector_channels(fc, mat)
+
+    def expected_signal(self, theta_i_deg, theta_o_deg, source_on: bool = True,
+                        integration_time_s: float | None = None) -> np.ndarray:
+        """Noise-free signal S in counts at gain 1, before dark offset: (..., n_det); 0 in the blind spot."""
+        t_int = self.detector.integration_time_s if integration_time_s is None else integration_time_s
+        ti = np.asarray(theta_i_deg, dtype=float)
+        to = np.asarray(theta_o_deg, dtype=float)
+        fc = self.f_cos(ti, to)
+        s = self.source_power * fc * self.solid_angle * (t_int / self.detector.ref_integration_time_s)
+        blind = np.abs(ti + to) < self.blind_half_width
+        s = np.where(blind[..., None], 0.0, s)
+        if not source_on:
+            s = np.zeros_like(s)
+        return s
+
+    def expected_reading(self, theta_i_deg, theta_o_deg, source_on: bool = True) -> np.ndarray:
+        """Noise-free reading (counts): gain * S + dark, clipped to the detector range (not quantised)."""
+        s = self.expected_signal(theta_i_deg, theta_o_deg, source_on)
+        return np.clip(self.detector.gain * s + self.dark_offset, 0.0, self.detector.max_code)
+
+    def read(self, theta_i_deg, theta_o_deg, source_on: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """Noisy readings for arrays of angles (one per repeat): (codes (n, n_det) float, saturated (n,) bool)."""
+        ti = np.atleast_1d(np.asarray(theta_i_deg, dtype=float))
+        to = np.atleast_1d(np.asarray(theta_o_deg, dtype=float))
+        s = self.expected_signal(ti, to, source_on)
+        det = self.detector
+        if self.shot_noise:
+            s = self.rng.poisson(np.maximum(s, 0.0)).astype(float)
+        x = det.gain * s + self.dark_offset
+        if self.read_noise > 0:
+            x = x + self.read_noise * self.rng.standard_normal(x.shape)
+        x = np.round(x)
+        top = det.max_code
+        forced = self.faults.saturate(x.shape[0]) if self.faults is not None else np.zeros(x.shape[0], bool)
+        if forced.any():
+            x[forced] = top
+        sat = (x >= top).any(axis=-1) | forced
+        x = np.clip(x, 0.0, top)
+        return x, sat
