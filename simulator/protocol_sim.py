@@ -115,7 +115,6 @@ class Serial(SerialBase):
         self._check()
         data = to_bytes(data)
         reply = self._bench.process(self._portname, data)
-        self._check()
         if reply:
             with self._cv:
                 self._rx += reply

@@ -1,0 +1,98 @@
+"""Motion profile, simulated clock, quantisation and backlash."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import pytest
+from dynamixel_sdk import COMM_SUCCESS, PacketHandler
+
+from simulator.bench import VirtualBench
+from simulator.clock import SimClock
+from simulator.config import config_from_dict
+from simulator.motion import AxisMotion, TrapezoidProfile, dxl_profile_to_units
+from simulator.sdk_port import SimPortHandler
+from simulator.transports import register_bench, unregister_bench
+
+
+def test_profile_units():
+    v, a = dxl_profile_to_units(200, 50)
+    assert v == pytest.approx(200 * 0.229 / 60 * 4096)
+    assert a == pytest.approx(50 * 214.577 / 3600 * 4096)
+    assert dxl_profile_to_units(0, 0) == (math.inf, math.inf)
+
+
+def test_trapezoid_shapes():
+    p = TrapezoidProfile(0.0, 1000.0, 2.0, v_max=1000.0, a_max=4000.0)
+    assert p.duration == pytest.approx(1000 / 1000 + 1000 / 4000)  # d/v + v/a
+    assert p.position(2.0) == 0.0 and p.position(p.t_end) == pytest.approx(1000.0)
+    assert p.position(2.0 + 0.125) == pytest.approx(0.5 * 4000 * 0.125**2)
+    assert p.velocity(2.0 + p.duration / 2) == pytest.approx(1000.0)
+    tri = TrapezoidProfile(0.0, -10.0, 0.0, v_max=1000.0, a_max=4000.0)  # never reaches v_max
+    assert tri.duration == pytest.approx(2 * math.sqrt(10 / 4000))
+    assert tri.position(tri.duration / 2) == pytest.approx(-5.0)
+    assert TrapezoidProfile(0, 50, 0).duration == 0.0  # unlimited: instantaneous
+
+
+def test_backlash_dead_band():
+    m = AxisMotion(0.0, backlash=4.0)
+    m.start(100.0, 0.0, math.inf, math.inf)
+    assert m.arm_position(1.0) == pytest.approx(98.0)  # arm lags by half the play
+    m.start(50.0, 1.0, math.inf, math.inf)
+    assert m.arm_position(2.0) == pytest.approx(52.0)  # reversing: lags on the other side
+    m.start(51.0, 2.0, math.inf, math.inf)
+    assert m.arm_position(3.0) == pytest.approx(52.0)  # small move inside the dead band: arm stays
+
+
+def test_scaled_clock_flows():
+    clk = SimClock(10.0)
+    t0 = clk.now()
+    time.sleep(0.05)
+    assert clk.now() - t0 == pytest.approx(0.5, abs=0.15)
+    w0 = time.monotonic()
+    clk.advance(1.0)  # 1 simulated second = 0.1 s wall
+    assert time.monotonic() - w0 == pytest.approx(0.1, abs=0.05)
+    fast = SimClock(0.0)
+    fast.advance(100.0)
+    assert fast.now() == 100.0
+
+
+@pytest.mark.parametrize("time_scale", [0.0, 20.0])
+def test_servo_motion_in_simulated_time(config_dict, time_scale):
+    bench = VirtualBench(config_from_dict(config_dict({"simulator": {"time_scale": time_scale,
+                                                                     "backlash_deg": 1.0}})))
+    name = f"motion-{time_scale}"
+    register_bench(name, bench)
+    port = SimPortHandler(f"sim://{name}/dynamixel")
+    port.openPort()
+    ph = PacketHandler(2.0)
+    try:
+        assert ph.write1ByteTxRx(port, 2, 64, 1) == (COMM_SUCCESS, 0)
+        assert ph.write4ByteTxRx(port, 2, 112, 200) == (COMM_SUCCESS, 0)
+        assert ph.write4ByteTxRx(port, 2, 108, 50) == (COMM_SUCCESS, 0)
+        goal = round(2048 - 30.3 * 4096 / 360)
+        assert ph.write4ByteTxRx(port, 2, 116, goal) == (COMM_SUCCESS, 0)
+        seen_moving = False
+        for _ in range(2000):
+            moving, res, _ = ph.read1ByteTxRx(port, 2, 122)
+            assert res == COMM_SUCCESS
+            if not moving:
+                break
+            seen_moving = True
+            if time_scale:
+                pos = ph.read4ByteTxRx(port, 2, 132)[0]
+                assert goal <= pos <= 2048 + 45 * 4096 / 360
+            time.sleep(0.005)
+        assert seen_moving == (time_scale > 0)  # fast time: done by the first status query
+        assert ph.read4ByteTxRx(port, 2, 132)[0] == goal  # quantised to 0.088 deg units
+        # profile time 75.3 deg at 200/50 units plus settle time
+        v, a = dxl_profile_to_units(200, 50)
+        d = 75.3 * 4096 / 360
+        expected = d / v + v / a + bench.cfg.sim.settle_time_s
+        assert bench.clock.now() >= expected - 0.05
+        # backlash: moving down, the arm lags 0.5 deg above the motor
+        assert bench.arm_angles()[1] == pytest.approx((goal - 2048) * 360 / 4096 + 0.5)
+    finally:
+        port.closePort()
+        unregister_bench(name)
