@@ -101,19 +101,30 @@ class VirtualBench:
 
     def process(self, port: str, data: bytes) -> bytes:
         """Bytes received on ``port`` -> bytes to send back. Raises nothing (device errors become replies)."""
-        with self.lock:
-            if port in self.vanished:
-                return b""
-            if port == "dynamixel":
-                if self.bus is None:
+        out = b""
+        while True:
+            wait = 0.0
+            with self.lock:
+                if port in self.vanished:
                     return b""
-                out = self.bus.process(data)
-            else:
-                out = self.controller.process(data)
+                if port == "dynamixel":
+                    if self.bus is None:
+                        return b""
+                    out += self.bus.process(data)
+                else:
+                    out += self.controller.process(data)
+                    wait = self.controller.take_wait()
+            if wait <= 0:
+                break
+            # scaled time: an integration/dwell takes wall time, slept without holding the lock (the Dynamixel
+            # port stays responsive); then the remaining lines of this chunk are handled
+            self.clock.advance(wait)
+            data = b""
+        with self.lock:
             self.check_vanish()
             if port in self.vanished:
                 return b""
-            return out
+        return out
 
     def sim_time(self) -> float:
         """Total simulated time so far (s)."""

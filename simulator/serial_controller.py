@@ -114,13 +114,27 @@ class SerialController:
         self.homed = not cfg.sim.homing_required or not axes
         self._buf = bytearray()
         self._discarding = False
+        self._wait = 0.0
+
+    def _advance(self, dt: float) -> None:
+        """Let ``dt`` simulated seconds pass: at once in fast time; in scaled time the wall-clock wait is left to
+        the caller (:meth:`take_wait`) so that it happens outside the bench lock."""
+        if self.clock.fast:
+            self.clock.advance(dt)
+        else:
+            self._wait += dt
+
+    def take_wait(self) -> float:
+        """Simulated seconds the replies just produced must be delayed by (scaled time only); resets it."""
+        w, self._wait = self._wait, 0.0
+        return w
 
     # -- byte interface ----------------------------------------------------------------------------------------
     def process(self, data: bytes) -> bytes:
         """Feed received bytes; return the reply bytes for every complete line. Never raises."""
         out = bytearray()
         self._buf += data
-        while True:
+        while not self._wait:  # after a command that takes scaled time, the caller waits, then calls again
             idx = -1
             for sep in (b"\n", b"\r"):
                 j = self._buf.find(sep)
@@ -240,7 +254,7 @@ class SerialController:
             return self._err(E_ARGUMENT)
         if not 0 <= dt <= 3600 or len(args) != 1:
             return self._err(E_ARGUMENT)
-        self.clock.advance(dt)
+        self._advance(dt)
         return ["ok"]
 
     def _parse_targets(self, args: list[str]) -> dict[str, int] | int:
@@ -338,7 +352,7 @@ class SerialController:
         times = t0 + (np.arange(n) + 0.5) * t_int
         angles = np.array([self.arm_angles(float(tk)) for tk in times])
         codes, sat = self.physics.read(angles[:, 0], angles[:, 1], source_on=source_on)
-        self.clock.advance(n * t_int)
+        self._advance(n * t_int)
         tag = "READ" if source_on else "DARK"
         mean = codes.mean(axis=0)
         std = codes.std(axis=0, ddof=1) if n > 1 else np.zeros_like(mean)

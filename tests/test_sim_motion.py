@@ -96,3 +96,25 @@ def test_servo_motion_in_simulated_time(config_dict, time_scale):
     finally:
         port.closePort()
         unregister_bench(name)
+
+
+def test_scaled_detector_read_does_not_block_the_bus(config_dict):
+    import threading
+
+    bench = VirtualBench(config_from_dict(config_dict({"simulator": {"time_scale": 1.0}})))
+    from simulator import dxl_codec as c
+
+    done = threading.Event()
+
+    def slow_read():
+        bench.process("serial", b"READ 20\nTIME?\n")  # 20 x 10 ms of integration, in real time
+        done.set()
+
+    th = threading.Thread(target=slow_read)
+    w0 = time.monotonic()
+    th.start()
+    time.sleep(0.02)
+    out = bench.process("dynamixel", c.instruction_packet(1, c.INST_PING))
+    assert c.split_status_stream(out) and time.monotonic() - w0 < 0.1  # answered during the integration
+    th.join(5)
+    assert done.is_set() and time.monotonic() - w0 >= 0.19
