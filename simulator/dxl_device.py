@@ -539,15 +539,13 @@ class DynamixelBus:
             log.warning("servo %d: goal refused: arms would collide", s.dxl_id)
             s._raise_hw_error(HW_OVERLOAD, t)
 
-    def _write_common(self, writes: list[tuple[Servo, int, bytes]]) -> dict[int, int]:
-        """Validate and apply writes (atomic for the collision check); returns error per servo id."""
-        errs = {s.dxl_id: s.check_write(addr, data) for s, addr, data in writes}
-        ok = [(s, a, d) for s, a, d in writes if errs[s.dxl_id] == 0]
+    def _write_common(self, writes: list[tuple[Servo, int, bytes]]) -> list[int]:
+        """Validate and apply writes (atomic for the collision check); returns the error of each write."""
+        errs = [s.check_write(addr, data) for s, addr, data in writes]
+        ok = [w for w, e in zip(writes, errs, strict=True) if e == 0]
         if ok and self._goal_collides(ok):
             self._refuse_collision([s for s, a, d in ok if a <= 116 and a + len(d) >= 120])
-            for s, _a, _d in ok:
-                errs[s.dxl_id] = c.ERR_DATA_RANGE
-            return errs
+            return [c.ERR_DATA_RANGE if e == 0 else e for e in errs]
         for s, addr, data in ok:
             s.apply_write(addr, data)
         return errs
@@ -562,7 +560,10 @@ class DynamixelBus:
         if dxl_id == c.BROADCAST_ID:
             return []
         s = targets[0]
-        return self._reply(s, errs[s.dxl_id])
+        if s["status_return_level"] < 2:
+            return []
+        # the status carries the ID the packet was addressed to (also when the write changed the ID)
+        return [c.status_packet(dxl_id, s.status_error(errs[0]))]
 
     def _reg_write(self, dxl_id: int, params: bytes) -> list[bytes] | None:
         if len(params) < 3:
