@@ -155,8 +155,20 @@ def _fill(cls, d: dict[str, Any] | None, **extra):
     return cls(**kwargs)
 
 
+def _check_keys(section: str, d: dict[str, Any] | None, cls, tables: tuple[str, ...] = ()) -> None:
+    known = {f.name for f in fields(cls)} | set(tables)
+    unknown = sorted(set(d or {}) - known)
+    if unknown:
+        raise ValueError(f"config: unknown key(s) {unknown} in [{section}]; known: {sorted(known)}")
+
+
 def config_from_dict(raw: dict[str, Any], base_dir: Path | None = None) -> BenchConfig:
-    """Build a :class:`BenchConfig` from a parsed TOML dict (as from ``tomllib.load``)."""
+    """Build a :class:`BenchConfig` from a parsed TOML dict (as from ``tomllib.load``).
+
+    Unknown keys in the simulator's own tables (``[simulator]``, ``[simulator.faults]``,
+    ``[simulator.spectrometer]``) are errors (typos would silently disable a fault); other sections belong to
+    the whole project and are read leniently.
+    """
     bench = raw.get("bench", {})
     axes = {}
     for name, a in raw.get("axes", {}).items():
@@ -167,6 +179,9 @@ def config_from_dict(raw: dict[str, Any], base_dir: Path | None = None) -> Bench
         if req not in axes:
             raise ValueError(f"config: [axes.{req}] is required")
     s = raw.get("simulator", {})
+    _check_keys("simulator", s, SimulatorConfig, ("faults", "spectrometer"))
+    _check_keys("simulator.faults", s.get("faults"), FaultConfig)
+    _check_keys("simulator.spectrometer", s.get("spectrometer"), SpectrometerConfig)
     sim = _fill(
         SimulatorConfig,
         s,
@@ -194,6 +209,8 @@ def config_from_dict(raw: dict[str, Any], base_dir: Path | None = None) -> Bench
         raise ValueError(f"config: [bench].motion must be 'dynamixel' or 'serial', not {cfg.motion!r}")
     if cfg.detector.type not in ("photodiode", "spectrometer"):
         raise ValueError(f"config: [detector].type must be 'photodiode' or 'spectrometer', not {cfg.detector.type!r}")
+    if cfg.sim.faults.vanish_ports not in ("all", "dynamixel", "serial"):
+        raise ValueError("config: [simulator.faults].vanish_ports must be 'all', 'dynamixel' or 'serial'")
     if cfg.sim.time_scale < 0:
         raise ValueError("config: [simulator].time_scale must be >= 0")
     return cfg

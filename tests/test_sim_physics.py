@@ -139,3 +139,10 @@ def test_spectrometer(config_dict):
     assert mean[wl == 450][0] > mean[wl == 650][0] > 200.0
     dark = np.array([float(x) for x in read(b, "DARK 1")["mean"].split(",")])
     assert np.all(dark == 200.0)
+
+
+def test_config_typos_are_errors(config_dict):
+    with pytest.raises(ValueError, match="drop_reply_rat"):
+        config_from_dict(config_dict({"simulator": {"faults": {"drop_reply_rat": 0.5}}}))
+    with pytest.raises(ValueError, match="motion"):
+        config_from_dict(config_dict({"bench": {"motion": "hydraulic"}}))
