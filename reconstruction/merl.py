@@ -114,20 +114,33 @@ def dirs_to_cell(wi: ArrayLike, wo: ArrayLike) -> tuple[NDArray[np.intp], NDArra
     return theta_h_index(th), theta_d_index(td), phi_d_index(pd)
 
 
+def _grid_dirs(th: Array, td: Array, pd: Array) -> tuple[Array, Array]:
+    """Direction pairs (len(th), len(td), len(pd), 3) on a grid of 1-D angle arrays (radians), phi_h = 0.
+
+    Separable: d depends on (theta_d, phi_d) only, and wi is d rotated by theta_h about y.
+    """
+    th = np.asarray(th, dtype=np.float64).reshape(-1, 1, 1, 1)
+    td = np.asarray(td, dtype=np.float64).reshape(1, -1, 1)
+    pd = np.asarray(pd, dtype=np.float64).reshape(1, 1, -1)
+    st, ct = np.sin(td), np.cos(td)
+    dx, dy, dz = st * np.cos(pd), np.broadcast_to(st * np.sin(pd), (1, td.shape[1], pd.shape[2])), ct
+    c, s = np.cos(th), np.sin(th)
+    shape = (th.shape[0], td.shape[1], pd.shape[2], 3)
+    wi = np.empty(shape)
+    wi[..., 0] = c[..., 0] * dx + s[..., 0] * dz
+    wi[..., 1] = dy
+    wi[..., 2] = -s[..., 0] * dx + c[..., 0] * dz
+    # wo = 2 (wi . h) h - wi with h = (sin th, 0, cos th) and wi . h = d_z = cos theta_d
+    h = np.concatenate([s, np.zeros_like(s), c], axis=-1)
+    wo = 2.0 * np.broadcast_to(dz, (1,) + dz.shape[1:])[..., None] * h - wi
+    return wi, wo
+
+
 @lru_cache(maxsize=1)
 def _cell_dirs() -> tuple[Array, Array]:
-    """Bin-centre direction pairs (90, 90, 180, 3), computed separably (d depends on theta_d, phi_d only)."""
+    """Bin-centre direction pairs (90, 90, 180, 3), read-only and cached."""
     th, td, pd = cell_angles()
-    st, ct = np.sin(td), np.cos(td)
-    d = np.stack(np.broadcast_arrays(st * np.cos(pd), st * np.sin(pd), ct), axis=-1)  # (1, 90, 180, 3)
-    c, s = np.cos(th)[..., None], np.sin(th)[..., None]  # (90, 1, 1, 1)
-    wi = np.empty((N_TH, N_TD, N_PD, 3))
-    wi[..., 0] = (c * d[..., 0:1] + s * d[..., 2:3])[..., 0]
-    wi[..., 1] = d[..., 1]
-    wi[..., 2] = (-s * d[..., 0:1] + c * d[..., 2:3])[..., 0]
-    # wo = 2 (wi . h) h - wi with h = (sin th, 0, cos th); wi . h = d_z = cos theta_d
-    h = np.concatenate([s, np.zeros_like(s), c], axis=-1)  # (90, 1, 1, 3)
-    wo = 2.0 * d[..., 2:3] * h - wi
+    wi, wo = _grid_dirs(th.ravel(), td.ravel(), pd.ravel())
     wi.setflags(write=False)
     wo.setflags(write=False)
     return wi, wo
@@ -188,7 +201,7 @@ def lookup(table: ArrayLike, wi: ArrayLike, wo: ArrayLike, interpolate: bool = F
 # --- tabulation ------------------------------------------------------------------------------------------
 
 
-def _as_rgb(v: Array, n: int) -> Array:
+def _as_rgb(v: ArrayLike, n: int) -> Array:
     v = np.asarray(v, dtype=np.float64)
     if v.ndim == 1:
         v = v[:, None]
@@ -197,57 +210,117 @@ def _as_rgb(v: Array, n: int) -> Array:
     return np.broadcast_to(v, (n, 3))
 
 
-def tabulate(
-    f: Callable[[Array, Array], ArrayLike],
-    supersample: tuple[int, int, int] | int | None = None,
-    chunk_cells: int = 200_000,
-) -> Array:
-    """Fill a (3, 90, 90, 180) table from a vectorised BRDF ``f(wi, wo) -> (N, 1 | 3)`` (1/sr).
+def _eval(f: Callable[[Array, Array], ArrayLike], wi: Array, wo: Array, chunk: int) -> Array:
+    """f at flat direction pairs (M, 3) -> (M, 3), in chunks that bound memory (each chunk vectorised)."""
+    out = np.empty((wi.shape[0], 3))
+    for s in range(0, wi.shape[0], chunk):
+        out[s:s + chunk] = _as_rgb(f(wi[s:s + chunk], wo[s:s + chunk]), min(chunk, wi.shape[0] - s))
+    return out
 
-    ``supersample=None``: the value at each cell's bin centre. ``supersample=(nh, nd, np)`` (or one int for
-    all three): the average over the cell of nh x nd x np stratified samples, uniform in the table's own
-    coordinates (sqrt theta_h, theta_d, phi_d) and weighted by the measure of the direction pairs they stand
-    for (sin theta_h * d theta_h/du * sin theta_d cos theta_d), so a lobe narrower than a cell keeps its
-    energy. Cells whose bin-centre directions lie below the horizon are NaN; sub-samples below the horizon
-    count as 0.
+
+def _cell_average(f: Callable[[Array, Array], ArrayLike], cells: NDArray[np.intp], ns: tuple[int, int, int],
+                  chunk: int) -> Array:
+    """Measure-weighted average of f over each cell (M, 3 indices) from nh x nd x np stratified sub-samples.
+
+    Sub-samples are uniform in (sqrt theta_h, theta_d, phi_d) and weighted by the measure of the direction
+    pairs they stand for, sin theta_h (d theta_h / du) sin theta_d cos theta_d; sub-samples below the horizon
+    get no weight (a renderer never asks for them), so a constant BRDF tabulates to itself.
     """
-    valid = valid_mask()
-    out = np.full(SHAPE, np.nan)
-    if supersample is None:
-        wi, wo = _cell_dirs()
-        wiv, wov = wi[valid], wo[valid]
-        vals = np.empty((wiv.shape[0], 3))
-        for s in range(0, wiv.shape[0], chunk_cells):  # chunks bound memory; each chunk is vectorised
-            vals[s:s + chunk_cells] = _as_rgb(f(wiv[s:s + chunk_cells], wov[s:s + chunk_cells]),
-                                               min(chunk_cells, wiv.shape[0] - s))
-        out[:, valid] = vals.T
-        return out
-    ns = (supersample,) * 3 if isinstance(supersample, int) else tuple(supersample)
-    if len(ns) != 3 or min(ns) < 1:
-        raise MerlError(f"supersample must be a positive int or three positive ints, got {supersample!r}")
-    # Sub-sample offsets inside a unit cell (stratified, at sub-cell centres).
     oh = (np.arange(ns[0]) + 0.5) / ns[0]
     od = (np.arange(ns[1]) + 0.5) / ns[1]
     op = (np.arange(ns[2]) + 0.5) / ns[2]
-    oh, od, op = (a.ravel() for a in np.meshgrid(oh, od, op, indexing="ij"))
+    oh, od, op = (x.ravel() for x in np.meshgrid(oh, od, op, indexing="ij"))
     n_sub = oh.size
-    idx = np.argwhere(valid)  # (M, 3) valid cells
-    per_chunk = max(1, chunk_cells // n_sub)
-    vals = np.empty((idx.shape[0], 3))
-    for s in range(0, idx.shape[0], per_chunk):  # chunks of cells, each vectorised over cells x sub-samples
-        c = idx[s:s + per_chunk]
+    per_chunk = max(1, chunk // n_sub)
+    vals = np.empty((cells.shape[0], 3))
+    for s in range(0, cells.shape[0], per_chunk):  # chunks of cells, each vectorised over cells x sub-samples
+        c = cells[s:s + per_chunk]
         u = (c[:, 0:1] + oh[None, :]) / N_TH  # sqrt(theta_h / (pi/2))
         th = u * u * (np.pi / 2)
         td = (c[:, 1:2] + od[None, :]) / N_TD * (np.pi / 2)
         pd = (c[:, 2:3] + op[None, :]) / N_PD * np.pi
-        w = np.sin(th) * u * np.sin(td) * np.cos(td)
         wi, wo = dirs_from_half_diff(th, np.zeros_like(th), td, pd)
         up = (wi[..., 2] > 0) & (wo[..., 2] > 0)
-        fv = _as_rgb(f(wi.reshape(-1, 3), wo.reshape(-1, 3)), wi.shape[0] * n_sub).reshape(c.shape[0], n_sub, 3)
+        w = np.sin(th) * u * np.sin(td) * np.cos(td) * up
+        fv = _as_rgb(f(wi.reshape(-1, 3), wo.reshape(-1, 3)), c.shape[0] * n_sub).reshape(c.shape[0], n_sub, 3)
         fv = np.where(up[..., None], fv, 0.0)
         wsum = w.sum(axis=1)
         vals[s:s + per_chunk] = np.einsum("cs,csk->ck", w, fv) / np.maximum(wsum, 1e-300)[:, None]
-    out[:, valid] = vals.T
+    return vals
+
+
+def _edge_curvature(f: Callable[[Array, Array], ArrayLike], centre: Array, axis: int, chunk: int) -> Array:
+    """|mean of f at a cell's two edges along ``axis`` - f at its centre|, (90, 90, 180, 3).
+
+    This second difference is what the centre value misses of the cell average (it is 0 where f is linear
+    across the cell). Where an edge is below the horizon, the other edge's difference is used.
+    """
+    th, td, pd = (a.ravel() for a in cell_angles())
+    n = (N_TH, N_TD, N_PD)[axis]
+    e = np.arange(n + 1) / n
+    edges = [e * e * (np.pi / 2), e * (np.pi / 2), e * np.pi][axis]
+    grid = [th, td, pd]
+    grid[axis] = edges
+    wi, wo = _grid_dirs(*grid)
+    up = (wi[..., 2] > 0) & (wo[..., 2] > 0)
+    ev = _eval(f, wi.reshape(-1, 3), wo.reshape(-1, 3), chunk).reshape(up.shape + (3,))
+    ev[~up] = np.nan
+    lo = ev[(slice(None),) * axis + (slice(0, n),)]
+    hi = ev[(slice(None),) * axis + (slice(1, n + 1),)]
+    mid = np.where(np.isnan(lo), hi, np.where(np.isnan(hi), lo, 0.5 * (lo + hi)))
+    return np.abs(mid - centre)
+
+
+def tabulate(
+    f: Callable[[Array, Array], ArrayLike],
+    supersample: tuple[int, int, int] | int | str | None = None,
+    chunk_cells: int = 200_000,
+    adaptive_rtol: float = 0.02,
+    adaptive_n: tuple[int, int, int] = (8, 4, 4),
+) -> Array:
+    """Fill a (3, 90, 90, 180) table from a vectorised BRDF ``f(wi, wo) -> (N, 1 | 3)`` (1/sr).
+
+    ``supersample=None``: the value at each cell's bin centre.
+    ``supersample=(nh, nd, np)`` (or one int for all three): every cell holds the average of f over the cell
+    (see :func:`_cell_average`), so a lobe narrower than a cell keeps its energy.
+    ``supersample="adaptive"``: f is also evaluated on the cell edges; a cell is averaged with
+    ``adaptive_n`` sub-samples along each axis where the mean of its two edge values differs from its centre
+    value by more than ``adaptive_rtol`` (relative: f is far from linear across the cell, as inside a lobe
+    narrower than a few cells), and keeps its centre value elsewhere: cell averages where they matter
+    (sharp lobes) at a fraction of the cost.
+    Cells whose bin-centre directions lie below the horizon are NaN.
+    """
+    valid = valid_mask()
+    wi, wo = _cell_dirs()
+    if supersample is None or supersample == "adaptive":
+        # f is evaluated at every cell (below-horizon results are discarded): cheaper than gathering valid cells
+        centre = _eval(f, wi.reshape(-1, 3), wo.reshape(-1, 3), chunk_cells).reshape(wi.shape)
+        centre[~valid] = np.nan
+    if supersample is None:
+        return np.ascontiguousarray(np.moveaxis(centre, -1, 0))
+    if supersample == "adaptive":
+        scale = np.nanmax(np.abs(centre)) if np.isfinite(centre).any() else 0.0
+        need = []
+        for axis in range(3):
+            var = _edge_curvature(f, centre, axis, chunk_cells)
+            tol = adaptive_rtol * np.abs(centre) + 1e-9 * scale
+            need.append(np.any(var > tol, axis=-1) & valid)
+        vals = centre.copy()
+        flags = need[0].astype(np.int8) + 2 * need[1] + 4 * need[2]
+        for pattern in range(1, 8):  # cells grouped by which axes need sub-samples
+            cells = np.argwhere(flags == pattern)
+            if cells.size == 0:
+                continue
+            ns = tuple(adaptive_n[a] if pattern >> a & 1 else 1 for a in range(3))
+            vals[tuple(cells.T)] = _cell_average(f, cells, ns, chunk_cells)  # type: ignore[arg-type]
+        return np.ascontiguousarray(np.moveaxis(vals, -1, 0))
+    if isinstance(supersample, str):
+        raise MerlError(f"supersample must be None, 'adaptive', an int or three ints, got {supersample!r}")
+    ns = (supersample,) * 3 if isinstance(supersample, int) else tuple(supersample)
+    if len(ns) != 3 or min(ns) < 1:
+        raise MerlError(f"supersample must be a positive int or three positive ints, got {supersample!r}")
+    out = np.full(SHAPE, np.nan)
+    out[:, valid] = _cell_average(f, np.argwhere(valid), ns, chunk_cells).T  # type: ignore[arg-type]
     return out
 
 

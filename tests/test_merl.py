@@ -129,14 +129,11 @@ def test_tabulate_constant_and_horizon():
     # cells with theta_d + theta_h well past 90 deg at phi_d = 0 are below the horizon
     assert np.isnan(t[0, 89, 89, 0])
     assert np.isfinite(t[0, 0, 0, 0])
-    ts = merl.tabulate(lambert, supersample=(3, 2, 2))
+    # cell averages of a constant are that constant in every valid cell, also near the horizon where some
+    # sub-samples fall below it (they get no weight); with an even count no sub-sample is the centre
+    ts = merl.tabulate(lambert, supersample=(2, 2, 2))
     np.testing.assert_array_equal(np.isnan(ts), np.isnan(t))
-    # cells whose every point lies above the horizon (theta_h + theta_d < 90 deg at the upper edges);
-    # near the horizon some sub-samples fall below it and count as 0
-    th_hi = (np.arange(1, 91) / 90) ** 2 * 90
-    td_hi = np.arange(1, 91)
-    inner = np.broadcast_to((th_hi[:, None] + td_hi[None, :] < 90)[:, :, None], valid.shape)
-    np.testing.assert_allclose(ts[:, inner], np.broadcast_to((albedo / np.pi)[:, None], ts[:, inner].shape), rtol=1e-12)
+    np.testing.assert_allclose(ts[:, valid], t[:, valid], rtol=1e-12)
 
 
 def test_tabulate_grey_function_broadcasts_to_rgb():
