@@ -389,7 +389,7 @@ class DynamixelBus:
         self.faults = faults
         self.collision_check = collision_check
         self.parser = c.PacketParser()
-        self.stats = {"packets": 0, "crc_errors": 0, "replies": 0}
+        self.stats = {"packets": 0, "crc_errors": 0, "replies": 0, "internal_errors": 0}
         self.last_rx = time.monotonic()
 
     #: A partial packet older than this (wall-clock) is discarded when new bytes arrive (firmware packet timeout).
@@ -421,6 +421,7 @@ class DynamixelBus:
                 replies = self.handle_frame(fr)
             except Exception:
                 log.exception("device failure on packet %s", fr.raw.hex(" "))
+                self.stats["internal_errors"] += 1
                 replies = []
             for pkt in replies:
                 if self.faults.drop_reply():

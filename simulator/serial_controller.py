@@ -115,6 +115,7 @@ class SerialController:
         self._buf = bytearray()
         self._discarding = False
         self._wait = 0.0
+        self.internal_errors = 0
 
     def _advance(self, dt: float) -> None:
         """Let ``dt`` simulated seconds pass: at once in fast time; in scaled time the wall-clock wait is left to
@@ -164,6 +165,7 @@ class SerialController:
                         lines = self.handle_line(text)
                     except Exception:
                         log.exception("controller failure on %r", text)
+                        self.internal_errors += 1
                         lines = [f"error:{E_UNKNOWN}"]
             reply = ("\n".join(lines) + "\n").encode("ascii")
             if self.comm_faults.drop_reply():

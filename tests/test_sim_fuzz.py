@@ -61,14 +61,31 @@ def test_random_and_mutated_packets(base_config_dict, data):
         # every reply is a well-formed status packet
         frames = c.PacketParser().feed(out)
         assert all(f.crc_ok and f.body[:1] == b"\x55" for f in frames)
+    assert bench.bus.stats["internal_errors"] == 0  # no exception was swallowed by the safety net
     assert responsive(bench)
 
 
-@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(lines=st.lists(st.text(max_size=40), max_size=8))
-def test_serial_interpreter_never_raises(base_config_dict, lines):
-    bench = make_bench(base_config_dict)
+COMMANDS = ["?", "STATUS?", "ID?", "TIME?", "HELP", "MOVE", "HOME", "STOP", "RESET", "READ", "DARK", "DWELL",
+            "DETECTOR?", "INT", "INT?", "GAIN", "SAMPLE", "SAMPLE?"]
+ARGS = st.one_of(
+    st.integers(-10**12, 10**12).map(str),
+    st.floats(allow_nan=True, allow_infinity=True).map(repr),
+    st.builds(lambda a, n: f"{a}{n}", st.sampled_from("LDSQ"), st.integers(-10**6, 10**6)),
+    st.sampled_from(["REF", "TARGET", "L", "D", "nan", "inf", "-0", "1e400", "L=100"]),
+    st.text(max_size=8),
+)
+command_lines = st.builds(lambda c, a: " ".join([c, *a]), st.sampled_from(COMMANDS), st.lists(ARGS, max_size=3))
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(lines=st.lists(st.one_of(st.text(max_size=40), command_lines), max_size=8),
+       motion=st.sampled_from(["dynamixel", "serial"]))
+def test_serial_interpreter_never_raises(base_config_dict, lines, motion):
+    bench = make_bench({**base_config_dict, "bench": {**base_config_dict["bench"], "motion": motion}})
     for ln in lines:
         out = bench.process("serial", (ln + "\n").encode("utf-8", errors="replace"))
         assert isinstance(out, bytes)
+        for reply in out.decode("ascii").splitlines():
+            assert reply.isprintable()
+    assert bench.controller.internal_errors == 0
     assert bench.process("serial", b"\nTIME?\n").decode().splitlines()[-1] == "ok"
