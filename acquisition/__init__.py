@@ -1,1 +1,52 @@
-"""gonio-brdf: acquisition package."""
+"""gonio-brdf acquisition: drive a real or simulated in-plane gonioreflectometer and capture BRDF slices.
+
+Reaches every device through its port only (a Dynamixel bus with ``dynamixel_sdk``, a serial text-protocol
+controller with ``pyserial``); a simulated bench is ``gonio-sim serve`` in a child process, driven through the
+pseudo-terminals it prints. This package never imports ``simulator``.
+
+    from acquisition import Bench
+    with Bench.from_config("configs/simulated.toml") as bench:
+        result = bench.capture(bench.plan(), out="out/run1")
+"""
+
+from .bench import Bench, SimulatorProcess
+from .calibration import Calibration, Reading
+from .config import BenchConfig, config_from_dict, dump_toml, load_config
+from .engine import CaptureResult, RunEngine
+from .errors import (
+    AcquisitionError,
+    CaptureInterrupted,
+    CommError,
+    ConfigError,
+    DeviceError,
+    HardwareError,
+    PlanError,
+)
+from .plan import Geometry, Plan, PlanCheck, Scene, load_scene, order_points, path_time
+
+__all__ = [
+    "AcquisitionError",
+    "Bench",
+    "BenchConfig",
+    "Calibration",
+    "CaptureInterrupted",
+    "CaptureResult",
+    "CommError",
+    "ConfigError",
+    "DeviceError",
+    "Geometry",
+    "HardwareError",
+    "Plan",
+    "PlanCheck",
+    "PlanError",
+    "Reading",
+    "RunEngine",
+    "Scene",
+    "SimulatorProcess",
+    "config_from_dict",
+    "dump_toml",
+    "load_config",
+    "load_scene",
+    "order_points",
+    "path_time",
+]

@@ -1,14 +1,112 @@
-"""gonio-capture: drive the bench and capture slices (not built yet)."""
+"""``gonio-capture``: drive the bench and capture an in-plane BRDF slice.
+
+``gonio-capture --config CONFIG --out DIR [--resume]`` validates the bench file and the plan (nothing moves
+before that succeeds), then captures into ``DIR/slice.csv`` (with its metadata), logging to ``DIR/capture.log``.
+
+Exit status: 0 complete; 1 stopped by a hardware or communication failure (arms made safe, resumable);
+2 bad config, plan or output directory (nothing moved); 130 / 143 interrupted by SIGINT / SIGTERM (resumable).
+"""
 
 from __future__ import annotations
 
+import argparse
+import json
+import logging
 import sys
+from pathlib import Path
+
+EPILOG = """\
+examples:
+  gonio-capture --config configs/simulated.toml --out out/demo
+  gonio-capture --config configs/simulated.toml --out out/demo --resume
+  gonio-capture --config configs/simulated.toml --out out/paint --scene configs/scenes/product-shot.toml
+  gonio-capture --config configs/dynamixel-bench.toml --check
+
+exit status: 0 complete, 1 stopped by a hardware/communication fault (resumable), 2 bad config/plan (nothing
+moved), 130/143 interrupted by SIGINT/SIGTERM (resumable with --resume).
+"""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="gonio-capture",
+        description="Capture an in-plane BRDF slice on a gonioreflectometer (Dynamixel servos, a stepper "
+                    "controller, or the simulator) into DIR/slice.csv; checkpointed and resumable.",
+        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--config", required=True, help="bench file (TOML), e.g. configs/simulated.toml")
+    p.add_argument("--out", help="output directory: slice.csv, capture.log, capture.json")
+    p.add_argument("--resume", action="store_true",
+                   help="continue an interrupted capture in --out (measured samples are kept and skipped)")
+    p.add_argument("--scene", help="scene file restricting the plan (configs/scenes/*.toml)")
+    p.add_argument("--check", action="store_true",
+                   help="validate the config and plan, print the points and time estimate, move nothing")
+    prog = p.add_mutually_exclusive_group()
+    prog.add_argument("--progress", dest="progress", action="store_true", default=None,
+                      help="always show the progress bar (default: only on a terminal)")
+    prog.add_argument("--no-progress", dest="progress", action="store_false", help="never show it")
+    p.add_argument("--json", action="store_true", help="print the result as one JSON object on stdout")
+    p.add_argument("--log-level", default="warning", choices=("debug", "info", "warning", "error"),
+                   help="stderr log level (the log file always gets info)")
+    return p
 
 
 def main(argv: list[str] | None = None) -> int:
-    print("gonio-capture: the acquisition package is not built yet (issue 4); nothing was captured.",
-          file=sys.stderr)
-    return 2
+    """Entry point of the ``gonio-capture`` console script."""
+    args = build_parser().parse_args(argv)
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("gonio-capture: %(levelname)s: %(message)s"))
+    handler.setLevel(getattr(logging, args.log_level.upper()))
+    lg = logging.getLogger("acquisition")
+    lg.addHandler(handler)
+    lg.setLevel(logging.DEBUG if args.log_level == "debug" else logging.INFO)
+    try:
+        return _run(args)
+    finally:
+        lg.removeHandler(handler)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from .bench import Bench
+    from .engine import result_dict
+    from .errors import ConfigError, PlanError
+
+    try:
+        bench = Bench.from_config(args.config)
+        plan = bench.plan(scene=args.scene)
+        chk = plan.validate(bench.geometry)
+    except (ConfigError, PlanError) as e:
+        print(f"gonio-capture: {e}\nnothing was moved.", file=sys.stderr)
+        return 2
+    if args.check:
+        est = plan.estimate(bench.geometry, bench.cfg.detector.integration_time_s, chk.measurable)
+        print(chk.describe(limit=1000))
+        print(f"estimated motion time {est['motion_s']:.2f} s in plan order, {est['naive_motion_s']:.2f} s in "
+              f"naive order; total with settling and detector {est['total_s']:.2f} s")
+        return 0
+    if not args.out:
+        print("gonio-capture: --out DIR is required to capture (or use --check)", file=sys.stderr)
+        return 2
+    try:
+        result = bench.capture(plan, out=Path(args.out), resume=args.resume, progress=args.progress)
+    except (ConfigError, PlanError) as e:
+        print(f"gonio-capture: {e}\nnothing was moved.", file=sys.stderr)
+        return 2
+    if args.json:
+        print(json.dumps(result_dict(result), sort_keys=True))
+    if result.ok:
+        if not args.json:
+            extra = ""
+            if result.unmeasurable:
+                extra = (f"; {len(result.unmeasurable)} plan point(s) not measurable (collision / blind spot), "
+                         f"listed in {Path(args.out) / 'capture.log'}")
+            clock = "simulated " if result.bench_clock == "controller" else ""
+            print(f"gonio-capture: {result.message}{extra}\n"
+                  f"  {clock}capture time {result.bench_time_s:.2f} s (motion {result.motion_s:.2f} s; plan "
+                  f"estimate {result.plan_motion_estimate_s:.2f} s vs {result.naive_motion_estimate_s:.2f} s in "
+                  f"naive order), wall {result.wall_s:.2f} s", file=sys.stderr)
+        return 0
+    print(f"gonio-capture: {result.message}", file=sys.stderr)
+    return result.exit_code or 1
 
 
 if __name__ == "__main__":

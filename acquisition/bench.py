@@ -1,0 +1,330 @@
+"""The bench: motion (Dynamixel or stepper arms) plus the detector, built from a validated config.
+
+``transport = "simulated"`` starts ``gonio-sim serve --config FILE`` as a child process (its own session, so a
+Ctrl-C in the terminal reaches only the capture, which then parks the arms through the still-running simulator;
+``--exit-with-parent`` so a killed capture leaves no orphan) and opens the pseudo-terminals it prints, exactly
+as hardware ports. Nothing here imports the simulator.
+
+Python API for lab-bench scripts::
+
+    from acquisition import Bench
+
+    with Bench.from_config("configs/simulated.toml") as bench:
+        plan = bench.plan()                       # the config's [plan]
+        print(bench.check(plan).describe())
+        result = bench.capture(plan, out="out/run1")
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import select
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import IO, Any
+
+from .calibration import Reading
+from .config import BenchConfig, load_config
+from .dynamixel import DynamixelAxes
+from .errors import CommError, DeviceError
+from .plan import Geometry, Plan, PlanCheck, Point, load_scene
+from .serial_link import SerialAxes, SerialDetector, SerialLink
+
+log = logging.getLogger("acquisition.bench")
+
+__all__ = ["Bench", "SimulatorProcess"]
+
+
+class SimulatorProcess:
+    """``gonio-sim serve`` as a child process; :attr:`ports` is the JSON line it printed."""
+
+    def __init__(self, config_path: str | Path, command: str = "gonio-sim", log_path: str | Path | None = None,
+                 extra_args: tuple[str, ...] = (), timeout_s: float = 30.0) -> None:
+        self.config_path = Path(config_path)
+        self.command = command
+        self.log_path = Path(log_path) if log_path is not None else None
+        self.extra_args = extra_args
+        self.timeout_s = timeout_s
+        self.proc: subprocess.Popen[bytes] | None = None
+        self.ports: dict[str, str | None] = {}
+        self._log_fh: IO[bytes] | None = None
+
+    def _argv(self) -> list[str]:
+        exe = shutil.which(self.command, path=str(Path(sys.executable).parent)) or shutil.which(self.command)
+        if exe is None and self.command == "gonio-sim":
+            base = [sys.executable, "-m", "simulator.cli"]  # a child process: acquisition does not import it
+        elif exe is None:
+            raise CommError(f"simulated bench: cannot find the simulator command {self.command!r}")
+        else:
+            base = [exe]
+        return [*base, "serve", "--config", str(self.config_path), "--exit-with-parent", "--log-level", "info",
+                *self.extra_args]
+
+    def start(self) -> dict[str, str | None]:
+        """Start the child and wait for its port line (raises CommError with its stderr if it fails)."""
+        argv = self._argv()
+        if self.log_path is not None:
+            self._log_fh = open(self.log_path, "ab")
+            err: Any = self._log_fh
+        else:
+            self._log_fh = tempfile.TemporaryFile()
+            err = self._log_fh
+        log.info("starting the simulator: %s", " ".join(argv))
+        self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=err, stdin=subprocess.DEVNULL,
+                                     start_new_session=True)
+        assert self.proc.stdout is not None
+        deadline = time.monotonic() + self.timeout_s
+        line = b""
+        fd = self.proc.stdout.fileno()
+        while not line.endswith(b"\n"):
+            left = deadline - time.monotonic()
+            r, _, _ = select.select([fd], [], [], max(left, 0.0))
+            if not r:
+                self.stop()
+                raise CommError(f"simulated bench: {' '.join(argv)} printed no port line within "
+                                f"{self.timeout_s:g} s")
+            ch = os.read(fd, 1)
+            if not ch:
+                self.proc.wait()
+                raise CommError(f"simulated bench: the simulator exited with status {self.proc.returncode}: "
+                                f"{self._stderr_tail()}")
+            line += ch
+        try:
+            self.ports = json.loads(line)
+        except json.JSONDecodeError:
+            self.stop()
+            raise CommError(f"simulated bench: unexpected first line from the simulator: {line!r}") from None
+        log.info("simulator ports: %s", self.ports)
+        return self.ports
+
+    def _stderr_tail(self) -> str:
+        if self._log_fh is None:
+            return ""
+        try:
+            self._log_fh.flush()
+            self._log_fh.seek(0, os.SEEK_END)
+            size = self._log_fh.tell()
+            self._log_fh.seek(max(0, size - 2000))
+            return self._log_fh.read().decode(errors="replace").strip()
+        except OSError:  # pragma: no cover
+            return ""
+
+    def stop(self, timeout_s: float = 5.0) -> int | None:
+        """SIGTERM the child and wait (SIGKILL after ``timeout_s``); returns its exit status."""
+        if self.proc is None:
+            return None
+        if self.proc.poll() is None:
+            try:
+                self.proc.send_signal(signal.SIGTERM)
+                self.proc.wait(timeout_s)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        if self.proc.stdout is not None:
+            self.proc.stdout.close()
+        if self._log_fh is not None:
+            self._log_fh.close()
+            self._log_fh = None
+        return self.proc.returncode
+
+
+class Bench:
+    """A gonioreflectometer: ``motion`` (arms) and ``detector``, opened from a :class:`BenchConfig`.
+
+    Use as a context manager (or :meth:`open` / :meth:`close`). Angles in degrees.
+    """
+
+    def __init__(self, cfg: BenchConfig, simulator_log: str | Path | None = None) -> None:
+        self.cfg = cfg
+        self.geometry = Geometry.from_config(cfg)
+        self.simulator_log = simulator_log
+        self.sim: SimulatorProcess | None = None
+        self.link: SerialLink | None = None
+        self.detector: SerialDetector | None = None
+        self.motion: DynamixelAxes | SerialAxes | None = None
+        self._opened = False
+        self._wall0 = time.monotonic()
+
+    @classmethod
+    def from_config(cls, path: str | Path, **kw: Any) -> Bench:
+        """Load and validate the bench file at ``path`` (nothing is opened or moved yet)."""
+        return cls(load_config(path), **kw)
+
+    # -- plans ---------------------------------------------------------------------------------------------------
+    def plan(self, scene: str | Path | None = None) -> Plan:
+        """The config's ``[plan]``, optionally restricted to a scene file."""
+        p = Plan.from_config(self.cfg.plan, self.cfg.base_dir)
+        if scene is not None:
+            p = p.restrict(load_scene(scene))
+        return p
+
+    def check(self, plan: Plan) -> PlanCheck:
+        """Measurable and unmeasurable points of ``plan`` on this bench (no motion)."""
+        return plan.check(self.geometry)
+
+    # -- life cycle --------------------------------------------------------------------------------------------
+    @property
+    def is_open(self) -> bool:
+        return self._opened
+
+    def open(self) -> Bench:
+        """Connect (starting the simulator for a simulated bench) and initialise every device."""
+        if self._opened:
+            return self
+        cfg = self.cfg
+        b = cfg.bench
+        try:
+            dxl_port, ser_port = b.dynamixel_port, b.serial_port
+            if b.transport == "simulated":
+                self.sim = SimulatorProcess(cfg.path, b.simulator_command, self.simulator_log)
+                ports = self.sim.start()
+                if b.motion == "dynamixel" and not ports.get("dynamixel"):
+                    raise CommError("simulated bench: the simulator offers no Dynamixel port (is [bench].motion "
+                                    "consistent?)")
+                dxl_port, ser_port = ports.get("dynamixel") or "", ports.get("serial") or ""
+            self.link = SerialLink(ser_port, b.serial_baudrate, b.serial_timeout_s, cfg.motion.retries)
+            self.detector = SerialDetector(self.link, cfg.detector.type, cfg.detector.integration_time_s,
+                                           cfg.detector.saturation)
+            if sys.stdin is not None and sys.stdin.isatty():
+                self.detector.manual_swap = _prompt_swap
+            self.detector.connect()
+            if b.motion == "dynamixel":
+                self.motion = DynamixelAxes(dxl_port, b.dynamixel_baudrate, cfg.axes, cfg.motion)
+            else:
+                self.motion = SerialAxes(self.link, cfg.axes, cfg.motion.tolerance_deg, cfg.motion.timeout_s,
+                                         cfg.motion.retries, cfg.motion.poll_interval_s)
+            self.motion.connect()
+            self._opened = True
+            self._wall0 = time.monotonic()
+            log.info("bench %r open: transport %s, motion %s, detector %s (%d channel(s))", b.name, b.transport,
+                     b.motion, self.detector.type, len(self.detector.channels))
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def close(self) -> None:
+        """Close ports and stop the simulator (does not move anything: see :meth:`shutdown`)."""
+        if self.motion is not None and isinstance(self.motion, DynamixelAxes):
+            self.motion.close()
+        if self.link is not None:
+            self.link.close()
+        if self.sim is not None:
+            self.sim.stop()
+        self.sim = None
+        self.link = None
+        self.detector = None
+        self.motion = None
+        self._opened = False
+
+    def shutdown(self, park: bool = True) -> None:
+        """Safe end: park the arms (if ``park`` and no axis reports a fault), then torque off. Never raises."""
+        m = self.motion
+        if m is None:
+            return
+        try:
+            if park and m.healthy():
+                self.park(check_cancel=False)
+        except BaseException as e:  # noqa: BLE001 - a second Ctrl-C or a failure while parking
+            log.error("parking failed: %s", e)
+        finally:
+            try:
+                m.release()
+                log.info("motion released (torque off)")
+            except Exception as e:  # pragma: no cover - best effort
+                log.error("torque off failed: %s", e)
+
+    def __enter__(self) -> Bench:
+        return self.open()
+
+    def __exit__(self, *exc: object) -> None:
+        try:
+            self.shutdown(park=True)
+        finally:
+            self.close()
+
+    # -- operations --------------------------------------------------------------------------------------------
+    def _need(self) -> tuple[DynamixelAxes | SerialAxes, SerialDetector]:
+        if self.motion is None or self.detector is None:
+            raise DeviceError("the bench is not open: use `with Bench.from_config(...) as bench:` or bench.open()")
+        return self.motion, self.detector
+
+    def move(self, theta_i_deg: float, theta_o_deg: float, check_cancel: bool = True) -> None:
+        """Move both arms at once to (theta_i, theta_o) and wait until in position. Refuses unmeasurable goals
+        outside the soft limits or in the collision zone."""
+        motion, _ = self._need()
+        why = self.geometry.reason(theta_i_deg, theta_o_deg)
+        if why is not None and not why.startswith("blind spot"):
+            raise DeviceError(f"refusing to move to ({theta_i_deg:g}, {theta_o_deg:g}): {why}")
+        motion.move({"light": theta_i_deg, "detector": theta_o_deg}, check_cancel=check_cancel)
+
+    def park(self, check_cancel: bool = False) -> None:
+        """Move the arms to their ``park_deg`` (light and detector at once)."""
+        motion, _ = self._need()
+        motion.move({"light": self.cfg.light.park_deg, "detector": self.cfg.det_axis.park_deg},
+                    check_cancel=check_cancel)
+
+    def positions(self) -> Point:
+        """Present (theta_i, theta_o) in degrees."""
+        motion, _ = self._need()
+        p = motion.positions()
+        return (p["light"], p["detector"])
+
+    def read(self, repeats: int | None = None) -> Reading:
+        """Detector reading with the source on (raw counts)."""
+        _, det = self._need()
+        return det.read(repeats or self.cfg.detector.repeats)
+
+    def dark(self, repeats: int | None = None) -> Reading:
+        """Detector reading with the source off (raw counts)."""
+        _, det = self._need()
+        return det.dark(repeats or self.cfg.detector.dark_repeats)
+
+    def settle(self) -> None:
+        """Wait ``[motion].settle_s`` of bench time."""
+        _, det = self._need()
+        det.dwell(self.cfg.motion.settle_s)
+
+    def now(self) -> float:
+        """Bench time (s): the controller's clock (simulated time on the simulator) if it has one, else wall
+        time since the bench was opened."""
+        if self.detector is not None and self.detector.has_time:
+            t = self.detector.time()
+            if t is not None:
+                return t
+        return time.monotonic() - self._wall0
+
+    @property
+    def has_clock(self) -> bool:
+        return self.detector is not None and self.detector.has_time
+
+    def capture(self, plan: Plan | None = None, out: str | Path | None = None, resume: bool = False,
+                progress: bool | None = None, handle_signals: bool = True):  # -> CaptureResult
+        """Capture ``plan`` (default: the config's) into ``out``/slice.csv; see :class:`acquisition.engine.RunEngine`.
+
+        Opens the bench if needed (and then closes it again). Returns a :class:`~acquisition.engine.CaptureResult`
+        (``result.ok``; ``result.raise_for_status()``).
+        """
+        from .engine import RunEngine
+
+        if out is None:
+            out = Path("out") / time.strftime("capture-%Y%m%d-%H%M%S")
+        eng = RunEngine(self, plan if plan is not None else self.plan(), out, resume=resume, progress=progress,
+                        handle_signals=handle_signals)
+        return eng.run()
+
+
+def _prompt_swap(which: str) -> None:  # pragma: no cover - interactive
+    what = "the white reference" if which == "REF" else "the sample"
+    input(f"No sample changer: mount {what} now, then press Enter to continue... ")
+
+
+PromptFn = Callable[[str], None]

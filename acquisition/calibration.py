@@ -1,0 +1,123 @@
+"""Conversion of detector readings to BRDF values (1/sr): pure math, no devices.
+
+Signal model of an in-plane bench whose detector sees the whole illuminated spot (counts, dark subtracted)::
+
+    S - S_dark = K * f_r(theta_i, theta_o) * cos(theta_o)
+
+with K = source power x detector solid angle (absolute calibration gives K directly). A Lambertian white
+reference of reflectance rho_ref measured at the reference geometry (theta_i_ref, theta_o_ref) gives
+``S_ref - S_dark = K * rho_ref / pi * cos(theta_o_ref)``, hence the relative calibration::
+
+    f_r = (S - S_dark) / (S_ref - S_dark) * rho_ref / pi * cos(theta_o_ref) / cos(theta_o)
+
+(the cosine correction is 1 when the sample is measured at the reference geometry). The uncertainty kept per
+sample is the standard deviation of the mean of the repeats, propagated through the same factor; the
+reference and dark uncertainties are common to the whole slice and are stored in the metadata instead.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = ["Reading", "Calibration", "reference_rho"]
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Reading:
+    """A detector reading: ``mean`` and ``std`` (sample standard deviation over the repeats) per channel in raw
+    counts, ``n`` repeats, ``saturated`` = how many repeats clipped."""
+
+    mean: Array
+    std: Array
+    n: int
+    saturated: int = 0
+
+    @property
+    def std_of_mean(self) -> Array:
+        return self.std / math.sqrt(max(self.n, 1))
+
+    def to_meta(self) -> dict[str, Any]:
+        return {"mean": [float(x) for x in self.mean], "std": [float(x) for x in self.std], "n": self.n}
+
+    @classmethod
+    def from_meta(cls, d: dict[str, Any]) -> Reading:
+        return cls(np.asarray(d["mean"], dtype=float), np.asarray(d["std"], dtype=float), int(d["n"]))
+
+
+def reference_rho(reflectance: float | None, spectrum: tuple[Sequence[float], Sequence[float]] | None,
+                  wavelengths_nm: ArrayLike | None) -> Array:
+    """Reference reflectance per detector channel: the number; or the spectrum interpolated at the
+    spectrometer's wavelengths (clamped at the ends); or, for a photodiode, the mean of the spectrum's values."""
+    if spectrum is None:
+        assert reflectance is not None
+        n = 1 if wavelengths_nm is None else int(np.asarray(wavelengths_nm).size)
+        return np.full(n, float(reflectance))
+    wl, val = (np.asarray(x, dtype=float) for x in spectrum)
+    if wavelengths_nm is None:
+        return np.array([float(val.mean())])
+    return np.interp(np.asarray(wavelengths_nm, dtype=float), wl, val)
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Everything needed to turn readings into f_r.
+
+    ``mode`` "relative": ``reference`` (a :class:`Reading` of the white reference at ``reference_theta_o_deg``)
+    and ``rho_ref`` per channel. "absolute": ``k_counts`` = source power x detector solid angle (counts per 1/sr
+    at the configured integration time and gain). ``dark`` is the dark reading (source off).
+    """
+
+    mode: str
+    dark: Reading
+    reference: Reading | None = None
+    rho_ref: Array | None = None
+    reference_theta_o_deg: float = 0.0
+    k_counts: float | None = None
+
+    def scale(self, theta_o_deg: float | Array) -> Array:
+        """Factor turning dark-subtracted counts into f_r at ``theta_o_deg``: (..., C)."""
+        to = np.asarray(theta_o_deg, dtype=float)[..., None]
+        cos_o = np.maximum(np.cos(np.radians(to)), 1e-6)
+        if self.mode == "relative":
+            assert self.reference is not None and self.rho_ref is not None
+            net = self.reference.mean - self.dark.mean
+            if np.any(net <= 0):
+                raise ValueError("the white reference reads no more than the dark level: check the source and "
+                                 "the reference geometry")
+            cos_ref = math.cos(math.radians(self.reference_theta_o_deg))
+            return self.rho_ref / math.pi * cos_ref / (net * cos_o)
+        assert self.k_counts is not None
+        return np.broadcast_to(1.0 / (self.k_counts * cos_o), to.shape[:-1] + self.dark.mean.shape)
+
+    def brdf(self, reading: Reading, theta_o_deg: float) -> tuple[Array, Array]:
+        """(f_r, std of the mean of f_r) per channel for a reading at ``theta_o_deg``."""
+        k = self.scale(theta_o_deg)
+        f = (reading.mean - self.dark.mean) * k
+        return f, reading.std_of_mean * np.abs(k)
+
+    def relative_uncertainty(self) -> Array:
+        """Relative standard uncertainty common to all samples (reference and dark means), per channel."""
+        if self.mode != "relative" or self.reference is None:
+            return np.zeros_like(self.dark.mean)
+        net = self.reference.mean - self.dark.mean
+        var = self.reference.std_of_mean ** 2 + self.dark.std_of_mean ** 2
+        return np.sqrt(var) / np.abs(net)
+
+    def to_meta(self) -> dict[str, Any]:
+        d: dict[str, Any] = {"dark": self.dark.to_meta()}
+        if self.reference is not None:
+            d["reference_reading"] = self.reference.to_meta()
+        if self.rho_ref is not None:
+            d["rho_ref"] = [float(x) for x in self.rho_ref]
+        if self.k_counts is not None:
+            d["k_counts"] = self.k_counts
+        d["common_relative_uncertainty"] = [float(x) for x in self.relative_uncertainty()]
+        return d

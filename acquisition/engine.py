@@ -1,0 +1,543 @@
+"""The run engine: checkpointed, resumable, interrupt-safe capture of a plan into ``DIR/slice.csv``.
+
+The slice file is the checkpoint. Its metadata (written once, when the file is created) holds the plan, its
+fingerprint, the dark level and the white-reference reading; every sample is appended (and fsynced) the moment
+it is measured. A resume reads the file, checks that the plan is the same, reuses the stored calibration and
+measures only the missing points, so no sample is lost and none is taken twice. ``DIR/capture.json`` is a
+sidecar with the run history (status, times, unmeasurable points, end-of-run dark drift); ``DIR/capture.log``
+the log; ``DIR/simulator.log`` the simulator's log on a simulated bench.
+
+Ctrl-C and SIGTERM set a flag that the motion wait loops and the point loop check: the engine then parks the
+arms, switches torque off and returns an "interrupted" result (a second signal aborts the parking). A hardware
+fault or a communication failure stops the same way, without parking when an axis reports a fault.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import signal
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from reconstruction.slicefile import Slice, SliceError, SliceWriter, read_slice
+
+from .calibration import Calibration, Reading, reference_rho
+from .errors import AcquisitionError, CaptureInterrupted, CommError, DeviceError, HardwareError, PlanError
+from .plan import Plan, Point, order_points, path_time, point_key, refine_points
+
+log = logging.getLogger("acquisition.engine")
+
+__all__ = ["RunEngine", "CaptureResult", "SLICE_NAME", "SIDECAR_NAME", "LOG_NAME"]
+
+SLICE_NAME = "slice.csv"
+SIDECAR_NAME = "capture.json"
+LOG_NAME = "capture.log"
+SIM_LOG_NAME = "simulator.log"
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+
+
+def _software_version() -> str:
+    try:
+        from importlib.metadata import version
+
+        return version("gonio-brdf")
+    except Exception:  # pragma: no cover
+        return "unknown"
+
+
+@dataclass
+class CaptureResult:
+    """Outcome of a capture. Times in seconds; ``bench_time_s`` is the bench clock (simulated time on the
+    simulator) over this run; ``motion_s`` the part spent moving to points (command to in position)."""
+
+    out_dir: str
+    slice_path: str
+    status: str = "running"               # "complete" | "interrupted" | "failed"
+    message: str = ""
+    exit_code: int = EXIT_OK
+    samples_total: int = 0
+    samples_new: int = 0
+    points_planned: int = 0
+    unmeasurable: list[list[Any]] = field(default_factory=list)
+    bench_time_s: float = 0.0
+    bench_clock: str = "wall"             # "controller" when the bench reported its own clock
+    motion_s: float = 0.0
+    settle_s: float = 0.0
+    read_s: float = 0.0
+    wall_s: float = 0.0
+    wall_per_sample_s: float = 0.0
+    plan_motion_estimate_s: float = 0.0
+    naive_motion_estimate_s: float = 0.0
+    dark_drift: list[float] | None = None
+    adaptive_rounds: int = 0
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "complete"
+
+    def raise_for_status(self) -> None:
+        if not self.ok:
+            raise AcquisitionError(self.message)
+
+
+def _atomic_json(path: Path, data: dict[str, Any]) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            json.dump(data, fh, indent=1, sort_keys=True)
+            fh.write("\n")
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+class _SignalGuard:
+    """Turns SIGINT/SIGTERM into a flag (first signal) or KeyboardInterrupt (second), main thread only."""
+
+    def __init__(self, enabled: bool) -> None:
+        self.enabled = enabled and threading.current_thread() is threading.main_thread()
+        self.signum: int | None = None
+        self._old: dict[int, Any] = {}
+
+    def __enter__(self) -> _SignalGuard:
+        if self.enabled:
+            for s in (signal.SIGINT, signal.SIGTERM):
+                self._old[s] = signal.getsignal(s)
+                signal.signal(s, self._handler)
+        return self
+
+    def _handler(self, signum: int, frame: Any) -> None:
+        if self.signum is not None:
+            raise KeyboardInterrupt  # second signal: stop whatever is going on (parking included)
+        self.signum = signum
+        log.warning("%s received: stopping after the current step (send it again to abort parking)",
+                    signal.Signals(signum).name)
+
+    def check(self) -> None:
+        if self.signum is not None:
+            raise CaptureInterrupted(f"interrupted by {signal.Signals(self.signum).name}", self.signum)
+
+    def __exit__(self, *exc: object) -> None:
+        for s, h in self._old.items():
+            signal.signal(s, h)
+
+
+class RunEngine:
+    """Runs one capture of ``plan`` on ``bench`` into ``out``; see the module docstring."""
+
+    def __init__(self, bench: Any, plan: Plan, out: str | Path, resume: bool = False, progress: bool | None = None,
+                 handle_signals: bool = True) -> None:
+        self.bench = bench
+        self.cfg = bench.cfg
+        self.plan = plan
+        self.out = Path(out)
+        self.resume = resume
+        self.progress = progress
+        self.handle_signals = handle_signals
+        self.slice_path = self.out / SLICE_NAME
+        self.sidecar_path = self.out / SIDECAR_NAME
+        self.result = CaptureResult(str(self.out), str(self.slice_path))
+        self._writer: SliceWriter | None = None
+        self._done: dict[tuple[float, float], tuple[float, float, float, float]] = {}
+        self._sidecar: dict[str, Any] = {}
+        self._guard = _SignalGuard(False)
+        self._pbar: Any = None
+        self._t_last: float | None = None
+
+    # -- public ---------------------------------------------------------------------------------------------------
+    def run(self) -> CaptureResult:
+        """Validate, then capture. Raises PlanError / ConfigError before any motion; every later failure is
+        returned as a result with ``status`` and ``exit_code`` after the arms were made safe."""
+        t_wall0 = time.monotonic()
+        geom = self.bench.geometry
+        chk = self.plan.validate(geom)  # before anything moves or opens
+        self.result.points_planned = len(chk.measurable)
+        self.result.unmeasurable = [[ti, to, why] for ti, to, why in chk.unmeasurable]
+        est = self.plan.estimate(geom, self.cfg.detector.integration_time_s, chk.measurable)
+        self.result.plan_motion_estimate_s = est["motion_s"]
+        self.result.naive_motion_estimate_s = est["naive_motion_s"]
+        existing = self._check_out_dir()
+        self.out.mkdir(parents=True, exist_ok=True)
+        handler = self._attach_log()
+        try:
+            self._log_plan(chk, est)
+            if existing is not None and self._sidecar.get("status") == "complete" \
+                    and self._all_done(existing, chk.measurable):
+                self.result.status = "complete"
+                self.result.samples_total = len(existing)
+                self.result.message = f"{self.slice_path} is already complete ({len(existing)} samples)"
+                log.info(self.result.message)
+                return self.result
+            self._start_run_record(existing)
+            with _SignalGuard(self.handle_signals) as guard:
+                self._guard = guard
+                self._capture(existing, chk.measurable)
+        finally:
+            self.result.wall_s = time.monotonic() - t_wall0
+            if self.result.samples_new:
+                self.result.wall_per_sample_s = self.result.wall_s / self.result.samples_new
+            self._finish_run_record()
+            self._report()
+            logging.getLogger("acquisition").removeHandler(handler)
+            handler.close()
+        return self.result
+
+    # -- setup ----------------------------------------------------------------------------------------------------
+    def _check_out_dir(self) -> Slice | None:
+        if self.sidecar_path.exists():
+            try:
+                self._sidecar = json.loads(self.sidecar_path.read_text(encoding="utf-8"))
+            except (OSError, json.JSONDecodeError) as e:
+                log.warning("%s unreadable (%s); starting a new run record", self.sidecar_path, e)
+                self._sidecar = {}
+        if not self.slice_path.exists() or self.slice_path.stat().st_size == 0:
+            if self.resume:
+                log.info("nothing to resume in %s: starting a new capture", self.out)
+            self._sidecar = {k: v for k, v in self._sidecar.items() if k == "runs"}
+            return None
+        if not self.resume:
+            raise PlanError(f"{self.out} already holds a capture ({self.slice_path}); continue it with --resume, "
+                            "or choose another --out")
+        try:
+            import warnings
+
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                existing = read_slice(self.slice_path)
+        except SliceError as e:
+            raise PlanError(f"cannot resume: {e}") from None
+        meta = existing.meta
+        fp = meta.get("plan_fingerprint")
+        if fp != self.plan.fingerprint():
+            raise PlanError(f"cannot resume: {self.slice_path} was captured with a different plan (fingerprint "
+                            f"{fp}, the config now gives {self.plan.fingerprint()}); restore the plan or choose "
+                            "another --out")
+        cal = meta.get("calibration", {})
+        if cal.get("mode") != self.cfg.calibration.mode:
+            raise PlanError(f"cannot resume: {self.slice_path} used {cal.get('mode')!r} calibration, the config "
+                            f"says {self.cfg.calibration.mode!r}")
+        if meta.get("detector", {}).get("type") != self.cfg.detector.type:
+            raise PlanError(f"cannot resume: {self.slice_path} was captured with a "
+                            f"{meta.get('detector', {}).get('type')}, the config has a {self.cfg.detector.type}")
+        return existing
+
+    def _attach_log(self) -> logging.Handler:
+        h = logging.FileHandler(self.out / LOG_NAME, encoding="utf-8")
+        h.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+        h.setLevel(logging.INFO)
+        lg = logging.getLogger("acquisition")
+        lg.addHandler(h)
+        if lg.level == logging.NOTSET or lg.level > logging.INFO:
+            lg.setLevel(logging.INFO)
+        return h
+
+    def _log_plan(self, chk: Any, est: dict[str, float]) -> None:
+        log.info("capture %s: config %s, plan %s (fingerprint %s), %s", "resumed" if self.resume else "started",
+                 self.cfg.path, json.dumps(self.plan.to_meta())[:300], self.plan.fingerprint(),
+                 f"{len(chk.measurable)} measurable points")
+        for ti, to, why in chk.unmeasurable:
+            log.info("not measurable: (%g, %g): %s", ti, to, why)
+        log.info("estimated motion time %.2f s in plan order vs %.2f s in naive order; total %.2f s",
+                 est["motion_s"], est["naive_motion_s"], est["total_s"])
+
+    @staticmethod
+    def _all_done(existing: Slice, pts: list[Point]) -> bool:
+        have = {point_key((a, b)) for a, b in zip(existing.theta_i_deg, existing.theta_o_deg, strict=True)}
+        return all(point_key(p) in have for p in pts)
+
+    # -- run record (sidecar) ---------------------------------------------------------------------------------------
+    def _start_run_record(self, existing: Slice | None) -> None:
+        sc = self._sidecar
+        sc.setdefault("runs", [])
+        sc.update({
+            "config": str(self.cfg.path),
+            "plan": self.plan.to_meta(),
+            "plan_fingerprint": self.plan.fingerprint(),
+            "points_planned": self.result.points_planned,
+            "unmeasurable": self.result.unmeasurable,
+            "estimate": {"motion_s": self.result.plan_motion_estimate_s,
+                         "naive_motion_s": self.result.naive_motion_estimate_s},
+            "status": "running",
+        })
+        sc["runs"].append({"started_unix": time.time(), "resume": existing is not None,
+                           "samples_before": 0 if existing is None else len(existing), "pid": os.getpid()})
+        _atomic_json(self.sidecar_path, sc)
+
+    def _finish_run_record(self) -> None:
+        if not self._sidecar.get("runs"):
+            return
+        r = self.result
+        run = self._sidecar["runs"][-1]
+        run.update({"ended_unix": time.time(), "status": r.status, "message": r.message,
+                    "samples_new": r.samples_new, "samples_total": r.samples_total, "bench_time_s": r.bench_time_s,
+                    "bench_clock": r.bench_clock, "motion_s": r.motion_s, "settle_s": r.settle_s,
+                    "read_s": r.read_s, "wall_s": r.wall_s, "wall_per_sample_s": r.wall_per_sample_s})
+        self._sidecar["status"] = r.status
+        if r.dark_drift is not None:
+            self._sidecar["dark_drift"] = r.dark_drift
+        runs = self._sidecar["runs"]
+        self._sidecar["totals"] = {k: float(sum(x.get(k, 0.0) for x in runs))
+                                   for k in ("bench_time_s", "motion_s", "settle_s", "read_s", "wall_s")}
+        try:
+            _atomic_json(self.sidecar_path, self._sidecar)
+        except OSError as e:  # pragma: no cover
+            log.error("cannot write %s: %s", self.sidecar_path, e)
+
+    # -- the capture ------------------------------------------------------------------------------------------------
+    def _capture(self, existing: Slice | None, measurable: list[Point]) -> None:
+        r = self.result
+        bench = self.bench
+        opened_here = False
+        hardware_fault = False
+        try:
+            try:
+                if not bench.is_open:
+                    if bench.cfg.bench.transport == "simulated":
+                        bench.simulator_log = self.out / SIM_LOG_NAME
+                    bench.open()
+                    opened_here = True
+                bench.motion.cancel = self._guard.check
+                r.bench_clock = "controller" if bench.has_clock else "wall"
+                t0 = bench.now()
+                self._t_last = t0
+                try:
+                    cal = self._calibration(existing)
+                    self._measure_all(measurable, cal)
+                    if self.plan.adaptive is not None:
+                        self._adaptive(measurable, cal)
+                    if self.plan.dark_at_end:
+                        d_end = bench.dark(self.cfg.detector.dark_repeats)
+                        drift = d_end.mean - cal.dark.mean
+                        r.dark_drift = [float(x) for x in drift]
+                        noise = cal.dark.std_of_mean + d_end.std_of_mean
+                        lvl = "warning" if np.any(np.abs(drift) > 3 * np.maximum(noise, 1e-9)) else "info"
+                        getattr(log, lvl)("dark level drift over the capture: %s counts (start %s)",
+                                          np.round(drift, 3).tolist(), np.round(cal.dark.mean, 3).tolist())
+                finally:
+                    try:
+                        r.bench_time_s = bench.now() - t0
+                    except Exception:  # the link may be gone after a failure: keep the last known time
+                        if self._t_last is not None:
+                            r.bench_time_s = self._t_last - t0
+                r.status = "complete"
+                r.message = (f"captured {r.samples_new} new sample(s); {r.samples_total} in {self.slice_path}")
+            except CaptureInterrupted as e:
+                r.status, r.exit_code = "interrupted", 128 + (e.signum or signal.SIGINT)
+                r.message = f"capture {e}"
+            except KeyboardInterrupt:
+                r.status, r.exit_code = "interrupted", 128 + signal.SIGINT
+                r.message = "capture interrupted"
+            except HardwareError as e:
+                hardware_fault = True
+                r.status, r.exit_code = "failed", EXIT_FAILED
+                r.message = f"hardware fault: {e}"
+            except (CommError, DeviceError) as e:
+                r.status, r.exit_code = "failed", EXIT_FAILED
+                r.message = f"bench failure: {e}"
+            except PlanError as e:
+                r.status, r.exit_code = "failed", EXIT_USAGE
+                r.message = str(e)
+        finally:
+            if self._pbar is not None:
+                self._pbar.close()
+            if self._writer is not None:
+                self._writer.close()
+            try:
+                if bench.is_open:
+                    bench.shutdown(park=not hardware_fault)
+            finally:
+                if opened_here:
+                    bench.close()
+
+    def _read_checked(self, n: int, what: str) -> Reading:
+        """A reading without saturated repeats (re-read up to ``retries`` times; then a DeviceError)."""
+        det = self.bench.detector
+        for attempt in range(self.cfg.motion.retries + 1):
+            rd = det.read(n)
+            if not rd.saturated:
+                return rd
+            log.warning("%s: %d of %d repeats saturated (attempt %d); reading again", what, rd.saturated, n,
+                        attempt + 1)
+        raise DeviceError(f"{what}: the detector saturates ({det.saturation:g} counts); reduce "
+                          "[detector].integration_time_s or the gain")
+
+    def _calibration(self, existing: Slice | None) -> Calibration:
+        bench = self.bench
+        c = self.cfg.calibration
+        det = bench.detector
+        rho = reference_rho(c.reference_reflectance, c.reference_spectrum, det.wavelengths_nm)
+        if existing is not None:
+            channels = det.channels
+            if existing.channels != channels:
+                raise PlanError(f"cannot resume: {self.slice_path} has channels {existing.channels[:4]}..., the "
+                                f"detector gives {channels[:4]}...")
+            m = existing.meta["calibration"]
+            cal = Calibration(c.mode, Reading.from_meta(m["dark"]),
+                              Reading.from_meta(m["reference_reading"]) if "reference_reading" in m else None,
+                              np.asarray(m["rho_ref"]) if "rho_ref" in m else None,
+                              float(m.get("reference_theta_o_deg", c.reference_theta_o_deg)), m.get("k_counts"))
+            for ti, to, v, s in zip(existing.theta_i_deg, existing.theta_o_deg, existing.values.mean(axis=1),
+                                    existing.std.mean(axis=1), strict=True):
+                self._done[point_key((ti, to))] = (float(ti), float(to), float(v), float(s))
+            self._writer = SliceWriter(self.slice_path, channels)
+            self.result.samples_total = len(self._done)
+            det.set_sample("TARGET")
+            log.info("resuming: %d samples already in %s; calibration reused from its metadata", len(self._done),
+                     self.slice_path)
+            return cal
+        log.info("measuring the dark level (%d repeats, source off)", self.cfg.detector.dark_repeats)
+        dark = bench.dark(self.cfg.detector.dark_repeats)
+        if c.mode == "relative":
+            log.info("measuring the white reference at (%g, %g) (%d repeats)", c.reference_theta_i_deg,
+                     c.reference_theta_o_deg, c.reference_repeats)
+            det.set_sample("REF")
+            try:
+                bench.move(c.reference_theta_i_deg, c.reference_theta_o_deg)
+                bench.settle()
+                ref = self._read_checked(c.reference_repeats, "white reference")
+            finally:
+                det.set_sample("TARGET")
+            cal = Calibration("relative", dark, ref, rho, c.reference_theta_o_deg)
+            cal.scale(c.reference_theta_o_deg)  # raises if the reference reads no signal
+        else:
+            assert c.source_power is not None and c.detector_solid_angle_sr is not None
+            cal = Calibration("absolute", dark, k_counts=c.source_power * c.detector_solid_angle_sr)
+        log.info("dark %s counts; %s", np.round(dark.mean, 3).tolist()[:8],
+                 f"reference {np.round(cal.reference.mean, 3).tolist()[:8]} counts" if cal.reference else
+                 f"K = {cal.k_counts:g} counts")
+        meta = {
+            "bench": str(self.cfg.path),
+            "bench_name": self.cfg.bench.name,
+            "transport": self.cfg.bench.transport,
+            "software_version": _software_version(),
+            "quantity": "brdf",
+            "calibration": {**c.to_meta(), **cal.to_meta()},
+            "detector": {"type": det.type, "integration_time_s": self.cfg.detector.integration_time_s,
+                         "saturation": det.saturation},
+            "plan": self.plan.to_meta(),
+            "plan_fingerprint": self.plan.fingerprint(),
+            "unmeasurable": self.result.unmeasurable,
+            "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        }
+        if self.cfg.sample_name:
+            meta["material"] = self.cfg.sample_name
+        self._writer = SliceWriter(self.slice_path, det.channels, meta)
+        return cal
+
+    def _progress(self, total: int, initial: int) -> Any:
+        if self._pbar is None:
+            from tqdm import tqdm
+
+            disable = (not sys.stderr.isatty()) if self.progress is None else (not self.progress)
+            self._pbar = tqdm(total=total, initial=initial, unit="pt", desc="capture", disable=disable,
+                              dynamic_ncols=True)
+        else:
+            self._pbar.total = total
+            self._pbar.refresh()
+        return self._pbar
+
+    def _measure_all(self, points: list[Point], cal: Calibration) -> None:
+        todo = [p for p in points if point_key(p) not in self._done]
+        n_known = len(self._done)
+        pbar = self._progress(n_known + len(todo), n_known)
+        if not todo:
+            return
+        bench = self.bench
+        geom = bench.geometry
+        start = bench.positions()
+        if self.plan.order == "optimized":
+            todo = order_points(todo, geom, start=start)
+        log.info("%d point(s) to measure; estimated motion %.2f s", len(todo), path_time(todo, geom, start))
+        n = self.plan.repeats
+        for ti, to in todo:
+            self._guard.check()
+            self._measure_point(ti, to, n, cal)
+            pbar.update(1)
+
+    def _measure_point(self, ti: float, to: float, n: int, cal: Calibration) -> None:
+        bench = self.bench
+        r = self.result
+        t0 = self._t_last if self._t_last is not None else bench.now()
+        bench.move(ti, to)
+        t1 = bench.now()
+        bench.settle()
+        rd = self._read_checked(n, f"point ({ti:g}, {to:g})")
+        f, fs = cal.brdf(rd, to)
+        assert self._writer is not None
+        self._writer.append(ti, to, f.tolist(), fs.tolist(), n, time.time())
+        t2 = bench.now()
+        self._t_last = t2
+        r.motion_s += t1 - t0
+        r.settle_s += self.cfg.motion.settle_s
+        r.read_s += max(t2 - t1 - self.cfg.motion.settle_s, 0.0)
+        self._done[point_key((ti, to))] = (ti, to, float(np.mean(f)), float(np.mean(fs)))
+        r.samples_new += 1
+        r.samples_total = len(self._done)
+
+    def _adaptive(self, coarse: list[Point], cal: Calibration) -> None:
+        a = self.plan.adaptive
+        assert a is not None
+        known = {point_key(p) for p in coarse}
+        t_start = self.bench.now() - self._previous_bench_time()
+        for rnd in range(1, a.max_rounds + 1):
+            samples: dict[float, list[tuple[float, float, float]]] = {}
+            for k in known:
+                ti, to, v, s = self._done[k]
+                samples.setdefault(ti, []).append((to, v, s))
+            new = refine_points(samples, self.bench.geometry, a.tolerance, a.min_step_deg, known)
+            if a.max_points and len(known) + len(new) > a.max_points:
+                new = new[: max(a.max_points - len(known), 0)]
+                log.info("adaptive: point limit %d reached", a.max_points)
+            if not new:
+                log.info("adaptive: converged after %d round(s) (tolerance %g)", rnd - 1, a.tolerance)
+                break
+            if a.time_budget_s and self.bench.now() - t_start > a.time_budget_s:
+                log.info("adaptive: time budget %g s used up before round %d", a.time_budget_s, rnd)
+                break
+            log.info("adaptive round %d: %d new point(s)", rnd, len(new))
+            self._measure_all(new, cal)
+            known |= {point_key(p) for p in new}
+            self.result.adaptive_rounds = rnd
+            if a.max_points and len(known) >= a.max_points:
+                break
+
+    def _previous_bench_time(self) -> float:
+        return float(sum(run.get("bench_time_s", 0.0) for run in self._sidecar.get("runs", [])[:-1]))
+
+    # -- report -------------------------------------------------------------------------------------------------------
+    def _report(self) -> None:
+        r = self.result
+        if r.status == "complete":
+            log.info("%s; bench time %.3f s (%s clock): motion %.3f s, settle %.3f s, detector %.3f s; wall %.3f s",
+                     r.message, r.bench_time_s, r.bench_clock, r.motion_s, r.settle_s, r.read_s, r.wall_s)
+            return
+        hint = self.resume_hint()
+        r.message = f"{r.message}\n{r.samples_total} sample(s) are safely in {self.slice_path}. {hint}"
+        log.error(r.message)
+
+    def resume_hint(self) -> str:
+        return (f"Resume with: gonio-capture --config {self.cfg.path} --out {self.out} --resume")
+
+
+def result_dict(r: CaptureResult) -> dict[str, Any]:
+    """The result as a JSON-able dict."""
+    d = asdict(r)
+    for k, v in d.items():
+        if isinstance(v, float) and not math.isfinite(v):
+            d[k] = None
+    return d

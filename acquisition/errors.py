@@ -1,0 +1,37 @@
+"""Exceptions of the acquisition package, by what the operator has to do about them."""
+
+from __future__ import annotations
+
+
+class AcquisitionError(Exception):
+    """Base class of acquisition errors."""
+
+
+class ConfigError(AcquisitionError, ValueError):
+    """A bench config, scene file or plan is invalid; the message names the file and the key. Raised before any
+    motion."""
+
+
+class PlanError(AcquisitionError, ValueError):
+    """A plan cannot be run as given (points out of reach, an inconsistent resume); raised before any motion."""
+
+
+class CommError(AcquisitionError):
+    """Communication with a device failed after the bounded retries (timeouts, corrupt replies, a vanished port);
+    the message names the device and the failure."""
+
+
+class DeviceError(AcquisitionError):
+    """A device refused a command or reported a fault (hardware error, alarm, a goal not reached)."""
+
+
+class HardwareError(DeviceError):
+    """A latched hardware fault (Dynamixel Hardware Error Status, a controller alarm): the capture stops safely."""
+
+
+class CaptureInterrupted(AcquisitionError):
+    """The capture was stopped by Ctrl-C or SIGTERM (``signum`` tells which)."""
+
+    def __init__(self, message: str, signum: int | None = None) -> None:
+        super().__init__(message)
+        self.signum = signum

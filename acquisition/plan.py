@@ -1,0 +1,589 @@
+"""Capture plans as data: the points to measure, checked before anything moves, ordered for short arm travel.
+
+A point is ``(theta_i_deg, theta_o_deg)``: light arm at theta_i, detector arm at the signed theta_o (positive on
+the specular side). :class:`Geometry` knows what the bench can reach (soft limits), where the arms would
+collide (``|theta_i + theta_o| < min_separation_deg``) and where the source arm shadows the detector (the blind
+spot, ``|theta_i + theta_o| < blind_spot_half_width_deg``), and how long a move takes (trapezoidal profiles of
+both arms moving at once). :meth:`Plan.check` sorts points into measurable and unmeasurable ones, each with its
+reason: nothing is dropped silently. :func:`order_points` orders them to minimise travel time.
+
+Scenes (``configs/scenes/*.toml``) restrict a plan to what a scene needs: see :class:`Scene`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import sys
+import time
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .config import AdaptiveConfig, AxisConfig, BenchConfig, PlanConfig, _frange
+from .errors import ConfigError, PlanError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+__all__ = ["Point", "Geometry", "Plan", "PlanCheck", "Scene", "load_scene", "order_points", "path_time",
+           "refine_points", "point_key"]
+
+Point = tuple[float, float]
+
+#: Dynamixel X-series profile units: Profile Velocity 0.229 rev/min, Profile Acceleration 214.577 rev/min^2.
+DXL_VEL_UNIT_REV_S = 0.229 / 60.0
+DXL_ACC_UNIT_REV_S2 = 214.577 / 3600.0
+DXL_UNITS_PER_REV = 4096.0
+
+
+def point_key(p: Point) -> tuple[float, float]:
+    """Hashable identity of a point: angles rounded to 1e-6 deg."""
+    return (round(float(p[0]), 6) + 0.0, round(float(p[1]), 6) + 0.0)
+
+
+def _trapezoid_time(d: np.ndarray | float, v: float, a: float) -> np.ndarray:
+    """Duration (s) of a rest-to-rest move over distance ``d`` (deg) at max speed ``v``, acceleration ``a``."""
+    d = np.abs(np.asarray(d, dtype=float))
+    if math.isinf(v) and math.isinf(a):
+        return np.zeros_like(d)
+    if math.isinf(a):
+        return d / v
+    if math.isinf(v):
+        return 2.0 * np.sqrt(d / a)
+    d_ramp = v * v / a
+    return np.where(d < d_ramp, 2.0 * np.sqrt(d / a), d / v + v / a)
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """What the bench can reach and how fast; angles in degrees, speeds in deg/s, accelerations in deg/s^2."""
+
+    light: AxisConfig
+    detector: AxisConfig
+    min_separation_deg: float
+    blind_spot_half_width_deg: float
+    light_speed: tuple[float, float] = (math.inf, math.inf)
+    detector_speed: tuple[float, float] = (math.inf, math.inf)
+    settle_s: float = 0.0
+
+    @classmethod
+    def from_config(cls, cfg: BenchConfig) -> Geometry:
+        speeds = []
+        for ax in (cfg.light, cfg.det_axis):
+            if cfg.bench.motion == "dynamixel":
+                pv, pa = cfg.motion.profile_velocity, cfg.motion.profile_acceleration
+                v = math.inf if pv <= 0 else pv * DXL_VEL_UNIT_REV_S * DXL_UNITS_PER_REV / ax.units_per_deg
+                a = math.inf if pa <= 0 else pa * DXL_ACC_UNIT_REV_S2 * DXL_UNITS_PER_REV / ax.units_per_deg
+            else:
+                v, a = cfg.motion.velocity_deg_s, cfg.motion.acceleration_deg_s2
+            speeds.append((v, a))
+        return cls(cfg.light, cfg.det_axis, cfg.bench.min_separation_deg, cfg.bench.blind_spot_half_width_deg,
+                   speeds[0], speeds[1], cfg.motion.settle_s)
+
+    @property
+    def park(self) -> Point:
+        return (self.light.park_deg, self.detector.park_deg)
+
+    def reason(self, ti: float, to: float) -> str | None:
+        """Why (ti, to) cannot be measured, or None if it can."""
+        if not -90.0 < ti < 90.0 or not -90.0 < to < 90.0:
+            return "outside (-90, 90) degrees"
+        if not self.light.within(ti):
+            return (f"theta_i {ti:g} outside the light arm soft limits "
+                    f"[{self.light.min_deg:g}, {self.light.max_deg:g}]")
+        if not self.detector.within(to):
+            return (f"theta_o {to:g} outside the detector arm soft limits "
+                    f"[{self.detector.min_deg:g}, {self.detector.max_deg:g}]")
+        sep = abs(self.quantise(self.light, ti) + self.quantise(self.detector, to))  # at the goals as sent
+        if sep < self.min_separation_deg:
+            return (f"collision: arms {sep:.3f} deg apart, closer than min_separation_deg "
+                    f"{self.min_separation_deg:g}")
+        if sep < self.blind_spot_half_width_deg:
+            return (f"blind spot: the source arm shadows the detector (|theta_i + theta_o| = {sep:.3f} < "
+                    f"{self.blind_spot_half_width_deg:g})")
+        return None
+
+    @staticmethod
+    def quantise(ax: AxisConfig, deg: float) -> float:
+        """The angle the axis is actually sent to: ``deg`` rounded to whole controller units."""
+        return ax.units_to_deg(round(ax.deg_to_units(deg)))
+
+    @staticmethod
+    def is_limit_reason(reason: str) -> bool:
+        """True for reasons that make a point unreachable (limits), False for collision / blind spot."""
+        return reason.startswith(("theta_i", "theta_o", "outside"))
+
+    def move_times(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Move time (s) between points ``a`` and ``b`` (..., 2), both arms moving at once; no settle."""
+        a = np.asarray(a, dtype=float)
+        b = np.asarray(b, dtype=float)
+        tl = _trapezoid_time(b[..., 0] - a[..., 0], *self.light_speed)
+        td = _trapezoid_time(b[..., 1] - a[..., 1], *self.detector_speed)
+        return np.maximum(tl, td)
+
+    def move_time(self, a: Point, b: Point) -> float:
+        return float(self.move_times(np.asarray(a), np.asarray(b)))
+
+
+def path_time(points: Sequence[Point], geom: Geometry, start: Point | None = None, end: Point | None = None
+              ) -> float:
+    """Total move time (s) visiting ``points`` in order, from ``start`` and back to ``end`` (default: park)."""
+    start = geom.park if start is None else start
+    end = geom.park if end is None else end
+    seq = np.array([start, *points, end], dtype=float)
+    if len(seq) < 2:
+        return 0.0
+    return float(geom.move_times(seq[:-1], seq[1:]).sum())
+
+
+def _serpentine(points: Sequence[Point], geom: Geometry, start: Point, reverse_ti: bool) -> list[Point]:
+    groups: dict[float, list[Point]] = {}
+    for p in points:
+        groups.setdefault(p[0], []).append(p)
+    out: list[Point] = []
+    cur = start
+    for ti in sorted(groups, reverse=reverse_ti):
+        g = sorted(groups[ti], key=lambda p: p[1])
+        if geom.move_time(cur, g[-1]) < geom.move_time(cur, g[0]):
+            g.reverse()
+        out += g
+        cur = g[-1]
+    return out
+
+
+def _nearest_neighbour(pts: np.ndarray, geom: Geometry, start: Point) -> list[int]:
+    n = len(pts)
+    left = np.ones(n, dtype=bool)
+    cur = np.asarray(start, dtype=float)
+    order = []
+    for _ in range(n):
+        t = geom.move_times(cur[None, :], pts)
+        t[~left] = np.inf
+        k = int(np.argmin(t))
+        order.append(k)
+        left[k] = False
+        cur = pts[k]
+    return order
+
+
+def _two_opt(seq: np.ndarray, geom: Geometry, budget_s: float) -> np.ndarray:
+    """2-opt on a path with fixed first and last nodes (``seq`` (N, 2)); stops when no gain or out of time."""
+    t0 = time.perf_counter()
+    n = len(seq)
+    if n < 5:
+        return seq
+    seq = seq.copy()
+    improved = True
+    while improved and time.perf_counter() - t0 < budget_s:
+        improved = False
+        for i in range(0, n - 3):
+            a, b = seq[i], seq[i + 1]
+            c = seq[i + 2:n - 1]
+            d = seq[i + 3:n]
+            gain = (geom.move_time(a, b) + geom.move_times(c, d)
+                    - geom.move_times(a[None, :], c) - geom.move_times(b[None, :], d))
+            k = int(np.argmax(gain))
+            if gain[k] > 1e-9:
+                j = i + 2 + k
+                seq[i + 1:j + 1] = seq[i + 1:j + 1][::-1].copy()
+                improved = True
+            if time.perf_counter() - t0 > budget_s:
+                break
+    return seq
+
+
+def order_points(points: Sequence[Point], geom: Geometry, start: Point | None = None,
+                 end: Point | None = None, budget_s: float = 0.5) -> list[Point]:
+    """Order ``points`` to minimise the total move time from ``start`` to ``end`` (default: park).
+
+    Tries serpentine orders (incidence by incidence, alternating the outgoing sweep) and a nearest-neighbour
+    tour, improves the best with 2-opt within ``budget_s`` seconds of computing, and returns the fastest.
+    """
+    start = geom.park if start is None else tuple(start)
+    end = geom.park if end is None else tuple(end)
+    pts = [tuple(map(float, p)) for p in points]
+    if len(pts) <= 1:
+        return list(pts)  # type: ignore[arg-type]
+    cands = [_serpentine(pts, geom, start, False), _serpentine(pts, geom, start, True)]
+    arr = np.array(pts)
+    if len(pts) <= 3000:
+        cands.append([pts[k] for k in _nearest_neighbour(arr, geom, start)])
+    best = min(cands, key=lambda s: path_time(s, geom, start, end))
+    full = np.array([start, *best, end], dtype=float)
+    improved = _two_opt(full, geom, budget_s)[1:-1]
+    improved_list = [(float(x), float(y)) for x, y in improved]
+    if path_time(improved_list, geom, start, end) < path_time(best, geom, start, end):
+        best = improved_list
+    return best
+
+
+# --- scenes ----------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Scene:
+    """What a scene needs: a scene file (``configs/scenes/*.toml``), shared with ``gonio-reconstruct --scene``::
+
+        [scene]
+        name = "glossy-product"          # optional label
+        theta_i_deg = [15.0, 45.0]       # range [min, max] of light polar angles the scene uses (0 <= min <= max < 90)
+        theta_o_deg = [0.0, 75.0]        # range of view polar angles from the normal (unsigned: both sides of the
+                                         # normal are kept on the in-plane slice)
+        angular_resolution_deg = 1.0     # finest angular detail that matters: becomes the outgoing step
+        lobes = ["lambert", "ggx"]       # optional, for the reconstruction (ignored by the capture)
+
+        [scene.error_budget]             # optional
+        relative_rmse = 0.03             # tolerated relative error: becomes the adaptive refinement tolerance
+        relative_sigma = 0.01            # optional: relative measurement uncertainty aimed at (recorded)
+
+    All keys are optional (a missing range means the whole hemisphere); unknown keys are errors.
+    """
+
+    name: str = "scene"
+    theta_i_deg: tuple[float, float] = (0.0, 89.999)
+    theta_o_deg: tuple[float, float] = (0.0, 89.999)
+    angular_resolution_deg: float | None = None
+    relative_rmse: float | None = None
+    relative_sigma: float | None = None
+    lobes: tuple[str, ...] | None = None
+    path: str = "<scene>"
+
+
+_SCENE_KEYS = ("name", "theta_i_deg", "theta_o_deg", "angular_resolution_deg", "lobes", "error_budget")
+_BUDGET_KEYS = ("relative_rmse", "relative_sigma")
+
+
+def _pos_num(src: str, key: str, v: Any) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)) or v <= 0:
+        raise ConfigError(f"{src}: [{key}: expected a positive number, got {v!r}")
+    return float(v)
+
+
+def _polar_range(src: str, key: str, v: Any) -> tuple[float, float]:
+    ok = (isinstance(v, list) and len(v) == 2
+          and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v))
+    if not ok or not 0.0 <= v[0] <= v[1] < 90.0:
+        raise ConfigError(f"{src}: [scene].{key}: expected [min, max] degrees with 0 <= min <= max < 90, got {v!r}")
+    return float(v[0]), float(v[1])
+
+
+def scene_from_dict(d: Mapping[str, Any], src: str = "<scene>") -> Scene:
+    """Validate a parsed scene file (the whole TOML document, with its ``[scene]`` table)."""
+    unknown = [k for k in d if k != "scene"]
+    if unknown:
+        raise ConfigError(f"{src}: [{unknown[0]}]: unknown section; a scene file has only [scene]")
+    s = d.get("scene")
+    if not isinstance(s, Mapping):
+        raise ConfigError(f"{src}: [scene]: missing section (required)")
+    for k in s:
+        if k not in _SCENE_KEYS:
+            raise ConfigError(f"{src}: [scene].{k}: unknown key; allowed keys: {', '.join(_SCENE_KEYS)}")
+    kw: dict[str, Any] = {"path": src}
+    if "name" in s:
+        if not isinstance(s["name"], str):
+            raise ConfigError(f"{src}: [scene].name: expected a string, got {s['name']!r}")
+        kw["name"] = s["name"]
+    else:
+        kw["name"] = Path(src).stem
+    for k in ("theta_i_deg", "theta_o_deg"):
+        if k in s:
+            kw[k] = _polar_range(src, k, s[k])
+    if "angular_resolution_deg" in s:
+        kw["angular_resolution_deg"] = _pos_num(src, "scene].angular_resolution_deg", s["angular_resolution_deg"])
+    if "lobes" in s:
+        lobes = s["lobes"]
+        if not isinstance(lobes, list) or not all(isinstance(x, str) for x in lobes):
+            raise ConfigError(f"{src}: [scene].lobes: expected a list of lobe names, got {lobes!r}")
+        kw["lobes"] = tuple(lobes)
+    eb = s.get("error_budget", {})
+    if not isinstance(eb, Mapping):
+        raise ConfigError(f"{src}: [scene.error_budget]: expected a table (relative_rmse, relative_sigma)")
+    for k in eb:
+        if k not in _BUDGET_KEYS:
+            raise ConfigError(f"{src}: [scene.error_budget].{k}: unknown key; allowed keys: {', '.join(_BUDGET_KEYS)}")
+        kw[k] = _pos_num(src, f"scene.error_budget].{k}", eb[k])
+    return Scene(**kw)
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Read and validate a scene file."""
+    p = Path(path)
+    try:
+        d = tomllib.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"{p}: no such scene file") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise ConfigError(f"{p}: invalid TOML: {e}") from None
+    return scene_from_dict(d, str(p))
+
+
+# --- plans -----------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """One incidence with an outgoing range: theta_o from ``lo`` to ``hi`` every ``step`` degrees."""
+
+    theta_i_deg: float
+    lo: float
+    hi: float
+    step: float
+
+    def points(self, step: float | None = None) -> list[Point]:
+        s = self.step if step is None else step
+        tos = _frange(self.lo, self.hi, s)
+        if tos and abs(tos[-1] - self.hi) > 1e-6:
+            tos.append(round(self.hi, 9))  # always include the end of the range
+        return [(self.theta_i_deg, to) for to in tos]
+
+
+@dataclass
+class PlanCheck:
+    """Result of :meth:`Plan.check`: measurable points and unmeasurable ones with their reasons."""
+
+    measurable: list[Point]
+    unmeasurable: list[tuple[float, float, str]]
+
+    @property
+    def unreachable(self) -> list[tuple[float, float, str]]:
+        """Points outside the soft limits (a plan error, unlike collision / blind-spot points)."""
+        return [u for u in self.unmeasurable if Geometry.is_limit_reason(u[2])]
+
+    def describe(self, limit: int = 8) -> str:
+        lines = [f"{len(self.measurable)} measurable points, {len(self.unmeasurable)} not measurable"]
+        for ti, to, why in self.unmeasurable[:limit]:
+            lines.append(f"  ({ti:g}, {to:g}): {why}")
+        if len(self.unmeasurable) > limit:
+            lines.append(f"  ... and {len(self.unmeasurable) - limit} more")
+        return "\n".join(lines)
+
+
+@dataclass
+class Plan:
+    """Points to measure, with repeats and options. Build with :meth:`grid`, :meth:`from_points` or
+    :meth:`from_config`; restrict with :meth:`restrict`; check with :meth:`check`.
+
+    With ``adaptive`` set, :meth:`initial_points` is the coarse pass and the capture adds midpoints where the slice
+    changes fast (:func:`refine_points`) down to ``adaptive.min_step_deg``.
+    """
+
+    sweeps: list[Sweep] = field(default_factory=list)
+    explicit: list[Point] | None = None
+    repeats: int = 4
+    dark_at_end: bool = True
+    order: str = "optimized"
+    strict: bool = False
+    adaptive: AdaptiveConfig | None = None
+    scene: str | None = None
+
+    @classmethod
+    def grid(cls, theta_i_deg: Iterable[float], theta_o_min_deg: float, theta_o_max_deg: float,
+             theta_o_step_deg: float, **kw: Any) -> Plan:
+        """Every incidence with theta_o from min to max (inclusive) every step degrees."""
+        if theta_o_step_deg <= 0:
+            raise PlanError(f"theta_o_step_deg must be > 0, got {theta_o_step_deg:g}")
+        if theta_o_max_deg < theta_o_min_deg:
+            raise PlanError(f"theta_o_max_deg {theta_o_max_deg:g} < theta_o_min_deg {theta_o_min_deg:g}")
+        sweeps = [Sweep(float(ti), float(theta_o_min_deg), float(theta_o_max_deg), float(theta_o_step_deg))
+                  for ti in theta_i_deg]
+        return cls(sweeps=sweeps, **kw)
+
+    @classmethod
+    def from_points(cls, points: Iterable[Sequence[float]], **kw: Any) -> Plan:
+        """An explicit list of (theta_i_deg, theta_o_deg) points."""
+        return cls(explicit=[(float(p[0]), float(p[1])) for p in points], **kw)
+
+    @classmethod
+    def from_config(cls, pc: PlanConfig, base_dir: Path | str = ".") -> Plan:
+        """The ``[plan]`` of a bench file; a ``scene`` key there is applied with :meth:`restrict`."""
+        kw = dict(repeats=pc.repeats, dark_at_end=pc.dark_at_end, order=pc.order, strict=pc.strict,
+                  adaptive=pc.adaptive)
+        if pc.points is not None:
+            plan = cls.from_points(pc.points, **kw)
+        else:
+            assert pc.theta_o_min_deg is not None and pc.theta_o_max_deg is not None
+            assert pc.theta_o_step_deg is not None
+            plan = cls.grid(pc.theta_i_deg, pc.theta_o_min_deg, pc.theta_o_max_deg, pc.theta_o_step_deg, **kw)
+        if pc.scene:
+            p = Path(pc.scene)
+            if not p.is_absolute():
+                p = Path(base_dir) / p
+            plan = plan.restrict(load_scene(p))
+        return plan
+
+    def restrict(self, scene: Scene) -> Plan:
+        """This plan limited to what ``scene`` needs: the plan's incidences within the scene's theta_i range;
+        outgoing angles whose polar angle |theta_o| lies in the scene's theta_o range (both sides of the normal),
+        within the plan's range; the scene's angular resolution as the step; its error budget (relative_rmse) as
+        the adaptive tolerance."""
+        ti_lo, ti_hi = scene.theta_i_deg
+        to_lo, to_hi = scene.theta_o_deg
+
+        def keep_ti(ti: float) -> bool:
+            return ti_lo - 1e-9 <= abs(ti) <= ti_hi + 1e-9
+
+        if self.explicit is not None:
+            pts = [p for p in self.explicit if keep_ti(p[0]) and to_lo - 1e-9 <= abs(p[1]) <= to_hi + 1e-9]
+            if not pts:
+                raise PlanError(f"{scene.path}: scene {scene.name!r} keeps none of the plan's points")
+            return replace(self, explicit=pts, scene=scene.name)
+        if not self.sweeps:
+            raise PlanError("the plan is empty")
+        sweeps = []
+        for sw in self.sweeps:
+            if not keep_ti(sw.theta_i_deg):
+                continue
+            step = scene.angular_resolution_deg or sw.step
+            sides = [(-to_hi, -to_lo), (to_lo, to_hi)] if to_lo > 0 else [(-to_hi, to_hi)]
+            for a, b in sides:
+                lo, hi = max(sw.lo, a), min(sw.hi, b)
+                if hi >= lo:
+                    sweeps.append(Sweep(sw.theta_i_deg, lo, hi, step))
+        if not sweeps:
+            raise PlanError(f"{scene.path}: scene {scene.name!r} (theta_i in [{ti_lo:g}, {ti_hi:g}], |theta_o| in "
+                            f"[{to_lo:g}, {to_hi:g}]) keeps none of the plan's points")
+        adaptive = self.adaptive
+        if adaptive is not None:
+            res = scene.angular_resolution_deg
+            adaptive = replace(
+                adaptive,
+                tolerance=scene.relative_rmse if scene.relative_rmse is not None else adaptive.tolerance,
+                min_step_deg=min(adaptive.min_step_deg, res) if res else adaptive.min_step_deg,
+                coarse_step_deg=max(adaptive.coarse_step_deg, res) if res else adaptive.coarse_step_deg)
+        return replace(self, sweeps=sweeps, adaptive=adaptive, scene=scene.name)
+
+    def requested_points(self) -> list[Point]:
+        """Every point the plan asks for (without adaptive refinement), deduplicated, in naive order."""
+        if self.explicit is not None:
+            pts = list(self.explicit)
+        elif self.adaptive is not None:
+            pts = [p for s in self.sweeps for p in s.points(self.adaptive.coarse_step_deg)]
+        else:
+            pts = [p for s in self.sweeps for p in s.points()]
+        seen: dict[tuple[float, float], Point] = {}
+        for p in pts:
+            seen.setdefault(point_key(p), (float(p[0]), float(p[1])))
+        return list(seen.values())
+
+    initial_points = requested_points
+
+    def check(self, geom: Geometry) -> PlanCheck:
+        """Sort the requested points into measurable and unmeasurable (with reasons)."""
+        ok, bad = [], []
+        for p in self.requested_points():
+            why = geom.reason(*p)
+            if why is None:
+                ok.append(p)
+            else:
+                bad.append((p[0], p[1], why))
+        return PlanCheck(ok, bad)
+
+    def validate(self, geom: Geometry) -> PlanCheck:
+        """:meth:`check`, raising :class:`PlanError` for points outside the soft limits (or, with ``strict``,
+        for any unmeasurable point) and for a plan with nothing to measure."""
+        chk = self.check(geom)
+        bad = chk.unmeasurable if self.strict else chk.unreachable
+        if bad:
+            lines = "\n".join(f"  ({ti:g}, {to:g}): {why}" for ti, to, why in bad[:10])
+            more = f"\n  ... and {len(bad) - 10} more" if len(bad) > 10 else ""
+            raise PlanError(f"{len(bad)} plan point(s) cannot be measured:\n{lines}{more}")
+        if not chk.measurable:
+            raise PlanError("the plan has no measurable point")
+        return chk
+
+    def to_meta(self) -> dict[str, Any]:
+        """JSON description of the plan (stored in the slice metadata; a resume must match it)."""
+        d: dict[str, Any] = {"repeats": self.repeats, "order": self.order}
+        if self.explicit is not None:
+            d["points"] = [list(p) for p in self.explicit]
+        else:
+            d["sweeps"] = [[s.theta_i_deg, s.lo, s.hi, s.step] for s in self.sweeps]
+        if self.adaptive is not None:
+            a = self.adaptive
+            d["adaptive"] = {"coarse_step_deg": a.coarse_step_deg, "min_step_deg": a.min_step_deg,
+                             "tolerance": a.tolerance, "time_budget_s": a.time_budget_s,
+                             "max_points": a.max_points, "max_rounds": a.max_rounds}
+        if self.scene:
+            d["scene"] = self.scene
+        return d
+
+    def fingerprint(self) -> str:
+        """Short hash of the points and repeats (what a resume must agree on)."""
+        key = {"points": [list(point_key(p)) for p in self.requested_points()], "repeats": self.repeats,
+               "adaptive": self.to_meta().get("adaptive")}
+        return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
+
+    def estimate(self, geom: Geometry, integration_time_s: float, points: Sequence[Point] | None = None
+                 ) -> dict[str, float]:
+        """Estimated times (s): ``motion_s`` in this plan's order, ``naive_motion_s`` in naive order, and
+        ``total_s`` with settle and detector time."""
+        pts = self.check(geom).measurable if points is None else list(points)
+        ordered = order_points(pts, geom) if self.order == "optimized" else pts
+        motion = path_time(ordered, geom)
+        naive = path_time(pts, geom)
+        per_point = geom.settle_s + self.repeats * integration_time_s
+        return {"points": float(len(pts)), "motion_s": motion, "naive_motion_s": naive,
+                "total_s": motion + len(pts) * per_point}
+
+
+# --- adaptive refinement ---------------------------------------------------------------------------------------
+
+
+def refine_points(samples: Mapping[float, Sequence[tuple[float, float, float]]], geom: Geometry,
+                  tolerance: float, min_step_deg: float, measured: set[tuple[float, float]] | None = None
+                  ) -> list[Point]:
+    """Midpoints to add where a slice changes fast.
+
+    ``samples`` maps theta_i to (theta_o, value, std) triples (value: the sample's mean over channels). For
+    each gap between neighbouring theta_o the interpolation error of the piecewise-linear slice is estimated
+    from the second differences at its ends (``h^2 |f''| / 8``, less three standard deviations of what the
+    noise alone contributes to it) and compared with ``tolerance`` times the local level (floored at three
+    times the noise and 1 % of the slice maximum). A jump between neighbours larger than twice the tolerance
+    (beyond three sigma of noise) also splits the gap, so that a narrow peak between two coarse samples is
+    found. Gaps whose estimate exceeds the tolerance get
+    their midpoint, unless that would make a gap narrower than ``min_step_deg`` or the midpoint cannot be
+    measured. Deterministic: the same samples give the same points.
+    """
+    measured = set() if measured is None else measured
+    out: list[Point] = []
+    for ti in sorted(samples):
+        rows = sorted(samples[ti])
+        if len(rows) < 2:
+            continue
+        x = np.array([r[0] for r in rows])
+        v = np.array([r[1] for r in rows])
+        s = np.array([r[2] for r in rows])
+        vmax = float(np.max(np.abs(v))) if len(v) else 0.0
+        n = len(x)
+        # second differences normalised to a uniform spacing (divided difference times h^2)
+        d2 = np.zeros(n)
+        for k in range(1, n - 1):
+            h1, h2 = x[k] - x[k - 1], x[k + 1] - x[k]
+            dd = 2.0 * ((v[k + 1] - v[k]) / h2 - (v[k] - v[k - 1]) / h1) / (h1 + h2)
+            d2[k] = abs(dd)
+        for k in range(n - 1):
+            h = x[k + 1] - x[k]
+            if h / 2.0 < min_step_deg - 1e-9:
+                continue
+            curv = max(d2[k], d2[k + 1]) if n > 2 else 0.0
+            sig = float(np.max(s[max(k - 1, 0):k + 3]))  # noise of the values entering the estimate
+            # max error of linear interpolation on the gap, less what noise alone would produce (3 sigma of the
+            # second difference, sqrt(6) sigma / h^2 for equal gaps)
+            err = max(curv * h * h / 8.0 - 3.0 * math.sqrt(6.0) * sig / 8.0, 0.0)
+            jump = abs(v[k + 1] - v[k])
+            noise = 3.0 * max(s[k], s[k + 1])
+            level = max(0.5 * (abs(v[k]) + abs(v[k + 1])), noise, 0.01 * vmax, 1e-300)
+            if max(err, 0.5 * jump - noise) / level <= tolerance:
+                continue
+            mid = (float(ti), round(0.5 * (x[k] + x[k + 1]), 9))
+            if point_key(mid) in measured or geom.reason(*mid) is not None:
+                continue
+            out.append(mid)
+    return out

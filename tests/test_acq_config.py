@@ -1,0 +1,154 @@
+"""Bench files: shipped configs load; bad configs give clear errors naming file and key, before any motion."""
+
+from __future__ import annotations
+
+import pytest
+
+from acquisition import ConfigError, load_config
+from acquisition.cli import main
+from acquisition.config import config_from_dict, dump_toml
+
+try:
+    from .test_acq_support import REPO, make_raw, write_config
+except ImportError:  # tests/ is not a package
+    from test_acq_support import REPO, make_raw, write_config
+
+
+@pytest.mark.parametrize("name", ["simulated.toml", "dynamixel-bench.toml", "serial-bench.toml"])
+def test_shipped_configs_load(name):
+    cfg = load_config(REPO / "configs" / name)
+    assert cfg.bench.transport in ("simulated", "dynamixel", "serial")
+    assert {"light", "detector"} <= set(cfg.axes)
+
+
+def test_simulated_config_roundtrips_through_dump():
+    raw = make_raw(fast=False)
+    import tomllib
+
+    assert tomllib.loads(dump_toml(raw)) == raw
+
+
+def _err(raw, path="bench.toml") -> str:
+    with pytest.raises(ConfigError) as ei:
+        config_from_dict(raw, path)
+    return str(ei.value)
+
+
+def _drop(raw, section, key):
+    d = raw
+    for part in section.split("."):
+        d = d[part]
+    del d[key]
+    return raw
+
+
+@pytest.mark.parametrize("over, where, what", [
+    ({"bench": {"transprt": "serial"}}, "[bench].transprt", "did you mean 'transport'"),
+    ({"motion": {"tolerance": 0.1}}, "[motion].tolerance", "unknown key"),
+    ({"bench": {"transport": "usb"}}, "[bench].transport", "expected one of"),
+    ({"axes": {"light": {"max_deg": "high"}}}, "[axes.light].max_deg", "expected a number"),
+    ({"axes": {"light": {"min_deg": 50.0, "max_deg": 40.0}}}, "[axes.light].max_deg", "greater than min_deg"),
+    ({"axes": {"light": {"park_deg": 86.0}}}, "[axes.light].park_deg", "outside the soft limits"),
+    ({"axes": {"light": {"direction": 2}}}, "[axes.light].direction", "expected one of"),
+    ({"axes": {"light": {"units_per_deg": 0.0}}}, "[axes.light].units_per_deg", "must be > 0"),
+    ({"axes": {"detector": {"max_deg": 120.0, "min_deg": -80.0}}}, "[axes.detector].max_deg", "[-90, 90]"),
+    ({"axes": {"light": {"zero_offset": 3900}}}, "[axes.light].zero_offset", "0..4095"),
+    ({"axes": {"light": {"model": "AX-12"}}}, "[axes.light].model", "unknown Dynamixel model"),
+    ({"axes": {"detector": {"id": 1}}}, "[axes.detector].id", "already the id of [axes.light]"),
+    ({"axes": {"turret": {"id": 5}}}, "[axes.turret]", "unknown axis"),
+    ({"motion": {"retries": -1}}, "[motion].retries", "must lie in"),
+    ({"motion": {"settle_s": True}}, "[motion].settle_s", "expected a number"),
+    ({"detector": {"type": "camera"}}, "[detector].type", "expected one of"),
+    ({"detector": {"repeats": 0}}, "[detector].repeats", "must lie in"),
+    ({"calibration": {"mode": "absolute"}}, "[calibration].source_power", "missing key"),
+    ({"calibration": {"reference_reflectance": 1.9}}, "[calibration].reference_reflectance", "(0, 1.5]"),
+    ({"calibration": {"reference_theta_o_deg": -2.0}}, "[calibration].reference_theta_o_deg", "collision"),
+    ({"calibration": {"reference_spectrum": "nope.csv"}}, "[calibration].reference_spectrum", "cannot read"),
+    ({"plan": {"theta_o_step_deg": -1.0}}, "[plan].theta_o_step_deg", "must be > 0"),
+    ({"plan": {"theta_o_min_deg": 10.0, "theta_o_max_deg": 0.0}}, "[plan].theta_o_max_deg", "less than"),
+    ({"plan": {"theta_i_deg": ["thirty"]}}, "[plan].theta_i_deg", "list of numbers"),
+    ({"plan": {"order": "random"}}, "[plan].order", "expected one of"),
+    ({"plan": {"adaptive": {"tolerance": 0.1, "coarse": 3}}}, "[plan.adaptive].coarse", "unknown key"),
+    ({"material": {"lobes": [{"type": "lambert", "albedo": -1.0}]}}, "[material]", "albedo"),
+    ({"extra": {"x": 1}}, "[extra]", "unknown section"),
+])
+def test_bad_config_names_file_and_key(over, where, what):
+    msg = _err(make_raw(over))
+    assert msg.startswith("bench.toml: "), msg
+    assert where in msg and what in msg, msg
+
+
+@pytest.mark.parametrize("section, key", [("bench", "transport"), ("axes.light", "max_deg"),
+                                          ("motion", "tolerance_deg"), ("detector", "type"),
+                                          ("calibration", "mode"), ("plan", "theta_o_step_deg")])
+def test_missing_key_is_named(section, key):
+    msg = _err(_drop(make_raw(), section, key))
+    assert f"[{section}].{key}: missing" in msg, msg
+
+
+def test_missing_section_and_material():
+    raw = make_raw()
+    del raw["motion"]
+    assert "[motion]: missing section" in _err(raw)
+    raw = make_raw()
+    del raw["material"]
+    assert "[material]: missing section" in _err(raw)
+
+
+def test_hardware_benches_need_ports():
+    raw = make_raw({"bench": {"transport": "dynamixel", "dynamixel_port": "", "serial_port": "/dev/ttyACM0"}})
+    del raw["bench"]["motion"]
+    assert "[bench].dynamixel_port: missing" in _err(raw)
+    raw = make_raw({"bench": {"transport": "serial", "motion": "dynamixel", "serial_port": "/dev/x"}})
+    assert "[bench].motion" in _err(raw)
+
+
+def test_reference_spectrum_file(tmp_path):
+    (tmp_path / "panel.csv").write_text("wavelength_nm,reflectance\n400,0.97\n700,0.99\n")
+    raw = make_raw()
+    del raw["calibration"]["reference_reflectance"]
+    raw["calibration"]["reference_spectrum"] = "panel.csv"
+    cfg = config_from_dict(raw, tmp_path / "b.toml")
+    assert cfg.calibration.reference_spectrum == ((400.0, 700.0), (0.97, 0.99))
+    (tmp_path / "bad.csv").write_text("400,0.97\n380,2.0\n")
+    raw["calibration"]["reference_spectrum"] = "bad.csv"
+    assert "bad.csv:2" in _err(raw, tmp_path / "b.toml")
+
+
+def test_cli_bad_config_exits_2_before_anything(tmp_path, capsys):
+    cfg = write_config(tmp_path / "bad.toml", make_raw({"motion": {"tolerance_deg": "fine"}}))
+    out = tmp_path / "out"
+    assert main(["--config", str(cfg), "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert f"{cfg}: [motion].tolerance_deg: expected a number" in err and "nothing was moved" in err
+    assert not out.exists()  # no simulator started, nothing written
+
+
+def test_cli_missing_file_and_bad_toml(tmp_path, capsys):
+    assert main(["--config", str(tmp_path / "nope.toml"), "--out", str(tmp_path / "o")]) == 2
+    assert "no such file" in capsys.readouterr().err
+    (tmp_path / "broken.toml").write_text("[bench\nname=1")
+    assert main(["--config", str(tmp_path / "broken.toml"), "--out", str(tmp_path / "o")]) == 2
+    assert "invalid TOML" in capsys.readouterr().err
+
+
+def test_cli_unreachable_points_exit_2_before_motion(tmp_path, capsys):
+    cfg = write_config(tmp_path / "far.toml", make_raw({"plan": {"theta_i_deg": [30.0, 87.0]}}))
+    out = tmp_path / "out"
+    assert main(["--config", str(cfg), "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "cannot be measured" in err and "(87, -70): theta_i 87 outside the light arm soft limits [0, 85]" in err
+    assert not out.exists()
+
+
+def test_cli_strict_plan_rejects_blind_spot(tmp_path, capsys):
+    cfg = write_config(tmp_path / "strict.toml", make_raw({"plan": {"strict": True}}))
+    assert main(["--config", str(cfg), "--out", str(tmp_path / "o"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "(30, -30): collision" in err
+
+
+def test_cli_check_lists_unmeasurable_points(tmp_path, capsys):
+    assert main(["--config", str(REPO / "configs" / "simulated.toml"), "--check"]) == 0
+    out = capsys.readouterr().out
+    assert "not measurable" in out and "(40, -40): collision" in out and "naive order" in out

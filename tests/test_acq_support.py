@@ -1,0 +1,135 @@
+"""Helpers for the acquisition tests (config variants, ground truth, CLI runs); no tests here."""
+
+from __future__ import annotations
+
+import copy
+import math
+import os
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from acquisition.config import dump_toml
+from reconstruction.geometry import inplane_to_dirs
+from reconstruction.models import Material
+from reconstruction.slicefile import Slice, read_slice
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+REPO = Path(__file__).resolve().parents[1]
+SIMULATED = REPO / "configs" / "simulated.toml"
+
+#: Small, fast variant of configs/simulated.toml used by the hardware-in-the-loop tests.
+FAST: dict[str, Any] = {
+    "bench": {"serial_timeout_s": 0.25},
+    "plan": {"theta_i_deg": [30.0], "theta_o_min_deg": -70.0, "theta_o_max_deg": 70.0, "theta_o_step_deg": 5.0,
+             "repeats": 4},
+    "simulator": {"time_scale": 0.0},
+}
+
+
+def merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    out = copy.deepcopy(base)
+    for k, v in over.items():
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = merge(out[k], v)
+        else:
+            out[k] = copy.deepcopy(v)
+    return out
+
+
+def base_raw() -> dict[str, Any]:
+    with open(SIMULATED, "rb") as fh:
+        return tomllib.load(fh)
+
+
+def make_raw(*overs: dict[str, Any], fast: bool = True) -> dict[str, Any]:
+    raw = base_raw()
+    if fast:
+        raw = merge(raw, FAST)
+    for o in overs:
+        raw = merge(raw, o)
+    return raw
+
+
+def write_config(path: Path, raw: dict[str, Any]) -> Path:
+    path.write_text(dump_toml(raw), encoding="utf-8")
+    return path
+
+
+def read(path: Path) -> Slice:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return read_slice(path)
+
+
+def keys(s: Slice) -> list[tuple[float, float]]:
+    return [(round(float(a), 6), round(float(b), 6)) for a, b in zip(s.theta_i_deg, s.theta_o_deg, strict=True)]
+
+
+def quantised(raw: dict[str, Any], axis: str, deg: np.ndarray) -> np.ndarray:
+    """Angle the simulated arm actually reaches: the goal rounded to whole controller units."""
+    a = raw["axes"][axis]
+    upd, z, d = a["units_per_deg"], a["zero_offset"], a["direction"]
+    return (np.round(z + d * upd * deg) - z) / (d * upd)
+
+
+def ground_truth(raw: dict[str, Any], s: Slice) -> np.ndarray:
+    """f_r on the slice's channels from the config's [material], as the simulator's detector sees it."""
+    mat = Material.from_dict(raw["material"])
+    ti = quantised(raw, "light", s.theta_i_deg)
+    to = quantised(raw, "detector", s.theta_o_deg)
+    wi, wo = inplane_to_dirs(np.radians(ti), np.radians(to))
+    f = mat.eval(wi, wo)
+    if s.kind == "grey":
+        return f.mean(axis=-1, keepdims=True)  # the photodiode reports the mean over the material's channels
+    wl = s.wavelengths_nm
+    assert wl is not None
+    if f.shape[-1] == 3:  # RGB material on a spectrometer: B, G, R at 465, 545, 610 nm, clamped
+        return np.stack([np.interp(wl, [465.0, 545.0, 610.0], row[::-1]) for row in f])
+    return np.broadcast_to(f, (len(s), wl.size)) if f.shape[-1] == 1 else f
+
+
+def zscores(raw: dict[str, Any], s: Slice) -> tuple[np.ndarray, np.ndarray]:
+    """(z, relative error) of every value against the ground truth, with the noise the simulator's model
+    predicts (shot + read noise of the repeats, plus the reference/dark uncertainty common to the slice)."""
+    truth = ground_truth(raw, s)
+    sim = raw["simulator"]
+    cal = s.meta["calibration"]
+    to = quantised(raw, "detector", s.theta_o_deg)[:, None]
+    cos_o = np.cos(np.radians(to))
+    counts = sim["source_power"] * truth * cos_o * sim["detector_solid_angle_sr"]
+    counts = np.where(np.abs(quantised(raw, "light", s.theta_i_deg)[:, None] + to)
+                      < raw["bench"]["blind_spot_half_width_deg"], 0.0, counts)
+    var = (counts if sim.get("shot_noise", True) else 0.0) + sim["read_noise"] ** 2 + 1.0 / 12.0
+    if cal["mode"] == "relative":
+        net = np.asarray(cal["reference_reading"]["mean"]) - np.asarray(cal["dark"]["mean"])
+        k = np.asarray(cal["rho_ref"]) / math.pi * math.cos(math.radians(cal["reference_theta_o_deg"])) / (
+            net * cos_o)
+    else:
+        k = 1.0 / (cal["k_counts"] * cos_o)
+    sigma_stat = np.sqrt(var / s.repeats[:, None]) * k
+    common = np.asarray(cal["common_relative_uncertainty"])
+    sigma = np.sqrt(sigma_stat ** 2 + (truth * common) ** 2)
+    return (s.values - truth) / sigma, (s.values - truth) / np.maximum(np.abs(truth), 1e-12)
+
+
+def run_capture(*args: str, timeout: float = 120.0, env: dict[str, str] | None = None
+                ) -> subprocess.CompletedProcess[str]:
+    """``gonio-capture ARGS`` in a child process (for signal tests and exit codes)."""
+    e = dict(os.environ)
+    e.update(env or {})
+    return subprocess.run([sys.executable, "-m", "acquisition.cli", *args], cwd=REPO, capture_output=True,
+                          text=True, timeout=timeout, env=e)
+
+
+def popen_capture(*args: str) -> subprocess.Popen[str]:
+    return subprocess.Popen([sys.executable, "-m", "acquisition.cli", *args], cwd=REPO, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
