@@ -1,14 +1,219 @@
-"""gonio-reconstruct: slices -> full MERL BRDF table (not built yet)."""
+"""gonio-reconstruct: in-plane slices -> a full isotropic BRDF as a MERL table, a preview and a report.
+
+Example::
+
+    gonio-reconstruct out/demo/slice.csv --method auto --out out/demo/material.binary \\
+        --preview out/demo/material.exr --report out/demo/material.json
+
+Bad input exits with status 2 and one line on stderr naming the file, line and what was expected.
+"""
 
 from __future__ import annotations
 
+import argparse
 import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from tqdm import tqdm
+
+from .base import ReconstructionError
+from .merl import FILE_SIZE, MerlError
+from .models import MaterialError
+from .slicefile import QUANTITIES, SliceError
+
+PROG = "gonio-reconstruct"
+DESCRIPTION = """\
+Reconstruct a full isotropic BRDF from in-plane slices and write it as a MERL table (.binary, 34,992,012 bytes).
+
+Inputs are gonio-brdf slice files (docs/slice-format.md) or generic CSV tables from other instruments' software
+(an incidence column, a measured-angle column, one column per wavelength such as 450nm or per channel: value, or
+R,G,B); generic tables need --quantity. Several inputs (e.g. one per incidence) are merged. All-zero rows in
+the retro blind spot are missing data and are interpolated, not taken as zero.
+
+Methods: fit (analytic lobes chosen by BIC), bivariate (f tabulated over theta_h, theta_d), revolve (the
+thesis's solids of revolution), auto (fit if a model explains the data, else bivariate with 3+ incidences,
+else revolve; the report says which and why). Spectral data are converted to linear sRGB (CIE 1931 2 degree
+observer, --illuminant); grey data give a grey table."""
+
+
+def _supersample(text: str) -> tuple[int, int, int] | str:
+    if text == "adaptive":
+        return text
+    parts = text.split(",")
+    try:
+        vals = [int(p) for p in parts]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected N or NH,ND,NP (positive integers), got {text!r}") from None
+    if len(vals) == 1:
+        vals = vals * 3
+    if len(vals) != 3 or min(vals) < 1:
+        raise argparse.ArgumentTypeError(f"expected N or NH,ND,NP (positive integers), got {text!r}")
+    return (vals[0], vals[1], vals[2])
+
+
+def _nonneg_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not v >= 0:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
+    return v
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from .pipeline import METHODS
+
+    ap = argparse.ArgumentParser(prog=PROG, description=DESCRIPTION,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("inputs", nargs="+", metavar="INPUT", help="slice files or generic CSV tables")
+    ap.add_argument("--method", choices=METHODS, default="auto", help="reconstruction method (default: auto)")
+    ap.add_argument("--out", required=True, metavar="MATERIAL.binary", help="MERL table to write")
+    ap.add_argument("--preview", metavar="MATERIAL.exr",
+                    help="render a sphere under a point light: linear float OpenEXR, plus a PNG next to it")
+    ap.add_argument("--report", metavar="MATERIAL.json",
+                    help="JSON report: method and why, parameters, residuals, coverage, plausibility checks")
+    ap.add_argument("--supersample", nargs="?", const="8,2,2", type=_supersample, default=None,
+                    metavar="N|NH,ND,NP|adaptive",
+                    help="write cell averages over NH x ND x NP sub-samples per cell (default when given: 8,2,2), "
+                         "or 'adaptive' (averages only where f is far from linear across a cell), instead of "
+                         "bin-centre values")
+    ap.add_argument("--quantity", choices=QUANTITIES,
+                    help="what the values of generic tables are: brdf (1/sr), reflectance_factor (pi f_r) or "
+                         "brdf_cos (f_r cos theta_o); slice files say it themselves")
+    ap.add_argument("--columns", metavar="KEY=NAME,...",
+                    help="map generic-table columns: theta_i=NAME,theta_o=NAME (also value=NAME, R=, G=, B=)")
+    ap.add_argument("--blind-spot-deg", type=_nonneg_float, default=None, metavar="DEG",
+                    help="half width of the retro blind spot in |theta_i + theta_o| where all-zero rows are missing "
+                         "data (default: the slice file's blind_spot_half_width_deg, else 10)")
+    ap.add_argument("--illuminant", default="D65", help="illuminant for spectral -> RGB (default D65; e.g. D50, A)")
+    ap.add_argument("--scene", metavar="SCENE.toml",
+                    help="scene file (configs/scenes/*.toml): ranges, angular resolution and error budget that "
+                         "restrict the fit's candidate models")
+    ap.add_argument("--lobes", metavar="KIND,...",
+                    help="lobe kinds the fit may use: lambert, ggx, beckmann, retro, fresnel (default: all)")
+    ap.add_argument("--fill", choices=("interpolate", "zero"), default="interpolate",
+                    help="holes (blind spot, missing samples): interpolate (default) or leave zero "
+                         "(bivariate, revolve; a fitted model covers holes itself)")
+    ap.add_argument("--axis", default="auto", help="revolve: axis of revolution (passed to the revolve method)")
+    ap.add_argument("--smoothing", type=_nonneg_float, default=None, help="revolve: smoothing (passed through)")
+    ap.add_argument("--quiet", action="store_true", help="no progress bar and no summary line")
+    return ap
+
+
+def _check_output(path: Path, suffix: str, flag: str) -> None:
+    if path.suffix.lower() != suffix:
+        raise ReconstructionError(f"{flag} {path}: expected a file name ending in {suffix}")
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise ReconstructionError(f"{flag} {path}: the folder {parent} does not exist")
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    """Do the work of one command line; returns the report (also written with --report)."""
+    from . import colour, inputs, pipeline, preview, report
+    from .fit import LOBE_KINDS, load_scene
+
+    out = Path(args.out)
+    _check_output(out, ".binary", "--out")
+    if args.preview:
+        _check_output(Path(args.preview), ".exr", "--preview")
+    if args.report:
+        parent = Path(args.report).parent
+        if str(parent) and not parent.is_dir():
+            raise ReconstructionError(f"--report {args.report}: the folder {parent} does not exist")
+    lobes = None
+    if args.lobes:
+        lobes = [x.strip() for x in args.lobes.split(",") if x.strip()]
+        unknown = [x for x in lobes if x not in LOBE_KINDS]
+        if unknown:
+            raise ReconstructionError(f"--lobes: unknown kind(s) {unknown}; expected {', '.join(LOBE_KINDS)}")
+    timings: dict[str, float] = {}
+    steps = ["read", "colour", "reconstruct", "tabulate", "write", "checks"] + (["preview"] if args.preview else [])
+    bar = tqdm(total=len(steps), desc=PROG, unit="step", disable=True if args.quiet else None, file=sys.stderr,
+               leave=False)
+
+    def step(name: str) -> float:
+        bar.set_postfix_str(name)
+        return time.perf_counter()
+
+    def done(name: str, t0: float) -> None:
+        timings[name] = time.perf_counter() - t0
+        bar.update(1)
+
+    try:
+        t0 = step("reading inputs")
+        loaded = inputs.load_inputs(args.inputs, quantity=args.quantity, columns=inputs.parse_columns(args.columns),
+                                    blind_spot_deg=args.blind_spot_deg)
+        scene = load_scene(args.scene) if args.scene else None
+        done("read", t0)
+        t0 = step("colour")
+        working, colour_info = colour.to_working_channels(loaded.slice, args.illuminant)
+        done("colour", t0)
+        t0 = step("reconstructing")
+        opts = pipeline.Options(scene=scene, fill=args.fill, lobes=lobes, revolve_axis=args.axis,
+                                revolve_smoothing=args.smoothing)
+        rec, choice = pipeline.reconstruct(working, args.method, opts,
+                                           progress=lambda name: bar.set_postfix_str(f"fitting {name}"))
+        done("reconstruct", t0)
+        t0 = step("tabulating" + (f" (supersample {args.supersample})" if args.supersample else ""))
+        table = pipeline.tabulate(rec, args.supersample)
+        done("tabulate", t0)
+        t0 = step("writing table")
+        from . import merl
+
+        merl.write(out, table, require_above_horizon=True)
+        done("write", t0)
+        t0 = step("plausibility checks")
+        checks = report.plausibility(rec, table)
+        done("checks", t0)
+        outputs: dict[str, Any] = {"table": str(out), "table_bytes": out.stat().st_size}
+        if args.preview:
+            t0 = step("preview")
+            outputs["preview"] = preview.write_preview(args.preview, table)
+            done("preview", t0)
+    finally:
+        bar.close()
+    rep = report.build_report(
+        rec=rec, choice=choice, working=working, table=table, checks=checks,
+        inputs={"files": loaded.files, "quantities": loaded.quantities, "notes": loaded.notes,
+                "columns": args.columns, "scene": args.scene},
+        colour=colour_info,
+        table_info={"cells": 3 * merl.N_CELLS, "values": "cell averages" if args.supersample else "bin centres",
+                    "supersample": (list(args.supersample) if isinstance(args.supersample, tuple)
+                                    else args.supersample),
+                    "bin_centres": "theta_h = ((i + 0.5) / 90)^2 * 90 deg, theta_d = j + 0.5 deg, "
+                                   "phi_d = k + 0.5 deg"},
+        outputs=outputs, timings=timings, dropped_blind_spot=loaded.dropped_blind_spot)
+    if args.report:
+        outputs["report"] = str(args.report)
+        rep["outputs"]["report"] = str(args.report)
+        report.write_json(args.report, rep)
+    return rep
 
 
 def main(argv: list[str] | None = None) -> int:
-    print("gonio-reconstruct: the reconstruction methods are not built yet (issue 5); nothing was written.",
-          file=sys.stderr)
-    return 2
+    ap = build_parser()
+    args = ap.parse_args(argv)
+    try:
+        rep = run(args)
+    except (ReconstructionError, SliceError, MerlError, MaterialError) as e:
+        print(f"{PROG}: error: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:
+        where = f"{e.filename}: " if e.filename else ""
+        print(f"{PROG}: error: {where}{e.strerror or e}", file=sys.stderr)
+        return 2
+    if not args.quiet:
+        checks = rep["checks"]
+        failed = [k for k in ("non_negative", "albedo", "reciprocity") if not checks[k]["pass"]]
+        model = f" ({rep['details']['model']})" if "model" in rep.get("details", {}) else ""
+        print(f"{PROG}: method {rep['method']}{model}: wrote {rep['outputs']['table']} ({FILE_SIZE:,} bytes)"
+              + (f"; plausibility check(s) failed: {', '.join(failed)}" if failed else "; checks passed"),
+              file=sys.stderr)
+    return 0
 
 
 if __name__ == "__main__":

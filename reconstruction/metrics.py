@@ -12,7 +12,8 @@ from .geometry import inplane_to_dirs, sph_to_vec
 Array = NDArray[np.float64]
 BRDF = Callable[[Array, Array], ArrayLike]
 
-__all__ = ["hemisphere_quadrature", "directional_albedo", "reciprocity_error"]
+__all__ = ["hemisphere_quadrature", "directional_albedo", "reciprocity_error", "relative_rmse_cos",
+           "relative_rmse_cos_dirs"]
 
 
 def hemisphere_quadrature(n_theta: int = 128, n_phi: int = 256) -> tuple[Array, Array]:
@@ -54,3 +55,49 @@ def reciprocity_error(f: BRDF, n: int = 4096, seed: int = 0) -> float:
     fba = np.asarray(f(b, a), dtype=np.float64)
     scale = max(float(np.max(np.abs(fab))), 1e-300)
     return float(np.max(np.abs(fab - fba)) / scale)
+
+
+def _table_cosines() -> Array:
+    """cos(theta_i) cos(theta_o) at every MERL cell's bin-centre directions, (90, 90, 180); 0 below the horizon."""
+    from .merl import _cell_dirs  # cached bin-centre directions (the table's own convention)
+
+    wi, wo = _cell_dirs()
+    return np.clip(wi[..., 2], 0.0, None) * np.clip(wo[..., 2], 0.0, None)
+
+
+def relative_rmse_cos(table: ArrayLike, truth_table: ArrayLike) -> float:
+    """Relative RMSE of f cos(theta_i) cos(theta_o) between two MERL tables (3, 90, 90, 180), over valid cells.
+
+    sqrt(sum((f - g)^2 c^2) / sum(g^2 c^2)) with c = cos theta_i cos theta_o at the bin centres, pooled over the
+    three channels and over every cell above the horizon where both tables are finite. Dimensionless; 0.02 = 2 %.
+    """
+    from .merl import SHAPE, valid_mask
+
+    f = np.asarray(table, dtype=np.float64)
+    g = np.asarray(truth_table, dtype=np.float64)
+    if f.shape != SHAPE or g.shape != SHAPE:
+        raise ValueError(f"tables must have shape {SHAPE}, got {f.shape} and {g.shape}")
+    c = _table_cosines()[None]
+    ok = valid_mask()[None] & np.isfinite(f) & np.isfinite(g)
+    num = np.sum(np.where(ok, (f - g) * c, 0.0) ** 2)
+    den = np.sum(np.where(ok, g * c, 0.0) ** 2)
+    return float(np.sqrt(num / den)) if den > 0 else float("inf")
+
+
+def relative_rmse_cos_dirs(f: ArrayLike, g: ArrayLike, wi: ArrayLike, wo: ArrayLike) -> float:
+    """Relative RMSE of f cos(theta_i) cos(theta_o) between two sets of BRDF values (N, C) at direction pairs.
+
+    ``f``, ``g``: (N, C) in 1/sr (``g`` is the reference); ``wi``, ``wo``: (N, 3). Pooled over channels; pairs
+    where either value is non-finite are ignored. Dimensionless.
+    """
+    f = np.asarray(f, dtype=np.float64)
+    g = np.asarray(g, dtype=np.float64)
+    wi = np.asarray(wi, dtype=np.float64)
+    wo = np.asarray(wo, dtype=np.float64)
+    c = (np.clip(wi[..., 2], 0.0, None) * np.clip(wo[..., 2], 0.0, None)).reshape(-1, 1)
+    f = f.reshape(c.shape[0], -1)
+    g = g.reshape(c.shape[0], -1)
+    ok = np.isfinite(f) & np.isfinite(g)
+    num = np.sum(np.where(ok, (f - g) * c, 0.0) ** 2)
+    den = np.sum(np.where(ok, g * c, 0.0) ** 2)
+    return float(np.sqrt(num / den)) if den > 0 else float("inf")

@@ -1,0 +1,717 @@
+"""The ``fit`` method: analytic lobes fitted to in-plane slices, the number and kind of lobes chosen by BIC.
+
+Model: a sum of lobes from :mod:`reconstruction.models` (so the result is a :class:`~reconstruction.models.Material`):
+``lambert`` (albedo), ``ggx`` / ``beckmann`` (alpha, specular, optional Schlick Fresnel f0) and ``retro``
+(exponent, amount). Geometry parameters (alpha, f0, exponent) are shared by all channels; every lobe has one
+amplitude per channel.
+
+Fit (scipy.optimize.least_squares, method "trf"):
+
+* parametrisation: log alpha, logit f0, log exponent, log amplitudes. With Fresnel, the amplitude is the
+  normal-incidence reflectance specular * f0 (well determined) and the report gives specular = amplitude / f0;
+* residuals (f_model - f) / sigma with sigma = sqrt(std^2 + (relative_sigma f_model)^2 + floor^2): ``std`` from
+  the samples, a relative term for calibration and model error (1 % by default) and a floor of 1e-4 of the
+  channel's peak that keeps weights finite for noise-free data. The relative term is taken from the model's value
+  (a first pass uses the measured value, a warm-started second pass the model's), so an outlying sample does not
+  widen its own error bar;
+* robust loss ``soft_l1`` with ``f_scale`` = 2 sigma (outliers beyond ~2 sigma weigh linearly, not quadratically);
+* start: a grid over the geometry parameters with non-negative linear least squares for the amplitudes
+  (variable projection), then the joint non-linear refinement;
+* uncertainties: covariance (J^T J)^-1 * max(1, reduced chi^2) from the Jacobian at the solution, carried to the
+  reported parameters (alpha, f0, albedo, specular, ...) by the delta method.
+
+Model selection: candidates are fitted stepwise (lambert, ggx, beckmann, lambert + ggx, lambert + beckmann; then the
+best of these for each distribution with Fresnel, with a retro lobe, with both, and with a lambert lobe added) and
+the one with the lowest BIC = robust chi^2 + k ln(n) is kept, so a lobe stays only when the data require it.
+
+Scene files (``--scene configs/scenes/NAME.toml``) say what the reconstruction is for; the keys read here::
+
+    [scene]
+    name = "studio-turntable"            # optional, for the report
+    theta_i_deg = [0.0, 60.0]            # range of light polar angles from the normal the scene uses (degrees)
+    theta_o_deg = [0.0, 80.0]            # range of view polar angles from the normal (degrees)
+    angular_resolution_deg = 1.0         # finest angular detail that matters; lobes narrower than this are not
+                                         # resolved: alpha >= radians(resolution) / 2.6 (~ lobe FWHM), and the
+                                         # candidates are compared on a grid of this step (at least 1 deg)
+    lobes = ["lambert", "ggx", "fresnel"]  # optional: the lobe kinds allowed (lambert, ggx, beckmann, retro, fresnel)
+
+    [scene.error_budget]
+    relative_rmse = 0.02                 # tolerated relative RMSE of f cos(theta_i) cos(theta_o) over the scene's
+                                         # directions: the simplest candidate within this of the BIC choice is used
+    relative_sigma = 0.01                # optional: the relative measurement uncertainty used in the weights
+
+All keys are optional; unknown keys are an error (they are probably typos).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import least_squares, nnls
+
+from .base import ReconstructionError
+from .geometry import inplane_to_dirs, sph_to_vec
+from .metrics import relative_rmse_cos_dirs
+from .models import Colour, Lambert, Lobe, Material, Microfacet, Retro
+from .slicefile import Slice
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+Array = NDArray[np.float64]
+
+__all__ = ["Scene", "LobeSpec", "FitResult", "FitReconstruction", "load_scene", "fit_model", "reconstruct_fit",
+           "LOBE_KINDS"]
+
+LOBE_KINDS = ("lambert", "ggx", "beckmann", "retro", "fresnel")
+ALPHA_MIN, ALPHA_MAX = 0.005, 1.5
+F0_MIN, F0_MAX = 0.002, 0.998
+EXP_MIN, EXP_MAX = 0.5, 2000.0
+LOG_AMP_MIN, LOG_AMP_MAX = math.log(1e-12), math.log(1e4)
+FLOOR = 1e-4  # of each channel's peak |f|
+
+
+# --- scene files -----------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Scene:
+    """What a reconstruction is for (see the module docstring for the TOML keys). Angles in degrees."""
+
+    name: str = "scene"
+    theta_i_deg: tuple[float, float] = (0.0, 85.0)
+    theta_o_deg: tuple[float, float] = (0.0, 85.0)
+    angular_resolution_deg: float | None = None
+    lobes: tuple[str, ...] | None = None
+    relative_rmse: float | None = None
+    relative_sigma: float | None = None
+    source: str = "<scene>"
+
+    @property
+    def alpha_min(self) -> float:
+        """Smallest microfacet alpha worth resolving (dimensionless)."""
+        if self.angular_resolution_deg is None:
+            return ALPHA_MIN
+        return max(ALPHA_MIN, math.radians(self.angular_resolution_deg) / 2.6)
+
+    def directions(self, max_pairs: int = 200_000) -> tuple[Array, Array]:
+        """Direction pairs (M, 3) spanning the scene: theta_i, theta_o in their ranges, relative azimuth 0-180 deg."""
+        step = max(1.0, self.angular_resolution_deg or 2.0)
+        while True:
+            ti = np.radians(np.arange(self.theta_i_deg[0], self.theta_i_deg[1] + 1e-9, step))
+            to = np.radians(np.arange(self.theta_o_deg[0], self.theta_o_deg[1] + 1e-9, step))
+            ph = np.radians(np.arange(0.0, 180.0 + 1e-9, step))
+            if ti.size * to.size * ph.size <= max_pairs:
+                break
+            step *= 1.5
+        a, b, p = np.meshgrid(ti, to, ph, indexing="ij")
+        wi = sph_to_vec(a.ravel(), np.pi)
+        wo = sph_to_vec(b.ravel(), np.pi + p.ravel())
+        return wi, wo
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "source": self.source, "theta_i_deg": list(self.theta_i_deg),
+                "theta_o_deg": list(self.theta_o_deg), "angular_resolution_deg": self.angular_resolution_deg,
+                "lobes": list(self.lobes) if self.lobes else None, "relative_rmse": self.relative_rmse,
+                "relative_sigma": self.relative_sigma}
+
+
+def _range(v: Any, where: str) -> tuple[float, float]:
+    ok = (isinstance(v, list) and len(v) == 2
+          and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v))
+    if not ok or not 0.0 <= v[0] <= v[1] < 90.0:
+        raise ReconstructionError(f"{where}: expected [min, max] degrees with 0 <= min <= max < 90, got {v!r}")
+    return float(v[0]), float(v[1])
+
+
+def _positive(v: Any, where: str) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+        raise ReconstructionError(f"{where}: expected a positive number, got {v!r}")
+    return float(v)
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Read a scene TOML file (keys in the module docstring); errors name the file and key."""
+    p = Path(path)
+    try:
+        data = tomllib.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ReconstructionError(f"{p}: no such scene file") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise ReconstructionError(f"{p}: invalid TOML: {e}") from None
+    sc = data.get("scene")
+    if not isinstance(sc, dict):
+        raise ReconstructionError(f"{p}: no [scene] table")
+    allowed = {"name", "theta_i_deg", "theta_o_deg", "angular_resolution_deg", "lobes", "error_budget"}
+    unknown = sorted(set(sc) - allowed)
+    if unknown:
+        raise ReconstructionError(f"{p}: [scene]: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
+    kw: dict[str, Any] = {"source": str(p)}
+    if "name" in sc:
+        kw["name"] = str(sc["name"])
+    for key in ("theta_i_deg", "theta_o_deg"):
+        if key in sc:
+            kw[key] = _range(sc[key], f"{p}: [scene].{key}")
+    if "angular_resolution_deg" in sc:
+        kw["angular_resolution_deg"] = _positive(sc["angular_resolution_deg"], f"{p}: [scene].angular_resolution_deg")
+    if "lobes" in sc:
+        lobes = sc["lobes"]
+        if not isinstance(lobes, list) or not lobes or any(x not in LOBE_KINDS for x in lobes):
+            raise ReconstructionError(f"{p}: [scene].lobes: expected a list of {', '.join(LOBE_KINDS)}, got {lobes!r}")
+        kw["lobes"] = tuple(lobes)
+    eb = sc.get("error_budget", {})
+    if not isinstance(eb, dict):
+        raise ReconstructionError(f"{p}: [scene.error_budget]: expected a table")
+    unknown = sorted(set(eb) - {"relative_rmse", "relative_sigma"})
+    if unknown:
+        raise ReconstructionError(f"{p}: [scene.error_budget]: unknown key(s) {unknown}; allowed: relative_rmse, "
+                                  f"relative_sigma")
+    for key in ("relative_rmse", "relative_sigma"):
+        if key in eb:
+            kw[key] = _positive(eb[key], f"{p}: [scene.error_budget].{key}")
+    return Scene(**kw)
+
+
+# --- models ----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class LobeSpec:
+    """One lobe of a candidate model: ``kind`` lambert | ggx | beckmann | retro; ``fresnel`` for microfacets."""
+
+    kind: str
+    fresnel: bool = False
+
+    @property
+    def name(self) -> str:
+        return self.kind + ("(F)" if self.fresnel else "")
+
+    @property
+    def nonlinear(self) -> tuple[str, ...]:
+        """Names of the shared (geometry) parameters in the fit's parametrisation."""
+        if self.kind in ("ggx", "beckmann"):
+            return ("log_alpha", "logit_f0") if self.fresnel else ("log_alpha",)
+        if self.kind == "retro":
+            return ("log_exponent",)
+        return ()
+
+
+def model_name(specs: Sequence[LobeSpec]) -> str:
+    return "+".join(s.name for s in specs)
+
+
+def _sigmoid(v: ArrayLike) -> Any:
+    return 1.0 / (1.0 + np.exp(-np.asarray(v, dtype=np.float64)))
+
+
+def _logit(p: float) -> float:
+    return math.log(p / (1.0 - p))
+
+
+def _lobe(spec: LobeSpec, nl: Sequence[float], colour: Array | None = None) -> Lobe:
+    """A models.py lobe for ``spec`` with fit parameters ``nl`` (its nonlinear parameters) and colour."""
+    col = Colour(np.ones(1) if colour is None else np.asarray(colour, dtype=np.float64))
+    if spec.kind == "lambert":
+        return Lambert(colour=col)
+    if spec.kind in ("ggx", "beckmann"):
+        f0 = float(_sigmoid(nl[1])) if spec.fresnel else None
+        return Microfacet(colour=col, alpha=float(math.exp(nl[0])), f0=f0, distribution=spec.kind)
+    if spec.kind == "retro":
+        return Retro(colour=col, exponent=float(math.exp(nl[0])))
+    raise ReconstructionError(f"unknown lobe kind {spec.kind!r}")
+
+
+def _column(spec: LobeSpec, nl: Sequence[float], wi: Array, wo: Array) -> Array:
+    """The lobe's shape for unit amplitude (N,), 1/sr; with Fresnel divided by f0 (amplitude = specular f0)."""
+    s = _lobe(spec, nl).shape(wi, wo)
+    if spec.fresnel:
+        s = s / float(_sigmoid(nl[1]))
+    return s
+
+
+@dataclass
+class _Problem:
+    """Data of one fit: directions, values, sigmas (all per sample) and bounds."""
+
+    wi: Array
+    wo: Array
+    f: Array  # (N, C)
+    sigma: Array  # (N, C) for the start: relative term from the measured values
+    alpha_min: float
+    std: Array  # (N, C) the samples' own standard deviations
+    relative_sigma: float
+    floor: Array  # (1, C)
+
+    def take(self, mask: NDArray[np.bool_]) -> _Problem:
+        """The problem restricted to the samples ``mask`` (N,)."""
+        return _Problem(self.wi[mask], self.wo[mask], self.f[mask], self.sigma[mask], self.alpha_min,
+                        self.std[mask], self.relative_sigma, self.floor)
+
+    def sigma_of(self, pred: Array) -> Array:
+        """sigma with the relative term taken from the model's prediction (not from the noisy, maybe outlying,
+        measured value, which would down-weight high outliers by itself)."""
+        return np.sqrt(np.square(self.std) + np.square(self.relative_sigma * pred) + np.square(self.floor))
+
+    @property
+    def n(self) -> int:
+        return int(self.f.size)
+
+
+def _nl_grid(spec: LobeSpec, alpha_min: float) -> list[tuple[float, ...]]:
+    if spec.kind in ("ggx", "beckmann"):
+        alphas = np.log(np.geomspace(max(alpha_min, ALPHA_MIN), 1.0, 16))
+        if spec.fresnel:
+            return [(a, _logit(f0)) for a in alphas for f0 in (0.02, 0.08, 0.3)]
+        return [(a,) for a in alphas]
+    if spec.kind == "retro":
+        return [(math.log(e),) for e in (1.0, 3.0, 10.0, 30.0, 100.0)]
+    return [()]
+
+
+def _nl_bounds(spec: LobeSpec, alpha_min: float) -> tuple[list[float], list[float]]:
+    lo: list[float] = []
+    hi: list[float] = []
+    for name in spec.nonlinear:
+        if name == "log_alpha":
+            lo.append(math.log(max(alpha_min, ALPHA_MIN)))
+            hi.append(math.log(ALPHA_MAX))
+        elif name == "logit_f0":
+            lo.append(_logit(F0_MIN))
+            hi.append(_logit(F0_MAX))
+        else:
+            lo.append(math.log(EXP_MIN))
+            hi.append(math.log(EXP_MAX))
+    return lo, hi
+
+
+def _weighted_nnls(cols: Array, f: Array, sigma: Array) -> tuple[Array, float]:
+    """Amplitudes (L, C) >= 0 minimising sum(((cols @ a - f) / sigma)^2) per channel, and that chi^2."""
+    n_l, n_c = cols.shape[1], f.shape[1]
+    amps = np.zeros((n_l, n_c))
+    chi2 = 0.0
+    for c in range(n_c):  # 1 or 3 channels
+        a, rnorm = nnls(cols / sigma[:, c:c + 1], f[:, c] / sigma[:, c], maxiter=50 * n_l)
+        amps[:, c] = a
+        chi2 += rnorm * rnorm
+    return amps, chi2
+
+
+def _start(specs: Sequence[LobeSpec], prob: _Problem) -> tuple[list[tuple[float, ...]], Array]:
+    """Best grid point of the geometry parameters with NNLS amplitudes (variable projection)."""
+    per_lobe = []
+    for spec in specs:  # each lobe's columns over its own grid (the product only combines them)
+        grid = _nl_grid(spec, prob.alpha_min)
+        per_lobe.append([(g, _column(spec, g, prob.wi, prob.wo)) for g in grid])
+    best: tuple[float, list[tuple[float, ...]], Array] | None = None
+    for combo in itertools.product(*per_lobe):
+        cols = np.stack([c for _, c in combo], axis=1)
+        amps, chi2 = _weighted_nnls(cols, prob.f, prob.sigma)
+        if best is None or chi2 < best[0]:
+            best = (chi2, [g for g, _ in combo], amps)
+    assert best is not None
+    return best[1], best[2]
+
+
+@dataclass
+class FitResult:
+    """One fitted candidate model."""
+
+    specs: tuple[LobeSpec, ...]
+    x: Array
+    n_nonlinear: int
+    n_channels: int
+    cost: float  # 0.5 * robust chi^2
+    chi2: float  # plain chi^2 of the normalised residuals
+    n: int  # residuals (samples x channels)
+    jac: Array
+    residuals: Array  # (N, C) normalised residuals (f_model - f) / sigma
+    success: bool
+    message: str
+    nfev: int
+
+    @property
+    def name(self) -> str:
+        return model_name(self.specs)
+
+    @property
+    def k(self) -> int:
+        return int(self.x.size)
+
+    @property
+    def bic(self) -> float:
+        return 2.0 * self.cost + self.k * math.log(self.n)
+
+    def split(self, x: Array | None = None) -> tuple[list[Array], Array]:
+        """(nonlinear parameters per lobe, log amplitudes (L, C)) of ``x`` (default: the solution)."""
+        x = self.x if x is None else x
+        nl, k = [], 0
+        for s in self.specs:
+            m = len(s.nonlinear)
+            nl.append(x[k:k + m])
+            k += m
+        return nl, x[self.n_nonlinear:].reshape(len(self.specs), self.n_channels)
+
+    def natural(self, x: Array | None = None) -> Array:
+        """The reported parameters as one vector (see :meth:`parameter_names`)."""
+        nl, la = self.split(x)
+        out: list[float] = []
+        for spec, p, a in zip(self.specs, nl, la, strict=True):
+            amp = np.exp(a)
+            if spec.kind in ("ggx", "beckmann"):
+                out.append(math.exp(p[0]))
+                if spec.fresnel:
+                    f0 = float(_sigmoid(p[1]))
+                    out.append(f0)
+                    amp = amp / f0
+            elif spec.kind == "retro":
+                out.append(math.exp(p[0]))
+            out.extend(amp.tolist())
+        return np.array(out)
+
+    def parameter_names(self) -> list[tuple[int, str, int | None]]:
+        """(lobe index, key, channel or None) for each entry of :meth:`natural`."""
+        names: list[tuple[int, str, int | None]] = []
+        for i, spec in enumerate(self.specs):
+            if spec.kind in ("ggx", "beckmann"):
+                names.append((i, "alpha", None))
+                if spec.fresnel:
+                    names.append((i, "f0", None))
+                key = "specular"
+            elif spec.kind == "retro":
+                names.append((i, "exponent", None))
+                key = "amount"
+            else:
+                key = "albedo"
+            names.extend((i, key, c) for c in range(self.n_channels))
+        return names
+
+    def material(self, name: str = "fit") -> Material:
+        nl, la = self.split()
+        lobes = []
+        for spec, p, a in zip(self.specs, nl, la, strict=True):
+            amp = np.exp(a)
+            if spec.fresnel:
+                amp = amp / float(_sigmoid(p[1]))
+            lobes.append(_lobe(spec, p, amp))
+        return Material(name, lobes)
+
+    def covariance(self) -> Array:
+        """Covariance of the fit parameters x: pinv(J^T J) * max(1, reduced chi^2); inf where not determined."""
+        j = self.jac
+        _, s, vt = np.linalg.svd(j, full_matrices=False)
+        tol = s[0] * 1e-10 if s.size else 0.0
+        inv = np.where(s > tol, 1.0 / np.maximum(s, 1e-300) ** 2, 0.0)
+        cov = (vt.T * inv) @ vt
+        dof = max(self.n - self.k, 1)
+        cov *= max(1.0, 2.0 * self.cost / dof)
+        undetermined = np.abs(vt[s <= tol]).max(axis=0) > 1e-6 if np.any(s <= tol) else np.zeros(self.k, bool)
+        d = np.diag(cov).copy()
+        d[undetermined] = np.inf
+        np.fill_diagonal(cov, d)
+        return cov
+
+    def uncertainties(self) -> Array:
+        """Standard deviations of :meth:`natural`, by the delta method (central differences of the mapping)."""
+        cov = self.covariance()
+        base = self.natural()
+        jg = np.empty((base.size, self.k))
+        for k in range(self.k):  # k ~ 10 parameters
+            h = 1e-6 * max(1.0, abs(self.x[k]))
+            xp, xm = self.x.copy(), self.x.copy()
+            xp[k] += h
+            xm[k] -= h
+            jg[:, k] = (self.natural(xp) - self.natural(xm)) / (2 * h)
+        finite = np.isfinite(np.diag(cov))
+        var = np.einsum("ik,kl,il->i", jg[:, finite], cov[np.ix_(finite, finite)], jg[:, finite])
+        var[np.any(np.abs(jg[:, ~finite]) > 1e-12, axis=1)] = np.inf
+        return np.sqrt(np.maximum(var, 0.0))
+
+    def parameters(self) -> list[dict[str, Any]]:
+        """Reported parameters per lobe with ``<key>_std`` uncertainties (JSON-ready; inf -> None)."""
+        vals, stds = self.natural(), self.uncertainties()
+        lobes: list[dict[str, Any]] = [{"type": s.kind} for s in self.specs]
+        for (i, key, c), v, sd in zip(self.parameter_names(), vals, stds, strict=True):
+            sdv = float(sd) if np.isfinite(sd) else None
+            if c is None:
+                lobes[i][key] = float(v)
+                lobes[i][key + "_std"] = sdv
+            else:
+                lobes[i].setdefault(key, []).append(float(v))
+                lobes[i].setdefault(key + "_std", []).append(sdv)
+        return lobes
+
+    def summary(self) -> dict[str, Any]:
+        return {"model": self.name, "k": self.k, "bic": round(self.bic, 4), "robust_chi2": round(2 * self.cost, 4),
+                "chi2": round(self.chi2, 4), "converged": self.success}
+
+
+def _problem(s: Slice, relative_sigma: float, alpha_min: float) -> _Problem:
+    f, std = s.brdf()
+    assert std is not None
+    floor = FLOOR * np.maximum(np.max(np.abs(f), axis=0, keepdims=True), 1e-300)
+    sigma = np.sqrt(np.square(std) + np.square(relative_sigma * f) + np.square(floor))
+    wi, wo = inplane_to_dirs(np.radians(s.theta_i_deg), np.radians(s.theta_o_deg))
+    return _Problem(wi, wo, f, sigma, alpha_min, std, relative_sigma, floor)
+
+
+def fit_model(specs: Sequence[LobeSpec], prob: _Problem, *, loss: str = "soft_l1", f_scale: float = 2.0,
+              max_nfev: int = 400) -> FitResult:
+    """Fit one candidate model (sum of ``specs`` lobes) to the problem's samples."""
+    specs = tuple(specs)
+    n_c = prob.f.shape[1]
+    nl0, amps0 = _start(specs, prob)
+    lo: list[float] = []
+    hi: list[float] = []
+    for spec in specs:
+        a, b = _nl_bounds(spec, prob.alpha_min)
+        lo += a
+        hi += b
+    n_nl = len(lo)
+    peak = np.maximum(np.max(np.abs(prob.f), axis=0), 1e-300)
+    amp_floor = np.maximum(1e-6 * peak, math.exp(LOG_AMP_MIN) * 10)
+    la0 = np.log(np.maximum(amps0, amp_floor[None, :]))
+    lo += [LOG_AMP_MIN] * la0.size
+    hi += [LOG_AMP_MAX] * la0.size
+    lo_a, hi_a = np.array(lo), np.array(hi)
+    x0 = np.concatenate([np.concatenate([np.asarray(g, dtype=np.float64) for g in nl0]) if n_nl else np.empty(0),
+                         la0.ravel()])
+    x0 = np.clip(x0, lo_a + 1e-9 * (hi_a - lo_a), hi_a - 1e-9 * (hi_a - lo_a))
+
+    def unpack(x: Array) -> tuple[list[Array], Array]:
+        nl, k = [], 0
+        for s in specs:
+            m = len(s.nonlinear)
+            nl.append(x[k:k + m])
+            k += m
+        return nl, np.exp(x[n_nl:].reshape(len(specs), n_c))
+
+    def columns(nl: list[Array]) -> Array:
+        return np.stack([_column(s, p, prob.wi, prob.wo) for s, p in zip(specs, nl, strict=True)], axis=1)
+
+    sigma = prob.sigma
+
+    def fun(x: Array) -> Array:
+        nl, amps = unpack(x)
+        return ((columns(nl) @ amps - prob.f) / sigma).ravel()
+
+    def jac(x: Array) -> Array:
+        # amplitude columns analytically (d pred / d log a = column * a); geometry by forward differences
+        nl, amps = unpack(x)
+        cols = columns(nl)
+        base = ((cols @ amps - prob.f) / sigma).ravel()
+        j = np.zeros((base.size, x.size))
+        for k in range(n_nl):  # a few geometry parameters
+            h = 1e-7 * max(1.0, abs(x[k]))
+            xk = x.copy()
+            xk[k] = min(x[k] + h, hi_a[k]) if x[k] + h <= hi_a[k] else x[k] - h
+            j[:, k] = (fun(xk) - base) / (xk[k] - x[k])
+        n_s = prob.f.shape[0]
+        for li in range(len(specs)):  # d r[s, c] / d log a[li, c] = cols[s, li] a[li, c] / sigma[s, c]
+            blk = cols[:, li:li + 1] * amps[li][None, :] / sigma  # (N, C)
+            idx = n_nl + li * n_c + np.arange(n_c)
+            rows = np.arange(n_s)[:, None] * n_c + np.arange(n_c)[None, :]
+            j[rows, np.broadcast_to(idx, (n_s, n_c))] = blk
+        return j
+
+    kw: dict[str, Any] = {"jac": jac, "bounds": (lo_a, hi_a), "loss": loss, "f_scale": f_scale, "x_scale": "jac",
+                          "method": "trf", "max_nfev": max_nfev}
+    res = least_squares(fun, x0, **kw)
+    # second pass: the relative uncertainty of each sample from the model's value there, warm-started
+    nl, amps = unpack(res.x)
+    sigma = prob.sigma_of(columns(nl) @ amps)
+    nfev = res.nfev
+    res = least_squares(fun, np.clip(res.x, lo_a, hi_a), **kw)
+    r = res.fun.reshape(prob.f.shape)
+    return FitResult(specs, res.x, n_nl, n_c, float(res.cost), float(np.sum(r * r)), prob.n, res.jac, r,
+                     bool(res.success), str(res.message), int(nfev + res.nfev))
+
+
+# --- the reconstruction ----------------------------------------------------------------------------------
+
+
+@dataclass
+class FitReconstruction:
+    """Result of :func:`reconstruct_fit`: a fitted :class:`Material` and the fit's report."""
+
+    material: Material
+    channels: list[str]
+    result: FitResult
+    info: dict[str, Any] = field(default_factory=dict)
+    method: str = "fit"
+
+    def eval(self, wi: Array, wo: Array) -> Array:
+        """f_r (N, C) in 1/sr at unit direction pairs (N, 3); 0 below the horizon."""
+        return self.material.eval(wi, wo)
+
+    def report(self) -> dict[str, Any]:
+        return {"method": self.method, "model": self.result.name, "material": self.material.to_dict(),
+                "parameters": self.result.parameters(), **self.info}
+
+
+def _candidates_stage1(allowed: set[str]) -> list[tuple[LobeSpec, ...]]:
+    out: list[tuple[LobeSpec, ...]] = []
+    if "lambert" in allowed:
+        out.append((LobeSpec("lambert"),))
+    for d in ("ggx", "beckmann"):
+        if d in allowed:
+            out.append((LobeSpec(d),))
+            if "lambert" in allowed:
+                out.append((LobeSpec("lambert"), LobeSpec(d)))
+    return out
+
+
+def _extensions(best: tuple[LobeSpec, ...], allowed: set[str]) -> list[tuple[LobeSpec, ...]]:
+    """Richer variants of ``best``: Fresnel on its microfacet lobe, a retro lobe, both, a lambert lobe."""
+    out: list[tuple[LobeSpec, ...]] = []
+    has_mf = any(s.kind in ("ggx", "beckmann") for s in best)
+    with_f = tuple(LobeSpec(s.kind, True) if s.kind in ("ggx", "beckmann") else s for s in best)
+    if has_mf and "fresnel" in allowed:
+        out.append(with_f)
+    if "retro" in allowed:
+        out.append(best + (LobeSpec("retro"),))
+        if has_mf and "fresnel" in allowed:
+            out.append(with_f + (LobeSpec("retro"),))
+    if "lambert" in allowed and not any(s.kind == "lambert" for s in best):
+        out.append((LobeSpec("lambert"),) + best)
+    return out
+
+
+def reconstruct_fit(
+    slices: Slice,
+    *,
+    scene: Scene | None = None,
+    lobes: Sequence[str] | None = None,
+    loss: str = "soft_l1",
+    f_scale: float = 2.0,
+    relative_sigma: float | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> FitReconstruction:
+    """Fit analytic lobes to ``slices`` (f_r, 1 or 3 channels) and choose the model by BIC (and the scene).
+
+    ``lobes``: the lobe kinds allowed (subset of :data:`LOBE_KINDS`; default all, or the scene's list).
+    ``relative_sigma``: relative uncertainty added to the samples' std (default the scene's, else 0.01).
+    ``progress`` is called with each candidate's name before it is fitted.
+    """
+    if slices.quantity != "brdf":
+        f_, std_ = slices.brdf()
+        slices = Slice(slices.theta_i_deg, slices.theta_o_deg, f_, list(slices.channels), std_, slices.repeats,
+                       slices.unix_time_s, meta={"quantity": "brdf"}, source=slices.source)
+    n_c = len(slices.channels)
+    if slices.kind == "spectral" or n_c not in (1, 3):
+        raise ReconstructionError(f"{slices.source}: fit works on 1 (grey) or 3 (RGB) channels, got {n_c}; "
+                                  f"convert spectra with reconstruction.colour first")
+    if len(slices) < 3:
+        raise ReconstructionError(f"{slices.source}: {len(slices)} sample(s); fit needs at least 3")
+    allowed = set(lobes if lobes is not None else (scene.lobes if scene and scene.lobes else LOBE_KINDS))
+    unknown = allowed - set(LOBE_KINDS)
+    if unknown:
+        raise ReconstructionError(f"unknown lobe kind(s) {sorted(unknown)}; expected {', '.join(LOBE_KINDS)}")
+    if not allowed & {"lambert", "ggx", "beckmann"}:
+        raise ReconstructionError("fit needs at least one of the lobes lambert, ggx, beckmann")
+    rel = relative_sigma if relative_sigma is not None else (scene.relative_sigma if scene and scene.relative_sigma
+                                                             else 0.01)
+    prob = _problem(slices, rel, scene.alpha_min if scene else ALPHA_MIN)
+    wi, wo, f = prob.wi, prob.wo, prob.f
+
+    fitted: dict[str, FitResult] = {}
+    skipped: list[str] = []
+
+    def run(specs: tuple[LobeSpec, ...]) -> None:
+        name = model_name(specs)
+        if name in fitted:
+            return
+        k = sum(len(s.nonlinear) for s in specs) + len(specs) * n_c
+        if k >= prob.n:
+            skipped.append(f"{name}: {k} parameters for {prob.n} values")
+            return
+        if progress:
+            progress(name)
+        fitted[name] = fit_model(specs, prob, loss=loss, f_scale=f_scale)
+
+    for specs in _candidates_stage1(allowed):
+        run(specs)
+    if not fitted:
+        raise ReconstructionError(f"{slices.source}: too few samples ({len(slices)}) for any candidate model")
+    # stage 2: the best stage-1 model of each distribution (and the best overall), made richer
+    bases = [min(fitted.values(), key=lambda r: r.bic)]
+    for d in ("ggx", "beckmann"):
+        of_d = [r for r in fitted.values() if any(s.kind == d for s in r.specs)]
+        if of_d:
+            bases.append(min(of_d, key=lambda r: r.bic))
+    for base in bases:
+        for specs in _extensions(base.specs, allowed):
+            run(specs)
+    ranked = sorted(fitted.values(), key=lambda r: r.bic)
+    chosen = ranked[0]
+    why = (f"lowest BIC ({chosen.bic:.1f}) of {len(ranked)} candidates; the next, {ranked[1].name}, has "
+           f"{ranked[1].bic:.1f}" if len(ranked) > 1 else "the only candidate")
+    scene_info: dict[str, Any] | None = None
+    if scene is not None:
+        scene_info = {"scene": scene.to_dict()}
+        if scene.relative_rmse is not None:
+            # simpler candidates, refitted to the samples inside the scene's ranges (the rest does not matter to
+            # the scene), are compared with the BIC choice over the scene's directions; the simplest within the
+            # budget is used
+            ti_d, to_d = slices.theta_i_deg, np.abs(slices.theta_o_deg)
+            inside = ((ti_d >= scene.theta_i_deg[0] - 1e-9) & (ti_d <= scene.theta_i_deg[1] + 1e-9)
+                      & (to_d >= scene.theta_o_deg[0] - 1e-9) & (to_d <= scene.theta_o_deg[1] + 1e-9))
+            sub = prob.take(inside) if 0 < inside.sum() < len(slices) else prob
+            swi, swo = scene.directions()
+            ref = chosen.material().eval(swi, swo)
+            diffs = []
+            for k in sorted({r.k for r in fitted.values() if r.k < min(chosen.k, sub.n)}):  # simplest first
+                best: tuple[float, FitResult] | None = None
+                for r in (r for r in fitted.values() if r.k == k):
+                    rr = fit_model(r.specs, sub, loss=loss, f_scale=f_scale) if sub is not prob else r
+                    e = relative_rmse_cos_dirs(rr.material().eval(swi, swo), ref, swi, swo)
+                    diffs.append({"model": r.name, "k": k, "relative_rmse_vs_bic_choice": round(e, 5)})
+                    if e <= scene.relative_rmse and (best is None or e < best[0]):
+                        best = (e, rr)
+                if best is not None:
+                    why = (f"simplest candidate within the scene's error budget: {best[1].name}, fitted to the "
+                           f"{sub.f.shape[0]} samples inside the scene's ranges, differs from the BIC choice "
+                           f"{chosen.name} by {best[0]:.4f} relative RMSE of f cos cos over the scene's directions "
+                           f"(budget {scene.relative_rmse})")
+                    chosen = best[1]
+                    break
+            scene_info["budget_comparison"] = diffs
+            scene_info["samples_inside_scene"] = int(sub.f.shape[0])
+        lo_i, hi_i = float(np.min(slices.theta_i_deg)), float(np.max(slices.theta_i_deg))
+        if scene.theta_i_deg[1] > hi_i + 1e-9 or scene.theta_i_deg[0] < lo_i - 1e-9:
+            scene_info["warning"] = (f"the scene uses theta_i {scene.theta_i_deg[0]:g}-{scene.theta_i_deg[1]:g} deg "
+                                     f"but the data cover {lo_i:g}-{hi_i:g} deg; outside that the fit extrapolates")
+
+    material = chosen.material(name=f"fit {chosen.name}")
+    model = material.eval(wi, wo)
+    resid = chosen.residuals
+    info: dict[str, Any] = {
+        "selection": {"criterion": "BIC = robust chi^2 + k ln(n)", "chosen": chosen.name, "reason": why,
+                      "candidates": [r.summary() for r in ranked], "skipped": skipped},
+        "residuals": {
+            "n_values": prob.n,
+            "chi2_reduced": round(chosen.chi2 / max(prob.n - chosen.k, 1), 6),
+            "rms_normalised": round(float(np.sqrt(np.mean(resid ** 2))), 6),
+            "max_abs_normalised": round(float(np.max(np.abs(resid))), 6),
+            "relative_rmse_cos": round(relative_rmse_cos_dirs(model, f, wi, wo), 6),
+            "samples": {"theta_i_deg": slices.theta_i_deg.tolist(), "theta_o_deg": slices.theta_o_deg.tolist(),
+                        "normalised": np.round(resid, 5).tolist()},
+        },
+        "weights": {"sigma": f"sqrt(std^2 + ({rel:g} f_model)^2 + ({FLOOR:g} peak)^2)", "loss": loss,
+                    "f_scale_sigma": f_scale},
+        "fit": {"converged": chosen.success, "message": chosen.message, "evaluations": chosen.nfev},
+        "holes": "the blind spot and missing samples are covered by the fitted model",
+    }
+    if scene_info is not None:
+        info["scene"] = scene_info
+    channels = ["value"] if n_c == 1 else ["R", "G", "B"]
+    return FitReconstruction(material, channels, chosen, info)

@@ -1,0 +1,467 @@
+"""Reading reconstruction inputs: our slice files and generic in-plane CSV tables from other instruments.
+
+Two kinds of file are accepted (told apart by the first line):
+
+* slice files (``# gonio-brdf slice``, docs/slice-format.md), read with :func:`reconstruction.slicefile.read_slice`;
+  their metadata says which quantity they hold, and row order is free (captures may be scheduled);
+* generic tables: optional ``#`` comment lines, a header line, then one row per sample, separated by commas,
+  semicolons or tabs. Columns:
+
+  - the incidence angle (degrees): ``theta_i_deg``, ``theta_i``, ``incidence_deg`` or ``incidence``;
+  - the measured (outgoing) angle, signed, positive on the specular side (degrees): ``theta_o_deg``,
+    ``theta_o``, ``outgoing_deg`` or ``outgoing``;
+  - the values: ``value`` (one channel), ``R,G,B``, or one column per wavelength (``450nm``, ``450 nm``,
+    ``450.5nm``); optionally ``<name>_std`` per value column, ``repeats`` and ``unix_time_s``.
+
+  Other names are mapped with ``columns={"theta_i": NAME, "theta_o": NAME, "value": NAME}`` (the CLI's
+  ``--columns theta_i=NAME,theta_o=NAME``); any column left unknown is an error. Generic tables do not say what
+  their values are, so ``quantity`` (``brdf``, ``reflectance_factor`` or ``brdf_cos``) is required. Rows must
+  come in blocks of one incidence each, the measured angle strictly increasing or strictly decreasing inside a
+  block, no (theta_i, theta_o) twice.
+
+In both kinds, rows whose values are all exactly zero in the blind spot around the retro direction
+(|theta_i + theta_o| <= ``blind_spot_deg``, and zero rows contiguous with them) are missing data, not measured
+zeros: they are dropped and counted, and the methods interpolate across the hole.
+
+Errors are :class:`InputError` with ``file:line, column NAME: what was expected``.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .base import ReconstructionError
+from .slicefile import MAGIC, QUANTITIES, Slice, SliceError, channel_kind, read_slice
+
+Array = NDArray[np.float64]
+
+__all__ = [
+    "InputError",
+    "LoadedInput",
+    "DEFAULT_BLIND_SPOT_DEG",
+    "MIN_SAMPLES",
+    "parse_columns",
+    "read_input",
+    "read_table",
+    "load_inputs",
+    "drop_blind_spot_zeros",
+    "check_slice",
+]
+
+DEFAULT_BLIND_SPOT_DEG = 10.0  # half width of the retro blind spot, in |theta_i + theta_o| (degrees)
+MIN_SAMPLES = 3  # fewer samples cannot define any reconstruction
+
+THETA_I_NAMES = ("theta_i_deg", "theta_i", "incidence_deg", "incidence")
+THETA_O_NAMES = ("theta_o_deg", "theta_o", "outgoing_deg", "outgoing")
+COLUMN_KEYS = ("theta_i", "theta_o", "value", "R", "G", "B")
+_WAVELENGTH = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*nm\s*$", re.IGNORECASE)
+
+
+class InputError(ReconstructionError):
+    """An input file cannot be used; the message names file, line and column where it can."""
+
+
+@dataclass
+class LoadedInput:
+    """Samples of all inputs merged, converted to f_r (1/sr), plus what was done to them.
+
+    ``slice`` holds quantity ``brdf`` in the files' own channels (grey, RGB or spectral).
+    """
+
+    slice: Slice
+    files: list[str]
+    quantities: list[str]
+    dropped_blind_spot: int = 0
+    notes: list[str] = field(default_factory=list)
+
+
+def parse_columns(spec: str | None) -> dict[str, str]:
+    """Parse ``"theta_i=Inc,theta_o=Det"`` into ``{"theta_i": "Inc", "theta_o": "Det"}``."""
+    if not spec:
+        return {}
+    out: dict[str, str] = {}
+    for part in spec.split(","):
+        key, sep, name = part.partition("=")
+        key, name = key.strip(), name.strip()
+        if not sep or not key or not name:
+            raise InputError(f"--columns: expected KEY=NAME pairs separated by commas, got {part!r}")
+        if key not in COLUMN_KEYS:
+            raise InputError(f"--columns: unknown key {key!r}; expected one of {', '.join(COLUMN_KEYS)}")
+        if key in out:
+            raise InputError(f"--columns: {key} given twice")
+        out[key] = name
+    return out
+
+
+# --- generic tables --------------------------------------------------------------------------------------
+
+
+def _find_header(lines: list[str], path: Path) -> int:
+    for k, line in enumerate(lines):
+        s = line.strip()
+        if s and not s.startswith("#"):
+            return k
+    raise InputError(f"{path}: no header line (only comments or blank lines)")
+
+
+def _delimiter(header: str) -> str:
+    counts = {d: header.count(d) for d in (",", ";", "\t")}
+    return max(counts, key=lambda d: counts[d]) if max(counts.values()) > 0 else ","
+
+
+def _canonical_value_name(name: str) -> str | None:
+    """``value``, ``R``/``G``/``B`` or ``<wavelength>nm`` for a value column name, else None."""
+    if name in ("value", "R", "G", "B"):
+        return name
+    m = _WAVELENGTH.match(name)
+    if m:
+        wl = float(m.group(1))
+        return f"{int(wl)}nm" if wl == int(wl) else f"{wl}nm"
+    return None
+
+
+def read_table(path: str | Path, *, quantity: str | None, columns: Mapping[str, str] | None = None) -> Slice:
+    """Read a generic in-plane CSV table (see the module docstring) into a :class:`Slice` of ``quantity``."""
+    path = Path(path)
+    columns = dict(columns or {})
+    if quantity is None:
+        raise InputError(f"{path}: a generic table does not say what its values are; pass --quantity "
+                         f"{'|'.join(QUANTITIES)}")
+    if quantity not in QUANTITIES:
+        raise InputError(f"--quantity: unknown quantity {quantity!r}; expected one of {', '.join(QUANTITIES)}")
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise InputError(f"{path}: is a directory, expected a CSV file") from None
+    except UnicodeDecodeError as e:
+        raise InputError(f"{path}: not a UTF-8 text file ({e.reason} at byte {e.start})") from None
+    lines = text.splitlines()
+    h = _find_header(lines, path)
+    hline = h + 1
+    delim = _delimiter(lines[h])
+    header = [c.strip() for c in next(csv.reader([lines[h]], delimiter=delim))]
+    if len(set(header)) != len(header):
+        dup = next(c for c in header if header.count(c) > 1)
+        raise InputError(f"{path}:{hline}, column {dup}: the column name appears twice")
+    for key, name in columns.items():
+        if name not in header:
+            raise InputError(f"{path}:{hline}: --columns {key}={name}: no such column; the columns are "
+                             f"{', '.join(header)}")
+    role: dict[int, str] = {}  # column index -> role ("theta_i", "theta_o", value name, "<value>_std", ...)
+    for key, name in columns.items():
+        role[header.index(name)] = key
+    for key, names in (("theta_i", THETA_I_NAMES), ("theta_o", THETA_O_NAMES)):
+        if key in columns:
+            continue
+        found = [n for n in names if n in header]
+        if not found:
+            raise InputError(f"{path}:{hline}: no {key} column (looked for {', '.join(names)}); the columns are "
+                             f"{', '.join(header)}; map one with --columns {key}=NAME")
+        role[header.index(found[0])] = key
+    renamed = {name: key for key, name in columns.items() if key not in ("theta_i", "theta_o")}
+    for k, name in enumerate(header):
+        if k in role:
+            continue
+        base = name[:-4] if name.endswith("_std") else name
+        canon = renamed.get(base) or _canonical_value_name(base)
+        if name in ("repeats", "unix_time_s"):
+            role[k] = name
+        elif canon is not None and name.endswith("_std"):
+            role[k] = canon + "_std"
+        elif canon is not None:
+            role[k] = canon
+        elif name in THETA_I_NAMES + THETA_O_NAMES:
+            raise InputError(f"{path}:{hline}, column {name}: a second angle column; map the one to use with "
+                             f"--columns")
+        else:
+            raise InputError(f"{path}:{hline}, column {name}: unknown column; expected theta_i/theta_o angle "
+                             f"columns, value, R,G,B or wavelength columns such as 450nm (with optional _std "
+                             f"columns), repeats, unix_time_s; map other names with --columns theta_i=NAME,"
+                             f"theta_o=NAME")
+    value_cols = [k for k in range(len(header)) if role[k] in ("value", "R", "G", "B") or role[k].endswith("nm")]
+    channels = [role[k] for k in value_cols]
+    if not channels:
+        raise InputError(f"{path}:{hline}: no value columns; expected value, R,G,B or wavelength columns such "
+                         f"as 450nm")
+    if len(set(channels)) != len(channels):
+        raise InputError(f"{path}:{hline}: two columns give the same channel {channels}")
+    if all(c.endswith("nm") for c in channels):
+        order = np.argsort([float(c[:-2]) for c in channels], kind="stable")
+        value_cols = [value_cols[i] for i in order]
+        channels = [channels[i] for i in order]
+    elif set(channels) == {"R", "G", "B"}:
+        value_cols = [value_cols[channels.index(c)] for c in ("R", "G", "B")]
+        channels = ["R", "G", "B"]
+    try:
+        channel_kind(channels)
+    except SliceError as e:
+        raise InputError(f"{path}:{hline}: {e}") from None
+    std_cols = {role[k][:-4]: k for k in role if role[k].endswith("_std")}
+    for c in std_cols:
+        if c not in channels:
+            raise InputError(f"{path}:{hline}, column {header[std_cols[c]]}: a _std column without its value "
+                             f"column")
+    names_by_role = {r: header[k] for k, r in role.items()}
+
+    # rows: parsed with numpy once the field count is checked line by line (messages need the line number)
+    rows: list[list[str]] = []
+    line_of: list[int] = []
+    for k in range(h + 1, len(lines)):
+        s = lines[k].strip()
+        if not s or s.startswith("#"):
+            continue
+        cells = next(csv.reader([lines[k]], delimiter=delim))
+        if len(cells) != len(header):
+            raise InputError(f"{path}:{k + 1}: {len(cells)} fields, expected {len(header)} "
+                             f"({delim.join(header)})")
+        rows.append(cells)
+        line_of.append(k + 1)
+    if not rows:
+        raise InputError(f"{path}: no samples (the table has a header but no rows)")
+    lines_arr = np.asarray(line_of)
+    data = np.empty((len(rows), len(header)))
+    for k in range(len(header)):  # one vectorised conversion per column; the slow path only finds the culprit
+        col = [r[k].strip() for r in rows]
+        try:
+            data[:, k] = np.array(col, dtype=np.float64)
+        except ValueError:
+            for r, cell in enumerate(col):
+                try:
+                    float(cell)
+                except ValueError:
+                    raise InputError(f"{path}:{line_of[r]}, column {header[k]}: expected a number, got "
+                                     f"{cell!r}") from None
+    bad = ~np.isfinite(data)
+    if bad.any():
+        r, k = (int(x) for x in np.argwhere(bad)[0])
+        raise InputError(f"{path}:{line_of[r]}, column {header[k]}: value is {rows[r][k].strip()!r}; NaN and "
+                         f"infinity are not allowed (leave missing samples out)")
+    ti = data[:, [k for k, r in role.items() if r == "theta_i"][0]]
+    to = data[:, [k for k, r in role.items() if r == "theta_o"][0]]
+    for name, arr in (("theta_i", ti), ("theta_o", to)):
+        out = np.abs(arr) >= 90.0
+        if out.any():
+            r = int(np.argmax(out))
+            raise InputError(f"{path}:{line_of[r]}, column {names_by_role[name]}: {arr[r]} is outside (-90, 90) "
+                             f"degrees")
+    _check_order(path, ti, to, lines_arr, names_by_role["theta_i"], names_by_role["theta_o"])
+    values = data[:, value_cols]
+    std = np.zeros_like(values)
+    for c, k in std_cols.items():
+        std[:, channels.index(c)] = data[:, k]
+    if (std < 0).any():
+        r, c = (int(x) for x in np.argwhere(std < 0)[0])
+        raise InputError(f"{path}:{line_of[r]}, column {header[std_cols[channels[c]]]}: a standard deviation "
+                         f"must be >= 0, got {std[r, c]}")
+    repeats = data[:, [k for k, r in role.items() if r == "repeats"][0]] if "repeats" in role.values() else None
+    times = data[:, [k for k, r in role.items() if r == "unix_time_s"][0]] if "unix_time_s" in role.values() \
+        else None
+    if repeats is not None:
+        badr = (repeats < 1) | (repeats != np.round(repeats))
+        if badr.any():
+            r = int(np.argmax(badr))
+            raise InputError(f"{path}:{line_of[r]}, column repeats: expected a positive integer, got {repeats[r]}")
+    s = Slice(ti, to, values, channels, std, repeats, times,
+              meta={"quantity": quantity, "source_kind": "generic table"},
+              source=str(path))
+    return s
+
+
+def _check_order(path: Path, ti: Array, to: Array, line_of: NDArray[np.int_], ti_name: str, to_name: str
+                 ) -> None:
+    """Rows in contiguous incidence blocks, theta_o strictly monotonic inside each block (vectorised)."""
+    n = ti.size
+    new_block = np.r_[True, ti[1:] != ti[:-1]]
+    block = np.cumsum(new_block) - 1
+    starts = np.nonzero(new_block)[0]
+    block_ti = ti[starts]
+    _, first = np.unique(block_ti, return_index=True)
+    if first.size != block_ti.size:
+        again = np.setdiff1d(np.arange(block_ti.size), first)[0]
+        prev = int(np.nonzero(block_ti[:again] == block_ti[again])[0][0])
+        r, p = int(starts[again]), int(starts[prev])
+        raise InputError(f"{path}:{line_of[r]}, column {ti_name}: incidence {ti[r]} appears again after other "
+                         f"incidences (first block at line {line_of[p]}); rows must come in one block per incidence")
+    if n < 2:
+        return
+    d = np.diff(to)
+    same = block[1:] == block[:-1]
+    dup = same & (d == 0)
+    if dup.any():
+        r = int(np.argmax(dup)) + 1
+        raise InputError(f"{path}:{line_of[r]}, column {to_name}: duplicate sample theta_i = {ti[r]}, theta_o = "
+                         f"{to[r]} (also at line {line_of[r - 1]})")
+    # direction of each block from its first step; every step inside the block must have that sign
+    sign = np.sign(d)
+    first_step = np.full(block[-1] + 1, 0.0)
+    idx = np.nonzero(same)[0]
+    if idx.size:
+        # first within-block step of every block: the smallest index of each block among the within-block steps
+        blk = block[idx]
+        firsts = idx[np.r_[True, blk[1:] != blk[:-1]]]
+        first_step[block[firsts]] = sign[firsts]
+        wrong = same & (sign != first_step[block[1:]])
+        if wrong.any():
+            r = int(np.argmax(wrong)) + 1
+            way = "increasing" if first_step[block[r]] > 0 else "decreasing"
+            raise InputError(f"{path}:{line_of[r]}, column {to_name}: {to[r]} after {to[r - 1]} breaks the {way} "
+                             f"order of the theta_i = {ti[r]} block; rows must be sorted by angle (a duplicate "
+                             f"or a shifted column?)")
+
+
+# --- any input -------------------------------------------------------------------------------------------
+
+
+def _is_slice_file(path: Path) -> bool:
+    try:
+        with open(path, "rb") as fh:
+            first = fh.readline(len(MAGIC) + 8)
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise InputError(f"{path}: is a directory, expected a slice file or a CSV table") from None
+    except OSError as e:
+        raise InputError(f"{path}: cannot read ({e.strerror})") from None
+    return first.decode("utf-8", "replace").strip() == MAGIC
+
+
+def read_input(path: str | Path, *, quantity: str | None = None, columns: Mapping[str, str] | None = None
+               ) -> Slice:
+    """Read one input file, slice file or generic table, into a :class:`Slice` in its own quantity."""
+    path = Path(path)
+    if _is_slice_file(path):
+        try:
+            s = read_slice(path)
+        except SliceError as e:
+            raise InputError(str(e)) from None
+        if columns:
+            raise InputError(f"{path}: --columns applies to generic tables; this is a gonio-brdf slice file")
+        if quantity is not None and quantity != s.quantity:
+            raise InputError(f"{path}: the file says quantity {s.quantity!r}; --quantity {quantity} disagrees")
+        return s
+    return read_table(path, quantity=quantity, columns=columns)
+
+
+def drop_blind_spot_zeros(s: Slice, half_width_deg: float = DEFAULT_BLIND_SPOT_DEG) -> tuple[Slice, int]:
+    """Drop rows that are all exactly zero in the retro blind spot (missing data); returns (slice, dropped).
+
+    A zero row is missing when |theta_i + theta_o| <= ``half_width_deg`` (degrees) or when it is contiguous, in
+    theta_o order at the same incidence, with such a row (a shadow wider than assumed).
+    """
+    if len(s) == 0:
+        return s, 0
+    order = np.lexsort((s.theta_o_deg, s.theta_i_deg))
+    zero = np.all(s.values[order] == 0.0, axis=1)
+    ti = s.theta_i_deg[order]
+    near = np.abs(ti + s.theta_o_deg[order]) <= half_width_deg
+    change = np.r_[True, (zero[1:] != zero[:-1]) | (ti[1:] != ti[:-1])]
+    run = np.cumsum(change) - 1
+    run_near = np.bincount(run, weights=(near & zero).astype(float)) > 0
+    missing_sorted = zero & run_near[run]
+    missing = np.zeros(len(s), dtype=bool)
+    missing[order] = missing_sorted
+    n = int(missing.sum())
+    return (s.take(~missing) if n else s), n
+
+
+def _merge(slices: Sequence[Slice]) -> Slice:
+    first = slices[0]
+    for s in slices[1:]:
+        if s.channels != first.channels:
+            raise InputError(f"{s.source}: value columns {s.channels} differ from {first.source}'s "
+                             f"{first.channels}; all inputs must have the same channels")
+    cat = np.concatenate
+    assert all(s.std is not None and s.repeats is not None and s.unix_time_s is not None for s in slices)
+    merged = Slice(cat([s.theta_i_deg for s in slices]), cat([s.theta_o_deg for s in slices]),
+                   cat([s.values for s in slices]), list(first.channels), cat([s.std for s in slices]),  # type: ignore[misc]
+                   cat([s.repeats for s in slices]), cat([s.unix_time_s for s in slices]),  # type: ignore[misc]
+                   meta={"quantity": "brdf"}, source=", ".join(s.source for s in slices))
+    key = np.stack([merged.theta_i_deg, merged.theta_o_deg], axis=1)
+    _, first_idx, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    dup = np.nonzero(np.arange(len(merged)) != first_idx[inverse.reshape(-1)])[0]
+    if dup.size:
+        owner = np.repeat(np.arange(len(slices)), [len(s) for s in slices])
+        r = int(dup[0])
+        o = int(first_idx[inverse.reshape(-1)[r]])
+        raise InputError(f"{slices[owner[r]].source}: sample theta_i = {key[r, 0]}, theta_o = {key[r, 1]} is also "
+                         f"in {slices[owner[o]].source}; inputs must not overlap")
+    return merged
+
+
+def load_inputs(paths: Sequence[str | Path], *, quantity: str | None = None,
+                columns: Mapping[str, str] | None = None, blind_spot_deg: float | None = None) -> LoadedInput:
+    """Read every input, drop blind-spot zero rows, convert to f_r (1/sr) and merge into one :class:`Slice`.
+
+    ``blind_spot_deg``: half width of the retro blind spot (degrees); default: the slice file's
+    ``blind_spot_half_width_deg`` metadata if present, else :data:`DEFAULT_BLIND_SPOT_DEG`.
+    """
+    if not paths:
+        raise InputError("no input files given")
+    out: list[Slice] = []
+    dropped = 0
+    notes: list[str] = []
+    quantities: list[str] = []
+    for p in paths:
+        s = read_input(p, quantity=quantity, columns=columns)
+        quantities.append(s.quantity)
+        if len(s) == 0:
+            raise InputError(f"{s.source}: no samples")
+        width = blind_spot_deg
+        if width is None:
+            w = s.meta.get("blind_spot_half_width_deg")
+            width = float(w) if isinstance(w, (int, float)) and math.isfinite(w) else DEFAULT_BLIND_SPOT_DEG
+        s, n = drop_blind_spot_zeros(s, width)
+        if n:
+            dropped += n
+            notes.append(f"{s.source}: {n} all-zero row(s) in the retro blind spot (|theta_i + theta_o| <= "
+                         f"{width:g} deg) treated as missing data")
+        if len(s) == 0:
+            raise InputError(f"{s.source}: every row is zero in the blind spot; no samples left")
+        f, sd = s.brdf()
+        out.append(Slice(s.theta_i_deg, s.theta_o_deg, f, list(s.channels), sd, s.repeats, s.unix_time_s,
+                         meta={"quantity": "brdf"}, source=s.source))
+    merged = _merge(out)
+    check_slice(merged)
+    return LoadedInput(merged, [str(p) for p in paths], quantities, dropped, notes)
+
+
+def check_slice(s: Slice, min_samples: int = MIN_SAMPLES) -> None:
+    """Raise :class:`InputError` for input no method can reconstruct: too few samples, NaN, all zero, duplicates.
+
+    ``s`` holds f_r; the message names the source.
+    """
+    try:
+        s.validate()
+    except SliceError as e:
+        raise InputError(str(e)) from None
+    if len(s) < min_samples:
+        raise InputError(f"{s.source}: {len(s)} sample(s); a reconstruction needs at least {min_samples}")
+    if np.unique(s.theta_o_deg).size < 2:
+        raise InputError(f"{s.source}: every sample has theta_o = {s.theta_o_deg[0]}; a slice needs several "
+                         f"outgoing angles")
+    if not np.any(s.values > 0):
+        raise InputError(f"{s.source}: every value is zero or negative; nothing was measured")
+
+
+def describe(s: Slice) -> dict[str, Any]:
+    """Coverage of the samples: incidences, outgoing ranges and the largest gap per incidence (degrees)."""
+    out: dict[str, Any] = {"samples": len(s), "channels": list(s.channels), "incidences_deg": []}
+    for ti in s.incidences():  # one entry per incidence (a handful)
+        to = np.sort(s.theta_o_deg[s.theta_i_deg == ti])
+        gap = float(np.max(np.diff(to))) if to.size > 1 else 0.0
+        out["incidences_deg"].append({"theta_i_deg": float(ti), "samples": int(to.size),
+                                      "theta_o_min_deg": float(to[0]), "theta_o_max_deg": float(to[-1]),
+                                      "largest_gap_deg": gap})
+    return out
+

@@ -1,0 +1,131 @@
+"""Preview renders: a sphere under a point light, written as linear float OpenEXR plus an 8-bit sRGB PNG.
+
+Scene (world frame: x right, y up, z towards the orthographic camera): a unit sphere at the origin seen along -z,
+a point light of intensity I = |L|^2 at L = (-3, 3, 5) (so the irradiance is about 1 near the sphere's front),
+no ambient light. Pixel value = f(wi, wo) * I cos(theta_i) / r^2 in the shading frame of the surface point
+(z = the sphere normal; any tangent, the BRDF being isotropic); 0 outside the sphere. The EXR holds these linear
+values as float32 RGB; the PNG is the same image exposed so the 99.5th percentile of the sphere's luminance maps
+to 1, clipped and sRGB-encoded.
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .geometry import normalize
+
+Array = NDArray[np.float64]
+
+__all__ = ["LIGHT_POSITION", "render_sphere", "table_brdf", "write_exr", "write_png", "srgb_encode",
+           "write_preview"]
+
+LIGHT_POSITION = np.array([-3.0, 3.0, 5.0])
+
+
+def table_brdf(table: ArrayLike) -> Callable[[Array, Array], Array]:
+    """f(wi, wo) -> (N, 3) from a MERL table by trilinear lookup; 0 where the table has no value."""
+    from . import merl
+
+    t = np.asarray(table, dtype=np.float64)
+
+    def f(wi: Array, wo: Array) -> Array:
+        return np.nan_to_num(merl.lookup(t, wi, wo, interpolate=True), nan=0.0)
+
+    return f
+
+
+def render_sphere(f: Callable[[Array, Array], ArrayLike], size: int = 256,
+                  light_position: ArrayLike = LIGHT_POSITION) -> NDArray[np.float32]:
+    """Render the sphere with BRDF ``f(wi, wo) -> (N, 1 | 3)`` (1/sr).
+
+    Returns (size, size, 3) float32 linear RGB, row 0 on top.
+    """
+    lp = np.asarray(light_position, dtype=np.float64)
+    c = (np.arange(size) + 0.5) / size * 2.0 - 1.0
+    x, y = np.meshgrid(c, -c)  # y up, row 0 on top
+    r2 = x * x + y * y
+    inside = r2 < 1.0
+    n = np.stack([x[inside], y[inside], np.sqrt(1.0 - r2[inside])], axis=-1)  # normal = position on the sphere
+    to_light = lp[None, :] - n
+    dist2 = np.sum(to_light * to_light, axis=-1)
+    light = to_light / np.sqrt(dist2)[:, None]
+    view = np.broadcast_to(np.array([0.0, 0.0, 1.0]), n.shape)
+    # shading frame: t = normalize(up x n) (fallback x), b = n x t; isotropy makes the choice of t irrelevant
+    up = np.array([0.0, 1.0, 0.0])
+    t = normalize(np.cross(up, n))
+    bad = np.linalg.norm(t, axis=-1) < 0.5
+    t[bad] = (1.0, 0.0, 0.0)
+    b = np.cross(n, t)
+
+    def local(v: Array) -> Array:
+        return np.stack([np.sum(v * t, -1), np.sum(v * b, -1), np.sum(v * n, -1)], axis=-1)
+
+    wi, wo = local(light), local(view)
+    vals = np.asarray(f(wi, wo), dtype=np.float64).reshape(n.shape[0], -1)
+    if vals.shape[1] == 1:
+        vals = np.repeat(vals, 3, axis=1)
+    cos_i = np.clip(wi[:, 2], 0.0, None)
+    radiance = np.nan_to_num(vals, nan=0.0) * (cos_i * float(lp @ lp) / dist2)[:, None]
+    radiance = np.where((wi[:, 2] > 0)[:, None] & (wo[:, 2] > 0)[:, None], radiance, 0.0)
+    img = np.zeros((size, size, 3), dtype=np.float32)
+    img[inside] = np.maximum(radiance, 0.0).astype(np.float32)
+    return img
+
+
+def write_exr(path: str | Path, img: ArrayLike) -> None:
+    """Write linear RGB (H, W, 3) as a float32 OpenEXR file (ZIP compression)."""
+    import OpenEXR
+
+    rgb = np.ascontiguousarray(np.asarray(img, dtype=np.float32))
+    if rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise ValueError(f"expected an (H, W, 3) image, got shape {rgb.shape}")
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    with OpenEXR.File(header, {"RGB": rgb}) as exr:
+        exr.write(str(path))
+
+
+def srgb_encode(linear: ArrayLike) -> Array:
+    """The sRGB transfer function (IEC 61966-2-1) of linear values in [0, 1]."""
+    v = np.clip(np.asarray(linear, dtype=np.float64), 0.0, 1.0)
+    return np.where(v <= 0.0031308, 12.92 * v, 1.055 * np.power(v, 1.0 / 2.4) - 0.055)
+
+
+def _png_chunk(kind: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+
+def write_png(path: str | Path, img: ArrayLike, exposure: float | None = None) -> float:
+    """Write linear RGB (H, W, 3) as an 8-bit sRGB PNG; returns the exposure used (a linear multiplier).
+
+    ``exposure`` None: 1 / the 99.5th percentile of the non-zero pixels' luminance (1 if the image is black).
+    """
+    rgb = np.asarray(img, dtype=np.float64)
+    h, w, _ = rgb.shape
+    if exposure is None:
+        lum = rgb @ np.array([0.2126, 0.7152, 0.0722])
+        nz = lum[lum > 0]
+        p = float(np.percentile(nz, 99.5)) if nz.size else 0.0
+        exposure = 1.0 / p if p > 0 else 1.0
+    px = np.round(srgb_encode(rgb * exposure) * 255.0).astype(np.uint8)
+    raw = np.concatenate([np.zeros((h, 1), np.uint8), px.reshape(h, w * 3)], axis=1)  # filter 0 on every row
+    data = (b"\x89PNG\r\n\x1a\n" + _png_chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
+            + _png_chunk(b"IDAT", zlib.compress(raw.tobytes(), 6)) + _png_chunk(b"IEND", b""))
+    Path(path).write_bytes(data)
+    return exposure
+
+
+def write_preview(exr_path: str | Path, table: ArrayLike, size: int = 256) -> dict[str, object]:
+    """Render the MERL ``table`` (3, 90, 90, 180) on the sphere; write ``exr_path`` and the PNG beside it."""
+    exr_path = Path(exr_path)
+    img = render_sphere(table_brdf(table), size)
+    write_exr(exr_path, img)
+    png = exr_path.with_suffix(".png")
+    exposure = write_png(png, img)
+    return {"exr": str(exr_path), "png": str(png), "size": size, "light_position": LIGHT_POSITION.tolist(),
+            "png_exposure": exposure, "max_linear": float(img.max())}

@@ -1,0 +1,167 @@
+"""Plausibility checks and the JSON report of a reconstruction.
+
+Checks (each ``{"pass": bool, ...figures}``):
+
+* ``non_negative``: every table cell above the horizon is finite and >= 0;
+* ``albedo``: the directional albedo a(theta_i) = integral of f cos(theta_o) d omega_o of the written table
+  (trilinear lookup, Gauss-Legendre 64 x 128 over the hemisphere) is <= 1 + 0.01 (quadrature tolerance) at
+  theta_i = 0, 5, ..., 85 deg, in every channel;
+* ``reciprocity``: max |f(wi, wo) - f(wo, wi)| / max |f| of the method's own BRDF over 4096 random pairs is
+  <= 1e-6 (the table itself is reciprocal by construction: phi_d and phi_d + pi share a cell).
+
+Top-level report keys: ``method`` (the method used), ``method_requested``, ``method_reason``, ``parameters``,
+``residuals``, ``coverage``, ``checks``, ``inputs``, ``colour``, ``table``, ``outputs``, ``timings_s``, and
+``details`` (everything the method reported).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from . import merl
+from .base import Reconstruction
+from .geometry import inplane_to_dirs
+from .metrics import directional_albedo, reciprocity_error, relative_rmse_cos_dirs
+from .slicefile import Slice
+
+Array = NDArray[np.float64]
+
+__all__ = ["ALBEDO_TOLERANCE", "RECIPROCITY_TOLERANCE", "sample_residuals", "plausibility", "coverage",
+           "build_report", "write_json"]
+
+ALBEDO_TOLERANCE = 0.01
+RECIPROCITY_TOLERANCE = 1e-6
+ALBEDO_INCIDENCES_DEG = np.arange(0.0, 86.0, 5.0)
+
+
+def _json_safe(x: Any) -> Any:
+    """Recursively turn numpy values into plain Python and non-finite floats into None (strict JSON)."""
+    if isinstance(x, dict):
+        return {str(k): _json_safe(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_json_safe(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _json_safe(x.tolist())
+    if isinstance(x, (np.bool_, bool)):
+        return bool(x)
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    if isinstance(x, (float, np.floating)):
+        v = float(x)
+        return v if np.isfinite(v) else None
+    return x
+
+
+def sample_residuals(rec: Reconstruction, s: Slice, table: ArrayLike | None = None) -> dict[str, Any]:
+    """How the reconstruction (and the written table, if given) reproduce the samples ``s`` (f_r, 1/sr)."""
+    f, _ = s.brdf()
+    wi, wo = inplane_to_dirs(np.radians(s.theta_i_deg), np.radians(s.theta_o_deg))
+    model = np.asarray(rec.eval(wi, wo), dtype=np.float64).reshape(len(s), -1)
+    if model.shape[1] != f.shape[1]:
+        model = np.broadcast_to(model, f.shape)
+    r = model - f
+    out: dict[str, Any] = {
+        "samples": len(s),
+        "rms_1_per_sr": float(np.sqrt(np.mean(r * r))),
+        "max_abs_1_per_sr": float(np.max(np.abs(r))),
+        "relative_rmse_cos": relative_rmse_cos_dirs(model, f, wi, wo),
+    }
+    if table is not None:
+        tv = merl.lookup(table, wi, wo, interpolate=True)
+        tv = tv[:, :1] if f.shape[1] == 1 else tv
+        out["table_relative_rmse_cos"] = relative_rmse_cos_dirs(tv, f, wi, wo)
+    return out
+
+
+def plausibility(rec: Reconstruction, table: ArrayLike) -> dict[str, Any]:
+    """The three checks of the module docstring on ``table`` (3, 90, 90, 180) and ``rec.eval``."""
+    t = np.asarray(table, dtype=np.float64)
+    valid = merl.valid_mask()[None]
+    vals = np.where(valid, t, 0.0)
+    missing = int(np.sum(valid & ~np.isfinite(t)))
+    vmin = float(np.nanmin(np.where(valid, t, np.nan)))
+    non_neg = {"pass": bool(missing == 0 and vmin >= 0.0), "min_1_per_sr": vmin, "missing_cells": missing,
+               "max_1_per_sr": float(np.nanmax(vals))}
+    look = lambda wi, wo: np.nan_to_num(merl.lookup(t, wi, wo, interpolate=True), nan=0.0)  # noqa: E731
+    alb = directional_albedo(look, np.radians(ALBEDO_INCIDENCES_DEG), 64, 128)  # (n, 3)
+    albedo = {"pass": bool(np.all(alb <= 1.0 + ALBEDO_TOLERANCE)), "max": float(alb.max()),
+              "theta_i_deg": ALBEDO_INCIDENCES_DEG.tolist(), "albedo": np.round(alb, 5).tolist(),
+              "tolerance": ALBEDO_TOLERANCE, "of": "the written table"}
+    err = reciprocity_error(rec.eval)
+    recip = {"pass": bool(err <= RECIPROCITY_TOLERANCE), "relative_error": err,
+             "tolerance": RECIPROCITY_TOLERANCE, "of": f"the {rec.method} BRDF; the table is reciprocal by "
+                                                       f"construction (phi_d folded)"}
+    return {"non_negative": non_neg, "albedo": albedo, "reciprocity": recip,
+            "all_pass": bool(non_neg["pass"] and albedo["pass"] and recip["pass"])}
+
+
+def coverage(s: Slice, dropped_blind_spot: int = 0) -> dict[str, Any]:
+    """What the samples cover: per incidence, the outgoing range and largest gap; the (theta_h, theta_d) bins hit."""
+    out: dict[str, Any] = {"samples": len(s), "missing_blind_spot_rows": dropped_blind_spot, "incidences": []}
+    for ti in s.incidences():  # one entry per incidence (a handful)
+        to = np.sort(s.theta_o_deg[s.theta_i_deg == ti])
+        out["incidences"].append({"theta_i_deg": float(ti), "samples": int(to.size),
+                                  "theta_o_min_deg": float(to[0]), "theta_o_max_deg": float(to[-1]),
+                                  "largest_gap_deg": float(np.max(np.diff(to))) if to.size > 1 else None})
+    th = np.radians(np.abs(s.theta_o_deg - s.theta_i_deg) / 2)
+    td = np.radians(np.abs(s.theta_o_deg + s.theta_i_deg) / 2)
+    hit = np.zeros((merl.N_TH, merl.N_TD), dtype=bool)
+    hit[merl.theta_h_index(th), merl.theta_d_index(td)] = True
+    out["half_diff_bins_with_samples"] = int(hit.sum())
+    out["half_diff_bins_total"] = merl.N_TH * merl.N_TD
+    return out
+
+
+def build_report(*, rec: Reconstruction, choice: dict[str, Any], working: Slice, table: ArrayLike,
+                 checks: dict[str, Any], inputs: dict[str, Any], colour: dict[str, Any], table_info: dict[str, Any],
+                 outputs: dict[str, Any], timings: dict[str, float], dropped_blind_spot: int = 0) -> dict[str, Any]:
+    """Assemble the JSON report (keys in the module docstring)."""
+    details = rec.report()
+    params = details.get("parameters", {})
+    residuals = dict(details.get("residuals", {})) if isinstance(details.get("residuals"), dict) else {}
+    residuals.update(sample_residuals(rec, working, table))
+    rep = {
+        "method": rec.method,
+        "method_requested": choice.get("requested", rec.method),
+        "method_reason": choice.get("reason", ""),
+        "parameters": params,
+        "residuals": residuals,
+        "coverage": coverage(working, dropped_blind_spot),
+        "checks": checks,
+        "inputs": inputs,
+        "colour": colour,
+        "table": table_info,
+        "outputs": outputs,
+        "timings_s": {k: round(v, 4) for k, v in timings.items()},
+        "details": {k: v for k, v in details.items() if k not in ("parameters", "residuals", "method")},
+    }
+    if "alternatives" in choice:
+        rep["method_alternatives"] = choice["alternatives"]
+    return _json_safe(rep)
+
+
+def write_json(path: str | Path, report: dict[str, Any]) -> None:
+    """Write ``report`` as indented, strict JSON, atomically (temporary file, fsync, rename)."""
+    path = Path(path)
+    text = json.dumps(_json_safe(report), indent=2, allow_nan=False) + "\n"
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent if str(path.parent) else ".")
+    try:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.fchmod(fd, 0o666 & ~umask)  # mkstemp makes 0600; a report is an ordinary file
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise

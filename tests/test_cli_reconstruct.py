@@ -1,0 +1,225 @@
+"""gonio-reconstruct end to end, method dispatch (auto), and clear errors for bad input."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import OpenEXR
+import pytest
+
+from reconstruction import cli, merl, pipeline
+from reconstruction.base import ReconstructionError
+from reconstruction.geometry import inplane_to_dirs
+from reconstruction.metrics import relative_rmse_cos
+from reconstruction.models import Material
+from reconstruction.slicefile import Slice, write_slice
+
+BLUE_PLASTIC = Material.from_dict({"name": "blue-plastic", "lobes": [
+    {"type": "lambert", "albedo": [0.05, 0.10, 0.40]},
+    {"type": "ggx", "alpha": 0.15, "specular": [0.9, 0.9, 0.9], "f0": 0.04}]})
+PHONG = Material.from_dict({"name": "phong-ish", "lobes": [  # no lobe of the fit can describe this well
+    {"type": "oren_nayar", "albedo": 0.8, "sigma_deg": 40}, {"type": "phong", "exponent": 50, "specular": 0.3}]})
+
+
+def samples(mat, incidences=(30.0,), step=2.0, blind=4.0):
+    ti, to = [], []
+    for t in incidences:
+        o = np.arange(-80.0, 80.0 + 1e-9, step)
+        o = o[np.abs(o + t) > blind]
+        ti.append(np.full(o.size, t))
+        to.append(o)
+    ti, to = np.concatenate(ti), np.concatenate(to)
+    return ti, to, mat.eval(*inplane_to_dirs(np.radians(ti), np.radians(to)))
+
+
+def slice_file(path, mat, incidences=(30.0,), step=2.0):
+    ti, to, f = samples(mat, incidences, step)
+    ch = ["value"] if f.shape[1] == 1 else ["R", "G", "B"]
+    write_slice(path, Slice(ti, to, f, ch, 0.002 * np.abs(f) + 1e-6, np.full(ti.size, 4),
+                            1.795e9 + np.arange(ti.size), meta={"material": "test"}))
+    return path
+
+
+def test_end_to_end_on_a_slice_file(tmp_path):
+    src = slice_file(tmp_path / "slice.csv", BLUE_PLASTIC)
+    out = tmp_path / "material.binary"
+    r = subprocess.run([sys.executable, "-m", "reconstruction.cli", str(src), "--method", "auto", "--out", str(out),
+                        "--preview", str(tmp_path / "material.exr"), "--report", str(tmp_path / "material.json")],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "Traceback" not in r.stderr
+    assert out.stat().st_size == merl.FILE_SIZE == 34_992_012
+    table = merl.read(out)
+    assert np.all(np.isfinite(table[:, merl.valid_mask()])) and np.nanmin(table) >= 0
+    assert relative_rmse_cos(table, merl.tabulate(BLUE_PLASTIC.eval)) < 0.02
+    with OpenEXR.File(str(tmp_path / "material.exr")) as f:
+        px = f.channels()["RGB"].pixels
+    assert px.shape == (256, 256, 3) and px.dtype == np.float32 and px.max() > 0
+    assert (tmp_path / "material.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    rep = json.loads((tmp_path / "material.json").read_text())
+    for key in ("method", "method_reason", "parameters", "residuals", "coverage", "checks"):
+        assert key in rep
+    assert rep["method"] == "fit" and rep["method_requested"] == "auto"
+    assert "reproduces the samples" in rep["method_reason"]
+    assert rep["details"]["model"] == "lambert+ggx(F)"
+    assert {c for c in rep["checks"]} >= {"non_negative", "albedo", "reciprocity"}
+    assert rep["checks"]["all_pass"] is True
+    assert len(rep["checks"]["albedo"]["albedo"]) == 18  # every incidence 0..85 deg
+    assert rep["coverage"]["incidences"][0]["theta_i_deg"] == 30.0
+    assert rep["residuals"]["relative_rmse_cos"] < 1e-3
+
+
+def test_help_answers():
+    r = subprocess.run([sys.executable, "-m", "reconstruction.cli", "--help"], capture_output=True, text=True,
+                       timeout=60)
+    assert r.returncode == 0
+    for word in ("--method", "auto,fit,revolve,bivariate", "--preview", "--report", "--supersample", "--quantity",
+                 "--columns", "--illuminant", "--scene"):
+        assert word in r.stdout
+
+
+def test_generic_spectral_table_bivariate_supersampled(tmp_path):
+    wl = np.arange(400, 701, 20)
+    ti, to, f = samples(Material.from_dict({"name": "grey", "lobes": [
+        {"type": "lambert", "albedo": 0.5}, {"type": "ggx", "alpha": 0.3, "specular": 0.2}]}), (20.0, 45.0), 5.0)
+    lines = ["# other instrument export", "Incidence,Detector," + ",".join(f"{w}nm" for w in wl)]
+    for a, b, v in zip(ti, to, np.pi * f[:, 0], strict=True):  # a reflectance factor, flat over wavelength
+        lines.append(f"{a},{b}," + ",".join([repr(float(v))] * wl.size))
+    src = tmp_path / "export.csv"
+    src.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "m.binary"
+    code = cli.main([str(src), "--method", "bivariate", "--out", str(out), "--columns",
+                     "theta_i=Incidence,theta_o=Detector", "--quantity", "reflectance_factor",
+                     "--supersample", "2,1,1", "--report", str(tmp_path / "m.json"), "--quiet"])
+    assert code == 0
+    rep = json.loads((tmp_path / "m.json").read_text())
+    assert rep["method"] == "bivariate" and rep["colour"]["input_channels"] == "spectral"
+    assert rep["table"]["values"] == "cell averages" and rep["table"]["supersample"] == [2, 1, 1]
+    t = merl.read(out)
+    v = merl.valid_mask()
+    assert np.all(np.isfinite(t[:, v]))
+    # a flat (grey) spectrum gives a grey table, at the right level: the diffuse part near normal is 0.5/pi + ggx
+    np.testing.assert_allclose(t[0, v], t[1, v], rtol=2e-3)
+    np.testing.assert_allclose(t[2, v], t[1, v], rtol=2e-3)
+    assert rep["residuals"]["relative_rmse_cos"] < 0.01
+
+
+def run_main(capsys, *argv):
+    code = cli.main([str(a) for a in argv])
+    err = capsys.readouterr().err
+    return code, err
+
+
+BAD = [
+    ("nan.csv", "theta_i,theta_o,value\n30,0,0.1\n30,10,nan\n30,20,0.3\n", ["--quantity", "brdf"],
+     r"nan.csv:3, column value: value is 'nan'"),
+    ("unknown.csv", "theta_i,theta_o,value,temp\n30,0,0.1,1\n", ["--quantity", "brdf"],
+     "unknown.csv:1, column temp: unknown column"),
+    ("noq.csv", "theta_i,theta_o,value\n30,0,0.1\n30,10,0.1\n30,20,0.1\n", [],
+     "noq.csv: a generic table does not say what its values are"),
+    ("zeros.csv", "theta_i,theta_o,value\n30,0,0\n30,10,0\n30,20,0\n30,50,0\n", ["--quantity", "brdf"],
+     "zeros.csv: every value is zero"),
+    ("one.csv", "theta_i,theta_o,value\n30,0,0.1\n", ["--quantity", "brdf"], "one.csv: 1 sample(s)"),
+    ("unsorted.csv", "theta_i,theta_o,value\n30,0,0.1\n30,20,0.1\n30,10,0.1\n", ["--quantity", "brdf"],
+     "unsorted.csv:4, column theta_o: 10.0 after 20.0 breaks the increasing order"),
+]
+
+
+@pytest.mark.parametrize("name, text, extra, message", BAD, ids=[b[0] for b in BAD])
+def test_bad_input_exits_2_with_one_line(tmp_path, capsys, name, text, extra, message):
+    src = tmp_path / name
+    src.write_text(text)
+    out = tmp_path / "m.binary"
+    code, err = run_main(capsys, src, "--out", out, "--quiet", *extra)
+    assert code == 2
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert message in err
+    assert not out.exists()  # never a table of NaN or zeros
+
+
+def test_bad_options_exit_2(tmp_path, capsys):
+    src = slice_file(tmp_path / "s.csv", BLUE_PLASTIC, step=10.0)
+    code, err = run_main(capsys, src, "--out", tmp_path / "m.bin")
+    assert code == 2 and "--out" in err and ".binary" in err
+    code, err = run_main(capsys, src, "--out", tmp_path / "nodir" / "m.binary")
+    assert code == 2 and "does not exist" in err
+    code, err = run_main(capsys, tmp_path / "missing.csv", "--out", tmp_path / "m.binary")
+    assert code == 2 and "missing.csv: no such file" in err
+    code, err = run_main(capsys, src, "--out", tmp_path / "m.binary", "--lobes", "lambert,phong")
+    assert code == 2 and "phong" in err
+    code, err = run_main(capsys, src, "--out", tmp_path / "m.binary", "--scene", tmp_path / "none.toml")
+    assert code == 2 and "none.toml: no such scene file" in err
+    with pytest.raises(SystemExit) as e:
+        cli.main([str(src), "--out", str(tmp_path / "m.binary"), "--method", "magic"])
+    assert e.value.code == 2
+
+
+# --- dispatch --------------------------------------------------------------------------------------------
+
+
+def as_slice(mat, incidences, step=2.0):
+    ti, to, f = samples(mat, incidences, step)
+    return Slice(ti, to, f, ["value"] if f.shape[1] == 1 else ["R", "G", "B"])
+
+
+def test_auto_uses_bivariate_when_no_model_fits_and_several_incidences(monkeypatch):
+    monkeypatch.setattr(pipeline, "_import_revolve", lambda: None)
+    rec, choice = pipeline.reconstruct(as_slice(PHONG, (10.0, 40.0, 70.0)), "auto")
+    assert rec.method == "bivariate" and choice["used"] == "bivariate"
+    assert "misses the samples" in choice["reason"] and "3 incidences" in choice["reason"]
+
+
+def test_auto_single_slice_prefers_revolve_and_says_so_when_missing(monkeypatch):
+    monkeypatch.setattr(pipeline, "_import_revolve", lambda: None)
+    rec, choice = pipeline.reconstruct(as_slice(PHONG, (30.0,)), "auto")
+    assert rec.method == "bivariate" and "revolve.py is not available" in choice["reason"]
+    with pytest.raises(ReconstructionError, match="revolve"):
+        pipeline.reconstruct(as_slice(PHONG, (30.0,)), "revolve")
+
+    calls = []
+
+    class Fake:
+        method = "revolve"
+        channels = ["value"]
+
+        def eval(self, wi, wo):
+            return np.full((len(wi), 1), 0.1)
+
+        def report(self):
+            return {"method": "revolve"}
+
+    def fake_revolve(slices, **kw):
+        calls.append((slices, kw))
+        return Fake()
+
+    monkeypatch.setattr(pipeline, "_import_revolve", lambda: fake_revolve)
+    s = as_slice(PHONG, (30.0,))
+    order = np.random.default_rng(0).permutation(len(s))
+    rec, choice = pipeline.reconstruct(s.take(order), "auto", pipeline.Options(fill="zero", revolve_axis="pca"))
+    assert rec.method == "revolve" and "solids-of-revolution" in choice["reason"]
+    (got, kw), = calls
+    assert kw == {"axis": "pca", "fill": "zero"}
+    assert np.all(np.diff(got.theta_o_deg) > 0)  # handed over sorted
+    t = pipeline.tabulate(rec)
+    assert np.allclose(t[:, merl.valid_mask()], 0.1)
+
+
+def test_tabulate_refuses_negative_or_missing_cells():
+    class Bad:
+        method = "bad"
+        channels = ["value"]
+
+        def __init__(self, v):
+            self.v = v
+
+        def eval(self, wi, wo):
+            return np.full((len(wi), 1), self.v)
+
+        def report(self):
+            return {}
+
+    with pytest.raises(ReconstructionError, match="negative"):
+        pipeline.tabulate(Bad(-0.1))
+    with pytest.raises(ReconstructionError, match="no finite value"):
+        pipeline.tabulate(Bad(np.nan))

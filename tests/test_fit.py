@@ -1,0 +1,163 @@
+"""The fit method on simulated slices of known materials: recovery, model selection, uncertainties, scenes."""
+
+import numpy as np
+import pytest
+
+from reconstruction import merl
+from reconstruction.base import Reconstruction, ReconstructionError
+from reconstruction.fit import load_scene, reconstruct_fit
+from reconstruction.geometry import inplane_to_dirs
+from reconstruction.metrics import relative_rmse_cos
+from reconstruction.models import Material
+from reconstruction.slicefile import Slice
+
+
+def material(*lobes):
+    return Material.from_dict({"name": "truth", "lobes": list(lobes)})
+
+
+def simulate(mat, incidences=(30.0,), step=2.0, noise=0.0, seed=0, blind=4.0):
+    """In-plane samples of ``mat`` like the bench takes them: theta_o -80..80, the retro blind spot left out."""
+    ti, to = [], []
+    for t in incidences:
+        o = np.arange(-80.0, 80.0 + 1e-9, step)
+        o = o[np.abs(o + t) > blind]
+        ti.append(np.full(o.size, t))
+        to.append(o)
+    ti, to = np.concatenate(ti), np.concatenate(to)
+    f = mat.eval(*inplane_to_dirs(np.radians(ti), np.radians(to)))
+    std = np.zeros_like(f)
+    if noise:
+        std = noise * np.abs(f) + 1e-4
+        f = f + np.random.default_rng(seed).normal(size=f.shape) * std
+    channels = ["value"] if f.shape[1] == 1 else ["R", "G", "B"]
+    return Slice(ti, to, f, channels, std)
+
+
+LAMBERT_GGX = material({"type": "lambert", "albedo": [0.05, 0.10, 0.40]},
+                       {"type": "ggx", "alpha": 0.15, "specular": [0.5, 0.6, 0.7]})
+
+
+@pytest.fixture(scope="module")
+def lambert_ggx_fit():
+    return reconstruct_fit(simulate(LAMBERT_GGX))
+
+
+def test_single_noise_free_slice_recovers_the_full_table(lambert_ggx_fit):
+    rec = lambert_ggx_fit
+    assert isinstance(rec, Reconstruction)
+    table = merl.tabulate(rec.eval)
+    truth = merl.tabulate(LAMBERT_GGX.eval)
+    err = relative_rmse_cos(table, truth)
+    assert err < 0.02
+    assert rec.result.name == "lambert+ggx"  # no lobe the data do not need
+    p = rec.report()["parameters"]
+    np.testing.assert_allclose(p[0]["albedo"], [0.05, 0.10, 0.40], rtol=1e-5)
+    assert p[1]["alpha"] == pytest.approx(0.15, rel=1e-5)
+    np.testing.assert_allclose(p[1]["specular"], [0.5, 0.6, 0.7], rtol=1e-5)
+    assert all(s is not None and s > 0 for s in p[0]["albedo_std"] + [p[1]["alpha_std"]])
+
+
+def test_report_has_candidates_and_residuals(lambert_ggx_fit):
+    rep = lambert_ggx_fit.report()
+    cands = rep["selection"]["candidates"]
+    names = [c["model"] for c in cands]
+    assert names[0] == "lambert+ggx" and {"lambert", "ggx", "lambert+beckmann", "lambert+ggx(F)"} <= set(names)
+    bics = [c["bic"] for c in cands]
+    assert bics == sorted(bics)
+    res = rep["residuals"]
+    assert res["relative_rmse_cos"] < 1e-6
+    assert len(res["samples"]["normalised"]) == len(res["samples"]["theta_o_deg"])
+
+
+def test_fresnel_is_found_when_the_data_show_it():
+    truth = material({"type": "lambert", "albedo": [0.05, 0.10, 0.40]},
+                     {"type": "ggx", "alpha": 0.2, "specular": 1.0, "f0": 0.04})
+    rec = reconstruct_fit(simulate(truth, incidences=(0.0, 30.0, 60.0, 75.0), step=3.0))
+    assert rec.result.name == "lambert+ggx(F)"
+    p = rec.report()["parameters"][1]
+    assert p["f0"] == pytest.approx(0.04, rel=1e-3)
+    assert p["alpha"] == pytest.approx(0.2, rel=1e-4)
+    err = relative_rmse_cos(merl.tabulate(rec.eval), merl.tabulate(truth.eval))
+    assert err < 0.01
+
+
+@pytest.mark.parametrize("lobes, expected", [
+    ([{"type": "lambert", "albedo": 0.6}], "lambert"),
+    ([{"type": "lambert", "albedo": 0.3}, {"type": "beckmann", "alpha": 0.3, "specular": 0.4}], "lambert+beckmann"),
+    ([{"type": "lambert", "albedo": 0.3}, {"type": "ggx", "alpha": 0.1, "specular": 0.4},
+      {"type": "retro", "exponent": 8.0, "amount": 0.2}], "lambert+ggx+retro"),
+])
+def test_model_selection_keeps_only_what_the_data_need(lobes, expected):
+    rec = reconstruct_fit(simulate(material(*lobes), incidences=(20.0, 50.0), step=2.5))
+    assert rec.result.name == expected
+    assert rec.channels == ["value"]
+
+
+def test_noisy_data_uncertainties_cover_the_truth():
+    truth = material({"type": "lambert", "albedo": 0.3}, {"type": "ggx", "alpha": 0.12, "specular": 0.6})
+    z = []
+    for seed in range(4):
+        rec = reconstruct_fit(simulate(truth, incidences=(30.0,), noise=0.02, seed=seed), lobes=["lambert", "ggx"])
+        p = rec.report()["parameters"]
+        z += [(p[0]["albedo"][0] - 0.3) / p[0]["albedo_std"][0], (p[1]["alpha"] - 0.12) / p[1]["alpha_std"],
+              (p[1]["specular"][0] - 0.6) / p[1]["specular_std"][0]]
+        assert 0.3 < rec.report()["residuals"]["chi2_reduced"] < 2.0
+    z = np.abs(np.array(z))
+    assert np.all(z < 4.0)  # honest error bars: no parameter is many sigma off
+    assert np.mean(z) < 2.0
+
+
+def test_robust_loss_resists_an_outlier():
+    truth = material({"type": "lambert", "albedo": 0.3}, {"type": "ggx", "alpha": 0.12, "specular": 0.6})
+    s = simulate(truth, noise=0.01, seed=5)
+    k = int(np.argmin(np.abs(s.theta_o_deg - (-60.0))))
+    s.values[k] *= 30.0  # a glitch (e.g. a stray reflection) on one diffuse sample
+    robust = reconstruct_fit(s, lobes=["lambert", "ggx"]).report()["parameters"]
+    plain = reconstruct_fit(s, lobes=["lambert", "ggx"], loss="linear").report()["parameters"]
+    assert abs(robust[0]["albedo"][0] - 0.3) < 0.01
+    assert abs(plain[0]["albedo"][0] - 0.3) > 2 * abs(robust[0]["albedo"][0] - 0.3)
+
+
+def test_scene_file_restricts_candidates_and_budget_simplifies(tmp_path):
+    truth = material({"type": "lambert", "albedo": 0.3}, {"type": "ggx", "alpha": 0.2, "specular": 1.0, "f0": 0.04})
+    s = simulate(truth, incidences=(0.0, 30.0, 60.0, 75.0), step=3.0)
+    only = tmp_path / "only.toml"
+    only.write_text('[scene]\nlobes = ["lambert", "ggx"]\n')
+    rec = reconstruct_fit(s, scene=load_scene(only))
+    assert all("(F)" not in c["model"] and "retro" not in c["model"] for c in rec.report()["selection"]["candidates"])
+    # a scene that never looks near grazing, with a loose budget: Fresnel is not worth a parameter there
+    loose = tmp_path / "loose.toml"
+    loose.write_text('[scene]\nname = "frontal"\ntheta_i_deg = [0.0, 30.0]\ntheta_o_deg = [0.0, 30.0]\n'
+                     'angular_resolution_deg = 2.0\n[scene.error_budget]\nrelative_rmse = 0.05\n')
+    rec = reconstruct_fit(s, scene=load_scene(loose))
+    assert rec.result.name == "lambert+ggx"
+    assert "budget" in rec.report()["selection"]["reason"]
+    tight = tmp_path / "tight.toml"
+    tight.write_text('[scene]\ntheta_i_deg = [0.0, 85.0]\ntheta_o_deg = [0.0, 85.0]\n'
+                     '[scene.error_budget]\nrelative_rmse = 0.001\n')
+    assert reconstruct_fit(s, scene=load_scene(tight)).result.name == "lambert+ggx(F)"
+
+
+@pytest.mark.parametrize("text, pattern", [
+    ("[scene]\ncolour = 1\n", r"unknown key\(s\) \['colour'\]"),
+    ("[scene]\ntheta_i_deg = [50, 10]\n", r"\[scene\]\.theta_i_deg: expected \[min, max\]"),
+    ("[scene]\nlobes = ['phong']\n", r"\[scene\]\.lobes"),
+    ("[scene.error_budget]\nrelative_rmse = -1\n", r"relative_rmse: expected a positive number"),
+    ("name = 'x'\n", r"no \[scene\] table"),
+])
+def test_bad_scene_files(tmp_path, text, pattern):
+    p = tmp_path / "scene.toml"
+    p.write_text(text)
+    with pytest.raises(ReconstructionError, match=pattern):
+        load_scene(p)
+
+
+def test_fit_rejects_input_it_cannot_use():
+    wl = ["450nm", "550nm", "650nm"]
+    with pytest.raises(ReconstructionError, match="convert spectra"):
+        reconstruct_fit(Slice([30, 30, 30], [0, 10, 20], np.ones((3, 3)), wl))
+    with pytest.raises(ReconstructionError, match="2 sample"):
+        reconstruct_fit(Slice([30, 30], [0, 10], [[0.1], [0.2]], ["value"]))
+    with pytest.raises(ReconstructionError, match="unknown lobe kind"):
+        reconstruct_fit(simulate(material({"type": "lambert", "albedo": 0.5})), lobes=["lambert", "phong"])
