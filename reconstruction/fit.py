@@ -79,6 +79,7 @@ F0_MIN, F0_MAX = 0.002, 0.998
 EXP_MIN, EXP_MAX = 0.5, 2000.0
 LOG_AMP_MIN, LOG_AMP_MAX = math.log(1e-12), math.log(1e4)
 FLOOR = 1e-4  # of each channel's peak |f|
+SELECTION_MAX_VALUES = 2400  # residuals (samples x channels) beyond which candidates are compared on a subset
 
 
 # --- scene files -----------------------------------------------------------------------------------------
@@ -620,8 +621,15 @@ def reconstruct_fit(
         raise ReconstructionError("fit needs at least one of the lobes lambert, ggx, beckmann")
     rel = relative_sigma if relative_sigma is not None else (scene.relative_sigma if scene and scene.relative_sigma
                                                              else 0.01)
-    prob = _problem(slices, rel, scene.alpha_min if scene else ALPHA_MIN)
-    wi, wo, f = prob.wi, prob.wo, prob.f
+    full = _problem(slices, rel, scene.alpha_min if scene else ALPHA_MIN)
+    wi, wo, f = full.wi, full.wo, full.f
+    # many samples: candidates are compared on an evenly strided subset (every stride-th sample in
+    # (theta_i, theta_o) order), then the chosen model is refitted to all samples
+    stride = max(1, math.ceil(full.n / SELECTION_MAX_VALUES))
+    order = np.lexsort((slices.theta_o_deg, slices.theta_i_deg))
+    pick = np.zeros(len(slices), dtype=bool)
+    pick[order[::stride]] = True
+    prob = full.take(pick) if stride > 1 else full
 
     fitted: dict[str, FitResult] = {}
     skipped: list[str] = []
@@ -656,6 +664,7 @@ def reconstruct_fit(
     why = (f"lowest BIC ({chosen.bic:.1f}) of {len(ranked)} candidates; the next, {ranked[1].name}, has "
            f"{ranked[1].bic:.1f}" if len(ranked) > 1 else "the only candidate")
     scene_info: dict[str, Any] | None = None
+    fit_mask: NDArray[np.bool_] | None = None  # the samples the chosen model is fitted to, if not all
     if scene is not None:
         scene_info = {"scene": scene.to_dict()}
         if scene.relative_rmse is not None:
@@ -665,7 +674,8 @@ def reconstruct_fit(
             ti_d, to_d = slices.theta_i_deg, np.abs(slices.theta_o_deg)
             inside = ((ti_d >= scene.theta_i_deg[0] - 1e-9) & (ti_d <= scene.theta_i_deg[1] + 1e-9)
                       & (to_d >= scene.theta_o_deg[0] - 1e-9) & (to_d <= scene.theta_o_deg[1] + 1e-9))
-            sub = prob.take(inside) if 0 < inside.sum() < len(slices) else prob
+            in_prob = inside[pick] if stride > 1 else inside
+            sub = prob.take(in_prob) if 0 < in_prob.sum() < prob.f.shape[0] else prob
             swi, swo = scene.directions()
             ref = chosen.material().eval(swi, swo)
             diffs = []
@@ -683,6 +693,8 @@ def reconstruct_fit(
                            f"{chosen.name} by {best[0]:.4f} relative RMSE of f cos cos over the scene's directions "
                            f"(budget {scene.relative_rmse})")
                     chosen = best[1]
+                    if sub is not prob:
+                        fit_mask = inside
                     break
             scene_info["budget_comparison"] = diffs
             scene_info["samples_inside_scene"] = int(sub.f.shape[0])
@@ -691,15 +703,22 @@ def reconstruct_fit(
             scene_info["warning"] = (f"the scene uses theta_i {scene.theta_i_deg[0]:g}-{scene.theta_i_deg[1]:g} deg "
                                      f"but the data cover {lo_i:g}-{hi_i:g} deg; outside that the fit extrapolates")
 
+    notes: list[str] = []
+    if stride > 1:
+        target = full.take(fit_mask) if fit_mask is not None else full
+        chosen = fit_model(chosen.specs, target, loss=loss, f_scale=f_scale)
+        notes.append(f"candidates compared on 1 in {stride} of the {len(slices)} samples; {chosen.name} refitted "
+                     f"to {target.f.shape[0]} samples")
     material = chosen.material(name=f"fit {chosen.name}")
     model = material.eval(wi, wo)
-    resid = chosen.residuals
+    resid = (model - f) / full.sigma_of(model)  # every sample, whatever subset the model was fitted to
     info: dict[str, Any] = {
         "selection": {"criterion": "BIC = robust chi^2 + k ln(n)", "chosen": chosen.name, "reason": why,
                       "candidates": [r.summary() for r in ranked], "skipped": skipped},
         "residuals": {
-            "n_values": prob.n,
-            "chi2_reduced": round(chosen.chi2 / max(prob.n - chosen.k, 1), 6),
+            "n_values": int(resid.size),
+            "fitted_to_values": chosen.n,
+            "chi2_reduced": round(float(np.sum(resid ** 2)) / max(resid.size - chosen.k, 1), 6),
             "rms_normalised": round(float(np.sqrt(np.mean(resid ** 2))), 6),
             "max_abs_normalised": round(float(np.max(np.abs(resid))), 6),
             "relative_rmse_cos": round(relative_rmse_cos_dirs(model, f, wi, wo), 6),
@@ -713,5 +732,7 @@ def reconstruct_fit(
     }
     if scene_info is not None:
         info["scene"] = scene_info
+    if notes:
+        info["notes"] = notes
     channels = ["value"] if n_c == 1 else ["R", "G", "B"]
     return FitReconstruction(material, channels, chosen, info)

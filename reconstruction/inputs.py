@@ -34,7 +34,6 @@ import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -452,16 +451,4 @@ def check_slice(s: Slice, min_samples: int = MIN_SAMPLES) -> None:
                          f"outgoing angles")
     if not np.any(s.values > 0):
         raise InputError(f"{s.source}: every value is zero or negative; nothing was measured")
-
-
-def describe(s: Slice) -> dict[str, Any]:
-    """Coverage of the samples: incidences, outgoing ranges and the largest gap per incidence (degrees)."""
-    out: dict[str, Any] = {"samples": len(s), "channels": list(s.channels), "incidences_deg": []}
-    for ti in s.incidences():  # one entry per incidence (a handful)
-        to = np.sort(s.theta_o_deg[s.theta_i_deg == ti])
-        gap = float(np.max(np.diff(to))) if to.size > 1 else 0.0
-        out["incidences_deg"].append({"theta_i_deg": float(ti), "samples": int(to.size),
-                                      "theta_o_min_deg": float(to[0]), "theta_o_max_deg": float(to[-1]),
-                                      "largest_gap_deg": gap})
-    return out
 

@@ -161,3 +161,33 @@ def test_fit_rejects_input_it_cannot_use():
         reconstruct_fit(Slice([30, 30], [0, 10], [[0.1], [0.2]], ["value"]))
     with pytest.raises(ReconstructionError, match="unknown lobe kind"):
         reconstruct_fit(simulate(material({"type": "lambert", "albedo": 0.5})), lobes=["lambert", "phong"])
+
+
+def test_many_samples_select_on_a_subset_and_refit_on_all():
+    s = simulate(LAMBERT_GGX, incidences=tuple(range(0, 80, 5)))  # 1224 samples x 3 channels
+    rep = reconstruct_fit(s).report()
+    assert rep["model"] == "lambert+ggx"
+    assert "1 in 2 of the 1224 samples" in rep["notes"][0]
+    res = rep["residuals"]
+    assert res["n_values"] == res["fitted_to_values"] == 3 * len(s)
+    assert len(res["samples"]["normalised"]) == len(s)
+    p = rep["parameters"]
+    assert p[1]["alpha"] == pytest.approx(0.15, rel=1e-5)
+    np.testing.assert_allclose(p[0]["albedo"], [0.05, 0.10, 0.40], rtol=1e-5)
+
+
+def test_the_repository_scene_files_load_and_restrict_the_lobes(repo_root):
+    files = sorted((repo_root / "configs" / "scenes").glob("*.toml"))
+    assert files
+    s = simulate(material({"type": "lambert", "albedo": 0.3}, {"type": "ggx", "alpha": 0.2, "specular": 0.5}),
+                 incidences=(20.0, 50.0), step=4.0)
+    for path in files:
+        scene = load_scene(path)
+        assert scene.source == str(path)
+        if scene.lobes:
+            rep = reconstruct_fit(s, scene=scene).report()
+            kinds = {lb["type"] for lb in rep["parameters"]}
+            assert kinds <= set(scene.lobes)
+            for c in rep["selection"]["candidates"]:
+                assert ("(F)" not in c["model"]) or ("fresnel" in scene.lobes)
+                assert all(part.split("(")[0] in scene.lobes for part in c["model"].split("+"))

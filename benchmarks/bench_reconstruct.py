@@ -1,0 +1,76 @@
+"""Benchmark: a full MERL table from simulated slices, per method; prints seconds and the error vs ground truth.
+
+Time = reconstruction + tabulation at bin centres (what `gonio-reconstruct` does before writing), median of
+``--repeats`` runs, for one slice (theta_i = 30 deg, theta_o -80..80 deg every 2 deg, blind spot +-4 deg) and for
+six incidences. Targets on the 2-core development machine: revolve and bivariate < 1 s, fit < 3 s.
+Error = relative RMSE of f cos(theta_i) cos(theta_o) over the table (reconstruction.metrics.relative_rmse_cos).
+
+Run: .venv/bin/python benchmarks/bench_reconstruct.py [--repeats N] [--material configs/simulated.toml]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+
+from reconstruction import merl, pipeline
+from reconstruction.geometry import inplane_to_dirs
+from reconstruction.metrics import relative_rmse_cos
+from reconstruction.models import Material
+from reconstruction.slicefile import Slice
+
+REPO = Path(__file__).resolve().parents[1]
+TARGETS = {"fit": 3.0, "bivariate": 1.0, "revolve": 1.0}
+
+
+def simulate(mat: Material, incidences: tuple[float, ...], step: float = 2.0, blind: float = 4.0) -> Slice:
+    ti, to = [], []
+    for t in incidences:
+        o = np.arange(-80.0, 80.0 + 1e-9, step)
+        o = o[np.abs(o + t) > blind]
+        ti.append(np.full(o.size, t))
+        to.append(o)
+    a, b = np.concatenate(ti), np.concatenate(to)
+    f = mat.eval(*inplane_to_dirs(np.radians(a), np.radians(b)))
+    return Slice(a, b, f, ["value"] if f.shape[1] == 1 else ["R", "G", "B"], 0.005 * np.abs(f))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--material", default=str(REPO / "configs" / "simulated.toml"))
+    args = ap.parse_args()
+    mat = Material.from_toml(args.material)
+    truth = merl.tabulate(mat.eval)
+    methods = ["fit", "bivariate"] + (["revolve"] if pipeline.revolve_available() else [])
+    print(f"material {mat.name} ({args.material}); {args.repeats} repeats; "
+          f"revolve {'available' if 'revolve' in methods else 'not available'}")
+    print(f"{'method':<10} {'slices':<22} {'reconstruct':>12} {'tabulate':>9} {'total':>8} {'target':>7} "
+          f"{'error':>8}")
+    for incidences in ((30.0,), (0.0, 15.0, 30.0, 45.0, 60.0, 75.0)):
+        s = simulate(mat, incidences)
+        label = f"{len(incidences)} x {len(s) // len(incidences)} samples"
+        for m in methods:
+            tr, tt = [], []
+            table = None
+            for _ in range(args.repeats):
+                t0 = time.perf_counter()
+                rec, _ = pipeline.reconstruct(s, m)
+                t1 = time.perf_counter()
+                table = pipeline.tabulate(rec)
+                t2 = time.perf_counter()
+                tr.append(t1 - t0)
+                tt.append(t2 - t1)
+            r, t = statistics.median(tr), statistics.median(tt)
+            ok = "ok" if r + t < TARGETS[m] else "SLOW"
+            err = relative_rmse_cos(table, truth)
+            print(f"{m:<10} {label:<22} {r:>11.3f}s {t:>8.3f}s {r + t:>7.3f}s {TARGETS[m]:>5.1f}s {ok:<4} "
+                  f"{err:>7.4f}")
+
+
+if __name__ == "__main__":
+    main()
