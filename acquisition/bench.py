@@ -233,6 +233,9 @@ class Bench:
         try:
             if park and m.healthy():
                 self.park(check_cancel=False)
+                log.info("arms parked at (%g, %g)", self.cfg.light.park_deg, self.cfg.det_axis.park_deg)
+            elif park:
+                log.warning("arms not parked: an axis reports a fault or its port is gone")
         except BaseException as e:  # noqa: BLE001 - a second Ctrl-C or a failure while parking
             log.error("parking failed: %s", e)
         finally:

@@ -56,6 +56,7 @@ def main(argv: list[str] | None = None) -> int:
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("gonio-capture: %(levelname)s: %(message)s"))
     handler.setLevel(getattr(logging, args.log_level.upper()))
+    handler.addFilter(lambda rec: not getattr(rec, "final", False))  # the final message is printed below
     lg = logging.getLogger("acquisition")
     lg.addHandler(handler)
     lg.setLevel(logging.DEBUG if args.log_level == "debug" else logging.INFO)
@@ -94,7 +95,9 @@ def _run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(result_dict(result), sort_keys=True))
     if result.ok:
-        if not args.json:
+        if not args.json and result.samples_new == 0 and "already complete" in result.message:
+            print(f"gonio-capture: {result.message}", file=sys.stderr)
+        elif not args.json:
             extra = ""
             if result.unmeasurable:
                 extra = (f"; {len(result.unmeasurable)} plan point(s) not measurable (collision / blind spot), "

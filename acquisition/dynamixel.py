@@ -32,6 +32,14 @@ from dynamixel_sdk import (
 from .config import DXL_MODELS, AxisConfig, MotionConfig
 from .errors import CommError, DeviceError, HardwareError
 
+try:  # a vanished tty makes termios calls (flush) fail with termios.error, which is not an OSError
+    from termios import error as _TermiosError
+except ImportError:  # pragma: no cover - not POSIX
+    class _TermiosError(Exception):  # type: ignore[no-redef]
+        pass
+
+PORT_ERRORS = (serial.SerialException, OSError, _TermiosError)
+
 log = logging.getLogger("acquisition.dynamixel")
 
 __all__ = ["DynamixelAxes", "hardware_error_text"]
@@ -83,6 +91,8 @@ class DynamixelAxes:
         self.port: PortHandler | None = None
         self.goal: dict[str, float] = {}
         self.hw_errors: dict[str, int] = {}
+        self.port_dead = False
+        self.torque_on = False
         self.cancel: Callable[[], None] = lambda: None
         self.stats = {"transactions": 0, "retries": 0}
 
@@ -98,7 +108,8 @@ class DynamixelAxes:
         assert self.port is not None
         try:
             return fn(*args)
-        except (serial.SerialException, OSError) as e:
+        except PORT_ERRORS as e:
+            self.port_dead = True
             raise CommError(f"Dynamixel bus on {self.port_name}: port failed ({e}); is the USB adapter still "
                             "connected and powered?") from None
         finally:
@@ -143,7 +154,7 @@ class DynamixelAxes:
         self.port = PortHandler(self.port_name)
         try:
             ok = self.port.openPort()
-        except (serial.SerialException, OSError) as e:
+        except PORT_ERRORS as e:
             raise CommError(f"Dynamixel bus: cannot open {self.port_name!r}: {e}") from None
         if not ok or not self.port.setBaudRate(self.baudrate):
             raise CommError(f"Dynamixel bus: cannot open {self.port_name!r} at {self.baudrate} baud")
@@ -173,10 +184,19 @@ class DynamixelAxes:
             if not ax.within(pos, 1.0):
                 log.warning("%s: at %.2f deg, outside the soft limits [%g, %g]", self._who(dxl_id), pos,
                             ax.min_deg, ax.max_deg)
-        for ax in self.axes.values():
-            self._write(int(ax.id), ADDR_TORQUE_ENABLE, 1, 1, "torque on")
+        self.enable()
         if "stage" in self.axes:
             self.move({"stage": self.axes["stage"].park_deg})
+
+    def enable(self) -> None:
+        """Torque on for every servo (refused while a hardware error is latched: reconnect to clear it)."""
+        if self.hw_errors:
+            name, bits = next(iter(self.hw_errors.items()))
+            raise HardwareError(f"{self._who(int(self.axes[name].id))}: hardware error ({hardware_error_text(bits)}) "
+                                "latched; reconnect (which reboots the servo) before moving")
+        for ax in self.axes.values():
+            self._write(int(ax.id), ADDR_TORQUE_ENABLE, 1, 1, "torque on")
+        self.torque_on = True
 
     def _reboot(self, dxl_id: int) -> None:
         self._txrx("reboot", dxl_id, self.ph.reboot, allow_alert=True)
@@ -271,6 +291,8 @@ class DynamixelAxes:
             if not ax.within(deg):
                 raise DeviceError(f"{self._who(int(ax.id))}: goal {deg:g} deg outside the soft limits "
                                   f"[{ax.min_deg:g}, {ax.max_deg:g}]")
+        if not self.torque_on:
+            self.enable()
         self.goal.update(goals)
         self._send_goals(goals)
         tol = self.motion.tolerance_deg
@@ -314,6 +336,10 @@ class DynamixelAxes:
         """Torque off on every servo (best effort, each tried even if another fails)."""
         if self.port is None:
             return
+        if self.port_dead:
+            log.error("Dynamixel bus on %s is gone: cannot switch torque off; cut the servo power", self.port_name)
+            return
+        self.torque_on = False
         for ax in self.axes.values():
             for _ in range(self.retries + 1):
                 try:
@@ -327,8 +353,8 @@ class DynamixelAxes:
                 log.warning("%s: torque off not confirmed", self._who(int(ax.id)))
 
     def healthy(self) -> bool:
-        """False once a hardware error was seen (then the arms must not be moved)."""
-        return not self.hw_errors
+        """False once a hardware error was seen (then the arms must not be moved) or the port failed."""
+        return not self.hw_errors and not self.port_dead
 
     def close(self) -> None:
         if self.port is not None:

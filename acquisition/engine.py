@@ -91,6 +91,15 @@ class CaptureResult:
             raise AcquisitionError(self.message)
 
 
+def _has_rows(path: Path) -> bool:
+    """True if the slice file has its column header and at least one complete (newline-terminated) data row."""
+    with open(path, "rb") as fh:
+        lines = fh.read().split(b"\n")
+    complete = lines[:-1]  # the last element is "" or a torn line
+    body = [ln for ln in complete if ln and not ln.startswith(b"#")]
+    return len(body) >= 2  # column header + one row
+
+
 def _atomic_json(path: Path, data: dict[str, Any]) -> None:
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
@@ -205,7 +214,11 @@ class RunEngine:
             except (OSError, json.JSONDecodeError) as e:
                 log.warning("%s unreadable (%s); starting a new run record", self.sidecar_path, e)
                 self._sidecar = {}
-        if not self.slice_path.exists() or self.slice_path.stat().st_size == 0:
+        if self.slice_path.exists() and not _has_rows(self.slice_path):
+            # killed before the first sample was complete: nothing to keep (the calibration is re-measured)
+            log.info("%s holds no complete sample; starting it again", self.slice_path)
+            self.slice_path.unlink()
+        if not self.slice_path.exists():
             if self.resume:
                 log.info("nothing to resume in %s: starting a new capture", self.out)
             self._sidecar = {k: v for k, v in self._sidecar.items() if k == "runs"}
@@ -321,7 +334,7 @@ class RunEngine:
                     if self.plan.adaptive is not None:
                         self._adaptive(measurable, cal)
                     if self.plan.dark_at_end:
-                        d_end = bench.dark(self.cfg.detector.dark_repeats)
+                        d_end = self._read_checked(self.cfg.detector.dark_repeats, "dark reading", dark=True)
                         drift = d_end.mean - cal.dark.mean
                         r.dark_drift = [float(x) for x in drift]
                         noise = cal.dark.std_of_mean + d_end.std_of_mean
@@ -359,16 +372,23 @@ class RunEngine:
                 self._writer.close()
             try:
                 if bench.is_open:
-                    bench.shutdown(park=not hardware_fault)
+                    if opened_here or r.status != "complete":
+                        bench.shutdown(park=not hardware_fault)  # park, torque off
+                    else:  # the caller's bench stays ready: park only
+                        try:
+                            bench.park()
+                        except BaseException as e:  # noqa: BLE001 - make safe whatever went wrong
+                            log.error("parking failed: %s", e)
+                            bench.shutdown(park=False)
             finally:
                 if opened_here:
                     bench.close()
 
-    def _read_checked(self, n: int, what: str) -> Reading:
+    def _read_checked(self, n: int, what: str, dark: bool = False) -> Reading:
         """A reading without saturated repeats (re-read up to ``retries`` times; then a DeviceError)."""
         det = self.bench.detector
         for attempt in range(self.cfg.motion.retries + 1):
-            rd = det.read(n)
+            rd = det.dark(n) if dark else det.read(n)
             if not rd.saturated:
                 return rd
             log.warning("%s: %d of %d repeats saturated (attempt %d); reading again", what, rd.saturated, n,
@@ -401,7 +421,7 @@ class RunEngine:
                      self.slice_path)
             return cal
         log.info("measuring the dark level (%d repeats, source off)", self.cfg.detector.dark_repeats)
-        dark = bench.dark(self.cfg.detector.dark_repeats)
+        dark = self._read_checked(self.cfg.detector.dark_repeats, "dark reading", dark=True)
         if c.mode == "relative":
             log.info("measuring the white reference at (%g, %g) (%d repeats)", c.reference_theta_i_deg,
                      c.reference_theta_o_deg, c.reference_repeats)
@@ -413,7 +433,12 @@ class RunEngine:
             finally:
                 det.set_sample("TARGET")
             cal = Calibration("relative", dark, ref, rho, c.reference_theta_o_deg)
-            cal.scale(c.reference_theta_o_deg)  # raises if the reference reads no signal
+            try:
+                cal.scale(c.reference_theta_o_deg)  # raises if the reference reads no signal
+            except ValueError as e:
+                raise DeviceError(f"white reference at ({c.reference_theta_i_deg:g}, {c.reference_theta_o_deg:g}): "
+                                  f"{e} (reference {ref.mean.tolist()[:4]}, dark {dark.mean.tolist()[:4]} counts)"
+                                  ) from None
         else:
             assert c.source_power is not None and c.detector_solid_angle_sr is not None
             cal = Calibration("absolute", dark, k_counts=c.source_power * c.detector_solid_angle_sr)
@@ -528,7 +553,7 @@ class RunEngine:
             return
         hint = self.resume_hint()
         r.message = f"{r.message}\n{r.samples_total} sample(s) are safely in {self.slice_path}. {hint}"
-        log.error(r.message)
+        log.error(r.message, extra={"final": True})
 
     def resume_hint(self) -> str:
         return (f"Resume with: gonio-capture --config {self.cfg.path} --out {self.out} --resume")

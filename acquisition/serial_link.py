@@ -24,6 +24,14 @@ from .calibration import Reading
 from .config import AxisConfig
 from .errors import CommError, DeviceError, HardwareError
 
+try:  # a vanished tty makes termios calls (flush) fail with termios.error, which is not an OSError
+    from termios import error as _TermiosError
+except ImportError:  # pragma: no cover - not POSIX
+    class _TermiosError(Exception):  # type: ignore[no-redef]
+        pass
+
+PORT_ERRORS = (serial.SerialException, OSError, _TermiosError)
+
 log = logging.getLogger("acquisition.serial")
 
 __all__ = ["SerialLink", "ControllerError", "SerialDetector", "SerialAxes", "Reply"]
@@ -85,9 +93,10 @@ class SerialLink:
         self.retries = retries
         self.stats = {"commands": 0, "retries": 0, "timeouts": 0, "corrupt": 0}
         self._buf = bytearray()
+        self.dead = False
         try:
             self.ser = serial.Serial(port, baudrate, timeout=0.02, write_timeout=2.0)
-        except (serial.SerialException, OSError, ValueError) as e:
+        except (*PORT_ERRORS, ValueError) as e:
             raise CommError(f"{name}: cannot open {port!r}: {e}") from None
         self.ser.reset_input_buffer()
 
@@ -115,7 +124,8 @@ class SerialLink:
                     return None
                 try:
                     chunk = self.ser.read(max(1, self.ser.in_waiting))
-                except (serial.SerialException, OSError) as e:
+                except PORT_ERRORS as e:
+                    self.dead = True
                     raise CommError(f"{self.name} on {self.port}: port failed ({e}); is the controller "
                                     "still connected?") from None
                 self._buf += chunk
@@ -127,7 +137,7 @@ class SerialLink:
             self.ser.reset_input_buffer()
             while self.ser.in_waiting:
                 self.ser.read(self.ser.in_waiting)
-        except (serial.SerialException, OSError):
+        except PORT_ERRORS:
             pass
         self._buf.clear()
 
@@ -186,7 +196,8 @@ class SerialLink:
                 self._drain()
             try:
                 self.ser.write((cmd + "\n").encode("ascii"))
-            except (serial.SerialException, OSError) as e:
+            except PORT_ERRORS as e:
+                self.dead = True
                 raise CommError(f"{self.name} on {self.port}: cannot send {cmd!r} ({e}); is the controller "
                                 "still connected?") from None
             deadline = time.monotonic() + self.timeout_s + expect_s
@@ -327,8 +338,11 @@ class SerialDetector:
         """The controller's clock (s): simulated time on the simulator; None if not supported."""
         if not self.has_time:
             return None
-        f = self.link.fields("TIME?", check=lambda r: float(r.fields["t"]) >= 0 or None)
-        return float(f["t"])
+        def check(r: Reply) -> None:
+            if not float(r.fields["t"]) >= 0:
+                raise ValueError(f"bad time {r.fields['t']!r}")
+
+        return float(self.link.fields("TIME?", check=check)["t"])
 
     def dwell(self, seconds: float) -> None:
         """Wait ``seconds`` of bench time (DWELL on the controller: simulated time on the simulator)."""
@@ -469,6 +483,9 @@ class SerialAxes:
 
     def stop(self) -> None:
         """Stop all axes where they are (best effort)."""
+        if self.link.dead:
+            log.error("%s on %s is gone: cannot stop the axes; cut the motor power", self.link.name, self.link.port)
+            return
         try:
             self.link.command("STOP")
         except Exception as e:  # pragma: no cover - best effort
@@ -479,6 +496,8 @@ class SerialAxes:
         self.stop()
 
     def healthy(self) -> bool:
+        if self.link.dead:
+            return False
         try:
             st = self.status()
         except Exception:
