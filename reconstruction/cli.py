@@ -75,11 +75,11 @@ def build_parser() -> argparse.ArgumentParser:
                     help="render a sphere under a point light: linear float OpenEXR, plus a PNG next to it")
     ap.add_argument("--report", metavar="MATERIAL.json",
                     help="JSON report: method and why, parameters, residuals, coverage, plausibility checks")
-    ap.add_argument("--supersample", nargs="?", const="8,2,2", type=_supersample, default=None,
-                    metavar="N|NH,ND,NP|adaptive",
-                    help="write cell averages over NH x ND x NP sub-samples per cell (default when given: 8,2,2), "
-                         "or 'adaptive' (averages only where f is far from linear across a cell), instead of "
-                         "bin-centre values")
+    ap.add_argument("--supersample", nargs="?", const="adaptive", type=_supersample, default=None,
+                    metavar="adaptive|N|NH,ND,NP",
+                    help="write cell averages instead of bin-centre values: 'adaptive' (the default when the flag "
+                         "has no value: averages where f is far from linear across a cell, ~2 s) or NH x ND x NP "
+                         "sub-samples in every cell (8,2,2 takes ~15 s)")
     ap.add_argument("--quantity", choices=QUANTITIES,
                     help="what the values of generic tables are: brdf (1/sr), reflectance_factor (pi f_r) or "
                          "brdf_cos (f_r cos theta_o); slice files say it themselves")

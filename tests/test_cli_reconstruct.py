@@ -96,6 +96,8 @@ def test_generic_spectral_table_bivariate_supersampled(tmp_path):
     rep = json.loads((tmp_path / "m.json").read_text())
     assert rep["method"] == "bivariate" and rep["colour"]["input_channels"] == "spectral"
     assert rep["table"]["values"] == "cell averages" and rep["table"]["supersample"] == [2, 1, 1]
+    assert cli.build_parser().parse_args([str(src), "--out", "x.binary", "--supersample"]).supersample == "adaptive"
+    assert cli.build_parser().parse_args([str(src), "--out", "x.binary", "--supersample", "4"]).supersample == (4, 4, 4)
     t = merl.read(out)
     v = merl.valid_mask()
     assert np.all(np.isfinite(t[:, v]))
@@ -150,9 +152,11 @@ def test_bad_options_exit_2(tmp_path, capsys):
     assert code == 2 and "phong" in err
     code, err = run_main(capsys, src, "--out", tmp_path / "m.binary", "--scene", tmp_path / "none.toml")
     assert code == 2 and "none.toml: no such scene file" in err
-    with pytest.raises(SystemExit) as e:
-        cli.main([str(src), "--out", str(tmp_path / "m.binary"), "--method", "magic"])
-    assert e.value.code == 2
+    for bad in (["--method", "magic"], ["--supersample", "0,1,1"], ["--supersample", "x"]):
+        with pytest.raises(SystemExit) as e:
+            cli.main([str(src), "--out", str(tmp_path / "m.binary"), *bad])
+        assert e.value.code == 2
+    assert not (tmp_path / "m.binary").exists()
 
 
 # --- dispatch --------------------------------------------------------------------------------------------
