@@ -486,7 +486,8 @@ def fit_model(specs: Sequence[LobeSpec], prob: _Problem, *, loss: str = "soft_l1
     lo_a, hi_a = np.array(lo), np.array(hi)
     x0 = np.concatenate([np.concatenate([np.asarray(g, dtype=np.float64) for g in nl0]) if n_nl else np.empty(0),
                          la0.ravel()])
-    x0 = np.clip(x0, lo_a + 1e-9 * (hi_a - lo_a), hi_a - 1e-9 * (hi_a - lo_a))
+    inner = (lo_a + 1e-9 * (hi_a - lo_a), hi_a - 1e-9 * (hi_a - lo_a))  # least_squares starts strictly inside
+    x0 = np.clip(x0, *inner)
 
     def unpack(x: Array) -> tuple[list[Array], Array]:
         nl, k = [], 0
@@ -531,7 +532,7 @@ def fit_model(specs: Sequence[LobeSpec], prob: _Problem, *, loss: str = "soft_l1
     nl, amps = unpack(res.x)
     sigma = prob.sigma_of(columns(nl) @ amps)
     nfev = res.nfev
-    res = least_squares(fun, np.clip(res.x, lo_a, hi_a), **kw)
+    res = least_squares(fun, np.clip(res.x, *inner), **kw)
     r = res.fun.reshape(prob.f.shape)
     return FitResult(specs, res.x, n_nl, n_c, float(res.cost), float(np.sum(r * r)), prob.n, res.jac, r,
                      bool(res.success), str(res.message), int(nfev + res.nfev))
