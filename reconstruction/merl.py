@@ -11,8 +11,6 @@ phi_d = (k + 0.5) deg, with phi_h = 0.
 
 from __future__ import annotations
 
-import os
-import tempfile
 from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
@@ -20,6 +18,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .atomic import atomic_open
 from .geometry import dirs_from_half_diff, half_diff_from_dirs
 
 Array = NDArray[np.float64]
@@ -359,21 +358,9 @@ def write(path: str | Path, f: ArrayLike, require_above_horizon: bool = False) -
             raise MerlError(f"{path}: no value (NaN) above the horizon in {_describe_cells(missing)}")
     stored = t / SCALES[:, None, None, None]
     stored = np.where(np.isnan(stored), -1.0, stored).astype("<f8", copy=False)
-    directory = path.parent if str(path.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(_HEADER)
-            fh.write(memoryview(np.ascontiguousarray(stored)).cast("B"))
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+    with atomic_open(path, "wb") as fh:
+        fh.write(_HEADER)
+        fh.write(memoryview(np.ascontiguousarray(stored)).cast("B"))
 
 
 def read(path: str | Path) -> Array:

@@ -17,8 +17,6 @@ Top-level report keys: ``method`` (the method used), ``method_requested``, ``met
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +24,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from . import merl
+from .atomic import atomic_open
 from .base import Reconstruction
 from .geometry import inplane_to_dirs
 from .metrics import directional_albedo, reciprocity_error, relative_rmse_cos_dirs
@@ -151,17 +150,5 @@ def write_json(path: str | Path, report: dict[str, Any]) -> None:
     """Write ``report`` as indented, strict JSON, atomically (temporary file, fsync, rename)."""
     path = Path(path)
     text = json.dumps(_json_safe(report), indent=2, allow_nan=False) + "\n"
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent if str(path.parent) else ".")
-    try:
-        umask = os.umask(0)
-        os.umask(umask)
-        os.fchmod(fd, 0o666 & ~umask)  # mkstemp makes 0600; a report is an ordinary file
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_open(path, "w", encoding="utf-8") as fh:
+        fh.write(text)

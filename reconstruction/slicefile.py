@@ -22,7 +22,6 @@ import json
 import math
 import os
 import re
-import tempfile
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -31,6 +30,8 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from .atomic import atomic_open
 
 Array = NDArray[np.float64]
 
@@ -218,17 +219,8 @@ def write_slice(path: str | Path, s: Slice) -> None:
     for k in range(len(s)):
         buf.write(_row(s.theta_i_deg[k], s.theta_o_deg[k], s.values[k], s.std[k], s.repeats[k],
                        s.unix_time_s[k]))
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as fh:
-            fh.write(buf.getvalue())
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_open(path, "w", encoding="utf-8", newline="\n") as fh:
+        fh.write(buf.getvalue())
 
 
 class SliceWriter:

@@ -210,3 +210,12 @@ def test_failed_write_leaves_no_half_file(tmp_path, monkeypatch):
         merl.write(target, np.full(merl.SHAPE, 0.25))
     assert target.read_bytes() == before  # the old file is untouched
     assert [p.name for p in tmp_path.iterdir()] == ["m.binary"]  # no temporary left behind
+
+
+def test_written_file_has_ordinary_permissions(tmp_path):
+    old = os.umask(0o022)
+    try:
+        merl.write(tmp_path / "p.binary", np.ones(merl.SHAPE))
+    finally:
+        os.umask(old)
+    assert (tmp_path / "p.binary").stat().st_mode & 0o777 == 0o644  # not mkstemp's 0600
