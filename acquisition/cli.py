@@ -50,10 +50,22 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+class _BarSafeHandler(logging.StreamHandler):  # type: ignore[type-arg]
+    """Console log handler that writes through tqdm, so messages do not tear the progress bar."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            from tqdm import tqdm
+
+            tqdm.write(self.format(record), file=self.stream)
+        except Exception:  # pragma: no cover
+            self.handleError(record)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``gonio-capture`` console script."""
     args = build_parser().parse_args(argv)
-    handler = logging.StreamHandler(sys.stderr)
+    handler = _BarSafeHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("gonio-capture: %(levelname)s: %(message)s"))
     handler.setLevel(getattr(logging, args.log_level.upper()))
     handler.addFilter(lambda rec: not getattr(rec, "final", False))  # the final message is printed below

@@ -175,8 +175,11 @@ class DynamixelAxes:
                 self._write(dxl_id, ADDR_OPERATING_MODE, 1, MODE_POSITION, "set position mode")
             lo, hi = sorted((ax.deg_to_units(ax.min_deg), ax.deg_to_units(ax.max_deg)))
             lo_u, hi_u = max(0, int(lo // 1)), min(4095, -int(-hi // 1))  # rounded outwards
-            self._write(dxl_id, ADDR_MIN_POSITION_LIMIT, 4, lo_u, "set Min Position Limit")
-            self._write(dxl_id, ADDR_MAX_POSITION_LIMIT, 4, hi_u, "set Max Position Limit")
+            # EEPROM items: written only when they differ (EEPROM has a limited number of write cycles)
+            if self._read(dxl_id, ADDR_MIN_POSITION_LIMIT, 4, "read Min Position Limit") != lo_u:
+                self._write(dxl_id, ADDR_MIN_POSITION_LIMIT, 4, lo_u, "set Min Position Limit")
+            if self._read(dxl_id, ADDR_MAX_POSITION_LIMIT, 4, "read Max Position Limit") != hi_u:
+                self._write(dxl_id, ADDR_MAX_POSITION_LIMIT, 4, hi_u, "set Max Position Limit")
             self._write(dxl_id, ADDR_PROFILE_ACCELERATION, 4, self.motion.profile_acceleration,
                         "set Profile Acceleration")
             self._write(dxl_id, ADDR_PROFILE_VELOCITY, 4, self.motion.profile_velocity, "set Profile Velocity")

@@ -167,6 +167,7 @@ class RunEngine:
         self._guard = _SignalGuard(False)
         self._pbar: Any = None
         self._t_last: float | None = None
+        self._t0 = 0.0
 
     # -- public ---------------------------------------------------------------------------------------------------
     def run(self) -> CaptureResult:
@@ -328,6 +329,7 @@ class RunEngine:
                 r.bench_clock = "controller" if bench.has_clock else "wall"
                 t0 = bench.now()
                 self._t_last = t0
+                self._t0 = t0
                 try:
                     cal = self._calibration(existing)
                     self._measure_all(measurable, cal)
@@ -464,13 +466,15 @@ class RunEngine:
         self._writer = SliceWriter(self.slice_path, det.channels, meta)
         return cal
 
+    def _bar_enabled(self) -> bool:
+        return sys.stderr.isatty() if self.progress is None else bool(self.progress)
+
     def _progress(self, total: int, initial: int) -> Any:
         if self._pbar is None:
             from tqdm import tqdm
 
-            disable = (not sys.stderr.isatty()) if self.progress is None else (not self.progress)
-            self._pbar = tqdm(total=total, initial=initial, unit="pt", desc="capture", disable=disable,
-                              dynamic_ncols=True)
+            self._pbar = tqdm(total=total, initial=initial, unit="pt", desc="capture",
+                              disable=not self._bar_enabled(), dynamic_ncols=True)
         else:
             self._pbar.total = total
             self._pbar.refresh()
@@ -518,7 +522,7 @@ class RunEngine:
         a = self.plan.adaptive
         assert a is not None
         known = {point_key(p) for p in coarse}
-        t_start = self.bench.now() - self._previous_bench_time()
+        t_start = self._t0 - self._previous_bench_time()  # the budget counts every run of this capture
         for rnd in range(1, a.max_rounds + 1):
             samples: dict[float, list[tuple[float, float, float]]] = {}
             for k in known:
