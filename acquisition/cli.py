@@ -19,7 +19,7 @@ EPILOG = """\
 examples:
   gonio-capture --config configs/simulated.toml --out out/demo
   gonio-capture --config configs/simulated.toml --out out/demo --resume
-  gonio-capture --config configs/simulated.toml --out out/paint --scene configs/scenes/product-shot.toml
+  gonio-capture --config configs/simulated.toml --out out/paint --scene configs/scenes/glossy-product.toml
   gonio-capture --config configs/dynamixel-bench.toml --check
 
 exit status: 0 complete, 1 stopped by a hardware/communication fault (resumable), 2 bad config/plan (nothing
@@ -34,7 +34,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "controller, or the simulator) into DIR/slice.csv; checkpointed and resumable.",
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--config", required=True, help="bench file (TOML), e.g. configs/simulated.toml")
-    p.add_argument("--out", help="output directory: slice.csv, capture.log, capture.json")
+    p.add_argument("--out", metavar="DIR", help="output directory: slice.csv, capture.log, capture.json")
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted capture in --out (measured samples are kept and skipped)")
     p.add_argument("--scene", help="scene file restricting the plan (configs/scenes/*.toml)")

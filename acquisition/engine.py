@@ -168,6 +168,7 @@ class RunEngine:
         self._pbar: Any = None
         self._t_last: float | None = None
         self._t0 = 0.0
+        self._run_started = False
 
     # -- public ---------------------------------------------------------------------------------------------------
     def run(self) -> CaptureResult:
@@ -291,9 +292,10 @@ class RunEngine:
         sc["runs"].append({"started_unix": time.time(), "resume": existing is not None,
                            "samples_before": 0 if existing is None else len(existing), "pid": os.getpid()})
         _atomic_json(self.sidecar_path, sc)
+        self._run_started = True
 
     def _finish_run_record(self) -> None:
-        if not self._sidecar.get("runs"):
+        if not self._run_started:
             return
         r = self.result
         run = self._sidecar["runs"][-1]
@@ -367,6 +369,10 @@ class RunEngine:
             except PlanError as e:
                 r.status, r.exit_code = "failed", EXIT_USAGE
                 r.message = str(e)
+            except Exception as e:  # a bug or an unforeseen device reply: still stop safely and stay resumable
+                log.exception("unexpected error")
+                r.status, r.exit_code = "failed", EXIT_FAILED
+                r.message = f"unexpected error: {e!r} (details in {self.out / LOG_NAME})"
         finally:
             if self._pbar is not None:
                 self._pbar.close()

@@ -151,3 +151,20 @@ def test_cli_subprocess_json(tmp_path):
     assert p.returncode == 0, p.stderr
     d = json.loads(p.stdout)
     assert d["status"] == "complete" and d["samples_new"] == d["points_planned"] == 7
+
+
+def test_scene_restricts_the_capture(tmp_path, capsys):
+    raw = make_raw({"plan": {"theta_i_deg": [30.0, 60.0]}})
+    cfg = write_config(tmp_path / "scene.toml", raw)
+    out = tmp_path / "out"
+    scene = REPO / "configs" / "scenes" / "grazing.toml"
+    assert main(["--config", str(cfg), "--out", str(out), "--scene", str(scene), "--no-progress"]) == 0
+    s = read(out / "slice.csv")
+    assert set(s.theta_i_deg) == {60.0}
+    assert np.all((np.abs(s.theta_o_deg) >= 40.0) & (np.abs(s.theta_o_deg) <= 70.0))
+    # |theta_o| in 40..70 on both sides at 1 deg; the retro side loses the collision zone around -60
+    assert len(s) + len(s.meta["unmeasurable"]) == 2 * 31 and s.meta["plan"]["scene"] == "grazing"
+    glossy = REPO / "configs" / "scenes" / "glossy-product.toml"
+    assert main(["--config", str(cfg), "--out", str(tmp_path / "o2"), "--scene", str(glossy), "--check"]) == 0
+    assert main(["--config", str(cfg), "--out", str(tmp_path / "o3"), "--scene", str(tmp_path / "none.toml")]) == 2
+    assert "no such scene file" in capsys.readouterr().err

@@ -2,11 +2,18 @@
 
 from __future__ import annotations
 
+import sys
+
 import pytest
 
 from acquisition import ConfigError, load_config
 from acquisition.cli import main
 from acquisition.config import config_from_dict, dump_toml
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
 
 try:
     from .test_acq_support import REPO, make_raw, write_config
@@ -23,8 +30,6 @@ def test_shipped_configs_load(name):
 
 def test_simulated_config_roundtrips_through_dump():
     raw = make_raw(fast=False)
-    import tomllib
-
     assert tomllib.loads(dump_toml(raw)) == raw
 
 
