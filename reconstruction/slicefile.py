@@ -115,10 +115,12 @@ class Slice:
         self.theta_i_deg = np.asarray(self.theta_i_deg, dtype=np.float64).reshape(-1)
         self.theta_o_deg = np.asarray(self.theta_o_deg, dtype=np.float64).reshape(-1)
         n = self.theta_i_deg.size
-        self.values = np.asarray(self.values, dtype=np.float64).reshape(n, -1)
         channel_kind(self.channels)
-        if self.values.shape[1] != len(self.channels):
-            raise SliceError(f"{self.source}: {self.values.shape[1]} value columns for channels {self.channels}")
+        values = np.asarray(self.values, dtype=np.float64)
+        if self.theta_o_deg.size != n or values.size != n * len(self.channels):
+            raise SliceError(f"{self.source}: {n} theta_i, {self.theta_o_deg.size} theta_o and {values.size} values "
+                             f"do not make {n} samples of channels {self.channels}")
+        self.values = values.reshape(n, len(self.channels))
         self.std = (np.zeros_like(self.values) if self.std is None
                     else np.asarray(self.std, dtype=np.float64).reshape(self.values.shape))
         self.repeats = (np.ones(n, dtype=np.int64) if self.repeats is None

@@ -134,3 +134,19 @@ def test_in_memory_validation():
         s.validate()
     with pytest.raises(SliceError, match="value columns"):
         Slice([30], [5], [[1.0]], ["X"])
+
+
+def test_header_only_file_reads_as_empty_and_can_be_appended(tmp_path):
+    # a capture killed before its first sample leaves just the header
+    p = tmp_path / "s.csv"
+    SliceWriter(p, ["R", "G", "B"], META).close()
+    s = read_slice(p)
+    assert len(s) == 0 and s.values.shape == (0, 3)
+    with SliceWriter(p, ["R", "G", "B"], META) as w:
+        w.append(30, 5, [0.1, 0.2, 0.3], [0.0, 0.0, 0.0], 1, 1.0)
+    assert len(read_slice(p)) == 1
+
+
+def test_mismatched_sizes_are_a_slice_error():
+    with pytest.raises(SliceError, match="do not make 2 samples"):
+        Slice([30, 30], [5, 6], [[1.0, 2.0, 3.0]], ["R", "G", "B"])
