@@ -46,6 +46,7 @@ __all__ = [
     "dirs_to_cell",
     "valid_mask",
     "lookup",
+    "brdf_of",
     "tabulate",
 ]
 
@@ -195,6 +196,19 @@ def lookup(table: ArrayLike, wi: ArrayLike, wo: ArrayLike, interpolate: bool = F
     out = np.divide(acc, wsum, out=np.full_like(acc, np.nan), where=wsum > 1e-12)
     out[below] = np.nan
     return out
+
+
+def brdf_of(table: ArrayLike, interpolate: bool = True) -> Callable[[Array, Array], Array]:
+    """The table as a vectorised BRDF ``f(wi, wo) -> (N, 3)`` (1/sr), 0 where it has no value.
+
+    ``interpolate=False`` reads the nearest cell, as renderers that load MERL files do.
+    """
+    t = np.asarray(table, dtype=np.float64)
+
+    def f(wi: Array, wo: Array) -> Array:
+        return np.nan_to_num(lookup(t, wi, wo, interpolate=interpolate), nan=0.0)
+
+    return f
 
 
 # --- tabulation ------------------------------------------------------------------------------------------

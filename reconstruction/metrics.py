@@ -12,7 +12,8 @@ from .geometry import inplane_to_dirs, sph_to_vec
 Array = NDArray[np.float64]
 BRDF = Callable[[Array, Array], ArrayLike]
 
-__all__ = ["hemisphere_quadrature", "directional_albedo", "reciprocity_error", "relative_rmse_cos",
+__all__ = ["hemisphere_quadrature", "directional_albedo", "reciprocity_error", "relative_rmse_cos", "log_rmse",
+           "sphere_relative_error", "albedo_error", "table_errors",
            "relative_rmse_cos_dirs"]
 
 
@@ -101,3 +102,60 @@ def relative_rmse_cos_dirs(f: ArrayLike, g: ArrayLike, wi: ArrayLike, wo: ArrayL
     num = np.sum(np.where(ok, (f - g) * c, 0.0) ** 2)
     den = np.sum(np.where(ok, g * c, 0.0) ** 2)
     return float(np.sqrt(num / den)) if den > 0 else float("inf")
+
+
+def log_rmse(table: ArrayLike, truth_table: ArrayLike, eps: float = 1e-3) -> float:
+    """RMSE of ln(f cos_i cos_o + eps) - ln(g cos_i cos_o + eps) over valid cells of two MERL tables.
+
+    ``eps`` (1/sr) keeps the logarithm finite where a BRDF is 0; the metric weighs a lobe's shape and the dim
+    floor alike, unlike :func:`relative_rmse_cos`, which the peak dominates. Pooled over the 3 channels.
+    """
+    from .merl import valid_mask
+
+    f = np.asarray(table, dtype=np.float64)
+    g = np.asarray(truth_table, dtype=np.float64)
+    c = _table_cosines()[None]
+    ok = valid_mask()[None] & np.isfinite(f) & np.isfinite(g)
+    d = np.log(np.clip(f, 0, None) * c + eps) - np.log(np.clip(g, 0, None) * c + eps)
+    n = int(ok.sum())
+    return float(np.sqrt(np.sum(np.where(ok, d, 0.0) ** 2) / n)) if n else float("inf")
+
+
+def sphere_relative_error(table: ArrayLike, truth_table: ArrayLike, size: int = 128) -> float:
+    """Relative L2 error ||A - B|| / ||B|| of the preview sphere rendered with two MERL tables (all pixels, RGB).
+
+    The sphere and light of :func:`reconstruction.preview.render_sphere`; tables read with interpolation.
+    """
+    from .merl import brdf_of
+    from .preview import render_sphere
+
+    a = render_sphere(brdf_of(table), size).astype(np.float64)
+    b = render_sphere(brdf_of(truth_table), size).astype(np.float64)
+    den = float(np.sqrt(np.sum(b * b)))
+    return float(np.sqrt(np.sum((a - b) ** 2)) / den) if den > 0 else float("inf")
+
+
+def albedo_error(table: ArrayLike, truth_table: ArrayLike,
+                 theta_i_deg: ArrayLike = (0.0, 20.0, 40.0, 60.0, 80.0)) -> dict[str, list[float] | float]:
+    """Directional albedo of two MERL tables read as a renderer does (nearest cell), per incidence.
+
+    Returns ``theta_i_deg``, ``albedo`` and ``truth_albedo`` (channel means) and ``max_abs_error``.
+    """
+    from .merl import brdf_of
+
+    ti = np.radians(np.asarray(theta_i_deg, dtype=np.float64))
+    a = directional_albedo(brdf_of(table, interpolate=False), ti).mean(axis=1)
+    b = directional_albedo(brdf_of(truth_table, interpolate=False), ti).mean(axis=1)
+    return {"theta_i_deg": np.degrees(ti).tolist(), "albedo": a.tolist(), "truth_albedo": b.tolist(),
+            "max_abs_error": float(np.max(np.abs(a - b)))}
+
+
+def table_errors(table: ArrayLike, truth_table: ArrayLike) -> dict[str, float]:
+    """All full-table error figures against a ground truth: relative RMSE of f cos cos, log RMSE, sphere
+    render error and the largest directional-albedo error over theta_i = 0..80 deg."""
+    return {
+        "rel_rmse_cos": relative_rmse_cos(table, truth_table),
+        "log_rmse": log_rmse(table, truth_table),
+        "sphere_rel_error": sphere_relative_error(table, truth_table),
+        "albedo_max_abs_error": float(albedo_error(table, truth_table)["max_abs_error"]),
+    }

@@ -18,26 +18,15 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from . import merl
 from .geometry import normalize
 
 Array = NDArray[np.float64]
 
-__all__ = ["LIGHT_POSITION", "render_sphere", "table_brdf", "write_exr", "write_png", "srgb_encode",
+__all__ = ["LIGHT_POSITION", "render_sphere", "write_exr", "write_png", "srgb_encode",
            "write_preview"]
 
 LIGHT_POSITION = np.array([-3.0, 3.0, 5.0])
-
-
-def table_brdf(table: ArrayLike) -> Callable[[Array, Array], Array]:
-    """f(wi, wo) -> (N, 3) from a MERL table by trilinear lookup; 0 where the table has no value."""
-    from . import merl
-
-    t = np.asarray(table, dtype=np.float64)
-
-    def f(wi: Array, wo: Array) -> Array:
-        return np.nan_to_num(merl.lookup(t, wi, wo, interpolate=True), nan=0.0)
-
-    return f
 
 
 def render_sphere(f: Callable[[Array, Array], ArrayLike], size: int = 256,
@@ -123,7 +112,7 @@ def write_png(path: str | Path, img: ArrayLike, exposure: float | None = None) -
 def write_preview(exr_path: str | Path, table: ArrayLike, size: int = 256) -> dict[str, object]:
     """Render the MERL ``table`` (3, 90, 90, 180) on the sphere; write ``exr_path`` and the PNG beside it."""
     exr_path = Path(exr_path)
-    img = render_sphere(table_brdf(table), size)
+    img = render_sphere(merl.brdf_of(table), size)
     write_exr(exr_path, img)
     png = exr_path.with_suffix(".png")
     exposure = write_png(png, img)

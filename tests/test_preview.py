@@ -9,7 +9,7 @@ import pytest
 
 from reconstruction import merl
 from reconstruction.models import Material
-from reconstruction.preview import LIGHT_POSITION, render_sphere, srgb_encode, table_brdf, write_preview
+from reconstruction.preview import LIGHT_POSITION, render_sphere, srgb_encode, write_preview
 
 
 def material(*lobes):
@@ -51,7 +51,7 @@ def test_highlight_sits_at_the_mirror_direction():
 def test_table_render_matches_analytic_render():
     mat = material({"type": "lambert", "albedo": [0.05, 0.1, 0.4]}, {"type": "ggx", "alpha": 0.3, "specular": 0.5})
     a = render_sphere(mat.eval, 48)
-    b = render_sphere(table_brdf(merl.tabulate(mat.eval)), 48)
+    b = render_sphere(merl.brdf_of(merl.tabulate(mat.eval)), 48)
     assert np.abs(a - b).sum() / a.sum() < 0.01
 
 
@@ -79,7 +79,7 @@ def test_write_preview_exr_and_png(tmp_path):
     info = write_preview(tmp_path / "m.exr", table, size=40)
     with OpenEXR.File(str(tmp_path / "m.exr")) as f:
         px = f.channels()["RGB"].pixels
-    ref = render_sphere(table_brdf(table), 40)
+    ref = render_sphere(merl.brdf_of(table), 40)
     assert px.dtype == np.float32 and px.shape == (40, 40, 3)
     np.testing.assert_array_equal(px, ref)
     png = read_png(tmp_path / "m.png")
