@@ -14,6 +14,7 @@ import os
 import signal
 import sys
 import threading
+import time
 
 log = logging.getLogger("simulator")
 
@@ -54,9 +55,61 @@ def build_parser() -> argparse.ArgumentParser:
                    help="stderr log level (default: info)")
     s.add_argument("--exit-with-parent", action="store_true",
                    help="exit when the parent process dies (for child processes of a capture)")
-    b = sub.add_parser("bench", help="(not built yet) run a scripted capture against the virtual bench")
-    b.add_argument("args", nargs=argparse.REMAINDER)
+    b = sub.add_parser(
+        "bench",
+        help="run the speed/accuracy study: simulated captures x reconstruction methods",
+        description="Run simulated captures (gonio-capture against gonio-sim serve, simulated time as fast as "
+                    "possible) over a grid of outgoing step, number of incidence slices, repeats, uniform vs "
+                    "adaptive plans and noise, for several materials, reconstruct each with every method, and "
+                    "write OUT/NAME.csv, OUT/NAME.md (table, Pareto fronts, recommendations per error budget) and "
+                    "OUT/NAME-pareto.png.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="examples:\n  gonio-sim bench --quick\n  gonio-sim bench --workers 2\n"
+               "  gonio-sim bench --scheduler tcp://10.0.0.5:8786   # run the cases on a Dask cluster",
+    )
+    b.add_argument("--quick", action="store_true", help="a small grid (4 settings x 5 materials), ~1-2 min")
+    b.add_argument("--config", default="configs/simulated.toml",
+                   help="base simulated bench file (default: configs/simulated.toml)")
+    b.add_argument("--out", default="docs", help="where the CSV, markdown and plot go (default: docs)")
+    b.add_argument("--name", default=None, help="file name stem (default: study-quick or study)")
+    b.add_argument("--workdir", default="out/study", help="captures and per-case configs (default: out/study)")
+    b.add_argument("--materials", default=None,
+                   help="comma-separated subset of: diffuse, glossy-ggx, sharp-ggx, back-scatter, rough-oren-nayar")
+    b.add_argument("--scheduler", default=None,
+                   help="dask.distributed scheduler address: run the cases on that cluster (pip install "
+                        "'gonio-brdf[dask]')")
+    b.add_argument("--workers", type=int, default=None, help="local worker processes (default: CPU count)")
+    b.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
+
+
+def _bench(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from .study import grid, run_study
+
+    if not Path(args.config).is_file():
+        print(f"gonio-sim bench: --config {args.config}: no such file", file=sys.stderr)
+        return 2
+    try:
+        cases = grid(args.quick, args.materials.split(",") if args.materials else None)
+    except ValueError as e:
+        print(f"gonio-sim bench: --materials: {e}", file=sys.stderr)
+        return 2
+    name = args.name or ("study-quick" if args.quick else "study")
+    command = "gonio-sim bench" + (" --quick" if args.quick else "") + (
+        f" --materials {args.materials}" if args.materials else "")
+    t0 = time.perf_counter()
+    try:
+        rows = run_study(cases, args.config, args.workdir, args.out, name, command, args.scheduler, args.workers,
+                         progress=not args.no_progress)
+    except RuntimeError as e:
+        print(f"gonio-sim bench: {e}", file=sys.stderr)
+        return 2
+    failed = sum(r.get("status") != "ok" for r in rows)
+    print(f"gonio-sim bench: {len(cases)} captures, {len(rows)} results ({failed} failed) in "
+          f"{time.perf_counter() - t0:.0f} s; wrote {args.out}/{name}.csv, {name}.md, {name}-pareto.png")
+    return 1 if failed == len(rows) else 0
 
 
 def _serve(args: argparse.Namespace) -> int:
@@ -107,8 +160,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     if args.command == "bench":
-        print("gonio-sim bench: not built yet", file=sys.stderr)
-        return 2
+        logging.basicConfig(level=logging.WARNING, stream=sys.stderr)
+        return _bench(args)
     logging.basicConfig(level=getattr(logging, args.log_level.upper()), stream=sys.stderr,
                         format="%(asctime)s %(name)s %(levelname)s: %(message)s")
     return _serve(args)

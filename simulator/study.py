@@ -1,0 +1,356 @@
+"""The speed/accuracy trade study behind ``gonio-sim bench``.
+
+Every case is a real simulated capture: a bench config is derived from the base config (material, plan,
+noise), ``gonio-capture`` runs it as a child process against ``gonio-sim serve`` (bytes on pseudo-terminals,
+simulated time as fast as possible), and every reconstruction method is run on the captured slice. A case
+records the simulated capture time (what the bench would take), the reconstruction time and the errors of
+the full table against the material's own table (``reconstruction.metrics.table_errors``).
+
+Cases run through a ``concurrent.futures`` executor (``reconstruction.executor``): local processes by default,
+a Dask cluster with ``--scheduler``. Results go to ``OUT/<name>.csv``, ``OUT/<name>.md`` (table, Pareto fronts
+and recommendations per error budget) and ``OUT/<name>-pareto.png``.
+"""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import json
+import logging
+import math
+import os
+import subprocess
+import sys
+import time
+import zlib
+from collections.abc import Iterable, Sequence
+from dataclasses import asdict, dataclass
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+log = logging.getLogger("simulator.study")
+
+#: Ground-truth materials of the study (photodiode benches see the channel mean, so they are grey).
+MATERIALS: dict[str, dict[str, Any]] = {
+    "diffuse": {"name": "diffuse", "lobes": [{"type": "lambert", "albedo": 0.6}]},
+    "glossy-ggx": {"name": "glossy-ggx", "lobes": [
+        {"type": "lambert", "albedo": 0.2},
+        {"type": "ggx", "alpha": 0.15, "specular": 0.8, "f0": 0.04}]},
+    "sharp-ggx": {"name": "sharp-ggx", "lobes": [
+        {"type": "lambert", "albedo": 0.1},
+        {"type": "ggx", "alpha": 0.02, "specular": 0.9, "f0": 0.04}]},
+    "back-scatter": {"name": "back-scatter", "lobes": [
+        {"type": "lambert", "albedo": 0.15},
+        {"type": "ggx", "alpha": 0.25, "specular": 0.5},
+        {"type": "retro", "exponent": 12.0, "amount": 0.3}]},
+    "rough-oren-nayar": {"name": "rough-oren-nayar", "lobes": [
+        {"type": "oren_nayar", "albedo": 0.7, "sigma_deg": 30.0}]},
+}
+
+#: Incidence angles (deg) used for a given number of slices.
+INCIDENCES: dict[int, list[float]] = {
+    1: [30.0],
+    2: [20.0, 50.0],
+    4: [10.0, 30.0, 50.0, 70.0],
+    8: [5.0, 15.0, 25.0, 35.0, 45.0, 55.0, 65.0, 75.0],
+}
+
+#: Noise levels: overrides of [simulator] (source_power sets the photon count, so the shot noise).
+NOISE: dict[str, dict[str, float]] = {
+    "low": {"source_power": 1.0e7, "read_noise": 5.0},
+    "high": {"source_power": 2.0e5, "read_noise": 20.0},
+}
+
+METHODS: tuple[str, ...] = ("fit", "bivariate", "revolve")
+BUDGETS: tuple[float, ...] = (0.02, 0.05, 0.10)
+FIELDS = ["material", "step_deg", "n_slices", "repeats", "plan", "noise", "method", "method_used", "status",
+          "samples", "capture_time_s", "capture_wall_s", "recon_time_s", "rel_rmse_cos", "log_rmse",
+          "sphere_rel_error", "albedo_max_abs_error", "error"]
+
+
+@dataclass(frozen=True)
+class Case:
+    """One simulated capture: material, outgoing step (deg), number of incidence slices, repeats per point,
+    plan kind ("uniform" or "adaptive") and noise level ("low" or "high")."""
+
+    material: str
+    step_deg: float
+    n_slices: int
+    repeats: int
+    plan: str
+    noise: str
+
+    @property
+    def name(self) -> str:
+        return (f"{self.material}_s{self.step_deg:g}_n{self.n_slices}_r{self.repeats}_{self.plan}_{self.noise}"
+                .replace(".", "p"))
+
+    @property
+    def seed(self) -> int:
+        return zlib.crc32(self.name.encode()) & 0x7FFFFFFF
+
+
+def grid(quick: bool = False, materials: Sequence[str] | None = None) -> list[Case]:
+    """The study's cases. Full: every combination of step (0.5, 1, 2, 5 deg), slices (1, 2, 4, 8), repeats
+    (1, 4, 16), plan (uniform, adaptive) and noise (low, high) for each material. Quick: four settings that
+    span cheap to expensive, per material."""
+    mats = list(materials or MATERIALS)
+    unknown = [m for m in mats if m not in MATERIALS]
+    if unknown:
+        raise ValueError(f"unknown material(s) {unknown}; choose from {sorted(MATERIALS)}")
+    if quick:
+        settings = [(5.0, 1, 1, "uniform", "low"), (2.0, 2, 4, "uniform", "low"),
+                    (2.0, 1, 4, "adaptive", "low"), (2.0, 4, 4, "uniform", "high")]
+    else:
+        settings = list(itertools.product((0.5, 1.0, 2.0, 5.0), (1, 2, 4, 8), (1, 4, 16), ("uniform", "adaptive"),
+                                          ("low", "high")))
+    return [Case(m, *s) for m in mats for s in settings]
+
+
+def case_config(base: dict[str, Any], case: Case) -> dict[str, Any]:
+    """The bench config dict of ``case``: ``base`` (a parsed simulated bench file) with its material, plan,
+    repeats, noise and seed replaced; simulated time runs as fast as possible."""
+    cfg = json.loads(json.dumps(base))  # deep copy of plain TOML data
+    cfg["material"] = MATERIALS[case.material]
+    plan = {k: v for k, v in cfg.get("plan", {}).items() if k not in ("adaptive", "theta_i_min_deg",
+                                                                       "theta_i_max_deg", "theta_i_step_deg")}
+    plan.update(theta_i_deg=INCIDENCES[case.n_slices], theta_o_step_deg=case.step_deg, repeats=case.repeats)
+    if case.plan == "adaptive":
+        coarse = min(max(4 * case.step_deg, 5.0), 10.0)
+        plan["theta_o_step_deg"] = coarse
+        plan["adaptive"] = {"coarse_step_deg": coarse, "min_step_deg": case.step_deg, "tolerance": 0.05}
+    elif case.plan != "uniform":
+        raise ValueError(f"case {case.name}: plan must be 'uniform' or 'adaptive', got {case.plan!r}")
+    cfg["plan"] = plan
+    cfg.setdefault("detector", {})["repeats"] = case.repeats
+    sim = cfg.setdefault("simulator", {})
+    sim.update(NOISE[case.noise], seed=case.seed, time_scale=0.0)
+    return cfg
+
+
+@lru_cache(maxsize=8)
+def truth_table(material: str) -> Any:
+    """The material's own MERL table (bin centres, adaptive cell averages where lobes are sharp); cached."""
+    from reconstruction import merl
+    from reconstruction.models import Material
+
+    return merl.tabulate(Material.from_dict(MATERIALS[material]).eval, supersample="adaptive")
+
+
+def run_case(job: tuple[Case, str, str]) -> list[dict[str, Any]]:
+    """Capture ``case`` on the simulator and reconstruct it with every method; one result row per method.
+
+    ``job`` = (case, base config path, work directory). Runs in a worker process; never raises for a failed
+    capture or method: the row says what failed.
+    """
+    case, base_path, workdir = job
+    import tomli_w
+
+    out = Path(workdir) / case.name
+    out.mkdir(parents=True, exist_ok=True)
+    base = tomllib.loads(Path(base_path).read_text(encoding="utf-8"))
+    cfg_path = out / "bench.toml"
+    cfg_path.write_text(tomli_w.dumps(case_config(base, case)), encoding="utf-8")
+    row0: dict[str, Any] = {**asdict(case), "status": "ok", "error": ""}
+    cap_dir = out / "capture"
+    t0 = time.perf_counter()
+    proc = subprocess.run(
+        [sys.executable, "-m", "acquisition.cli", "--config", str(cfg_path), "--out", str(cap_dir),
+         "--json", "--no-progress", "--log-level", "error"] + (["--resume"] if cap_dir.exists() else []),
+        capture_output=True, text=True, timeout=3600)
+    row0["capture_wall_s"] = time.perf_counter() - t0
+    try:
+        summary = json.loads(proc.stdout.strip().splitlines()[-1])
+    except (IndexError, json.JSONDecodeError):
+        summary = {}
+    if proc.returncode != 0 or summary.get("status") != "complete":
+        msg = (proc.stderr.strip().splitlines() or ["no output"])[-1]
+        return [{**row0, "method": m, "status": "capture failed", "error": msg} for m in METHODS]
+    row0["capture_time_s"] = float(summary["bench_time_s"])
+    row0["samples"] = int(summary["samples_total"])
+
+    from reconstruction import metrics, pipeline
+    from reconstruction.inputs import load_inputs
+
+    s = load_inputs([cap_dir / "slice.csv"]).slice
+    truth = truth_table(case.material)
+    rows = []
+    for method in METHODS:
+        row = {**row0, "method": method}
+        try:
+            t1 = time.perf_counter()
+            rec, choice = pipeline.reconstruct(s, method)
+            table = pipeline.tabulate(rec)
+            row["recon_time_s"] = time.perf_counter() - t1
+            row["method_used"] = choice["used"]
+            row.update(metrics.table_errors(table, truth))
+        except Exception as e:  # noqa: BLE001 - a failed method is a result of the study, not a crash
+            row.update(status="method failed", error=f"{type(e).__name__}: {e}")
+        rows.append(row)
+    return rows
+
+
+# --- summaries -------------------------------------------------------------------------------------------
+
+
+def _ok(rows: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
+    return [r for r in rows if r.get("status") == "ok" and math.isfinite(float(r.get("rel_rmse_cos", math.inf)))]
+
+
+def pareto_front(rows: Sequence[dict[str, Any]], x: str = "capture_time_s", y: str = "rel_rmse_cos"
+                 ) -> list[dict[str, Any]]:
+    """Rows not dominated in (``x``, ``y``), both smaller-is-better, sorted by ``x``."""
+    front: list[dict[str, Any]] = []
+    best = math.inf
+    for r in sorted(rows, key=lambda r: (float(r[x]), float(r[y]))):
+        if float(r[y]) < best:
+            front.append(r)
+            best = float(r[y])
+    return front
+
+
+def recommend(rows: Sequence[dict[str, Any]], budget: float) -> dict[str, dict[str, Any] | None]:
+    """Per material, the row with the least capture time whose relative RMSE (f cos cos) is within ``budget``."""
+    out: dict[str, dict[str, Any] | None] = {}
+    for m in sorted({r["material"] for r in rows}):
+        ok = [r for r in _ok(rows) if r["material"] == m and float(r["rel_rmse_cos"]) <= budget]
+        out[m] = min(ok, key=lambda r: (float(r["capture_time_s"]), float(r["rel_rmse_cos"]))) if ok else None
+    return out
+
+
+def _setting(r: dict[str, Any]) -> str:
+    return (f"step {float(r['step_deg']):g} deg, {r['n_slices']} slice(s), {r['repeats']} repeat(s), "
+            f"{r['plan']}, {r['noise']} noise")
+
+
+def write_csv(path: Path, rows: Sequence[dict[str, Any]]) -> None:
+    with open(path, "w", newline="", encoding="utf-8") as fh:
+        w = csv.DictWriter(fh, fieldnames=FIELDS, extrasaction="ignore")
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
+
+
+def write_markdown(path: Path, rows: Sequence[dict[str, Any]], title: str, command: str) -> None:
+    ok = _ok(rows)
+    lines = [f"# {title}", "", f"Produced by `{command}`. Capture time is simulated bench time (motion, settling,",
+             "integration, dark and white-reference readings); errors are against the material's own table: relative",
+             "RMSE of f cos(theta_i) cos(theta_o) over all valid cells, RMSE of its logarithm, relative error of the",
+             "rendered preview sphere, and the largest directional-albedo error over theta_i = 0..80 deg.", ""]
+    failed = [r for r in rows if r.get("status") != "ok"]
+    lines += [f"{len(rows)} rows ({len({_setting(r) + r['material'] for r in rows})} captures), {len(failed)} failed.",
+              ""]
+    lines += ["## Recommendations", "", "The least capture time that reaches an error budget (relative RMSE of "
+              "f cos cos), per material:", ""]
+    lines += ["| budget | material | capture time (s) | plan | method | error |", "|---|---|---|---|---|---|"]
+    for b in BUDGETS:
+        for m, r in recommend(rows, b).items():
+            if r is None:
+                lines.append(f"| {b:.0%} | {m} | - | not reached by any case | - | - |")
+            else:
+                lines.append(f"| {b:.0%} | {m} | {float(r['capture_time_s']):.1f} | {_setting(r)} | {r['method']} | "
+                             f"{float(r['rel_rmse_cos']):.2%} |")
+    lines += ["", "## Pareto fronts (capture time vs error)", ""]
+    for m in sorted({r["material"] for r in ok}):
+        front = pareto_front([r for r in ok if r["material"] == m])
+        lines.append(f"- **{m}**: " + "; ".join(
+            f"{float(r['capture_time_s']):.0f} s -> {float(r['rel_rmse_cos']):.2%} ({r['method']}, {_setting(r)})"
+            for r in front))
+    lines += ["", "## All results", "",
+              "| material | step | slices | repeats | plan | noise | method | capture s | recon s | rel RMSE cos | "
+              "log RMSE | sphere err | albedo err |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in sorted(rows, key=lambda r: (r["material"], float(r.get("capture_time_s") or 0), r["method"])):
+        if r.get("status") != "ok":
+            lines.append(f"| {r['material']} | {float(r['step_deg']):g} | {r['n_slices']} | {r['repeats']} | "
+                         f"{r['plan']} | {r['noise']} | {r['method']} | {r['status']}: {r['error'][:60]} |||||| ")
+            continue
+        lines.append(
+            f"| {r['material']} | {float(r['step_deg']):g} | {r['n_slices']} | {r['repeats']} | {r['plan']} | "
+            f"{r['noise']} | {r['method']} | {float(r['capture_time_s']):.1f} | {float(r['recon_time_s']):.2f} | "
+            f"{float(r['rel_rmse_cos']):.2%} | {float(r['log_rmse']):.3f} | {float(r['sphere_rel_error']):.2%} | "
+            f"{float(r['albedo_max_abs_error']):.3f} |")
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+def write_plot(path: Path, rows: Sequence[dict[str, Any]], title: str) -> None:
+    """Error against capture time, one panel per material, one marker per method, Pareto front drawn."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ok = _ok(rows)
+    mats = sorted({r["material"] for r in ok})
+    if not mats:
+        return
+    ncol = min(3, len(mats))
+    nrow = math.ceil(len(mats) / ncol)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(4.2 * ncol, 3.4 * nrow), squeeze=False)
+    markers = {"fit": "o", "bivariate": "s", "revolve": "^"}
+    for ax, m in zip(axes.flat, mats, strict=False):
+        mr = [r for r in ok if r["material"] == m]
+        for method in METHODS:
+            pts = [r for r in mr if r["method"] == method]
+            ax.scatter([float(r["capture_time_s"]) for r in pts], [max(float(r["rel_rmse_cos"]), 1e-4) for r in pts],
+                       marker=markers.get(method, "x"), label=method, alpha=0.7, s=22)
+        front = pareto_front(mr)
+        ax.step([float(r["capture_time_s"]) for r in front], [max(float(r["rel_rmse_cos"]), 1e-4) for r in front],
+                where="post", color="k", lw=1, label="Pareto front")
+        for b in BUDGETS:
+            ax.axhline(b, color="grey", lw=0.5, ls=":")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_title(m, fontsize=10)
+        ax.set_xlabel("simulated capture time (s)")
+        ax.set_ylabel("relative RMSE of f cos cos")
+    for ax in list(axes.flat)[len(mats):]:
+        ax.axis("off")
+    axes.flat[0].legend(fontsize=7)
+    fig.suptitle(title, fontsize=11)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def run_study(cases: Sequence[Case], base_config: str | Path, workdir: str | Path, out_dir: str | Path,
+              name: str, command: str, scheduler: str | None = None, workers: int | None = None,
+              progress: bool = True) -> list[dict[str, Any]]:
+    """Run ``cases`` through the executor, write ``out_dir/name.{csv,md}`` and ``name-pareto.png``; return rows."""
+    from tqdm import tqdm
+
+    from reconstruction.executor import make_executor, run_all
+
+    base_config = Path(base_config).resolve()
+    workdir = Path(workdir).resolve()
+    out_dir = Path(out_dir)
+    workdir.mkdir(parents=True, exist_ok=True)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rows: list[dict[str, Any]] = []
+    bar = tqdm(total=len(cases), unit="capture", disable=not progress, desc="study")
+
+    def done(case: Case, fut: Any) -> None:
+        try:
+            rows.extend(fut.result())
+        except Exception as e:  # noqa: BLE001 - a crashed worker is reported as a failed case
+            rows.extend({**asdict(case), "method": m, "status": "crashed", "error": f"{type(e).__name__}: {e}"}
+                        for m in METHODS)
+        bar.update(1)
+
+    with make_executor(scheduler, workers) as ex:
+        run_all(ex, run_case, [(c, str(base_config), str(workdir)) for c in cases], on_done=done)
+    bar.close()
+    order = {c.name: i for i, c in enumerate(cases)}
+    rows.sort(key=lambda r: (order.get(Case(r["material"], float(r["step_deg"]), int(r["n_slices"]),
+                                            int(r["repeats"]), r["plan"], r["noise"]).name, 0),
+                             METHODS.index(r["method"])))
+    write_csv(out_dir / f"{name}.csv", rows)
+    write_markdown(out_dir / f"{name}.md", rows, f"Speed/accuracy study ({name})", command)
+    write_plot(out_dir / f"{name}-pareto.png", rows, f"Error against capture time ({name})")
+    os.sync()
+    return rows

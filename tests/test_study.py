@@ -1,0 +1,101 @@
+"""The speed/accuracy study: grid, derived bench configs, Pareto fronts, recommendations, and a real run."""
+
+import csv
+import sys
+
+import pytest
+
+from simulator import study
+from simulator.study import Case
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+
+def test_full_grid_is_the_product_of_the_issue_settings():
+    g = study.grid()
+    assert len(g) == 4 * 4 * 3 * 2 * 2 * 5
+    assert {c.step_deg for c in g} == {0.5, 1.0, 2.0, 5.0}
+    assert {c.n_slices for c in g} == {1, 2, 4, 8}
+    assert {c.repeats for c in g} == {1, 4, 16}
+    assert {c.plan for c in g} == {"uniform", "adaptive"}
+    assert {c.material for c in g} == set(study.MATERIALS)
+    assert len(study.grid(quick=True, materials=["diffuse"])) == 4
+    with pytest.raises(ValueError, match="unknown material"):
+        study.grid(materials=["velvet"])
+
+
+def test_case_config_sets_material_plan_noise_and_seed():
+    base = tomllib.loads(open("configs/simulated.toml", encoding="utf-8").read())
+    c = Case("sharp-ggx", 1.0, 4, 16, "adaptive", "high")
+    cfg = study.case_config(base, c)
+    assert cfg["material"] == study.MATERIALS["sharp-ggx"]
+    assert cfg["plan"]["theta_i_deg"] == study.INCIDENCES[4]
+    assert cfg["plan"]["repeats"] == 16 and cfg["detector"]["repeats"] == 16
+    assert cfg["plan"]["adaptive"] == {"coarse_step_deg": 5.0, "min_step_deg": 1.0, "tolerance": 0.05}
+    assert cfg["simulator"]["source_power"] == study.NOISE["high"]["source_power"]
+    assert cfg["simulator"]["seed"] == c.seed and cfg["simulator"]["time_scale"] == 0.0
+    assert base["material"]["name"] == "blue-plastic"  # the base is not modified
+    assert Case("diffuse", 2.0, 1, 4, "uniform", "low").seed != Case("diffuse", 2.0, 1, 4, "uniform", "high").seed
+
+
+def row(t, e, method="fit", material="m"):
+    return {"material": material, "capture_time_s": t, "rel_rmse_cos": e, "status": "ok", "method": method,
+            "step_deg": 1, "n_slices": 1, "repeats": 1, "plan": "uniform", "noise": "low"}
+
+
+def test_pareto_front_and_recommendation():
+    rows = [row(10, 0.5), row(20, 0.1), row(15, 0.6), row(40, 0.01), row(50, 0.02), row(30, 0.1)]
+    front = study.pareto_front(rows)
+    assert [(r["capture_time_s"], r["rel_rmse_cos"]) for r in front] == [(10, 0.5), (20, 0.1), (40, 0.01)]
+    assert study.recommend(rows, 0.05)["m"]["capture_time_s"] == 40
+    assert study.recommend(rows, 0.2)["m"]["capture_time_s"] == 20
+    assert study.recommend(rows, 0.001)["m"] is None
+    failed = {**row(1, 0.0), "status": "method failed"}
+    assert study.recommend(rows + [failed], 0.05)["m"]["capture_time_s"] == 40
+
+
+@pytest.fixture(scope="module")
+def tiny_study(tmp_path_factory):
+    d = tmp_path_factory.mktemp("study")
+    cases = [Case("diffuse", 5.0, 1, 1, "uniform", "low")]
+    rows = study.run_study(cases, "configs/simulated.toml", d / "work", d / "docs", "tiny", "test", workers=1,
+                           progress=False)
+    return d, rows
+
+
+def test_a_real_simulated_capture_is_reconstructed_by_every_method(tiny_study):
+    d, rows = tiny_study
+    assert [r["method"] for r in rows] == list(study.METHODS)
+    fit = rows[0]
+    assert fit["status"] == "ok", fit
+    assert fit["rel_rmse_cos"] < 0.05  # a Lambertian is easy for the analytic fit
+    assert fit["capture_time_s"] > 1.0  # simulated bench time, not the wall time of the fast simulation
+    assert fit["capture_wall_s"] < fit["capture_time_s"]
+    with open(d / "docs" / "tiny.csv", newline="") as fh:
+        table = list(csv.DictReader(fh))
+    assert len(table) == len(study.METHODS) and table[0]["material"] == "diffuse"
+    md = (d / "docs" / "tiny.md").read_text()
+    assert "## Recommendations" in md and "| 5% | diffuse |" in md
+    png = (d / "docs" / "tiny-pareto.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 5000
+
+
+def test_the_same_cases_run_on_a_dask_cluster(tmp_path):
+    import distributed  # the test extra installs it; the feature is --scheduler ADDRESS
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as lc:
+        rows = study.run_study([Case("diffuse", 5.0, 1, 1, "uniform", "low")], "configs/simulated.toml",
+                               tmp_path / "w", tmp_path / "o", "dask", "test", scheduler=lc.scheduler_address,
+                               progress=False)
+    assert rows[0]["status"] == "ok" and rows[0]["rel_rmse_cos"] < 0.05
+
+
+def test_cli_rejects_unknown_materials_and_missing_config(capsys):
+    from simulator.cli import main
+
+    assert main(["bench", "--materials", "velvet"]) == 2
+    assert "unknown material" in capsys.readouterr().err
+    assert main(["bench", "--config", "nowhere.toml"]) == 2
+    assert "no such file" in capsys.readouterr().err
