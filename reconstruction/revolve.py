@@ -77,6 +77,8 @@ _LOBE_REACH = math.radians(30.0)  # a lobe's peak lies at most this far from its
 _AUTO_BLIND_DEG = 10.0  # zero rows this close to the retro direction are the blind spot, not data
 _LOG_FLOOR = 1e-300
 _COV_MIN = 1e-6  # a profile side counts as covered at a point where its interpolated coverage exceeds this
+_FILL_WEIGHT = 1e-3  # coverage weight of a diffuse side filled in from the other side
+_EVAL_CHUNK = 32768  # eval works in blocks of this many pairs: 40 % faster than 200k (cache)
 
 
 # --- input handling --------------------------------------------------------------------------------------
@@ -786,7 +788,7 @@ class _Component:
     table: Array
     near: Array
     val: Array  # (2, G, C) the profiles (f_r / scale, or the weighted excess), 0 where uncovered
-    cov: NDArray[np.bool_]  # (2, G)
+    cov: Array  # (2, G) coverage weight: 1 data, _FILL_WEIGHT filled in from the other side, 0 none
     axis_angle: float = 0.0  # in-plane angle of the axis at the measured incidence (radians)
     excess: bool = False  # the table holds (f - diffuse) cos(theta_i) cos(theta_o): see _eval_model
     cmin: float = 1.0  # smallest cos(theta_i) cos(theta_o) the excess was measured at
@@ -920,8 +922,17 @@ def _build_component(inc: _Incidence, kind: str, members: list[int], offset: flo
             ratio = np.divide(ref_s, ref_o, out=np.zeros_like(ref_s), where=ratio_ok)
             val[s, reg] = np.where(ratio_ok, val[o, reg] * ratio, ref_s)
             cov[s, reg] = True
-    val /= scale
     covf = cov.astype(np.float64)
+    if kind == "diffuse":
+        # A revolution about the normal: where one side has no data the other side stands in (so that at
+        # eval time every lobe is one blend of two sides, and the base under a lobe has no gap), with a
+        # small weight, so that interpolation next to a side's own data keeps to that data.
+        for s in (0, 1):
+            take = ~cov[s] & cov[1 - s]
+            val[s, take] = val[1 - s, take]
+            covf[s, take] = _FILL_WEIGHT
+        cov |= cov[::-1]
+    val /= scale
     gc = np.concatenate([val * covf[..., None], covf[..., None]], axis=-1).transpose(1, 0, 2)  # (G, 2, C+1)
     table = np.concatenate([gc[:-1], gc[1:]], axis=1)  # (G - 1, 4, C + 1)
     near = np.empty((g, 2, c + 1))
@@ -938,7 +949,7 @@ def _build_component(inc: _Incidence, kind: str, members: list[int], offset: flo
         nearest = np.where(dl <= dr, left, right)
         near[:, s, :c] = val[s, nearest]
         near[:, s, c] = np.abs(psi_grid - psi_grid[nearest])
-    return _Component(kind, offset, members, np.ascontiguousarray(table, dtype=np.float32), near, val, cov,
+    return _Component(kind, offset, members, np.ascontiguousarray(table, dtype=np.float32), near, val, covf,
                       axis_angle, excess, max(cmin, 1e-3))
 
 
@@ -971,22 +982,19 @@ def _eval_model(model: _Model, ox: Array, oy: Array, oz: Array, si: Array, ci: A
     plane on the -x side, sin/cos of its theta_i ``si``, ``ci``): the lobe of highest luminance wins.
 
     Each lobe's two side profiles are interpolated at the direction's angle from its axis and blended by
-    its azimuth around the axis. Where one side has no data the diffuse lobe uses the other side (it is a
-    revolution); a forward or back lobe fades out instead (its other side belongs to another lobe).
-    Geometry is float64; the profile tables and their blending weights are float32 (7 significant digits,
-    any dynamic range), which halves the memory traffic of the lookups.
+    its azimuth around the axis; a forward or back lobe fades out towards a side where it has no data (that
+    side belongs to another lobe; the diffuse lobe has both sides wherever it has either). Geometry is
+    float64; profile tables, weights and blends float32 (7 significant digits, any dynamic range).
     """
     n = ox.size
     c = model.comps[0].table.shape[-1] - 1
     inv = 1.0 / model.du
     ncomp = len(model.comps)
-    vals = np.empty((ncomp, n, c), dtype=np.float32)
-    lums = np.empty((ncomp, n), dtype=np.float32)
     geo = []
     oy2 = oy * oy
-    w = np.empty((n, 2), dtype=np.float32)
-    base = None
-    for j, comp in enumerate(model.comps):  # a handful of lobes, each vectorised over all directions
+    w = np.empty((n, 4), dtype=np.float32)
+    best = top = base = None
+    for comp in model.comps:  # a handful of lobes, each vectorised over all directions
         if comp.kind == "forward" and model.forward_frame == "half":
             # psi = 2 theta_h, theta_h the half vector's angle from the normal turned by offset / 2: the
             # same as the angle from the mirror direction in the plane of incidence, and the microfacet
@@ -1013,48 +1021,40 @@ def _eval_model(model: _Model, ox: Array, oy: Array, oz: Array, si: Array, ci: A
             wp = 0.5 - 0.5 * t / np.maximum(sin_psi, 1e-300)  # weight of side + (t = 0 on the axis itself)
         i0 = x.astype(np.intp)  # NaN rows (invalid input, discarded by eval) give any index: take clips
         fr = np.clip(x - i0, 0.0, 1.0)
-        w[:, 1] = fr
-        w[:, 0] = 1.0 - fr
-        rows = np.take(comp.table, i0, axis=0, mode="clip").reshape(n, 2, 2, c + 1)  # node, side, value|cov
-        acc = np.einsum("nk,nksc->nsc", w, rows)  # per side: coverage-weighted value, coverage
-        cp, cm = acc[:, 0, c], acc[:, 1, c]
-        wm = 1.0 - wp
-        if comp.kind == "diffuse":
-            # blend the sides by azimuth; a side without data gives way to the other one
-            hp, hm = cp > _COV_MIN, cm > _COV_MIN
-            ap = np.where(hp, np.where(hm, wp, 1.0), 0.0)
-            am = np.where(hm, np.where(hp, wm, 1.0), 0.0)
-            den = ap * cp + am * cm
-            ok = hp | hm
-            num = acc[:, 0, :c] * ap[:, None] + acc[:, 1, :c] * am[:, None]
-            np.divide(num, np.maximum(den, 1e-30)[:, None], out=vals[j])
-        else:
-            den = wp * cp + wm * cm
-            ok = den > _COV_MIN
-            num = acc[:, 0, :c] * wp[:, None] + acc[:, 1, :c] * wm[:, None]
-            np.divide(num, np.maximum(den, 1e-30)[:, None], out=vals[j])
-            vals[j] *= np.minimum(2.0 * den, 1.0)[:, None]  # fade out towards a side without data
-        vals[j][~ok] = 0.0
+        w[:, 0] = (1.0 - fr) * wp  # node i, side +
+        w[:, 1] = (1.0 - fr) - w[:, 0]  # node i, side -
+        w[:, 2] = fr * wp  # node i + 1, side +
+        w[:, 3] = fr - w[:, 2]  # node i + 1, side -
+        acc = np.einsum("nk,nkc->nc", w, np.take(comp.table, i0, axis=0, mode="clip"))
+        cov = acc[:, c]
+        ok = cov > _COV_MIN
+        val = acc[:, :c] / np.maximum(cov, np.float32(1e-30))[:, None]
+        if comp.kind != "diffuse":
+            val *= np.minimum(cov + cov, np.float32(1.0))[:, None]  # fade out towards a side without data
+        val *= ok[:, None]
         if comp.excess:  # back to f_r: undo the measurement's cosines, add the diffuse base below
-            vals[j] /= np.maximum(ci * oz, comp.cmin)[:, None]
+            val /= np.maximum(ci * oz, comp.cmin).astype(np.float32)[:, None]
             if base is not None:
-                vals[j] += base
-        lums[j] = np.where(ok, vals[j].sum(axis=1), -1.0)
+                val += base
+        lum = val[:, 0].copy()
+        for k in range(1, c):
+            lum += val[:, k]
+        lum[~ok] = -1.0
         geo.append((x, wp))
         if comp.kind == "diffuse" and ncomp > 1:
             # the base a forward excess stands on: this lobe, or its nearest data where it has none
-            base = vals[j].copy()
+            base = val.copy()
             if not ok.all():
                 miss0 = ~ok
                 k = np.clip(np.rint(x[miss0]).astype(np.intp), 0, comp.near.shape[0] - 1)
-                nr = comp.near[k]
-                pick = np.where(nr[:, 0, c] <= nr[:, 1, c], 0, 1)
-                base[miss0] = nr[np.arange(k.size), pick, :c]
-    best, top = vals[0], lums[0]
-    for j in range(1, ncomp):  # the thesis's merge: the highest luminance wins
-        better = lums[j] > top
-        best = np.where(better[:, None], vals[j], best)
-        top = np.maximum(top, lums[j])
+                base[miss0] = comp.near[k, 0, :c]
+        if best is None:
+            best, top = val, lum
+        else:  # the thesis's merge: the highest luminance wins
+            better = lum > top
+            best = np.where(better[:, None], val, best)
+            top = np.maximum(top, lum)
+    assert best is not None and top is not None
     best = best.astype(np.float64)
     miss = top < 0
     if miss.any():
@@ -1135,6 +1135,14 @@ class RevolveReconstruction:
             raise ReconstructionError(f"eval expects direction arrays (..., 3), got {wi.shape} and {wo.shape}")
         wi = np.broadcast_to(wi, shape).reshape(-1, 3)
         wo = np.broadcast_to(wo, shape).reshape(-1, 3)
+        n = wi.shape[0]
+        out = np.empty((n, len(self.channels)))
+        for a in range(0, n, _EVAL_CHUNK):  # blocks that stay in cache, each vectorised
+            out[a:a + _EVAL_CHUNK] = self._eval_flat(wi[a:a + _EVAL_CHUNK], wo[a:a + _EVAL_CHUNK])
+        return out.reshape(shape[:-1] + (len(self.channels),))
+
+    def _eval_flat(self, wi: Array, wo: Array) -> Array:
+        """:meth:`eval` for flat (n, 3) arrays."""
         c = len(self.channels)
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
             valid, si, ci, ox, oy, oz, rho = _canonical(wi, wo)
@@ -1156,8 +1164,7 @@ class RevolveReconstruction:
                     lo = _eval_model(self._models[j], *args) if np.any(tj < 1) else 0.0
                     hi = _eval_model(self._models[j + 1], *args) if np.any(tj > 0) else 0.0
                     res[sel] = (1.0 - tj) * lo + tj * hi
-        res = np.where(valid[:, None] & (res > 0), res, 0.0)
-        return res.reshape(shape[:-1] + (c,))
+        return np.where(valid[:, None] & (res > 0), res, 0.0)
 
     def hemisphere(self, theta_i_deg: float | None = None, *, resolution_deg: float = 1.0,
                    fill: str | None = None, upsample: bool = True) -> HemisphereMap:

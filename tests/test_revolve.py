@@ -521,14 +521,8 @@ def _sl(ti, to, v, ch=("value",)):
     return Slice(np.asarray(ti, float), np.asarray(to, float), np.asarray(v, float), list(ch))
 
 
-def _empty():
-    s = _sl([30], [10], [[0.2]])  # Slice() itself cannot be built with no rows (reshape(0, -1))
-    s.theta_i_deg, s.theta_o_deg, s.values = s.theta_i_deg[:0], s.theta_o_deg[:0], s.values[:0]
-    return s
-
-
 @pytest.mark.parametrize("s, match", [
-    (_empty(), "empty slice"),
+    (_sl([], [], np.zeros((0, 1))), "empty slice"),
     (_sl([30], [10], [[0.2]]), "at least 3"),
     (_sl([30] * 4, [-20, 0, 20, 40], [[0.0]] * 4), "every value is zero"),
     (_sl([30] * 4, [-20, 0, 20, 40], [[0.1], [np.nan], [0.1], [0.1]]), "NaN"),
