@@ -68,9 +68,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     ap = argparse.ArgumentParser(prog=PROG, description=DESCRIPTION,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("inputs", nargs="+", metavar="INPUT", help="slice files or generic CSV tables")
+    ap.add_argument("inputs", nargs="*", metavar="INPUT", help="slice files or generic CSV tables")
     ap.add_argument("--method", choices=METHODS, default="auto", help="reconstruction method (default: auto)")
-    ap.add_argument("--out", required=True, metavar="MATERIAL.binary", help="MERL table to write")
+    ap.add_argument("--out", metavar="MATERIAL.binary", help="MERL table to write (required unless --batch)")
     ap.add_argument("--preview", metavar="MATERIAL.exr",
                     help="render a sphere under a point light: linear float OpenEXR, plus a PNG next to it")
     ap.add_argument("--report", metavar="MATERIAL.json",
@@ -100,6 +100,22 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--axis", default="auto", help="revolve: axis of revolution (passed to the revolve method)")
     ap.add_argument("--smoothing", type=_nonneg_float, default=None, help="revolve: smoothing (passed through)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar and no summary line")
+    b = ap.add_argument_group("batch reconstruction of a folder of slices")
+    b.add_argument("--batch", metavar="FOLDER",
+                   help="reconstruct every FOLDER/*.csv and FOLDER/*/slice.csv (capture folders) separately, in "
+                        "parallel, into --out-dir: NAME.binary, NAME.json and, with --previews, NAME.exr/.png")
+    b.add_argument("--out-dir", metavar="DIR", help="batch output folder (default: the batch folder)")
+    b.add_argument("--previews", action="store_true", help="batch: also render a preview per material")
+    b.add_argument("--scheduler", metavar="ADDRESS",
+                   help="batch: run on a dask.distributed cluster at ADDRESS (pip install 'gonio-brdf[dask]')")
+    b.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="batch: local worker processes (default: CPU count)")
+    ap.epilog = ("examples:\n"
+                 "  gonio-reconstruct out/demo/slice.csv --out out/demo/material.binary "
+                 "--preview out/demo/material.exr\n"
+                 "  gonio-reconstruct other.csv --quantity reflectance_factor --columns theta_i=inc,theta_o=det "
+                 "--method fit --out m.binary\n"
+                 "  gonio-reconstruct --batch captures/ --out-dir materials/ --previews --workers 2")
     return ap
 
 
@@ -194,9 +210,77 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     return rep
 
 
+def batch_files(folder: Path) -> list[tuple[str, Path]]:
+    """(name, path) of every slice to reconstruct in ``folder``: ``*.csv`` (name = stem) and ``*/slice.csv``
+    (name = the capture folder's name), sorted by name."""
+    found = [(p.stem, p) for p in folder.glob("*.csv")] + [(p.parent.name, p) for p in folder.glob("*/slice.csv")]
+    return sorted(found)
+
+
+def _batch_one(job: tuple[dict[str, Any], str, Path, Path]) -> dict[str, Any]:
+    """Worker: reconstruct one file of a batch with the shared options; never raises (the result says)."""
+    options, name, path, out_dir = job
+    ns = argparse.Namespace(**options)
+    ns.inputs = [str(path)]
+    ns.out = str(out_dir / f"{name}.binary")
+    ns.report = str(out_dir / f"{name}.json")
+    ns.preview = str(out_dir / f"{name}.exr") if options.get("previews") else None
+    ns.quiet = True
+    try:
+        rep = run(ns)
+    except (ReconstructionError, SliceError, MerlError, MaterialError, OSError) as e:
+        return {"name": name, "input": str(path), "ok": False, "error": str(e)}
+    return {"name": name, "input": str(path), "ok": True, "method": rep["method"], "table": ns.out}
+
+
+def run_batch(args: argparse.Namespace) -> int:
+    """Reconstruct every slice of ``args.batch`` through the executor; print one line per file."""
+    from .executor import make_executor, run_all
+
+    folder = Path(args.batch)
+    if not folder.is_dir():
+        print(f"{PROG}: error: --batch {folder}: not a folder", file=sys.stderr)
+        return 2
+    files = batch_files(folder)
+    if not files:
+        print(f"{PROG}: error: --batch {folder}: no *.csv or */slice.csv inside", file=sys.stderr)
+        return 2
+    out_dir = Path(args.out_dir) if args.out_dir else folder
+    out_dir.mkdir(parents=True, exist_ok=True)
+    options = {k: v for k, v in vars(args).items() if k not in ("inputs", "out", "preview", "report", "batch")}
+    results: list[dict[str, Any]] = []
+    with tqdm(total=len(files), desc=PROG, unit="file", disable=True if args.quiet else None,
+              file=sys.stderr) as bar:
+        def done(_job: Any, fut: Any) -> None:
+            results.append(fut.result())
+            bar.update(1)
+
+        try:
+            with make_executor(args.scheduler, args.workers) as ex:
+                run_all(ex, _batch_one, [(options, n, p, out_dir) for n, p in files], on_done=done)
+        except RuntimeError as e:
+            print(f"{PROG}: error: {e}", file=sys.stderr)
+            return 2
+    failed = 0
+    for r in sorted(results, key=lambda r: r["name"]):
+        if r["ok"]:
+            print(f"{r['name']}: {r['method']} -> {r['table']}", file=sys.stderr)
+        else:
+            failed += 1
+            print(f"{r['name']}: error: {r['error']}", file=sys.stderr)
+    print(f"{PROG}: {len(files) - failed} of {len(files)} reconstructed into {out_dir}", file=sys.stderr)
+    return 1 if failed else 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
+    if args.batch:
+        if args.inputs or args.out or args.preview or args.report:
+            ap.error("--batch takes no INPUT, --out, --preview or --report (outputs are named after the inputs)")
+        return run_batch(args)
+    if not args.inputs or not args.out:
+        ap.error("give INPUT... and --out MATERIAL.binary (or --batch FOLDER)")
     try:
         rep = run(args)
     except (ReconstructionError, SliceError, MerlError, MaterialError) as e:
