@@ -26,6 +26,7 @@ from . import merl
 from .base import Reconstruction, ReconstructionError
 from .bivariate import reconstruct_bivariate
 from .fit import FitReconstruction, Scene, reconstruct_fit
+from .inputs import check_slice
 from .slicefile import Slice
 
 Array = NDArray[np.float64]
@@ -99,6 +100,7 @@ def reconstruct(s: Slice, method: str = "auto", opts: Options | None = None,
     """Reconstruct ``s`` (f_r, grey or RGB) with ``method``; returns (reconstruction, choice) where choice holds
     ``requested``, ``used`` and ``reason``."""
     opts = opts or Options()
+    check_slice(s)  # too few samples, NaN/inf, all zero, duplicates: a clear error before any method runs
     s = s.sorted()  # by (theta_i, theta_o): the order the methods expect (captures may be in any order)
     if method not in METHODS:
         raise ReconstructionError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
