@@ -155,6 +155,20 @@ def split_subcurves(points: ArrayLike, *, smoothing: float = DEFAULT_SMOOTHING_D
         raise ReconstructionError(f"curve: {n} point(s); at least 3 are needed to follow its acceleration")
     if not np.any(r > 0):
         raise ReconstructionError("curve: every value is zero; there is no curve to split")
+    if not np.all(r > 0):  # a zero value sits at the origin and has no direction: take its neighbours'
+        idx = np.arange(n, dtype=np.float64)
+        known = r > 0
+        ki, kt = idx[known], theta[known]
+        step = float(np.median(np.diff(kt) / np.diff(ki))) if ki.size > 1 else math.pi / (2 * n)
+        step = step if step > 0 else math.pi / (2 * n)
+        theta = np.interp(idx, ki, kt)  # between known neighbours; beyond them, go on in the same steps
+        theta = np.where(idx < ki[0], kt[0] - (ki[0] - idx) * step, theta)
+        theta = np.where(idx > ki[-1], kt[-1] + (idx - ki[-1]) * step, theta)
+    return _split(theta, r, smoothing, min_turn_deg)
+
+
+def _split(theta: Array, r: Array, smoothing: float, min_turn_deg: float) -> list[tuple[int, int]]:
+    """:func:`split_subcurves` on angles (radians, increasing) and values (>= 0, some > 0) directly."""
     if np.any(np.diff(theta) <= 0):
         k = int(np.argmax(np.diff(theta) <= 0))
         raise ReconstructionError(f"curve: points {k} and {k + 1} are not in order of increasing theta_o "
@@ -663,7 +677,7 @@ def _classify(inc: _Incidence, a: int, b: int) -> tuple[str, float]:
 def _analyse(inc: _Incidence, axis: str, smoothing: float, min_turn_deg: float) -> None:
     """Fill in the sub-curves, their axes and interpretations of one incidence."""
     pts = thesis_points_from_slice(inc.theta_o, inc.lum)
-    inc.ranges = split_subcurves(pts, smoothing=smoothing, min_turn_deg=min_turn_deg)
+    inc.ranges = _split(inc.theta_o, inc.lum, smoothing, min_turn_deg)  # the angles, also of zero values
     inc.axes, inc.kinds, inc.peaks = [], [], []
     for a, b in inc.ranges:  # a handful of sub-curves
         kind, peak = _classify(inc, a, b)
@@ -918,9 +932,10 @@ def _build_component(inc: _Incidence, kind: str, members: list[int], offset: flo
             if not reg.any():
                 continue
             ref_s, ref_o = val[s, ie], val[o, ie]
-            ratio_ok = base_cov[o, ie] & (ref_o > 0)
+            ratio_ok = base_cov[o, ie] & (ref_o > 1e-9 * scale)  # a ratio to noise is no shape
             ratio = np.divide(ref_s, ref_o, out=np.zeros_like(ref_s), where=ratio_ok)
-            val[s, reg] = np.where(ratio_ok, val[o, reg] * ratio, ref_s)
+            top = val[s][base_cov[s]].max(axis=0)  # the continuation makes no new maximum
+            val[s, reg] = np.minimum(np.where(ratio_ok, val[o, reg] * ratio, ref_s), top)
             cov[s, reg] = True
     covf = cov.astype(np.float64)
     if kind == "diffuse":
