@@ -78,6 +78,7 @@ _AUTO_BLIND_DEG = 10.0  # zero rows this close to the retro direction are the bl
 _LOG_FLOOR = 1e-300
 _COV_MIN = 1e-6  # a profile side counts as covered at a point where its interpolated coverage exceeds this
 _FILL_WEIGHT = 1e-3  # coverage weight of a diffuse side filled in from the other side
+_LOBE_MIN_COV = 0.02  # a forward or back lobe claims a direction where its blended coverage exceeds this
 _EVAL_CHUNK = 32768  # eval works in blocks of this many pairs: 40 % faster than 200k (cache)
 
 
@@ -513,6 +514,7 @@ class _Incidence:
     axes: list[Axis] = field(default_factory=list)
     kinds: list[str] = field(default_factory=list)
     peaks: list[float] = field(default_factory=list)
+    tails: list[int] = field(default_factory=list)  # sub-curves joined to their lobe as its grazing tail
 
 
 def _bridge_holes(inc: _Incidence) -> int:
@@ -689,6 +691,16 @@ def _analyse(inc: _Incidence, axis: str, smoothing: float, min_turn_deg: float) 
             inc.axes.append(subcurve_axis(pts[a:b + 1], axis, prefer="pca"))
         inc.kinds.append(kind)
         inc.peaks.append(peak)
+    # An arc from a forward lobe to the grazing end of the slice (or from a back lobe to the other end) is
+    # that lobe's tail towards grazing, not diffuse reflection: revolved about the normal it would carry
+    # the lobe's grazing rise to every incidence.
+    inc.tails = []
+    if len(inc.kinds) > 1 and inc.kinds[-1] == "diffuse" and inc.kinds[-2] == "forward":
+        inc.kinds[-1] = "forward"
+        inc.tails.append(len(inc.kinds) - 1)
+    if len(inc.kinds) > 1 and inc.kinds[0] == "diffuse" and inc.kinds[1] == "back":
+        inc.kinds[0] = "back"
+        inc.tails.append(0)
 
 
 def _loglin(xq: Array, x: Array, y: Array) -> Array:
@@ -749,6 +761,8 @@ def _subcurve_report(inc: _Incidence) -> list[dict[str, Any]]:
             "peak_theta_o_deg": round(math.degrees(peak), 6),
             "interpretation": kind,
         })
+        if len(out) - 1 in inc.tails:
+            out[-1]["grazing_tail"] = True  # the lobe's tail towards grazing, joined to its neighbour
     return out
 
 
@@ -817,6 +831,7 @@ class _Model:
     comps: list[_Component]
     forward_frame: str = "half"
     scale: float = 1.0  # tables hold f_r / scale (scale = the slice's largest value), safe in float32
+    floor: Array | None = None  # (C,) / scale: the base of a forward excess when there is no diffuse lobe
 
 
 def _side_segments(inc: _Incidence, rng: tuple[int, int], axis_angle: float, side: int
@@ -880,13 +895,13 @@ def _inplane(comp: _Component, psi_grid: Array, theta_o: Array) -> Array:
 
 
 def _build_component(inc: _Incidence, kind: str, members: list[int], offset: float, psi_grid: Array,
-                     fill: str, scale: float, base: _Component | None = None, excess: bool = False
-                     ) -> _Component:
+                     fill: str, scale: float, base: _Component | None = None, excess: bool = False,
+                     floor: Array | None = None) -> _Component:
     """Two-sided profile tables of one lobe from its sub-curves (see :class:`_Component`), f_r / scale.
 
-    With ``excess`` the lobe keeps only what rises above ``base`` (the diffuse lobe, if any), weighted by
-    cos(theta_i) cos(theta_o) of the measurement: the part of a microfacet lobe that hardly changes with
-    the incidence (F D G G / 4).
+    With ``excess`` the lobe keeps only what rises above ``base`` (the diffuse lobe; without one, the
+    constant ``floor`` (C,)), weighted by cos(theta_i) cos(theta_o) of the measurement: the part of a
+    microfacet lobe that hardly changes with the incidence (F D G G / 4).
     """
     g, c = psi_grid.size, inc.f.shape[1]
     axis_angle = {"diffuse": 0.0, "forward": inc.theta_i, "back": -inc.theta_i}[kind] + offset
@@ -909,6 +924,8 @@ def _build_component(inc: _Incidence, kind: str, members: list[int], offset: flo
                 to_q = axis_angle + side * q  # in-plane theta_o of these grid points
                 if base is not None:
                     v = np.maximum(v - _inplane(base, psi_grid, to_q) * scale, 0.0)
+                elif floor is not None:
+                    v = np.maximum(v - floor, 0.0)
                 w = math.cos(inc.theta_i) * np.cos(to_q)
                 cmin = min(cmin, float(w.min()))
                 v = v * w[:, None]
@@ -921,6 +938,14 @@ def _build_component(inc: _Incidence, kind: str, members: list[int], offset: flo
             if is_open:
                 open_end[s] = min(open_end[s], float(ps[-1]))
     if fill == "interpolate":
+        # A sample stands for half a step around it: an open end covers one more step at its last value.
+        margin = float(np.median(np.diff(inc.theta_o)))
+        for s in (0, 1):
+            if math.isfinite(open_end[s]) and cov[s].any():
+                last = int(np.nonzero(cov[s])[0].max())
+                ext = np.nonzero((psi_grid > psi_grid[last]) & (psi_grid <= open_end[s] + margin))[0]
+                val[s, ext] = val[s, last]
+                cov[s, ext] = True
         # A side cut short by the end of the measurement continues in the shape of the other side.
         base_cov = cov.copy()
         for s in (0, 1):
@@ -937,6 +962,12 @@ def _build_component(inc: _Incidence, kind: str, members: list[int], offset: flo
             top = val[s][base_cov[s]].max(axis=0)  # the continuation makes no new maximum
             val[s, reg] = np.minimum(np.where(ratio_ok, val[o, reg] * ratio, ref_s), top)
             cov[s, reg] = True
+        if kind == "diffuse":  # beyond the measured range on both sides: the last value goes on
+            for s in (0, 1):
+                if math.isfinite(open_end[s]) and cov[s].any():
+                    last = int(np.nonzero(cov[s])[0].max())
+                    val[s, last + 1:] = val[s, last]
+                    cov[s, last + 1:] = True
     covf = cov.astype(np.float64)
     if kind == "diffuse":
         # A revolution about the normal: where one side has no data the other side stands in (so that at
@@ -976,6 +1007,8 @@ def _build_model(inc: _Incidence, fill: str, lobe_axis: str, forward_frame: str,
     u = np.linspace(0.0, 2.0, g)
     psi_grid = 2.0 * np.arcsin(np.clip(u / 2.0, 0.0, 1.0))
     scale = float(inc.f.max())
+    # Without a diffuse lobe, a forward lobe's excess stands on the slice's lowest sample: its floor.
+    floor = None if "diffuse" in inc.kinds else inc.f[int(np.argmin(inc.lum))]
     comps = []
     for kind in _KINDS:
         members = [j for j, k in enumerate(inc.kinds) if k == kind]
@@ -988,8 +1021,9 @@ def _build_model(inc: _Incidence, fill: str, lobe_axis: str, forward_frame: str,
             offset = float(np.clip(inc.axes[top].angle - semantic, -_MAX_OFFSET, _MAX_OFFSET))
         base = comps[0] if comps and comps[0].kind == "diffuse" else None
         comps.append(_build_component(inc, kind, members, offset, psi_grid, fill, scale, base,
-                                      excess and kind == "forward"))
-    return _Model(inc.theta_i, float(u[1] - u[0]), comps, forward_frame, scale)
+                                      excess and kind == "forward", floor))
+    return _Model(inc.theta_i, float(u[1] - u[0]), comps, forward_frame, scale,
+                  None if floor is None else floor / scale)
 
 
 def _eval_model(model: _Model, ox: Array, oy: Array, oz: Array, si: Array, ci: Array, fill: str) -> Array:
@@ -1008,7 +1042,8 @@ def _eval_model(model: _Model, ox: Array, oy: Array, oz: Array, si: Array, ci: A
     geo = []
     oy2 = oy * oy
     w = np.empty((n, 4), dtype=np.float32)
-    best = top = base = None
+    best = top = None
+    base = None if model.floor is None else np.broadcast_to(model.floor.astype(np.float32), (n, c))
     for comp in model.comps:  # a handful of lobes, each vectorised over all directions
         if comp.kind == "forward" and model.forward_frame == "half":
             # psi = 2 theta_h, theta_h the half vector's angle from the normal turned by offset / 2: the
@@ -1042,7 +1077,7 @@ def _eval_model(model: _Model, ox: Array, oy: Array, oz: Array, si: Array, ci: A
         w[:, 3] = fr - w[:, 2]  # node i + 1, side -
         acc = np.einsum("nk,nkc->nc", w, np.take(comp.table, i0, axis=0, mode="clip"))
         cov = acc[:, c]
-        ok = cov > _COV_MIN
+        ok = cov > (_COV_MIN if comp.kind == "diffuse" else _LOBE_MIN_COV)
         val = acc[:, :c] / np.maximum(cov, np.float32(1e-30))[:, None]
         if comp.kind != "diffuse":
             val *= np.minimum(cov + cov, np.float32(1.0))[:, None]  # fade out towards a side without data

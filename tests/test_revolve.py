@@ -35,14 +35,14 @@ BLUE = mat({"type": "lambert", "albedo": [0.05, 0.10, 0.40]},
            {"type": "ggx", "alpha": 0.15, "specular": [0.9, 0.9, 0.9], "f0": 0.04})
 
 
-def make_slice(m, tis, to=TO, blind=0.0, noise=0.0):
+def make_slice(m, tis, to=TO, blind=0.0, noise=0.0, seed=3):
     """In-plane samples of material ``m`` at incidences ``tis`` (deg); ``blind``: half-width of the retro gap."""
     ti, t_o = (a.ravel() for a in np.meshgrid(np.asarray(tis, float), np.asarray(to, float), indexing="ij"))
     keep = np.abs(ti + t_o) >= blind
     ti, t_o = ti[keep], t_o[keep]
     f = m.eval(*inplane_to_dirs(np.radians(ti), np.radians(t_o)))
     if noise:
-        f = f * (1.0 + noise * RNG.standard_normal(f.shape))
+        f = f * (1.0 + noise * np.random.default_rng(seed).standard_normal(f.shape))
     return Slice(ti, t_o, f, ["value"] if f.shape[1] == 1 else ["R", "G", "B"])
 
 
@@ -227,8 +227,9 @@ def test_case1_diffuse_half_circle_gives_the_hemisphere():
 def test_case2_specular_lobe_peaks_at_the_mirror_and_is_symmetric_about_its_axis():
     s = make_slice(GGX, [30], np.arange(-89.0, 89.5, 1.0))
     hm = rv.thesis_hemisphere(s)
-    lobes = [sc for sc in hm.subcurves if sc["interpretation"] == "forward"]
+    lobes = [sc for sc in hm.subcurves if sc["interpretation"] == "forward" and not sc.get("grazing_tail")]
     assert len(lobes) == 1 and lobes[0]["axis"] == "pca"
+    assert hm.subcurves[-1].get("grazing_tail")  # the rise towards grazing belongs to the lobe
     assert lobes[0]["axis_angle_deg"] == pytest.approx(30.0, abs=4.0)  # leans to the wider, grazing side
     k = int(np.argmax(hm.intensity))
     assert angle_deg(hm.directions[k], sph_to_vec(np.radians(30), 0.0)) < 2.0
@@ -249,7 +250,8 @@ def test_case3_diffuse_plus_specular():
     s = make_slice(LAM_GGX, [30], np.arange(-89.0, 89.5, 1.0))
     hm = rv.thesis_hemisphere(s)
     kinds = [sc["interpretation"] for sc in hm.subcurves]
-    assert kinds == ["diffuse", "forward", "diffuse"]
+    assert kinds == ["diffuse", "forward", "forward"] and hm.subcurves[2]["grazing_tail"]
+    assert hm.subcurves[0]["axis"] == "vertical" and hm.subcurves[1]["axis"] == "pca"
     k = int(np.argmax(hm.intensity))
     assert angle_deg(hm.directions[k], sph_to_vec(np.radians(30), 0.0)) < 2.0
     assert hm.intensity[k] == pytest.approx(s.values.max(), rel=1e-3)
@@ -294,8 +296,8 @@ def test_case5_full_front_back_brdf():
     s = make_slice(FULL, [30], np.arange(-89.0, 89.5, 1.0))
     for fill in ("zero", "interpolate"):
         hm = rv.thesis_hemisphere(s, fill=fill)
-        kinds = [sc["interpretation"] for sc in hm.subcurves]
-        assert kinds.count("forward") == 1 and kinds.count("back") == 1 and "diffuse" in kinds
+        kinds = [sc["interpretation"] for sc in hm.subcurves if not sc.get("grazing_tail")]
+        assert kinds.count("forward") == 1 and kinds.count("back") == 1
         dm, dr = _peaks_of(hm)
         assert np.all((dm < 3) | (dr < 3)) and (dm < 3).any() and (dr < 3).any()
         assert np.all(np.isfinite(hm.intensity)) and np.all(hm.intensity >= 0)
@@ -315,12 +317,13 @@ def test_reconstruction_protocol_and_report():
     assert rep["method"] == "revolve" and rep["fill"] == "interpolate"
     inc = rep["incidences"][0]
     assert inc["theta_i_deg"] == 30.0
-    assert [sc["interpretation"] for sc in inc["subcurves"]] == ["diffuse", "back", "forward"]
+    assert [sc["interpretation"] for sc in inc["subcurves"]] == ["back", "back", "forward"]
+    assert inc["subcurves"][0]["grazing_tail"] and "grazing_tail" not in inc["subcurves"][1]
     assert all(sc["axis"] in ("vertical", "pca") for sc in inc["subcurves"])
     assert inc["subcurves"][0]["theta_o_range_deg"][0] == -80.0
     assert inc["holes_deg"] == [[-36.0, -24.0]]
     assert 0 < inc["hemisphere_map"]["coverage"] <= 1 and 0 < rep["coverage"] <= 1
-    assert {lb["interpretation"] for lb in inc["lobes"]} == {"diffuse", "forward", "back"}
+    assert {lb["interpretation"] for lb in inc["lobes"]} == {"forward", "back"}
     assert any("interpolated" in n for n in rep["notes"])
 
 
@@ -388,8 +391,8 @@ def truth_tables():
 
 @pytest.mark.parametrize("name, m, tis, bound", [
     ("ggx", GGX, [30], 0.20),  # measured 0.161
-    ("lam_ggx3", LAM_GGX3, [30], 0.18),  # measured 0.144
-    ("full", FULL, [30], 0.30),  # measured 0.266
+    ("lam_ggx3", LAM_GGX3, [30], 0.15),  # measured 0.116
+    ("full", FULL, [30], 0.30),  # measured 0.264
     ("ggx", GGX, [10, 30, 50, 70], 0.10),  # measured 0.074
     ("full", FULL, [10, 30, 50, 70], 0.20),  # measured 0.163
 ])
@@ -463,10 +466,15 @@ def test_rgb_uses_one_geometry_from_the_channel_sum():
     assert np.all(np.abs(rec.eval(wi, wo) - truth) < 0.01 * truth.sum(axis=1, keepdims=True))
 
 
-def test_noisy_slice_reconstructs_without_spurious_lobes():
-    s = make_slice(LAM_GGX, [30], blind=6.0, noise=0.02)
-    rep = rv.reconstruct_revolve(s).report()["incidences"][0]
-    assert [sc["interpretation"] for sc in rep["subcurves"]] == ["diffuse", "forward", "diffuse"]
+@pytest.mark.parametrize("m", [LAM_GGX3, FULL], ids=["lam+ggx", "full"])
+def test_noisy_slice_reconstructs_close_to_the_clean_one(m):
+    clean = rv.reconstruct_revolve(make_slice(m, [30], blind=6.0))
+    ref = merl.tabulate(clean.eval)
+    for seed in (1, 2):  # 2 % noise: measured 1-3 % apart over the table
+        noisy = rv.reconstruct_revolve(make_slice(m, [30], blind=6.0, noise=0.02, seed=seed))
+        # (a broad lobe may or may not split a diffuse arc off with noise; the BRDF hardly changes)
+        assert "forward" in [lb["interpretation"] for lb in noisy.report()["incidences"][0]["lobes"]]
+        assert metrics.relative_rmse_cos(merl.tabulate(noisy.eval), ref) < 0.05
 
 
 # --- numerical robustness --------------------------------------------------------------------------------
