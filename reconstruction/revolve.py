@@ -1187,8 +1187,11 @@ class RevolveReconstruction:
         wo = np.broadcast_to(wo, shape).reshape(-1, 3)
         n = wi.shape[0]
         out = np.empty((n, len(self.channels)))
+        recip = self._params.get("reciprocal", False)
         for a in range(0, n, _EVAL_CHUNK):  # blocks that stay in cache, each vectorised
-            out[a:a + _EVAL_CHUNK] = self._eval_flat(wi[a:a + _EVAL_CHUNK], wo[a:a + _EVAL_CHUNK])
+            i, o = wi[a:a + _EVAL_CHUNK], wo[a:a + _EVAL_CHUNK]
+            out[a:a + _EVAL_CHUNK] = 0.5 * (self._eval_flat(i, o) + self._eval_flat(o, i)) if recip else \
+                self._eval_flat(i, o)
         return out.reshape(shape[:-1] + (len(self.channels),))
 
     def _eval_flat(self, wi: Array, wo: Array) -> Array:
@@ -1268,7 +1271,8 @@ class RevolveReconstruction:
 def reconstruct_revolve(slices: Slice, *, axis: str = "auto", smoothing: float = DEFAULT_SMOOTHING_DEG,
                         fill: str = "interpolate", min_turn_deg: float = DEFAULT_MIN_TURN_DEG,
                         lobe_axis: str = "measured", forward_frame: str = "half", excess: bool = True,
-                        blind_spot_deg: float | None = None, sort: bool = False) -> RevolveReconstruction:
+                        reciprocal: bool = False, blind_spot_deg: float | None = None, sort: bool = False
+                        ) -> RevolveReconstruction:
     """Reconstruct a full isotropic BRDF from in-plane slices by solids of revolution.
 
     ``slices``: f_r (quantity "brdf"; other quantities are converted) with 1 ("value") or 3 ("R", "G",
@@ -1307,7 +1311,7 @@ def reconstruct_revolve(slices: Slice, *, axis: str = "auto", smoothing: float =
         notes.append("one incidence: lobe shapes are the same at every theta_i (only their axes move)")
     params = {"axis": axis, "smoothing_deg": smoothing, "min_turn_deg": min_turn_deg, "fill": fill,
               "lobe_axis": lobe_axis, "forward_frame": forward_frame, "excess": excess,
-              "blind_spot_deg": blind_spot_deg, "sort": sort}
+              "reciprocal": reciprocal, "blind_spot_deg": blind_spot_deg, "sort": sort}
     return RevolveReconstruction(incs, models, list(slices.channels), params, notes)
 
 
