@@ -390,10 +390,11 @@ def truth_tables():
 
 
 @pytest.mark.parametrize("name, m, tis, bound", [
-    ("ggx", GGX, [30], 0.20),  # measured 0.161
-    ("lam_ggx3", LAM_GGX3, [30], 0.15),  # measured 0.116
-    ("full", FULL, [30], 0.30),  # measured 0.264
-    ("ggx", GGX, [10, 30, 50, 70], 0.10),  # measured 0.074
+    ("ggx", GGX, [30], 0.20),  # measured 0.162
+    ("lam_ggx3", LAM_GGX3, [30], 0.13),  # measured 0.096
+    ("full", FULL, [30], 0.30),  # measured 0.265
+    ("ggx", GGX, [10, 30, 50, 70], 0.10),  # measured 0.073
+    ("lam_ggx3", LAM_GGX3, [10, 30, 50, 70], 0.07),  # measured 0.043
     ("full", FULL, [10, 30, 50, 70], 0.20),  # measured 0.163
 ])
 def test_full_table_accuracy_against_ground_truth(truth_tables, name, m, tis, bound):
@@ -408,7 +409,7 @@ def test_excess_cosine_weighting_beats_plain_revolution(truth_tables):
     s = make_slice(GGX, [30], blind=6.0)
     err = {ex: metrics.relative_rmse_cos(merl.tabulate(rv.reconstruct_revolve(s, excess=ex).eval),
                                          truth_tables["ggx"]) for ex in (True, False)}
-    assert err[True] < 0.5 * err[False]  # measured 0.16 against 0.46
+    assert err[True] < 0.5 * err[False]  # measured 0.162 against 0.455
 
 
 def test_reciprocal_option(truth_tables):
@@ -497,7 +498,7 @@ def test_mirror_like_lobe_with_a_dynamic_range_of_1e8_and_grazing_angles():
     assert s.values.max() / s.values.min() > 1e8
     rec = rv.reconstruct_revolve(s)
     wi, wo = inplane_to_dirs(np.radians(30.0), np.radians(s.theta_o_deg))
-    np.testing.assert_allclose(rec.eval(wi, wo)[:, 0], s.values[:, 0], rtol=1e-3)
+    np.testing.assert_allclose(rec.eval(wi, wo)[:, 0], s.values[:, 0], rtol=2e-3)
     n = 20000
     for ti, to_ in ((89.9, RNG.uniform(0, 89.9, n)), (RNG.uniform(0, 89.9, n), 89.9)):
         wi = sph_to_vec(np.radians(ti), RNG.uniform(-np.pi, np.pi, n))
