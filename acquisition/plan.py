@@ -7,7 +7,8 @@ spot, ``|theta_i + theta_o| < blind_spot_half_width_deg``), and how long a move 
 both arms moving at once). :meth:`Plan.check` sorts points into measurable and unmeasurable ones, each with its
 reason: nothing is dropped silently. :func:`order_points` orders them to minimise travel time.
 
-Scenes (``configs/scenes/*.toml``) restrict a plan to what a scene needs: see :class:`Scene`.
+Scenes (``configs/scenes/*.toml``, :mod:`reconstruction.scene`) restrict a plan to what a scene needs: see
+:meth:`Plan.restrict`.
 """
 
 from __future__ import annotations
@@ -15,7 +16,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import sys
 import time
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -24,13 +24,11 @@ from typing import Any
 
 import numpy as np
 
+from reconstruction.scene import Scene, SceneError
+from reconstruction.scene import load_scene as _load_scene
+
 from .config import AdaptiveConfig, AxisConfig, BenchConfig, PlanConfig, _frange
 from .errors import ConfigError, PlanError
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
 
 __all__ = ["Point", "Geometry", "Plan", "PlanCheck", "Scene", "load_scene", "order_points", "path_time",
            "refine_points", "point_key"]
@@ -226,102 +224,18 @@ def order_points(points: Sequence[Point], geom: Geometry, start: Point | None = 
 
 # --- scenes ----------------------------------------------------------------------------------------------------
 
-
-@dataclass(frozen=True)
-class Scene:
-    """What a scene needs: a scene file (``configs/scenes/*.toml``), shared with ``gonio-reconstruct --scene``::
-
-        [scene]
-        name = "glossy-product"          # optional label
-        theta_i_deg = [15.0, 45.0]       # range [min, max] of light polar angles the scene uses (0 <= min <= max < 90)
-        theta_o_deg = [0.0, 75.0]        # range of view polar angles from the normal (unsigned: both sides of the
-                                         # normal are kept on the in-plane slice)
-        angular_resolution_deg = 1.0     # finest angular detail that matters: becomes the outgoing step
-        lobes = ["lambert", "ggx"]       # optional, for the reconstruction (ignored by the capture)
-
-        [scene.error_budget]             # optional
-        relative_rmse = 0.03             # tolerated relative error: becomes the adaptive refinement tolerance
-        relative_sigma = 0.01            # optional: relative measurement uncertainty aimed at (recorded)
-
-    All keys are optional (a missing range means the whole hemisphere); unknown keys are errors.
-    """
-
-    name: str = "scene"
-    theta_i_deg: tuple[float, float] = (0.0, 89.999)
-    theta_o_deg: tuple[float, float] = (0.0, 89.999)
-    angular_resolution_deg: float | None = None
-    relative_rmse: float | None = None
-    relative_sigma: float | None = None
-    lobes: tuple[str, ...] | None = None
-    path: str = "<scene>"
-
-
-_SCENE_KEYS = ("name", "theta_i_deg", "theta_o_deg", "angular_resolution_deg", "lobes", "error_budget")
-_BUDGET_KEYS = ("relative_rmse", "relative_sigma")
-
-
-def _pos_num(src: str, key: str, v: Any) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)) or v <= 0:
-        raise ConfigError(f"{src}: [{key}: expected a positive number, got {v!r}")
-    return float(v)
-
-
-def _polar_range(src: str, key: str, v: Any) -> tuple[float, float]:
-    ok = (isinstance(v, list) and len(v) == 2
-          and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v))
-    if not ok or not 0.0 <= v[0] <= v[1] < 90.0:
-        raise ConfigError(f"{src}: [scene].{key}: expected [min, max] degrees with 0 <= min <= max < 90, got {v!r}")
-    return float(v[0]), float(v[1])
-
-
-def scene_from_dict(d: Mapping[str, Any], src: str = "<scene>") -> Scene:
-    """Validate a parsed scene file (the whole TOML document, with its ``[scene]`` table)."""
-    unknown = [k for k in d if k != "scene"]
-    if unknown:
-        raise ConfigError(f"{src}: [{unknown[0]}]: unknown section; a scene file has only [scene]")
-    s = d.get("scene")
-    if not isinstance(s, Mapping):
-        raise ConfigError(f"{src}: [scene]: missing section (required)")
-    for k in s:
-        if k not in _SCENE_KEYS:
-            raise ConfigError(f"{src}: [scene].{k}: unknown key; allowed keys: {', '.join(_SCENE_KEYS)}")
-    kw: dict[str, Any] = {"path": src}
-    if "name" in s:
-        if not isinstance(s["name"], str):
-            raise ConfigError(f"{src}: [scene].name: expected a string, got {s['name']!r}")
-        kw["name"] = s["name"]
-    else:
-        kw["name"] = Path(src).stem
-    for k in ("theta_i_deg", "theta_o_deg"):
-        if k in s:
-            kw[k] = _polar_range(src, k, s[k])
-    if "angular_resolution_deg" in s:
-        kw["angular_resolution_deg"] = _pos_num(src, "scene].angular_resolution_deg", s["angular_resolution_deg"])
-    if "lobes" in s:
-        lobes = s["lobes"]
-        if not isinstance(lobes, list) or not all(isinstance(x, str) for x in lobes):
-            raise ConfigError(f"{src}: [scene].lobes: expected a list of lobe names, got {lobes!r}")
-        kw["lobes"] = tuple(lobes)
-    eb = s.get("error_budget", {})
-    if not isinstance(eb, Mapping):
-        raise ConfigError(f"{src}: [scene.error_budget]: expected a table (relative_rmse, relative_sigma)")
-    for k in eb:
-        if k not in _BUDGET_KEYS:
-            raise ConfigError(f"{src}: [scene.error_budget].{k}: unknown key; allowed keys: {', '.join(_BUDGET_KEYS)}")
-        kw[k] = _pos_num(src, f"scene.error_budget].{k}", eb[k])
-    return Scene(**kw)
+#: theta_i and theta_o range (degrees) of a scene whose file gives none: the whole hemisphere (the fit's default
+#: differs, see reconstruction.fit.SCENE_DEFAULT_RANGE_DEG).
+SCENE_DEFAULT_RANGE_DEG = (0.0, 89.999)
 
 
 def load_scene(path: str | Path) -> Scene:
-    """Read and validate a scene file."""
-    p = Path(path)
+    """Read and validate a scene file (:func:`reconstruction.scene.load_scene`); errors are :class:`ConfigError`
+    (the message names the file and the key), as for bench configs."""
     try:
-        d = tomllib.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"{p}: no such scene file") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-        raise ConfigError(f"{p}: invalid TOML: {e}") from None
-    return scene_from_dict(d, str(p))
+        return _load_scene(path)
+    except SceneError as e:
+        raise ConfigError(str(e)) from None
 
 
 # --- plans -----------------------------------------------------------------------------------------------------
@@ -423,8 +337,7 @@ class Plan:
         outgoing angles whose polar angle |theta_o| lies in the scene's theta_o range (both sides of the normal),
         within the plan's range; the scene's angular resolution as the step; its error budget (relative_rmse) as
         the adaptive tolerance."""
-        ti_lo, ti_hi = scene.theta_i_deg
-        to_lo, to_hi = scene.theta_o_deg
+        (ti_lo, ti_hi), (to_lo, to_hi) = scene.ranges(SCENE_DEFAULT_RANGE_DEG)
 
         def keep_ti(ti: float) -> bool:
             return ti_lo - 1e-9 <= abs(ti) <= ti_hi + 1e-9
@@ -432,7 +345,7 @@ class Plan:
         if self.explicit is not None:
             pts = [p for p in self.explicit if keep_ti(p[0]) and to_lo - 1e-9 <= abs(p[1]) <= to_hi + 1e-9]
             if not pts:
-                raise PlanError(f"{scene.path}: scene {scene.name!r} keeps none of the plan's points")
+                raise PlanError(f"{scene.source}: scene {scene.name!r} keeps none of the plan's points")
             return replace(self, explicit=pts, scene=scene.name)
         if not self.sweeps:
             raise PlanError("the plan is empty")
@@ -447,7 +360,7 @@ class Plan:
                 if hi >= lo:
                     sweeps.append(Sweep(sw.theta_i_deg, lo, hi, step))
         if not sweeps:
-            raise PlanError(f"{scene.path}: scene {scene.name!r} (theta_i in [{ti_lo:g}, {ti_hi:g}], |theta_o| in "
+            raise PlanError(f"{scene.source}: scene {scene.name!r} (theta_i in [{ti_lo:g}, {ti_hi:g}], |theta_o| in "
                             f"[{to_lo:g}, {to_hi:g}]) keeps none of the plan's points")
         adaptive = self.adaptive
         if adaptive is not None:

@@ -130,7 +130,7 @@ def _check_output(path: Path, suffix: str, flag: str) -> None:
 def run(args: argparse.Namespace) -> dict[str, Any]:
     """Do the work of one command line; returns the report (also written with --report)."""
     from . import colour, inputs, pipeline, preview, report
-    from .fit import LOBE_KINDS, load_scene
+    from .scene import LOBE_KINDS, load_scene
 
     out = Path(args.out)
     _check_output(out, ".binary", "--out")

@@ -24,33 +24,19 @@ Model selection: candidates are fitted stepwise (lambert, ggx, beckmann, lambert
 best of these for each distribution with Fresnel, with a retro lobe, with both, and with a lambert lobe added) and
 the one with the lowest BIC = robust chi^2 + k ln(n) is kept, so a lobe stays only when the data require it.
 
-Scene files (``--scene configs/scenes/NAME.toml``) say what the reconstruction is for; the keys read here::
-
-    [scene]
-    name = "studio-turntable"            # optional, for the report
-    theta_i_deg = [0.0, 60.0]            # range of light polar angles from the normal the scene uses (degrees)
-    theta_o_deg = [0.0, 80.0]            # range of view polar angles from the normal (degrees)
-    angular_resolution_deg = 1.0         # finest angular detail that matters; lobes narrower than this are not
-                                         # resolved: alpha >= radians(resolution) / 2.6 (~ lobe FWHM), and the
-                                         # candidates are compared on a grid of this step (at least 1 deg)
-    lobes = ["lambert", "ggx", "fresnel"]  # optional: the lobe kinds allowed (lambert, ggx, beckmann, retro, fresnel)
-
-    [scene.error_budget]
-    relative_rmse = 0.02                 # tolerated relative RMSE of f cos(theta_i) cos(theta_o) over the scene's
-                                         # directions: the simplest candidate within this of the BIC choice is used
-    relative_sigma = 0.01                # optional: the relative measurement uncertainty used in the weights
-
-All keys are optional; unknown keys are an error (they are probably typos).
+Scene files (``--scene configs/scenes/NAME.toml``, :mod:`reconstruction.scene`) say what the reconstruction is
+for: the lobe kinds allowed, the angular resolution (lobes narrower than it are not resolved: alpha >=
+radians(resolution) / 2.6), the relative_sigma used in the weights and an error budget (relative_rmse: the simplest
+candidate within it of the BIC choice over the scene's directions is used). A range the scene file does not give
+is taken as 0-85 deg here (:data:`SCENE_DEFAULT_RANGE_DEG`).
 """
 
 from __future__ import annotations
 
 import itertools
 import math
-import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -61,19 +47,14 @@ from .base import ReconstructionError
 from .geometry import inplane_to_dirs, sph_to_vec
 from .metrics import relative_rmse_cos_dirs
 from .models import Colour, Lambert, Lobe, Material, Microfacet, Retro
+from .scene import LOBE_KINDS, Scene
 from .slicefile import Slice
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
 
 Array = NDArray[np.float64]
 
-__all__ = ["Scene", "LobeSpec", "FitResult", "FitReconstruction", "load_scene", "fit_model", "reconstruct_fit",
-           "LOBE_KINDS"]
+__all__ = ["LobeSpec", "FitResult", "FitReconstruction", "fit_model", "reconstruct_fit", "scene_alpha_min",
+           "scene_directions", "LOBE_KINDS", "SCENE_DEFAULT_RANGE_DEG"]
 
-LOBE_KINDS = ("lambert", "ggx", "beckmann", "retro", "fresnel")
 ALPHA_MIN, ALPHA_MAX = 0.005, 1.5
 F0_MIN, F0_MAX = 0.002, 0.998
 EXP_MIN, EXP_MAX = 0.5, 2000.0
@@ -82,105 +63,43 @@ FLOOR = 1e-4  # of each channel's peak |f|
 SELECTION_MAX_VALUES = 2400  # residuals (samples x channels) beyond which candidates are compared on a subset
 
 
-# --- scene files -----------------------------------------------------------------------------------------
+# --- scenes ----------------------------------------------------------------------------------------------
+
+#: theta_i and theta_o range (degrees) of a scene whose file gives none (the capture's default differs: it is the
+#: whole hemisphere, see acquisition.plan).
+SCENE_DEFAULT_RANGE_DEG = (0.0, 85.0)
 
 
-@dataclass(frozen=True)
-class Scene:
-    """What a reconstruction is for (see the module docstring for the TOML keys). Angles in degrees."""
-
-    name: str = "scene"
-    theta_i_deg: tuple[float, float] = (0.0, 85.0)
-    theta_o_deg: tuple[float, float] = (0.0, 85.0)
-    angular_resolution_deg: float | None = None
-    lobes: tuple[str, ...] | None = None
-    relative_rmse: float | None = None
-    relative_sigma: float | None = None
-    source: str = "<scene>"
-
-    @property
-    def alpha_min(self) -> float:
-        """Smallest microfacet alpha worth resolving (dimensionless)."""
-        if self.angular_resolution_deg is None:
-            return ALPHA_MIN
-        return max(ALPHA_MIN, math.radians(self.angular_resolution_deg) / 2.6)
-
-    def directions(self, max_pairs: int = 200_000) -> tuple[Array, Array]:
-        """Direction pairs (M, 3) spanning the scene: theta_i, theta_o in their ranges, relative azimuth 0-180 deg."""
-        step = max(1.0, self.angular_resolution_deg or 2.0)
-        while True:
-            ti = np.radians(np.arange(self.theta_i_deg[0], self.theta_i_deg[1] + 1e-9, step))
-            to = np.radians(np.arange(self.theta_o_deg[0], self.theta_o_deg[1] + 1e-9, step))
-            ph = np.radians(np.arange(0.0, 180.0 + 1e-9, step))
-            if ti.size * to.size * ph.size <= max_pairs:
-                break
-            step *= 1.5
-        a, b, p = np.meshgrid(ti, to, ph, indexing="ij")
-        wi = sph_to_vec(a.ravel(), np.pi)
-        wo = sph_to_vec(b.ravel(), np.pi + p.ravel())
-        return wi, wo
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "source": self.source, "theta_i_deg": list(self.theta_i_deg),
-                "theta_o_deg": list(self.theta_o_deg), "angular_resolution_deg": self.angular_resolution_deg,
-                "lobes": list(self.lobes) if self.lobes else None, "relative_rmse": self.relative_rmse,
-                "relative_sigma": self.relative_sigma}
+def scene_alpha_min(scene: Scene | None) -> float:
+    """Smallest microfacet alpha worth resolving in ``scene`` (dimensionless)."""
+    if scene is None or scene.angular_resolution_deg is None:
+        return ALPHA_MIN
+    return max(ALPHA_MIN, math.radians(scene.angular_resolution_deg) / 2.6)
 
 
-def _range(v: Any, where: str) -> tuple[float, float]:
-    ok = (isinstance(v, list) and len(v) == 2
-          and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v))
-    if not ok or not 0.0 <= v[0] <= v[1] < 90.0:
-        raise ReconstructionError(f"{where}: expected [min, max] degrees with 0 <= min <= max < 90, got {v!r}")
-    return float(v[0]), float(v[1])
+def scene_directions(scene: Scene, max_pairs: int = 200_000) -> tuple[Array, Array]:
+    """Direction pairs (M, 3) spanning ``scene``: theta_i, theta_o in its ranges, relative azimuth 0-180 deg."""
+    (ti_lo, ti_hi), (to_lo, to_hi) = scene.ranges(SCENE_DEFAULT_RANGE_DEG)
+    step = max(1.0, scene.angular_resolution_deg or 2.0)
+    while True:
+        ti = np.radians(np.arange(ti_lo, ti_hi + 1e-9, step))
+        to = np.radians(np.arange(to_lo, to_hi + 1e-9, step))
+        ph = np.radians(np.arange(0.0, 180.0 + 1e-9, step))
+        if ti.size * to.size * ph.size <= max_pairs:
+            break
+        step *= 1.5
+    a, b, p = np.meshgrid(ti, to, ph, indexing="ij")
+    wi = sph_to_vec(a.ravel(), np.pi)
+    wo = sph_to_vec(b.ravel(), np.pi + p.ravel())
+    return wi, wo
 
 
-def _positive(v: Any, where: str) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-        raise ReconstructionError(f"{where}: expected a positive number, got {v!r}")
-    return float(v)
-
-
-def load_scene(path: str | Path) -> Scene:
-    """Read a scene TOML file (keys in the module docstring); errors name the file and key."""
-    p = Path(path)
-    try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ReconstructionError(f"{p}: no such scene file") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-        raise ReconstructionError(f"{p}: invalid TOML: {e}") from None
-    sc = data.get("scene")
-    if not isinstance(sc, dict):
-        raise ReconstructionError(f"{p}: no [scene] table")
-    allowed = {"name", "theta_i_deg", "theta_o_deg", "angular_resolution_deg", "lobes", "error_budget"}
-    unknown = sorted(set(sc) - allowed)
-    if unknown:
-        raise ReconstructionError(f"{p}: [scene]: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
-    kw: dict[str, Any] = {"source": str(p)}
-    if "name" in sc:
-        kw["name"] = str(sc["name"])
-    for key in ("theta_i_deg", "theta_o_deg"):
-        if key in sc:
-            kw[key] = _range(sc[key], f"{p}: [scene].{key}")
-    if "angular_resolution_deg" in sc:
-        kw["angular_resolution_deg"] = _positive(sc["angular_resolution_deg"], f"{p}: [scene].angular_resolution_deg")
-    if "lobes" in sc:
-        lobes = sc["lobes"]
-        if not isinstance(lobes, list) or not lobes or any(x not in LOBE_KINDS for x in lobes):
-            raise ReconstructionError(f"{p}: [scene].lobes: expected a list of {', '.join(LOBE_KINDS)}, got {lobes!r}")
-        kw["lobes"] = tuple(lobes)
-    eb = sc.get("error_budget", {})
-    if not isinstance(eb, dict):
-        raise ReconstructionError(f"{p}: [scene.error_budget]: expected a table")
-    unknown = sorted(set(eb) - {"relative_rmse", "relative_sigma"})
-    if unknown:
-        raise ReconstructionError(f"{p}: [scene.error_budget]: unknown key(s) {unknown}; allowed: relative_rmse, "
-                                  f"relative_sigma")
-    for key in ("relative_rmse", "relative_sigma"):
-        if key in eb:
-            kw[key] = _positive(eb[key], f"{p}: [scene.error_budget].{key}")
-    return Scene(**kw)
+def _scene_report(scene: Scene) -> dict[str, Any]:
+    ti, to = scene.ranges(SCENE_DEFAULT_RANGE_DEG)
+    return {"name": scene.name, "source": scene.source, "theta_i_deg": list(ti), "theta_o_deg": list(to),
+            "angular_resolution_deg": scene.angular_resolution_deg,
+            "lobes": list(scene.lobes) if scene.lobes else None, "relative_rmse": scene.relative_rmse,
+            "relative_sigma": scene.relative_sigma}
 
 
 # --- models ----------------------------------------------------------------------------------------------
@@ -622,7 +541,7 @@ def reconstruct_fit(
         raise ReconstructionError("fit needs at least one of the lobes lambert, ggx, beckmann")
     rel = relative_sigma if relative_sigma is not None else (scene.relative_sigma if scene and scene.relative_sigma
                                                              else 0.01)
-    full = _problem(slices, rel, scene.alpha_min if scene else ALPHA_MIN)
+    full = _problem(slices, rel, scene_alpha_min(scene))
     wi, wo, f = full.wi, full.wo, full.f
     # many samples: candidates are compared on an evenly strided subset (every stride-th sample in
     # (theta_i, theta_o) order), then the chosen model is refitted to all samples
@@ -667,17 +586,18 @@ def reconstruct_fit(
     scene_info: dict[str, Any] | None = None
     fit_mask: NDArray[np.bool_] | None = None  # the samples the chosen model is fitted to, if not all
     if scene is not None:
-        scene_info = {"scene": scene.to_dict()}
+        scene_info = {"scene": _scene_report(scene)}
+        (ti_lo, ti_hi), (to_lo, to_hi) = scene.ranges(SCENE_DEFAULT_RANGE_DEG)
         if scene.relative_rmse is not None:
             # simpler candidates, refitted to the samples inside the scene's ranges (the rest does not matter to
             # the scene), are compared with the BIC choice over the scene's directions; the simplest within the
             # budget is used
             ti_d, to_d = slices.theta_i_deg, np.abs(slices.theta_o_deg)
-            inside = ((ti_d >= scene.theta_i_deg[0] - 1e-9) & (ti_d <= scene.theta_i_deg[1] + 1e-9)
-                      & (to_d >= scene.theta_o_deg[0] - 1e-9) & (to_d <= scene.theta_o_deg[1] + 1e-9))
+            inside = ((ti_d >= ti_lo - 1e-9) & (ti_d <= ti_hi + 1e-9)
+                      & (to_d >= to_lo - 1e-9) & (to_d <= to_hi + 1e-9))
             in_prob = inside[pick] if stride > 1 else inside
             sub = prob.take(in_prob) if 0 < in_prob.sum() < prob.f.shape[0] else prob
-            swi, swo = scene.directions()
+            swi, swo = scene_directions(scene)
             ref = chosen.material().eval(swi, swo)
             diffs = []
             for k in sorted({r.k for r in fitted.values() if r.k < min(chosen.k, sub.n)}):  # simplest first
@@ -700,8 +620,8 @@ def reconstruct_fit(
             scene_info["budget_comparison"] = diffs
             scene_info["samples_inside_scene"] = int(sub.f.shape[0])
         lo_i, hi_i = float(np.min(slices.theta_i_deg)), float(np.max(slices.theta_i_deg))
-        if scene.theta_i_deg[1] > hi_i + 1e-9 or scene.theta_i_deg[0] < lo_i - 1e-9:
-            scene_info["warning"] = (f"the scene uses theta_i {scene.theta_i_deg[0]:g}-{scene.theta_i_deg[1]:g} deg "
+        if ti_hi > hi_i + 1e-9 or ti_lo < lo_i - 1e-9:
+            scene_info["warning"] = (f"the scene uses theta_i {ti_lo:g}-{ti_hi:g} deg "
                                      f"but the data cover {lo_i:g}-{hi_i:g} deg; outside that the fit extrapolates")
 
     notes: list[str] = []

@@ -25,8 +25,9 @@ from numpy.typing import NDArray
 from . import merl
 from .base import Reconstruction, ReconstructionError
 from .bivariate import reconstruct_bivariate
-from .fit import FitReconstruction, Scene, reconstruct_fit
+from .fit import FitReconstruction, reconstruct_fit
 from .inputs import check_slice
+from .scene import Scene
 from .slicefile import Slice
 
 Array = NDArray[np.float64]

@@ -13,7 +13,9 @@ from hypothesis import strategies as st
 from acquisition import ConfigError, Plan, PlanError
 from acquisition.calibration import Calibration, Reading, reference_rho
 from acquisition.config import config_from_dict
-from acquisition.plan import Geometry, _trapezoid_time, load_scene, order_points, path_time, refine_points
+from acquisition.plan import Geometry, _trapezoid_time, order_points, path_time, refine_points
+from acquisition.plan import load_scene as acq_load_scene
+from reconstruction.scene import Scene, load_scene
 
 try:
     from .test_acq_support import REPO, make_raw
@@ -108,15 +110,27 @@ def test_scene_restricts_plan(tmp_path):
     assert len(p.requested_points()) == 4 * 33
     with pytest.raises(PlanError, match="keeps none"):
         Plan.grid([70.0], -80, 80, 2).restrict(glossy)
+    # acquisition reads scene files through reconstruction.scene; its errors are ConfigErrors there
     (tmp_path / "s.toml").write_text("[scene]\nname = 'x'\nangular_resolution_deg = 'fine'\n")
     with pytest.raises(ConfigError, match=r"s.toml: \[scene\].angular_resolution_deg: expected a positive number"):
-        load_scene(tmp_path / "s.toml")
+        acq_load_scene(tmp_path / "s.toml")
     (tmp_path / "s.toml").write_text("[scene]\ntheta_o_deg = [10, 95]\n")
     with pytest.raises(ConfigError, match=r"\[scene\].theta_o_deg: expected \[min, max\]"):
-        load_scene(tmp_path / "s.toml")
+        acq_load_scene(tmp_path / "s.toml")
     (tmp_path / "s.toml").write_text("[scene]\nresolution = 1\n")
     with pytest.raises(ConfigError, match=r"\[scene\].resolution: unknown key"):
-        load_scene(tmp_path / "s.toml")
+        acq_load_scene(tmp_path / "s.toml")
+    with pytest.raises(ConfigError, match="none.toml: no such scene file"):
+        acq_load_scene(tmp_path / "none.toml")
+    assert acq_load_scene(REPO / "configs" / "scenes" / "grazing.toml") == grazing
+
+
+def test_scene_without_ranges_keeps_the_whole_hemisphere():
+    # the capture's default range is the whole hemisphere (the fit's is 0-85 deg: reconstruction.fit)
+    p = Plan.grid([10.0, 88.0], -89.5, 89.5, 0.5).restrict(Scene(name="all"))
+    pts = p.requested_points()
+    assert {ti for ti, _ in pts} == {10.0, 88.0}
+    assert min(to for _, to in pts) == -89.5 and max(to for _, to in pts) == 89.5
 
 
 def test_scene_sets_adaptive_tolerance():
