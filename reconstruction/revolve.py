@@ -19,8 +19,11 @@ extends it to a BRDF for every (wi, wo) (see docs/revolve.md): each sub-curve is
 forward or back-scatter lobe and re-expressed relative to what its axis means (the normal, the mirror
 direction of wi, wi itself), as a profile of value against the angle psi from that axis, one profile for each
 side of the axis in the plane of incidence and blended by the azimuth around the axis (so the slice itself is
-reproduced exactly). Lobes merge by the thesis's rule, the highest luminance wins. With several incidences,
-each measured incidence gives such a model and the models are blended linearly in theta_i.
+reproduced). A forward lobe's psi is measured as twice the half vector's angle (equal in the measured plane),
+and it keeps only its excess over the diffuse lobe, weighted by cos(theta_i) cos(theta_o), which hardly
+changes with the incidence for microfacet lobes. Lobes merge by the thesis's rule, the highest luminance
+wins. With several incidences, each measured incidence gives such a model and the models are blended linearly
+in theta_i.
 
 Multi-channel data: sub-curves, axes and the merge use the luminance-like channel sum; every channel then
 follows the same geometry (the same sub-curves, axes and winners).
@@ -235,6 +238,7 @@ class Axis:
 
     @property
     def score(self) -> float:
+        """What "auto" minimises: asymmetry + (overshoot - 1 where above 1); dimensionless, inf if untestable."""
         return self.asymmetry + max(0.0, self.overshoot - 1.0)
 
     @property
