@@ -11,7 +11,7 @@ pseudo-terminals it prints. This package never imports ``simulator``.
 
 from .bench import Bench, SimulatorProcess
 from .calibration import Calibration, Reading
-from .config import BenchConfig, config_from_dict, dump_toml, load_config
+from .config import BenchConfig, config_from_dict, load_config
 from .engine import CaptureResult, RunEngine
 from .errors import (
     AcquisitionError,
@@ -44,7 +44,6 @@ __all__ = [
     "Scene",
     "SimulatorProcess",
     "config_from_dict",
-    "dump_toml",
     "load_config",
     "load_scene",
     "order_points",

@@ -40,7 +40,6 @@ __all__ = [
     "BenchConfig",
     "load_config",
     "config_from_dict",
-    "dump_toml",
     "DXL_MODELS",
     "DXL_BAUDRATES",
 ]
@@ -729,43 +728,3 @@ def load_config(path: str | Path) -> BenchConfig:
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{path}: invalid TOML: {e}") from None
     return config_from_dict(raw, path)
-
-
-# --- writing (config variants for scripts and tests) ---------------------------------------------------------------
-
-
-def _toml_value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, (int, float)):
-        return repr(v)
-    if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    if isinstance(v, Mapping):
-        return "{" + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + "}"
-    raise TypeError(f"cannot write {type(v).__name__} to TOML")
-
-
-def dump_toml(d: Mapping[str, Any], _prefix: str = "") -> str:
-    """Minimal TOML writer for config dicts (scalars, lists, tables, arrays of tables; tables nested in an array
-    item are written inline)."""
-    lines, tables, arrays = [], [], []
-    for k, v in d.items():
-        if isinstance(v, Mapping):
-            tables.append((k, v))
-        elif isinstance(v, list) and v and all(isinstance(x, Mapping) for x in v):
-            arrays.append((k, v))
-        else:
-            lines.append(f"{k} = {_toml_value(v)}")
-    out = "\n".join(lines) + ("\n" if lines else "")
-    for k, v in tables:
-        name = f"{_prefix}{k}"
-        out += f"\n[{name}]\n" + dump_toml(v, name + ".")
-    for k, items in arrays:
-        name = f"{_prefix}{k}"
-        for it in items:
-            body = "".join(f"{kk} = {_toml_value(vv)}\n" for kk, vv in it.items())
-            out += f"\n[[{name}]]\n" + body
-    return out

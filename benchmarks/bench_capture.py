@@ -17,6 +17,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import tomli_w
+
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover
@@ -26,7 +28,6 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from acquisition import Bench, Plan  # noqa: E402
-from acquisition.config import dump_toml  # noqa: E402
 
 
 def config(tmp: Path, motion: str) -> Path:
@@ -34,7 +35,7 @@ def config(tmp: Path, motion: str) -> Path:
     raw["bench"]["motion"] = motion
     raw.setdefault("simulator", {})["time_scale"] = 0.0
     p = tmp / f"{motion}.toml"
-    p.write_text(dump_toml(raw))
+    p.write_text(tomli_w.dumps(raw))
     return p
 
 

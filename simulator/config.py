@@ -227,37 +227,3 @@ def load_config(path: str | Path, **overrides: Any) -> BenchConfig:
             if v is not None:
                 raw["simulator"][k] = v
     return config_from_dict(raw, base_dir=path.resolve().parent)
-
-
-def _toml_value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, (int, float)):
-        return repr(v)
-    if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    raise TypeError(f"cannot write {type(v).__name__} to TOML")
-
-
-def dump_toml(d: dict[str, Any], _prefix: str = "") -> str:
-    """Minimal TOML writer for config dicts (scalars, lists, tables, arrays of tables); for tests and tools."""
-    lines = []
-    tables, arrays = [], []
-    for k, v in d.items():
-        if isinstance(v, dict):
-            tables.append((k, v))
-        elif isinstance(v, list) and v and all(isinstance(x, dict) for x in v):
-            arrays.append((k, v))
-        else:
-            lines.append(f"{k} = {_toml_value(v)}")
-    out = "\n".join(lines) + ("\n" if lines else "")
-    for k, v in tables:
-        name = f"{_prefix}{k}"
-        out += f"\n[{name}]\n" + dump_toml(v, name + ".")
-    for k, items in arrays:
-        name = f"{_prefix}{k}"
-        for it in items:
-            out += f"\n[[{name}]]\n" + dump_toml(it, name + ".")
-    return out

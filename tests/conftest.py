@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+import tomli_w
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -78,14 +79,12 @@ def config_dict(base_config_dict) -> Callable[..., dict[str, Any]]:
 @pytest.fixture
 def config_file(tmp_path, config_dict) -> Callable[..., Path]:
     """Write a config variant to a TOML file in ``tmp_path`` (in the configs dir semantics: base_dir = tmp)."""
-    from simulator.config import dump_toml
-
     counter = [0]
 
     def make(over: dict[str, Any] | None = None) -> Path:
         counter[0] += 1
         p = tmp_path / f"config{counter[0]}.toml"
-        p.write_text(dump_toml(config_dict(over)))
+        p.write_text(tomli_w.dumps(config_dict(over)))
         return p
 
     return make

@@ -12,8 +12,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import tomli_w
 
-from acquisition.config import dump_toml
 from reconstruction.geometry import inplane_to_dirs
 from reconstruction.models import Material
 from reconstruction.slicefile import Slice, read_slice
@@ -60,7 +60,7 @@ def make_raw(*overs: dict[str, Any], fast: bool = True) -> dict[str, Any]:
 
 
 def write_config(path: Path, raw: dict[str, Any]) -> Path:
-    path.write_text(dump_toml(raw), encoding="utf-8")
+    path.write_text(tomli_w.dumps(raw), encoding="utf-8")
     return path
 
 

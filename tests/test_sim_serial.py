@@ -6,6 +6,7 @@ import time
 
 import pytest
 import serial
+import tomli_w
 
 import simulator  # noqa: F401 - registers sim://
 from simulator.transports import register_bench, unregister_bench
@@ -43,11 +44,9 @@ class Link:
 
 @pytest.fixture(scope="module")
 def stepper_link(tmp_path_factory, serve_process, base_config_dict, deep_merge):
-    from simulator.config import dump_toml
-
     raw = deep_merge(base_config_dict, {"bench": {"motion": "serial"}})
     cfg = tmp_path_factory.mktemp("serial") / "stepper.toml"
-    cfg.write_text(dump_toml(raw))
+    cfg.write_text(tomli_w.dumps(raw))
     sp = serve_process(cfg)
     assert sp.ports["dynamixel"] is None
     ser = serial.Serial(sp.ports["serial"], 115200, timeout=0.5)
