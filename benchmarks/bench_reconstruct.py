@@ -46,9 +46,8 @@ def main() -> None:
     args = ap.parse_args()
     mat = Material.from_toml(args.material)
     truth = merl.tabulate(mat.eval)
-    methods = ["fit", "bivariate"] + (["revolve"] if pipeline.revolve_available() else [])
-    print(f"material {mat.name} ({args.material}); {args.repeats} repeats; "
-          f"revolve {'available' if 'revolve' in methods else 'not available'}")
+    methods = ["fit", "bivariate", "revolve"]
+    print(f"material {mat.name} ({args.material}); {args.repeats} repeats")
     print(f"{'method':<10} {'slices':<22} {'reconstruct':>12} {'tabulate':>9} {'total':>8} {'target':>7} "
           f"{'error':>8}")
     for incidences in ((30.0,), (0.0, 15.0, 30.0, 45.0, 60.0, 75.0)):

@@ -7,8 +7,7 @@
    reduced chi^2 is <= 3, ``fit`` is used: an analytic model extrapolates to the unmeasured table physically.
 2. Otherwise, with slices at 3 or more incidences, ``bivariate``: the lines cover the (theta_h, theta_d) plane
    well enough to interpolate the data themselves.
-3. Otherwise (one or two incidences), ``revolve``, the thesis's solids of revolution, made for a single slice; if
-   reconstruction/revolve.py is not available, ``bivariate``.
+3. Otherwise (one or two incidences), ``revolve``, the thesis's solids of revolution, made for a single slice.
 
 The choice and its reason (with the figures) go into the report.
 """
@@ -27,13 +26,13 @@ from .base import Reconstruction, ReconstructionError
 from .bivariate import reconstruct_bivariate
 from .fit import FitReconstruction, reconstruct_fit
 from .inputs import check_slice
+from .revolve import reconstruct_revolve
 from .scene import Scene
 from .slicefile import Slice
 
 Array = NDArray[np.float64]
 
-__all__ = ["METHODS", "AUTO_FIT_TOLERANCE", "AUTO_FIT_CHI2", "Options", "revolve_available", "reconstruct",
-           "tabulate"]
+__all__ = ["METHODS", "AUTO_FIT_TOLERANCE", "AUTO_FIT_CHI2", "Options", "reconstruct", "tabulate"]
 
 METHODS = ("auto", "fit", "revolve", "bivariate")
 AUTO_FIT_TOLERANCE = 0.03
@@ -53,32 +52,16 @@ class Options:
     cos_power: float = 1.5
 
 
-def _import_revolve() -> Callable[..., Reconstruction] | None:
-    try:
-        from .revolve import reconstruct_revolve  # written separately; imported lazily
-    except ImportError:
-        return None
-    return reconstruct_revolve  # type: ignore[no-any-return]
-
-
-def revolve_available() -> bool:
-    """True when reconstruction/revolve.py provides ``reconstruct_revolve``."""
-    return _import_revolve() is not None
-
-
 def _run(method: str, s: Slice, opts: Options, progress: Callable[[str], None] | None) -> Reconstruction:
     if method == "fit":
         return reconstruct_fit(s, scene=opts.scene, lobes=opts.lobes, progress=progress)
     if method == "bivariate":
         return reconstruct_bivariate(s, fill=opts.fill, cos_power=opts.cos_power)
     if method == "revolve":
-        fn = _import_revolve()
-        if fn is None:
-            raise ReconstructionError("method revolve: reconstruction/revolve.py is not available in this build")
         kw: dict[str, Any] = {"axis": opts.revolve_axis, "fill": opts.fill}
         if opts.revolve_smoothing is not None:
             kw["smoothing"] = opts.revolve_smoothing
-        return fn(s, **kw)
+        return reconstruct_revolve(s, **kw)
     raise ReconstructionError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
 
 
@@ -118,15 +101,10 @@ def reconstruct(s: Slice, method: str = "auto", opts: Options | None = None,
         return rec, {"requested": "auto", "used": "bivariate",
                      "reason": f"{why_fit}; slices at {n_inc} incidences cover the (theta_h, theta_d) plane, so "
                                f"the data are interpolated between the measured lines"}
-    if revolve_available():
-        rec = _run("revolve", s, opts, progress)
-        return rec, {"requested": "auto", "used": rec.method,
-                     "reason": f"{why_fit}; with {n_inc} incidence(s) the solids-of-revolution method, made for a "
-                               f"single slice, is used"}
-    rec = _run("bivariate", s, opts, progress)
-    return rec, {"requested": "auto", "used": "bivariate",
-                 "reason": f"{why_fit}; with {n_inc} incidence(s) the revolve method would be next, but "
-                           f"reconstruction/revolve.py is not available, so the lines are interpolated (bivariate)"}
+    rec = _run("revolve", s, opts, progress)
+    return rec, {"requested": "auto", "used": rec.method,
+                 "reason": f"{why_fit}; with {n_inc} incidence(s) the solids-of-revolution method, made for a "
+                           f"single slice, is used"}
 
 
 def tabulate(rec: Reconstruction, supersample: tuple[int, int, int] | str | None = None) -> Array:

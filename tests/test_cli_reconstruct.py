@@ -167,19 +167,15 @@ def as_slice(mat, incidences, step=2.0):
     return Slice(ti, to, f, ["value"] if f.shape[1] == 1 else ["R", "G", "B"])
 
 
-def test_auto_uses_bivariate_when_no_model_fits_and_several_incidences(monkeypatch):
-    monkeypatch.setattr(pipeline, "_import_revolve", lambda: None)
+def test_auto_uses_bivariate_when_no_model_fits_and_several_incidences():
     rec, choice = pipeline.reconstruct(as_slice(PHONG, (10.0, 40.0, 70.0)), "auto")
     assert rec.method == "bivariate" and choice["used"] == "bivariate"
     assert "misses the samples" in choice["reason"] and "3 incidences" in choice["reason"]
 
 
-def test_auto_single_slice_prefers_revolve_and_says_so_when_missing(monkeypatch):
-    monkeypatch.setattr(pipeline, "_import_revolve", lambda: None)
+def test_auto_single_slice_uses_revolve(monkeypatch):
     rec, choice = pipeline.reconstruct(as_slice(PHONG, (30.0,)), "auto")
-    assert rec.method == "bivariate" and "revolve.py is not available" in choice["reason"]
-    with pytest.raises(ReconstructionError, match="revolve"):
-        pipeline.reconstruct(as_slice(PHONG, (30.0,)), "revolve")
+    assert rec.method == choice["used"] == "revolve" and "misses the samples" in choice["reason"]
 
     calls = []
 
@@ -197,7 +193,7 @@ def test_auto_single_slice_prefers_revolve_and_says_so_when_missing(monkeypatch)
         calls.append((slices, kw))
         return Fake()
 
-    monkeypatch.setattr(pipeline, "_import_revolve", lambda: fake_revolve)
+    monkeypatch.setattr(pipeline, "reconstruct_revolve", fake_revolve)
     s = as_slice(PHONG, (30.0,))
     order = np.random.default_rng(0).permutation(len(s))
     rec, choice = pipeline.reconstruct(s.take(order), "auto", pipeline.Options(fill="zero", revolve_axis="pca"))
