@@ -10,22 +10,11 @@ from reconstruction.geometry import half_diff_from_dirs, inplane_to_dirs
 from reconstruction.metrics import relative_rmse_cos
 from reconstruction.models import Material
 from reconstruction.slicefile import Slice
+from reconstruction.synthetic import synthetic_slice
 
 
 def material(*lobes):
     return Material.from_dict({"name": "truth", "lobes": list(lobes)})
-
-
-def simulate(mat, incidences=(30.0,), step=2.0, blind=4.0):
-    ti, to = [], []
-    for t in incidences:
-        o = np.arange(-80.0, 80.0 + 1e-9, step)
-        o = o[np.abs(o + t) > blind]
-        ti.append(np.full(o.size, t))
-        to.append(o)
-    ti, to = np.concatenate(ti), np.concatenate(to)
-    f = mat.eval(*inplane_to_dirs(np.radians(ti), np.radians(to)))
-    return Slice(ti, to, f, ["value"] if f.shape[1] == 1 else ["R", "G", "B"])
 
 
 PLASTIC = material({"type": "lambert", "albedo": [0.05, 0.10, 0.40]},
@@ -48,7 +37,7 @@ def test_inplane_half_diff_matches_geometry():
 
 def test_lambertian_is_exact_from_one_slice():
     mat = material({"type": "lambert", "albedo": [0.2, 0.5, 0.7]})
-    rec = reconstruct_bivariate(simulate(mat))
+    rec = reconstruct_bivariate(synthetic_slice(mat))
     assert isinstance(rec, Reconstruction)
     t = rec.table()
     v = merl.valid_mask()
@@ -58,8 +47,9 @@ def test_lambertian_is_exact_from_one_slice():
 
 
 def test_errors_against_ground_truth_and_more_incidences_help(truth_table):
-    one = relative_rmse_cos(reconstruct_bivariate(simulate(PLASTIC)).table(), truth_table)
-    six = relative_rmse_cos(reconstruct_bivariate(simulate(PLASTIC, (0, 15, 30, 45, 60, 75))).table(), truth_table)
+    one = relative_rmse_cos(reconstruct_bivariate(synthetic_slice(PLASTIC)).table(), truth_table)
+    six = relative_rmse_cos(reconstruct_bivariate(synthetic_slice(PLASTIC, (0, 15, 30, 45, 60, 75))).table(),
+                            truth_table)
     # measured: 0.17 from one slice at 30 deg, 0.056 from six incidences (extrapolation to grazing dominates)
     assert one < 0.22
     assert six < 0.08
@@ -67,7 +57,7 @@ def test_errors_against_ground_truth_and_more_incidences_help(truth_table):
 
 
 def test_samples_are_reproduced_and_table_matches_eval(truth_table):
-    s = simulate(PLASTIC, (20.0, 50.0))
+    s = synthetic_slice(PLASTIC, (20.0, 50.0))
     rec = reconstruct_bivariate(s)
     wi, wo = inplane_to_dirs(np.radians(s.theta_i_deg), np.radians(s.theta_o_deg))
     np.testing.assert_allclose(rec.eval(wi, wo), s.values, rtol=1e-9, atol=1e-12)
@@ -77,7 +67,7 @@ def test_samples_are_reproduced_and_table_matches_eval(truth_table):
 
 def test_blind_spot_is_interpolated_unless_zero_is_asked():
     mat = material({"type": "lambert", "albedo": 0.3}, {"type": "retro", "exponent": 4.0, "amount": 0.2})
-    s = simulate(mat, blind=8.0)  # nothing measured within 8 deg of the retro direction
+    s = synthetic_slice(mat, blind_spot_deg=8.0)  # nothing measured within 8 deg of the retro direction
     retro = inplane_to_dirs(np.radians([30.0]), np.radians([-30.0]))
     truth = mat.eval(*retro)[0, 0]
     filled = reconstruct_bivariate(s).eval(*retro)[0, 0]
@@ -92,7 +82,7 @@ def test_blind_spot_is_interpolated_unless_zero_is_asked():
 
 
 def test_non_negative_and_finite_with_noisy_negative_samples():
-    s = simulate(PLASTIC, (30.0,))
+    s = synthetic_slice(PLASTIC, (30.0,))
     rng = np.random.default_rng(1)
     s.values = s.values + rng.normal(0, 0.02, s.values.shape)  # dark-subtracted noise goes below zero
     t = reconstruct_bivariate(s).table()
@@ -104,7 +94,7 @@ def test_bad_input():
     with pytest.raises(ReconstructionError, match="1 sample"):
         reconstruct_bivariate(Slice([30.0], [10.0], [[0.1]], ["value"]))
     with pytest.raises(ReconstructionError, match="fill"):
-        reconstruct_bivariate(simulate(PLASTIC), fill="nearest")
+        reconstruct_bivariate(synthetic_slice(PLASTIC), fill="nearest")
     wl = Slice([30, 30, 30], [0, 10, 20], np.ones((3, 2)), ["450nm", "550nm"])
     with pytest.raises(ReconstructionError, match="convert spectra"):
         reconstruct_bivariate(wl)

@@ -10,10 +10,10 @@ import pytest
 
 from reconstruction import cli, merl, pipeline
 from reconstruction.base import ReconstructionError
-from reconstruction.geometry import inplane_to_dirs
 from reconstruction.metrics import relative_rmse_cos
 from reconstruction.models import Material
 from reconstruction.slicefile import Slice, write_slice
+from reconstruction.synthetic import synthetic_slice
 
 BLUE_PLASTIC = Material.from_dict({"name": "blue-plastic", "lobes": [
     {"type": "lambert", "albedo": [0.05, 0.10, 0.40]},
@@ -22,22 +22,11 @@ PHONG = Material.from_dict({"name": "phong-ish", "lobes": [  # no lobe of the fi
     {"type": "oren_nayar", "albedo": 0.8, "sigma_deg": 40}, {"type": "phong", "exponent": 50, "specular": 0.3}]})
 
 
-def samples(mat, incidences=(30.0,), step=2.0, blind=4.0):
-    ti, to = [], []
-    for t in incidences:
-        o = np.arange(-80.0, 80.0 + 1e-9, step)
-        o = o[np.abs(o + t) > blind]
-        ti.append(np.full(o.size, t))
-        to.append(o)
-    ti, to = np.concatenate(ti), np.concatenate(to)
-    return ti, to, mat.eval(*inplane_to_dirs(np.radians(ti), np.radians(to)))
-
-
 def slice_file(path, mat, incidences=(30.0,), step=2.0):
-    ti, to, f = samples(mat, incidences, step)
-    ch = ["value"] if f.shape[1] == 1 else ["R", "G", "B"]
-    write_slice(path, Slice(ti, to, f, ch, 0.002 * np.abs(f) + 1e-6, np.full(ti.size, 4),
-                            1.795e9 + np.arange(ti.size), meta={"material": "test"}))
+    s = synthetic_slice(mat, incidences, step_deg=step)
+    n = len(s)
+    write_slice(path, Slice(s.theta_i_deg, s.theta_o_deg, s.values, s.channels, 0.002 * np.abs(s.values) + 1e-6,
+                            np.full(n, 4), 1.795e9 + np.arange(n), meta={"material": "test"}))
     return path
 
 
@@ -81,8 +70,10 @@ def test_help_answers():
 
 def test_generic_spectral_table_bivariate_supersampled(tmp_path):
     wl = np.arange(400, 701, 20)
-    ti, to, f = samples(Material.from_dict({"name": "grey", "lobes": [
-        {"type": "lambert", "albedo": 0.5}, {"type": "ggx", "alpha": 0.3, "specular": 0.2}]}), (20.0, 45.0), 5.0)
+    s = synthetic_slice(Material.from_dict({"name": "grey", "lobes": [
+        {"type": "lambert", "albedo": 0.5}, {"type": "ggx", "alpha": 0.3, "specular": 0.2}]}), (20.0, 45.0),
+        step_deg=5.0)
+    ti, to, f = s.theta_i_deg, s.theta_o_deg, s.values
     lines = ["# other instrument export", "Incidence,Detector," + ",".join(f"{w}nm" for w in wl)]
     for a, b, v in zip(ti, to, np.pi * f[:, 0], strict=True):  # a reflectance factor, flat over wavelength
         lines.append(f"{a},{b}," + ",".join([repr(float(v))] * wl.size))
@@ -162,19 +153,14 @@ def test_bad_options_exit_2(tmp_path, capsys):
 # --- dispatch --------------------------------------------------------------------------------------------
 
 
-def as_slice(mat, incidences, step=2.0):
-    ti, to, f = samples(mat, incidences, step)
-    return Slice(ti, to, f, ["value"] if f.shape[1] == 1 else ["R", "G", "B"])
-
-
 def test_auto_uses_bivariate_when_no_model_fits_and_several_incidences():
-    rec, choice = pipeline.reconstruct(as_slice(PHONG, (10.0, 40.0, 70.0)), "auto")
+    rec, choice = pipeline.reconstruct(synthetic_slice(PHONG, (10.0, 40.0, 70.0)), "auto")
     assert rec.method == "bivariate" and choice["used"] == "bivariate"
     assert "misses the samples" in choice["reason"] and "3 incidences" in choice["reason"]
 
 
 def test_auto_single_slice_uses_revolve(monkeypatch):
-    rec, choice = pipeline.reconstruct(as_slice(PHONG, (30.0,)), "auto")
+    rec, choice = pipeline.reconstruct(synthetic_slice(PHONG, (30.0,)), "auto")
     assert rec.method == choice["used"] == "revolve" and "misses the samples" in choice["reason"]
 
     calls = []
@@ -194,7 +180,7 @@ def test_auto_single_slice_uses_revolve(monkeypatch):
         return Fake()
 
     monkeypatch.setattr(pipeline, "reconstruct_revolve", fake_revolve)
-    s = as_slice(PHONG, (30.0,))
+    s = synthetic_slice(PHONG, (30.0,))
     order = np.random.default_rng(0).permutation(len(s))
     rec, choice = pipeline.reconstruct(s.take(order), "auto", pipeline.Options(fill="zero", revolve_axis="pca"))
     assert rec.method == "revolve" and "solids-of-revolution" in choice["reason"]

@@ -6,33 +6,15 @@ import pytest
 from reconstruction import merl
 from reconstruction.base import Reconstruction, ReconstructionError
 from reconstruction.fit import reconstruct_fit
-from reconstruction.geometry import inplane_to_dirs
 from reconstruction.metrics import relative_rmse_cos
 from reconstruction.models import Material
 from reconstruction.scene import load_scene
 from reconstruction.slicefile import Slice
+from reconstruction.synthetic import synthetic_slice
 
 
 def material(*lobes):
     return Material.from_dict({"name": "truth", "lobes": list(lobes)})
-
-
-def simulate(mat, incidences=(30.0,), step=2.0, noise=0.0, seed=0, blind=4.0):
-    """In-plane samples of ``mat`` like the bench takes them: theta_o -80..80, the retro blind spot left out."""
-    ti, to = [], []
-    for t in incidences:
-        o = np.arange(-80.0, 80.0 + 1e-9, step)
-        o = o[np.abs(o + t) > blind]
-        ti.append(np.full(o.size, t))
-        to.append(o)
-    ti, to = np.concatenate(ti), np.concatenate(to)
-    f = mat.eval(*inplane_to_dirs(np.radians(ti), np.radians(to)))
-    std = np.zeros_like(f)
-    if noise:
-        std = noise * np.abs(f) + 1e-4
-        f = f + np.random.default_rng(seed).normal(size=f.shape) * std
-    channels = ["value"] if f.shape[1] == 1 else ["R", "G", "B"]
-    return Slice(ti, to, f, channels, std)
 
 
 LAMBERT_GGX = material({"type": "lambert", "albedo": [0.05, 0.10, 0.40]},
@@ -41,7 +23,7 @@ LAMBERT_GGX = material({"type": "lambert", "albedo": [0.05, 0.10, 0.40]},
 
 @pytest.fixture(scope="module")
 def lambert_ggx_fit():
-    return reconstruct_fit(simulate(LAMBERT_GGX))
+    return reconstruct_fit(synthetic_slice(LAMBERT_GGX))
 
 
 def test_single_noise_free_slice_recovers_the_full_table(lambert_ggx_fit):
@@ -74,7 +56,7 @@ def test_report_has_candidates_and_residuals(lambert_ggx_fit):
 def test_fresnel_is_found_when_the_data_show_it():
     truth = material({"type": "lambert", "albedo": [0.05, 0.10, 0.40]},
                      {"type": "ggx", "alpha": 0.2, "specular": 1.0, "f0": 0.04})
-    rec = reconstruct_fit(simulate(truth, incidences=(0.0, 30.0, 60.0, 75.0), step=3.0))
+    rec = reconstruct_fit(synthetic_slice(truth, incidences_deg=(0.0, 30.0, 60.0, 75.0), step_deg=3.0))
     assert rec.result.name == "lambert+ggx(F)"
     p = rec.report()["parameters"][1]
     assert p["f0"] == pytest.approx(0.04, rel=1e-3)
@@ -90,7 +72,7 @@ def test_fresnel_is_found_when_the_data_show_it():
       {"type": "retro", "exponent": 8.0, "amount": 0.2}], "lambert+ggx+retro"),
 ])
 def test_model_selection_keeps_only_what_the_data_need(lobes, expected):
-    rec = reconstruct_fit(simulate(material(*lobes), incidences=(20.0, 50.0), step=2.5))
+    rec = reconstruct_fit(synthetic_slice(material(*lobes), incidences_deg=(20.0, 50.0), step_deg=2.5))
     assert rec.result.name == expected
     assert rec.channels == ["value"]
 
@@ -99,7 +81,8 @@ def test_noisy_data_uncertainties_cover_the_truth():
     truth = material({"type": "lambert", "albedo": 0.3}, {"type": "ggx", "alpha": 0.12, "specular": 0.6})
     z = []
     for seed in range(4):
-        rec = reconstruct_fit(simulate(truth, incidences=(30.0,), noise=0.02, seed=seed), lobes=["lambert", "ggx"])
+        s = synthetic_slice(truth, incidences_deg=(30.0,), noise=0.02, noise_floor=1e-4, seed=seed)
+        rec = reconstruct_fit(s, lobes=["lambert", "ggx"])
         p = rec.report()["parameters"]
         z += [(p[0]["albedo"][0] - 0.3) / p[0]["albedo_std"][0], (p[1]["alpha"] - 0.12) / p[1]["alpha_std"],
               (p[1]["specular"][0] - 0.6) / p[1]["specular_std"][0]]
@@ -111,7 +94,7 @@ def test_noisy_data_uncertainties_cover_the_truth():
 
 def test_robust_loss_resists_an_outlier():
     truth = material({"type": "lambert", "albedo": 0.3}, {"type": "ggx", "alpha": 0.12, "specular": 0.6})
-    s = simulate(truth, noise=0.01, seed=5)
+    s = synthetic_slice(truth, noise=0.01, noise_floor=1e-4, seed=5)
     k = int(np.argmin(np.abs(s.theta_o_deg - (-60.0))))
     s.values[k] *= 30.0  # a glitch (e.g. a stray reflection) on one diffuse sample
     robust = reconstruct_fit(s, lobes=["lambert", "ggx"]).report()["parameters"]
@@ -122,7 +105,7 @@ def test_robust_loss_resists_an_outlier():
 
 def test_scene_file_restricts_candidates_and_budget_simplifies(tmp_path):
     truth = material({"type": "lambert", "albedo": 0.3}, {"type": "ggx", "alpha": 0.2, "specular": 1.0, "f0": 0.04})
-    s = simulate(truth, incidences=(0.0, 30.0, 60.0, 75.0), step=3.0)
+    s = synthetic_slice(truth, incidences_deg=(0.0, 30.0, 60.0, 75.0), step_deg=3.0)
     only = tmp_path / "only.toml"
     only.write_text('[scene]\nlobes = ["lambert", "ggx"]\n')
     rec = reconstruct_fit(s, scene=load_scene(only))
@@ -147,11 +130,11 @@ def test_fit_rejects_input_it_cannot_use():
     with pytest.raises(ReconstructionError, match="2 sample"):
         reconstruct_fit(Slice([30, 30], [0, 10], [[0.1], [0.2]], ["value"]))
     with pytest.raises(ReconstructionError, match="unknown lobe kind"):
-        reconstruct_fit(simulate(material({"type": "lambert", "albedo": 0.5})), lobes=["lambert", "phong"])
+        reconstruct_fit(synthetic_slice(material({"type": "lambert", "albedo": 0.5})), lobes=["lambert", "phong"])
 
 
 def test_many_samples_select_on_a_subset_and_refit_on_all():
-    s = simulate(LAMBERT_GGX, incidences=tuple(range(0, 80, 5)))  # 1224 samples x 3 channels
+    s = synthetic_slice(LAMBERT_GGX, incidences_deg=tuple(range(0, 80, 5)))  # 1224 samples x 3 channels
     rep = reconstruct_fit(s).report()
     assert rep["model"] == "lambert+ggx"
     assert "1 in 2 of the 1224 samples" in rep["notes"][0]
@@ -166,8 +149,8 @@ def test_many_samples_select_on_a_subset_and_refit_on_all():
 def test_the_repository_scene_files_load_and_restrict_the_lobes(repo_root):
     files = sorted((repo_root / "configs" / "scenes").glob("*.toml"))
     assert files
-    s = simulate(material({"type": "lambert", "albedo": 0.3}, {"type": "ggx", "alpha": 0.2, "specular": 0.5}),
-                 incidences=(20.0, 50.0), step=4.0)
+    s = synthetic_slice(material({"type": "lambert", "albedo": 0.3}, {"type": "ggx", "alpha": 0.2, "specular": 0.5}),
+                        incidences_deg=(20.0, 50.0), step_deg=4.0)
     for path in files:
         scene = load_scene(path)
         assert scene.source == str(path)
