@@ -20,7 +20,6 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-import serial
 from dynamixel_sdk import (
     COMM_SUCCESS,
     GroupSyncRead,
@@ -30,15 +29,7 @@ from dynamixel_sdk import (
 )
 
 from .config import DXL_MODELS, AxisConfig, MotionConfig
-from .errors import CommError, DeviceError, HardwareError
-
-try:  # a vanished tty makes termios calls (flush) fail with termios.error, which is not an OSError
-    from termios import error as _TermiosError
-except ImportError:  # pragma: no cover - not POSIX
-    class _TermiosError(Exception):  # type: ignore[no-redef]
-        pass
-
-PORT_ERRORS = (serial.SerialException, OSError, _TermiosError)
+from .errors import PORT_ERRORS, CommError, DeviceError, HardwareError
 
 log = logging.getLogger("acquisition.dynamixel")
 

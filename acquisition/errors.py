@@ -2,6 +2,18 @@
 
 from __future__ import annotations
 
+import serial
+
+try:  # a vanished tty makes termios calls (flush) fail with termios.error, which is not an OSError
+    from termios import error as _TermiosError
+except ImportError:  # pragma: no cover - not POSIX
+    class _TermiosError(Exception):  # type: ignore[no-redef]
+        pass
+
+#: What a driver call raises when the port itself fails (a vanished USB adapter or pty): pyserial's errors,
+#: OSError and termios.error. The drivers turn these into :class:`CommError`.
+PORT_ERRORS = (serial.SerialException, OSError, _TermiosError)
+
 
 class AcquisitionError(Exception):
     """Base class of acquisition errors."""

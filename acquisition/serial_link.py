@@ -22,15 +22,7 @@ import serial
 
 from .calibration import Reading
 from .config import AxisConfig
-from .errors import CommError, DeviceError, HardwareError
-
-try:  # a vanished tty makes termios calls (flush) fail with termios.error, which is not an OSError
-    from termios import error as _TermiosError
-except ImportError:  # pragma: no cover - not POSIX
-    class _TermiosError(Exception):  # type: ignore[no-redef]
-        pass
-
-PORT_ERRORS = (serial.SerialException, OSError, _TermiosError)
+from .errors import PORT_ERRORS, CommError, DeviceError, HardwareError
 
 log = logging.getLogger("acquisition.serial")
 
