@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import copy
 import json
 import os
 import select
@@ -17,6 +16,8 @@ from typing import Any
 import pytest
 import tomli_w
 
+from tests import helpers
+
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover
@@ -24,16 +25,6 @@ else:  # pragma: no cover
 
 REPO = Path(__file__).resolve().parents[1]
 SIMULATED_TOML = REPO / "configs" / "simulated.toml"
-
-
-def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
-    out = copy.deepcopy(base)
-    for k, v in over.items():
-        if isinstance(v, dict) and isinstance(out.get(k), dict):
-            out[k] = _merge(out[k], v)
-        else:
-            out[k] = copy.deepcopy(v)
-    return out
 
 
 @pytest.fixture(scope="session")
@@ -50,7 +41,7 @@ def simulated_toml() -> Path:
 @pytest.fixture(scope="session")
 def deep_merge() -> Callable[[dict[str, Any], dict[str, Any]], dict[str, Any]]:
     """``deep_merge(base, over)`` -> a new dict with ``over`` merged into ``base`` table by table."""
-    return _merge
+    return helpers.deep_merge
 
 
 @pytest.fixture(scope="session")
@@ -71,7 +62,7 @@ def config_dict(base_config_dict) -> Callable[..., dict[str, Any]]:
     """``config_dict({"simulator": {"seed": 3}})`` -> the base config deep-merged with the overrides."""
 
     def make(over: dict[str, Any] | None = None) -> dict[str, Any]:
-        return _merge(base_config_dict, over or {})
+        return helpers.deep_merge(base_config_dict, over or {})
 
     return make
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import copy
 import math
 import os
 import subprocess
@@ -17,6 +16,7 @@ import tomli_w
 from reconstruction.geometry import inplane_to_dirs
 from reconstruction.models import Material
 from reconstruction.slicefile import Slice, read_slice
+from tests.helpers import deep_merge
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -35,16 +35,6 @@ FAST: dict[str, Any] = {
 }
 
 
-def merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
-    out = copy.deepcopy(base)
-    for k, v in over.items():
-        if isinstance(v, dict) and isinstance(out.get(k), dict):
-            out[k] = merge(out[k], v)
-        else:
-            out[k] = copy.deepcopy(v)
-    return out
-
-
 def base_raw() -> dict[str, Any]:
     with open(SIMULATED, "rb") as fh:
         return tomllib.load(fh)
@@ -53,9 +43,9 @@ def base_raw() -> dict[str, Any]:
 def make_raw(*overs: dict[str, Any], fast: bool = True) -> dict[str, Any]:
     raw = base_raw()
     if fast:
-        raw = merge(raw, FAST)
+        raw = deep_merge(raw, FAST)
     for o in overs:
-        raw = merge(raw, o)
+        raw = deep_merge(raw, o)
     return raw
 
 

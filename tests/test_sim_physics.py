@@ -9,21 +9,15 @@ import pytest
 
 from simulator.bench import VirtualBench
 from simulator.config import config_from_dict
+from tests.helpers import deep_merge
 
 NOISELESS = {"simulator": {"read_noise": 0.0, "shot_noise": False, "aperture_samples": 1}}
-
-
-def _merge(base: dict, over: dict) -> dict:
-    out = dict(base)
-    for k, v in over.items():
-        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
-    return out
 
 
 def bench_from(config_dict, *overs) -> VirtualBench:
     over = NOISELESS
     for o in overs:
-        over = _merge(over, o)
+        over = deep_merge(over, o)
     return VirtualBench(config_from_dict(config_dict(over)))
 
 
