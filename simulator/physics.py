@@ -15,8 +15,8 @@ when ``|theta_i + theta_o| < blind_spot_half_width_deg``: then S = 0 and the rea
 
 Channels: a photodiode sees one channel, the mean over the material's channels (grey, RGB or spectral). A
 spectrometer evaluates a spectral material on its own grid (linear interpolation, clamped at the ends); an RGB
-material is upsampled by linear interpolation between B = 465 nm, G = 545 nm and R = 610 nm (clamped outside);
-a grey material is flat.
+material (linear sRGB) becomes spectra through the Mallett-Yuksel (2019) sRGB basis of colour-science, which
+converts back to the same RGB under D65; a grey material is flat.
 """
 
 from __future__ import annotations
@@ -33,8 +33,24 @@ from .config import BenchConfig
 
 log = logging.getLogger("simulator.physics")
 
-RGB_CENTRES_NM = np.array([465.0, 545.0, 610.0])
 GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
+
+
+def _interp_matrix(grid: np.ndarray, src: np.ndarray) -> np.ndarray:
+    """(len(grid), len(src)) matrix of linear interpolation from wavelengths ``src`` to ``grid`` (clamped)."""
+    eye = np.eye(src.size)
+    return np.stack([np.interp(grid, src, eye[j]) for j in range(src.size)], axis=1)
+
+
+def _srgb_basis(grid: np.ndarray) -> np.ndarray:
+    """(len(grid), 3): reflectance spectra of linear sRGB R, G, B (Mallett and Yuksel 2019, colour-science).
+
+    A linear-sRGB albedo (r, g, b) becomes the spectrum r B_R + g B_G + b B_B, which converts back to (r, g, b)
+    under D65 with the CIE 1931 observer, and (1, 1, 1) is a flat reflectance of 1.
+    """
+    from colour.recovery import MSDS_BASIS_FUNCTIONS_sRGB_MALLETT2019 as basis
+
+    return _interp_matrix(grid, np.asarray(basis.wavelengths, dtype=float)) @ np.asarray(basis.values, dtype=float)
 
 
 class BRDF(Protocol):
@@ -160,15 +176,12 @@ class BenchPhysics:
         if c == 1:
             return np.broadcast_to(f, f.shape[:-1] + (grid.size,)).copy()
         if wl is not None and np.asarray(wl).size == c:
-            src = np.asarray(wl, dtype=float)
+            m = _interp_matrix(np.asarray(grid, dtype=float), np.asarray(wl, dtype=float))
         elif c == 3:
-            src = RGB_CENTRES_NM
-            f = f[..., ::-1]  # R, G, B -> B, G, R to match increasing wavelength
+            m = _srgb_basis(np.asarray(grid, dtype=float))
         else:
             raise ValueError(f"cannot map {c} material channels to a spectrometer grid")
-        flat = f.reshape(-1, c)
-        out = np.stack([np.interp(grid, src, row) for row in flat])
-        return out.reshape(f.shape[:-1] + (grid.size,))
+        return f @ m.T  # linear in the channels: (..., C) -> (..., n_det)
 
     # -- geometry ----------------------------------------------------------------------------------------------
     def _aperture_dirs(self, theta_o: np.ndarray) -> np.ndarray:

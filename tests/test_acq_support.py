@@ -82,8 +82,11 @@ def ground_truth(raw: dict[str, Any], s: Slice) -> np.ndarray:
         return f.mean(axis=-1, keepdims=True)  # the photodiode reports the mean over the material's channels
     wl = s.wavelengths_nm
     assert wl is not None
-    if f.shape[-1] == 3:  # RGB material on a spectrometer: B, G, R at 465, 545, 610 nm, clamped
-        return np.stack([np.interp(wl, [465.0, 545.0, 610.0], row[::-1]) for row in f])
+    if f.shape[-1] == 3:  # RGB material on a spectrometer: colour-science's Mallett-Yuksel 2019 spectra
+        import colour
+
+        sds = [colour.recovery.RGB_to_sd_Mallett2019(row) for row in f]  # independent of the simulator's code
+        return np.stack([np.interp(wl, sd.wavelengths, sd.values) for sd in sds])
     return np.broadcast_to(f, (len(s), wl.size)) if f.shape[-1] == 1 else f
 
 

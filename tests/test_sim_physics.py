@@ -140,3 +140,18 @@ def test_config_typos_are_errors(config_dict):
         config_from_dict(config_dict({"simulator": {"faults": {"drop_reply_rat": 0.5}}}))
     with pytest.raises(ValueError, match="motion"):
         config_from_dict(config_dict({"bench": {"motion": "hydraulic"}}))
+
+
+def test_spectrometer_sees_an_rgb_material_as_spectra_that_convert_back_to_its_rgb(config_dict):
+    # an RGB albedo becomes reflectance spectra (Mallett-Yuksel 2019 basis) whose sRGB under D65 is that albedo
+    albedo = [0.05, 0.10, 0.40]
+    b = bench_from(config_dict, {"detector": {"type": "spectrometer"},
+                                 "material": {"lobes": [{"type": "lambert", "albedo": albedo}]}})
+    wl = b.physics.detector.wavelengths_nm
+    spectra = b.physics.to_detector_channels(np.array([albedo]), b.physics.material)
+    assert spectra.shape == (1, wl.size) and np.all(spectra > 0)
+    from reconstruction.colour import spectra_to_rgb
+
+    np.testing.assert_allclose(np.ravel(spectra_to_rgb(spectra, wl)), albedo, rtol=0.02, atol=1e-3)
+    white = b.physics.to_detector_channels(np.array([[1.0, 1.0, 1.0]]), b.physics.material)
+    np.testing.assert_allclose(white, 1.0, atol=0.02)  # (1, 1, 1) is a flat reflectance of 1
