@@ -209,3 +209,12 @@ def test_tabulate_refuses_negative_or_missing_cells():
         pipeline.tabulate(Bad(-0.1))
     with pytest.raises(ReconstructionError, match="no finite value"):
         pipeline.tabulate(Bad(np.nan))
+
+
+def test_every_method_passes_the_plausibility_checks(tmp_path):
+    src = slice_file(tmp_path / "slice.csv", BLUE_PLASTIC, incidences=(20.0, 40.0, 60.0))
+    for method in ("fit", "bivariate", "revolve"):
+        rep = cli.run(cli.build_parser().parse_args(
+            [str(src), "--method", method, "--out", str(tmp_path / f"{method}.binary"), "--quiet"]))
+        failed = [k for k in ("non_negative", "albedo", "reciprocity") if not rep["checks"][k]["pass"]]
+        assert failed == [], (method, failed)
