@@ -185,7 +185,7 @@ def test_auto_single_slice_uses_revolve(monkeypatch):
     rec, choice = pipeline.reconstruct(s.take(order), "auto", pipeline.Options(fill="zero", revolve_axis="pca"))
     assert rec.method == "revolve" and "solids-of-revolution" in choice["reason"]
     (got, kw), = calls
-    assert kw == {"axis": "pca", "fill": "zero"}
+    assert kw == {"axis": "pca", "fill": "zero", "reciprocal": True}
     assert np.all(np.diff(got.theta_o_deg) > 0)  # handed over sorted
     t = pipeline.tabulate(rec)
     assert np.allclose(t[:, merl.valid_mask()], 0.1)
