@@ -203,3 +203,27 @@ def test_crc_error_status_in_process(sim_dxl):
     pkt = bytearray(c.instruction_packet(c.BROADCAST_ID, c.INST_PING))
     pkt[-1] ^= 1
     assert bench.process("dynamixel", bytes(pkt)) == b""
+
+
+@pytest.mark.parametrize("faults, expected", [
+    ({"drop_reply_rate": 0.5}, COMM_RX_TIMEOUT),
+    ({"corrupt_byte_rate": 0.05}, None),  # a corrupted reply: COMM_RX_CORRUPT, or a timeout if the header broke
+])
+def test_comm_faults_through_the_pty_then_the_next_transaction_works(config_dict, faults, expected):
+    b = VirtualBench(config_from_dict(config_dict({"simulator": {"faults": faults}})))
+    with PtyServer(b) as server:
+        port = PortHandler(server.paths()["dynamixel"])
+        assert port.openPort()
+        ph = PacketHandler(2.0)
+        results = [ph.read4ByteTxRx(port, 2, 132)[:2] for _ in range(40)]
+        port.closePort()
+    codes = [r for _, r in results]
+    bad = [k for k, r in enumerate(codes) if r != COMM_SUCCESS]
+    assert bad, codes
+    if expected is not None:
+        assert {codes[k] for k in bad} == {expected}
+    else:
+        assert set(codes) <= {COMM_SUCCESS, COMM_RX_CORRUPT, COMM_RX_TIMEOUT} and COMM_RX_CORRUPT in codes
+    # after every failed transaction a later one succeeds, with the right value
+    assert all(any(codes[j] == COMM_SUCCESS for j in range(k + 1, len(codes))) for k in bad[:-1])
+    assert all(v == units(45.0) for v, r in results if r == COMM_SUCCESS)
