@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from acquisition import Bench, Plan
+from acquisition import Bench
 from reconstruction.slicefile import read_slice
 
 
@@ -22,7 +22,8 @@ def main() -> int:
 
     bench = Bench.from_config(config)             # validates the whole file; nothing moves yet
     plan = bench.plan()                           # the config's [plan] ...
-    # ... or any plan built in code: Plan.grid(theta_i, theta_o_min, theta_o_max, step, repeats=...)
+    # ... or any plan built in code (from acquisition import Plan):
+    #     plan = Plan.grid(theta_i, theta_o_min, theta_o_max, step, repeats=...)
     check = bench.check(plan)
     print(check.describe())
     est = plan.estimate(bench.geometry, bench.cfg.detector.integration_time_s)
@@ -43,7 +44,6 @@ def main() -> int:
     k = int(np.argmax(s.values[:, 0]))
     print(f"{len(s)} samples; peak f_r = {s.values[k, 0]:.3f} 1/sr at theta_i = {s.theta_i_deg[k]:g}, "
           f"theta_o = {s.theta_o_deg[k]:g}; simulated capture time {result.bench_time_s:.1f} s")
-    _ = Plan  # see above
     return 0
 
 
