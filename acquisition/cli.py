@@ -115,10 +115,15 @@ def _run(args: argparse.Namespace) -> int:
                 extra = (f"; {len(result.unmeasurable)} plan point(s) not measurable (collision / blind spot), "
                          f"listed in {Path(args.out) / 'capture.log'}")
             clock = "simulated " if result.bench_clock == "controller" else ""
+            ranged = ""
+            if result.auto_ranged:
+                settings = ", ".join(f"{k} s: {v}" for k, v in result.auto_range_settings.items())
+                ranged = (f"\n  auto-ranged {result.auto_ranged} point(s) to shorter integration times ({settings});"
+                          f" {result.auto_range_overhead_s:.2f} s of extra integration in this run")
             print(f"gonio-capture: {result.message}{extra}\n"
                   f"  {clock}capture time {result.bench_time_s:.2f} s (motion {result.motion_s:.2f} s; plan "
                   f"estimate {result.plan_motion_estimate_s:.2f} s vs {result.naive_motion_estimate_s:.2f} s in "
-                  f"naive order), wall {result.wall_s:.2f} s", file=sys.stderr)
+                  f"naive order), wall {result.wall_s:.2f} s{ranged}", file=sys.stderr)
         return 0
     print(f"gonio-capture: {result.message}", file=sys.stderr)
     return result.exit_code or 1

@@ -53,6 +53,8 @@ DXL_BAUDRATES = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 5760
 AXIS_LETTERS = {"light": "L", "detector": "D", "stage": "S"}
 TRANSPORTS = ("dynamixel", "serial", "simulated")
 DXL_POSITION_RANGE = (0, 4095)  # position mode (operating mode 3), one turn
+#: Integration times the detector protocol accepts (``INT <s>``, docs/serial-protocol.md), seconds.
+MIN_INTEGRATION_TIME_S, MAX_INTEGRATION_TIME_S = 1e-5, 10.0
 
 _TOP_SECTIONS = ("bench", "axes", "motion", "detector", "calibration", "plan", "material", "simulator")
 
@@ -252,13 +254,17 @@ class MotionConfig:
 
 @dataclass(frozen=True)
 class DetectorConfig:
-    """``[detector]``: type, integration time per repeat (s), default repeats, saturation (raw counts)."""
+    """``[detector]``: type, integration time per repeat (s), default repeats, saturation (raw counts), dark
+    repeats, and auto-ranging: with ``auto_range`` a saturated reading is taken again at shorter integration
+    times, down to ``min_integration_time_s`` (s), and converted back to ``integration_time_s``."""
 
     type: str
     integration_time_s: float
     repeats: int
     saturation: float
     dark_repeats: int
+    auto_range: bool = True
+    min_integration_time_s: float = 1e-5
 
 
 @dataclass(frozen=True)
@@ -469,12 +475,20 @@ def _read_motion(src: str, raw: Any, motion: str) -> MotionConfig:
 def _read_detector(src: str, raw: Any) -> DetectorConfig:
     t = _Table(src, "detector", raw, {
         "type": _F("str", required=True, choices=("photodiode", "spectrometer")),
-        "integration_time_s": _F("float", required=True, check=_range(1e-5, 10)),
+        "integration_time_s": _F("float", required=True,
+                                 check=_range(MIN_INTEGRATION_TIME_S, MAX_INTEGRATION_TIME_S)),
         "repeats": _F("int", required=True, check=_range(1, 1000)),
         "saturation": _F("float", required=True, check=_pos),
         "dark_repeats": _F("int", default=32, check=_range(1, 1000)),
+        "auto_range": _F("bool", default=True),
+        "min_integration_time_s": _F("float", default=MIN_INTEGRATION_TIME_S,
+                                     check=_range(MIN_INTEGRATION_TIME_S, MAX_INTEGRATION_TIME_S)),
     })
-    return DetectorConfig(t["type"], t["integration_time_s"], t["repeats"], t["saturation"], t["dark_repeats"])
+    if t["min_integration_time_s"] > t["integration_time_s"]:
+        raise t.error("min_integration_time_s", f"{t['min_integration_time_s']:g} s is longer than "
+                                                f"integration_time_s = {t['integration_time_s']:g} s")
+    return DetectorConfig(t["type"], t["integration_time_s"], t["repeats"], t["saturation"], t["dark_repeats"],
+                          t["auto_range"], t["min_integration_time_s"])
 
 
 def read_spectrum_csv(path: Path, where: str) -> tuple[tuple[float, ...], tuple[float, ...]]:

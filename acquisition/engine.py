@@ -4,8 +4,14 @@ The slice file is the checkpoint. Its metadata (written once, when the file is c
 fingerprint, the dark level and the white-reference reading; every sample is appended (and fsynced) the moment
 it is measured. A resume reads the file, checks that the plan is the same, reuses the stored calibration and
 measures only the missing points, so no sample is lost and none is taken twice. ``DIR/capture.json`` is a
-sidecar with the run history (status, times, unmeasurable points, end-of-run dark drift); ``DIR/capture.log``
-the log; ``DIR/simulator.log`` the simulator's log on a simulated bench.
+sidecar with the run history (status, times, unmeasurable points, end-of-run dark drift, auto-ranging);
+``DIR/capture.log`` the log; ``DIR/simulator.log`` the simulator's log on a simulated bench.
+
+With ``[detector].auto_range`` (the default) a saturated reading is taken again at shorter integration times and
+converted back to the configured one (:mod:`acquisition.autorange`); the slice holds the converted values as
+always. The dark level of every other setting is measured once and stored in the sidecar the moment it is
+measured (``auto_range.darks``), as is the setting of every auto-ranged point (``auto_range.points``), so a
+resumed capture converts with the same darks and the record counts every point once.
 
 Ctrl-C and SIGTERM set a flag that the motion wait loops and the point loop check: the engine then parks the
 arms, switches torque off and returns an "interrupted" result (a second signal aborts the parking). A hardware
@@ -31,6 +37,7 @@ import numpy as np
 from reconstruction.atomic import atomic_open
 from reconstruction.slicefile import Slice, SliceError, SliceWriter, read_slice
 
+from .autorange import AutoRanger, Ranged, setting_key
 from .calibration import Calibration, Reading, reference_rho
 from .errors import AcquisitionError, CaptureInterrupted, CommError, DeviceError, HardwareError, PlanError
 from .plan import Plan, Point, order_points, path_time, point_key, refine_points
@@ -81,6 +88,10 @@ class CaptureResult:
     naive_motion_estimate_s: float = 0.0
     dark_drift: list[float] | None = None
     adaptive_rounds: int = 0
+    auto_ranged: int = 0                  # points of the capture (all runs) read at a shorter integration time
+    auto_range_settings: dict[str, int] = field(default_factory=dict)  # integration time (s) -> points
+    auto_range_readings: int = 0          # readings discarded by auto-ranging in this run
+    auto_range_overhead_s: float = 0.0    # their integration time plus new dark readings, this run (s)
 
     @property
     def ok(self) -> bool:
@@ -98,6 +109,12 @@ def _has_rows(path: Path) -> bool:
     complete = lines[:-1]  # the last element is "" or a torn line
     body = [ln for ln in complete if ln and not ln.startswith(b"#")]
     return len(body) >= 2  # column header + one row
+
+
+def _parse_point(key: str) -> Point:
+    """``"30.0,29.5"`` (a key of the sidecar's ``auto_range.points``) -> (30.0, 29.5)."""
+    a, b = key.split(",")
+    return (float(a), float(b))
 
 
 def _atomic_json(path: Path, data: dict[str, Any]) -> None:
@@ -160,6 +177,7 @@ class RunEngine:
         self._t_last: float | None = None
         self._t0 = 0.0
         self._run_started = False
+        self._ranger: AutoRanger | None = None
 
     # -- public ---------------------------------------------------------------------------------------------------
     def run(self) -> CaptureResult:
@@ -240,6 +258,11 @@ class RunEngine:
         if meta.get("detector", {}).get("type") != self.cfg.detector.type:
             raise PlanError(f"cannot resume: {self.slice_path} was captured with a "
                             f"{meta.get('detector', {}).get('type')}, the config has a {self.cfg.detector.type}")
+        t_was = meta.get("detector", {}).get("integration_time_s")
+        t_now = self.cfg.detector.integration_time_s
+        if t_was is not None and not math.isclose(float(t_was), t_now, rel_tol=1e-9):
+            raise PlanError(f"cannot resume: {self.slice_path} was calibrated at [detector].integration_time_s = "
+                            f"{float(t_was):g} s, the config now says {t_now:g} s; restore it or choose another --out")
         return existing
 
     def _attach_log(self) -> logging.Handler:
@@ -295,6 +318,11 @@ class RunEngine:
                     "bench_clock": r.bench_clock, "motion_s": r.motion_s, "settle_s": r.settle_s,
                     "read_s": r.read_s, "wall_s": r.wall_s, "wall_per_sample_s": r.wall_per_sample_s})
         self._sidecar["status"] = r.status
+        ar = self._sidecar.get("auto_range")
+        if ar is not None:
+            run["auto_range"] = {"readings_discarded": r.auto_range_readings, "overhead_s": r.auto_range_overhead_s}
+            ar["overhead_s"] = float(sum(x.get("auto_range", {}).get("overhead_s", 0.0)
+                                         for x in self._sidecar["runs"]))
         if r.dark_drift is not None:
             self._sidecar["dark_drift"] = r.dark_drift
         runs = self._sidecar["runs"]
@@ -324,10 +352,15 @@ class RunEngine:
                 self._t_last = t0
                 self._t0 = t0
                 try:
+                    self._setup_auto_range(existing)
                     cal = self._calibration(existing)
+                    self._prune_ranged_points()
                     self._measure_all(measurable, cal)
                     if self.plan.adaptive is not None:
                         self._adaptive(measurable, cal)
+                    if self._ranger is not None:
+                        self._ranger.restore()
+                        self._log_auto_range()
                     if self.plan.dark_at_end:
                         d_end = self._read_checked(self.cfg.detector.dark_repeats, "dark reading", dark=True)
                         drift = d_end.mean - cal.dark.mean
@@ -369,6 +402,8 @@ class RunEngine:
                 self._pbar.close()
             if self._writer is not None:
                 self._writer.close()
+            if r.status != "complete" and not hardware_fault:
+                self._restore_integration_time()
             try:
                 if bench.is_open:
                     if opened_here or r.status != "complete":
@@ -384,7 +419,8 @@ class RunEngine:
                     bench.close()
 
     def _read_checked(self, n: int, what: str, dark: bool = False) -> Reading:
-        """A reading without saturated repeats (re-read up to ``retries`` times; then a DeviceError)."""
+        """A reading without saturated repeats at the present setting (re-read up to ``retries`` times; then a
+        DeviceError)."""
         det = self.bench.detector
         for attempt in range(self.cfg.motion.retries + 1):
             rd = det.dark(n) if dark else det.read(n)
@@ -392,14 +428,122 @@ class RunEngine:
                 return rd
             log.warning("%s: %d of %d repeats saturated (attempt %d); reading again", what, rd.saturated, n,
                         attempt + 1)
+        hint = "" if dark or self.cfg.detector.auto_range else ", or set [detector].auto_range = true"
         raise DeviceError(f"{what}: the detector saturates ({det.saturation:g} counts); reduce "
-                          "[detector].integration_time_s or the gain")
+                          f"[detector].integration_time_s or the gain{hint}")
+
+    def _read_point(self, n: int, what: str, start: int | None = None) -> tuple[Reading, Ranged | None]:
+        """A reading with the source on, in counts at the configured integration time: auto-ranged when
+        ``[detector].auto_range`` (then also the :class:`Ranged` record), else :meth:`_read_checked`."""
+        if self._ranger is None:
+            return self._read_checked(n, what), None
+        rg = self._ranger.read(n, what, start)
+        self.result.auto_range_readings += rg.readings - 1
+        self.result.auto_range_overhead_s += rg.overhead_s
+        return rg.reading, rg
+
+    # -- auto-ranging record (sidecar "auto_range") ------------------------------------------------------------
+    def _setup_auto_range(self, existing: Slice | None) -> None:
+        """Create the ranger; on a resume, reload the darks per setting and the record of ranged points."""
+        d = self.cfg.detector
+        if not d.auto_range:
+            self._ranger = None
+            return
+        det = self.bench.detector
+        rec = self._sidecar.get("auto_range")
+        same = isinstance(rec, dict) and math.isclose(float(rec.get("reference_integration_time_s", -1.0)),
+                                                      d.integration_time_s, rel_tol=1e-9)
+        if existing is None or not same:
+            if existing is not None:
+                log.info("auto-ranging: no record of earlier runs in %s; darks at other settings are measured "
+                         "again when needed", self.sidecar_path)
+            rec = {"darks": {}, "points": {}}
+        assert isinstance(rec, dict)
+        rec.setdefault("darks", {})
+        rec.setdefault("points", {})
+        ranger = AutoRanger(det, d.integration_time_s, d.min_integration_time_s,
+                            read_dark=lambda: self._read_checked(
+                                d.dark_repeats, f"dark reading at t_int = {det.integration_time_s:g} s", dark=True),
+                            on_dark=self._store_dark)
+        rec.update(enabled=True, reference_integration_time_s=d.integration_time_s,
+                   min_integration_time_s=d.min_integration_time_s, ladder_s=ranger.ladder)
+        for key, m in rec["darks"].items():
+            ranger.darks[key] = Reading.from_meta(m)
+        if rec["darks"]:
+            log.info("auto-ranging: reusing the dark level at %s s from %s", ", ".join(sorted(rec["darks"])),
+                     self.sidecar_path)
+        self._sidecar["auto_range"] = rec
+        self._ranger = ranger
+        self._update_range_counts()
+
+    def _store_dark(self, t: float, rd: Reading) -> None:
+        """Keep a dark at a new setting in the sidecar at once (a resume converts with the same darks)."""
+        self._sidecar["auto_range"]["darks"][setting_key(t)] = {"integration_time_s": t, **rd.to_meta()}
+        _atomic_json(self.sidecar_path, self._sidecar)
+
+    def _update_range_counts(self) -> None:
+        rec = self._sidecar["auto_range"]
+        counts: dict[str, int] = {}
+        for t in rec["points"].values():
+            counts[setting_key(t)] = counts.get(setting_key(t), 0) + 1
+        rec["settings"] = dict(sorted(counts.items(), key=lambda kv: -float(kv[0])))
+        rec["ranged_points"] = len(rec["points"])
+        self.result.auto_ranged = len(rec["points"])
+        self.result.auto_range_settings = dict(rec["settings"])
+
+    def _record_setting(self, ti: float, to: float, rg: Ranged | None) -> None:
+        """Record (before the sample is appended) the integration time of an auto-ranged point; keyed by the
+        point, so a point measured again after a kill is counted once."""
+        if rg is None:
+            return
+        points = self._sidecar["auto_range"]["points"]
+        key = f"{ti!r},{to!r}"
+        if rg.ranged:
+            log.info("point (%g, %g): auto-ranged to t_int = %g s (%d reading(s))", ti, to, rg.integration_time_s,
+                     rg.readings)
+            points[key] = rg.integration_time_s
+        elif key in points:
+            del points[key]
+        else:
+            return
+        self._update_range_counts()
+        _atomic_json(self.sidecar_path, self._sidecar)
+
+    def _prune_ranged_points(self) -> None:
+        """Drop records of ranged points that never reached the slice (killed between record and append)."""
+        if self._ranger is None:
+            return
+        points = self._sidecar["auto_range"]["points"]
+        stale = [k for k in points if point_key(_parse_point(k)) not in self._done]
+        for k in stale:
+            del points[k]
+        self._update_range_counts()
+
+    def _log_auto_range(self) -> None:
+        r = self.result
+        if not r.auto_ranged and not r.auto_range_readings:
+            return
+        settings = ", ".join(f"{k} s: {v}" for k, v in r.auto_range_settings.items())
+        log.info("auto-ranging: %d point(s) of the capture read at shorter integration times (%s); this run "
+                 "discarded %d reading(s) and spent %.3f s of extra integration (dark readings included)",
+                 r.auto_ranged, settings or "none", r.auto_range_readings, r.auto_range_overhead_s)
+
+    def _restore_integration_time(self) -> None:
+        """Best effort after a failure: leave the detector at the configured integration time."""
+        ranger, link = self._ranger, self.bench.link
+        if ranger is None or not self.bench.is_open or link is None or link.dead:
+            return
+        try:
+            ranger.restore()
+        except Exception as e:  # noqa: BLE001 - the bench is being made safe; the next connect sets INT again
+            log.warning("could not restore the integration time: %s", e)
 
     def _calibration(self, existing: Slice | None) -> Calibration:
         bench = self.bench
         c = self.cfg.calibration
         det = bench.detector
         rho = reference_rho(c.reference_reflectance, c.reference_spectrum, det.wavelengths_nm)
+        ranger = self._ranger
         if existing is not None:
             channels = det.channels
             if existing.channels != channels:
@@ -415,12 +559,17 @@ class RunEngine:
                 self._done[point_key((ti, to))] = (float(ti), float(to), float(v), float(s))
             self._writer = SliceWriter(self.slice_path, channels)
             self.result.samples_total = len(self._done)
+            if ranger is not None:
+                ranger.ref_dark = cal.dark
             det.set_sample("TARGET")
             log.info("resuming: %d samples already in %s; calibration reused from its metadata", len(self._done),
                      self.slice_path)
             return cal
         log.info("measuring the dark level (%d repeats, source off)", self.cfg.detector.dark_repeats)
         dark = self._read_checked(self.cfg.detector.dark_repeats, "dark reading", dark=True)
+        if ranger is not None:
+            ranger.ref_dark = dark
+        t_ref_read = self.cfg.detector.integration_time_s
         if c.mode == "relative":
             log.info("measuring the white reference at (%g, %g) (%d repeats)", c.reference_theta_i_deg,
                      c.reference_theta_o_deg, c.reference_repeats)
@@ -428,7 +577,12 @@ class RunEngine:
             try:
                 bench.move(c.reference_theta_i_deg, c.reference_theta_o_deg)
                 bench.settle()
-                ref = self._read_checked(c.reference_repeats, "white reference")
+                ref, rg = self._read_point(c.reference_repeats, "white reference", start=0)
+                if rg is not None:
+                    t_ref_read = rg.integration_time_s
+                    self._sidecar["auto_range"]["white_reference_integration_time_s"] = t_ref_read
+                    if rg.ranged:
+                        log.info("white reference: auto-ranged to t_int = %g s", t_ref_read)
             finally:
                 det.set_sample("TARGET")
             cal = Calibration("relative", dark, ref, rho, c.reference_theta_o_deg)
@@ -452,12 +606,16 @@ class RunEngine:
             "quantity": "brdf",
             "calibration": {**c.to_meta(), **cal.to_meta()},
             "detector": {"type": det.type, "integration_time_s": self.cfg.detector.integration_time_s,
-                         "saturation": det.saturation},
+                         "saturation": det.saturation, "auto_range": self.cfg.detector.auto_range},
             "plan": self.plan.to_meta(),
             "plan_fingerprint": self.plan.fingerprint(),
             "unmeasurable": self.result.unmeasurable,
             "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         }
+        if self.cfg.detector.auto_range:
+            meta["detector"]["min_integration_time_s"] = self.cfg.detector.min_integration_time_s
+            if c.mode == "relative":
+                meta["calibration"]["reference_reading_integration_time_s"] = t_ref_read
         if self.cfg.sample_name:
             meta["material"] = self.cfg.sample_name
         self._writer = SliceWriter(self.slice_path, det.channels, meta)
@@ -502,8 +660,9 @@ class RunEngine:
         bench.move(ti, to)
         t1 = bench.now()
         bench.settle()
-        rd = self._read_checked(n, f"point ({ti:g}, {to:g})")
+        rd, rg = self._read_point(n, f"point ({ti:g}, {to:g})")
         f, fs = cal.brdf(rd, to)
+        self._record_setting(ti, to, rg)
         assert self._writer is not None
         self._writer.append(ti, to, f.tolist(), fs.tolist(), n, time.time())
         t2 = bench.now()

@@ -5,7 +5,7 @@
 drained first, so a late reply cannot be taken for the next one); then a :class:`CommError` names the port and
 the command. ``error:N`` replies raise :class:`ControllerError` (not retried: the controller understood).
 
-:class:`SerialDetector` reads the detector (``READ``/``DARK``/``DETECTOR?``/``SAMPLE``), :class:`SerialAxes`
+:class:`SerialDetector` reads the detector (``READ``/``DARK``/``DETECTOR?``/``INT``/``SAMPLE``), :class:`SerialAxes`
 drives stepper axes (``MOVE``, then polls ``STATUS?`` until idle and in position; alarms stop the capture).
 """
 
@@ -218,6 +218,10 @@ class SerialLink:
 # --- detector ------------------------------------------------------------------------------------------------
 
 
+#: Relative tolerance between the integration time set and the one a reply reports (printed with 6 digits).
+_T_INT_RTOL = 1e-4
+
+
 def _floats(text: str) -> np.ndarray:
     vals = np.array([float(x) for x in text.split(",")], dtype=float)
     if not np.all(np.isfinite(vals)):
@@ -271,6 +275,22 @@ class SerialDetector:
             self.link.command(f"INT {self.integration_time_s:.9g}")
         self.set_sample("TARGET")
 
+    def set_integration_time(self, seconds: float) -> float:
+        """Set the integration time per repeat (``INT``, s) and return the one the detector reports (``INT?``),
+        which later readings are checked against. A detector that rounds the setting is believed."""
+        self.link.command(f"INT {seconds:.9g}")
+
+        def check(r: Reply) -> None:
+            if not float(r.fields["t_int"]) > 0:
+                raise ValueError(f"bad t_int {r.fields['t_int']!r}")
+
+        actual = float(self.link.fields("INT?", check=check)["t_int"])
+        if abs(actual - seconds) > _T_INT_RTOL * seconds:
+            log.warning("%s: integration time %.6g s requested, the detector uses %.6g s", self.link.name, seconds,
+                        actual)
+        self.integration_time_s = actual
+        return actual
+
     def _parse(self, f: dict[str, str], n: int) -> Reading:
         if int(f["n"]) != n:
             raise ValueError(f"n={f['n']} for {n} repeats")
@@ -281,6 +301,10 @@ class SerialDetector:
             raise ValueError("wrong number of channels or sat count")
         if np.any(std < 0):
             raise ValueError("negative std")
+        if "t_int" in f:  # catches a corrupt digit, or a controller that lost its INT setting (power cycle)
+            t_int = float(f["t_int"])
+            if not abs(t_int - self.integration_time_s) <= _T_INT_RTOL * self.integration_time_s:
+                raise ValueError(f"t_int={f['t_int']}, but the integration time is {self.integration_time_s:.6g} s")
         if "values" in f:  # photodiode: the raw repeats must agree with mean and std (catches corrupt digits)
             vals = _floats(f["values"])
             if vals.size != n:
@@ -302,7 +326,7 @@ class SerialDetector:
         return out[-1]
 
     def read(self, n: int) -> Reading:
-        """``n`` repeats with the source on (raw counts per channel)."""
+        """``n`` repeats with the source on (raw counts per channel) at the present integration time."""
         return self._read("READ", n)
 
     def dark(self, n: int) -> Reading:

@@ -29,6 +29,19 @@ def test_shipped_configs_load(name):
     assert {"light", "detector"} <= set(cfg.axes)
 
 
+def test_auto_range_defaults_and_shipped_settings():
+    raw = make_raw()
+    for k in ("auto_range", "min_integration_time_s"):
+        raw["detector"].pop(k, None)
+    d = config_from_dict(raw).detector
+    assert d.auto_range is True and d.min_integration_time_s == 1e-5
+    d = config_from_dict(make_raw({"detector": {"auto_range": False, "min_integration_time_s": 1e-3}})).detector
+    assert d.auto_range is False and d.min_integration_time_s == 1e-3
+    for name in ("simulated.toml", "dynamixel-bench.toml", "serial-bench.toml"):
+        d = load_config(REPO / "configs" / name).detector
+        assert d.auto_range is True and d.min_integration_time_s <= d.integration_time_s
+
+
 def test_simulated_config_roundtrips_through_tomli_w():
     raw = make_raw(fast=False)
     assert tomllib.loads(tomli_w.dumps(raw)) == raw
@@ -66,6 +79,11 @@ def _drop(raw, section, key):
     ({"motion": {"settle_s": True}}, "[motion].settle_s", "expected a number"),
     ({"detector": {"type": "camera"}}, "[detector].type", "expected one of"),
     ({"detector": {"repeats": 0}}, "[detector].repeats", "must lie in"),
+    ({"detector": {"auto_range": "yes"}}, "[detector].auto_range", "expected true or false"),
+    ({"detector": {"min_integration_time_s": 1e-6}}, "[detector].min_integration_time_s", "must lie in [1e-05, 10]"),
+    ({"detector": {"min_integration_time_s": 0.02}}, "[detector].min_integration_time_s",
+     "longer than integration_time_s = 0.01 s"),
+    ({"detector": {"max_integration_time_s": 1.0}}, "[detector].max_integration_time_s", "did you mean"),
     ({"calibration": {"mode": "absolute"}}, "[calibration].source_power", "missing key"),
     ({"calibration": {"reference_reflectance": 1.9}}, "[calibration].reference_reflectance", "(0, 1.5]"),
     ({"calibration": {"reference_theta_o_deg": -2.0}}, "[calibration].reference_theta_o_deg", "collision"),

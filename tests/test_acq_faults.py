@@ -13,9 +13,9 @@ from acquisition import Bench, HardwareError
 from acquisition.cli import main
 
 try:
-    from .test_acq_support import keys, make_raw, read, write_config, zscores
+    from .test_acq_support import integration_times, keys, make_raw, read, write_config, zscores
 except ImportError:  # tests/ is not a package
-    from test_acq_support import keys, make_raw, read, write_config, zscores
+    from test_acq_support import integration_times, keys, make_raw, read, write_config, zscores
 
 
 def planned(cfg) -> list[tuple[float, float]]:
@@ -120,18 +120,27 @@ def test_saturation_faults_are_reread(tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["--config", str(cfg), "--out", str(out), "--no-progress"]) == 0
     s = assert_exact(out, cfg)
-    z, _ = zscores(raw, s)
+    z, _ = zscores(raw, s, integration_times(out, s))  # a transient seen twice ranges the point down
     assert np.all(np.abs(z) < 5.0)
     assert "saturated" in (out / "capture.log").read_text()
 
 
 def test_real_saturation_stops_with_advice(tmp_path, capsys):
-    raw = make_raw({"simulator": {"source_power": 1.0e9}})
+    """Without auto-ranging a saturating detector stops the capture; with it, when even the shortest allowed
+    integration time saturates."""
+    raw = make_raw({"simulator": {"source_power": 1.0e9}, "detector": {"auto_range": False}})
     cfg = write_config(tmp_path / "bright.toml", raw)
     out = tmp_path / "out"
     assert main(["--config", str(cfg), "--out", str(out), "--no-progress"]) == 1
     err = capsys.readouterr().err
     assert "white reference: the detector saturates" in err and "integration_time_s" in err
+    assert "auto_range = true" in err
+    raw = make_raw({"simulator": {"source_power": 1.0e9}, "detector": {"min_integration_time_s": 0.01}})
+    cfg = write_config(tmp_path / "bright2.toml", raw)
+    assert main(["--config", str(cfg), "--out", str(tmp_path / "out2"), "--no-progress"]) == 1
+    err = capsys.readouterr().err
+    assert "white reference: the detector saturates (65535 counts) even at the shortest integration time, " \
+           "[detector].min_integration_time_s = 0.01 s" in err
 
 
 def test_refused_goal_is_a_hardware_error_and_reconnect_reboots(tmp_path, caplog):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import subprocess
@@ -90,9 +91,24 @@ def ground_truth(raw: dict[str, Any], s: Slice) -> np.ndarray:
     return np.broadcast_to(f, (len(s), wl.size)) if f.shape[-1] == 1 else f
 
 
-def zscores(raw: dict[str, Any], s: Slice) -> tuple[np.ndarray, np.ndarray]:
+def integration_times(out: Path, s: Slice) -> np.ndarray:
+    """(N,) integration time (s) each sample of ``out``/slice.csv was read at: the configured one, or the
+    auto-ranged setting recorded in ``out``/capture.json."""
+    sidecar = json.loads((out / "capture.json").read_text(encoding="utf-8"))
+    points = sidecar.get("auto_range", {}).get("points", {})
+    ranged = {(round(float(k.split(",")[0]), 6), round(float(k.split(",")[1]), 6)): float(t)
+              for k, t in points.items()}
+    t_ref = float(s.meta["detector"]["integration_time_s"])
+    return np.array([ranged.get(k, t_ref) for k in keys(s)])
+
+
+def zscores(raw: dict[str, Any], s: Slice, t_int: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(z, relative error) of every value against the ground truth, with the noise the simulator's model
-    predicts (shot + read noise of the repeats, plus the reference/dark uncertainty common to the slice)."""
+    predicts (shot + read noise of the repeats, plus the reference/dark uncertainty common to the slice).
+
+    ``t_int``: (N,) integration time (s) of each sample (see :func:`integration_times`; default: all at
+    ``[detector].integration_time_s``). A sample read at ``t`` was scaled by ``r = t_ref / t``: its shot variance
+    by ``r`` (in reference counts), its read noise and the noise of the dark measured at ``t`` by ``r**2``."""
     truth = ground_truth(raw, s)
     sim = raw["simulator"]
     cal = s.meta["calibration"]
@@ -101,14 +117,18 @@ def zscores(raw: dict[str, Any], s: Slice) -> tuple[np.ndarray, np.ndarray]:
     counts = sim["source_power"] * truth * cos_o * sim["detector_solid_angle_sr"]
     counts = np.where(np.abs(quantised(raw, "light", s.theta_i_deg)[:, None] + to)
                       < raw["bench"]["blind_spot_half_width_deg"], 0.0, counts)
-    var = (counts if sim.get("shot_noise", True) else 0.0) + sim["read_noise"] ** 2 + 1.0 / 12.0
+    t_ref = float(raw["detector"]["integration_time_s"])
+    r = np.ones((len(s), 1)) if t_int is None else (t_ref / np.asarray(t_int, dtype=float))[:, None]
+    read_var = sim["read_noise"] ** 2 + 1.0 / 12.0
+    var = (counts * r if sim.get("shot_noise", True) else 0.0) + read_var * r ** 2
+    dark_var = np.where(r > 1.0, read_var * r ** 2 / raw["detector"].get("dark_repeats", 32), 0.0)
     if cal["mode"] == "relative":
         net = np.asarray(cal["reference_reading"]["mean"]) - np.asarray(cal["dark"]["mean"])
         k = np.asarray(cal["rho_ref"]) / math.pi * math.cos(math.radians(cal["reference_theta_o_deg"])) / (
             net * cos_o)
     else:
         k = 1.0 / (cal["k_counts"] * cos_o)
-    sigma_stat = np.sqrt(var / s.repeats[:, None]) * k
+    sigma_stat = np.sqrt(var / s.repeats[:, None] + dark_var) * k
     common = np.asarray(cal["common_relative_uncertainty"])
     sigma = np.sqrt(sigma_stat ** 2 + (truth * common) ** 2)
     return (s.values - truth) / sigma, (s.values - truth) / np.maximum(np.abs(truth), 1e-12)

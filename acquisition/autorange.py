@@ -1,0 +1,247 @@
+"""Detector auto-ranging: measure a sample's full dynamic range without the operator tuning the exposure.
+
+A glossy sample's specular peak can be 1e4-1e6 times its diffuse floor, more than one detector setting can hold.
+:class:`AutoRanger` reads a point at the configured integration time ``t_ref`` and, when a repeat saturates,
+reads it again at shorter times from a fixed ladder ``t_ref``, ``t_ref / sqrt(10)``, ``t_ref / 10``, ... down to
+``min_integration_time_s`` (sent with the protocol's ``INT``):
+
+- all repeats clipped (the excess is unknown): two rungs down (a factor of 10);
+- some repeats clipped: the same setting once more (a transient does not repeat), then one rung down;
+- no repeat clipped, but the brightest channel's mean plus 3 standard deviations above :data:`HEADROOM` of the
+  saturation: one rung down (readings that only just stay below the clip are biased low, and real detectors are
+  least linear near full scale);
+- a clean reading at a shorter time than ``t_ref``: the longest rung (up to ``t_ref``) at which it is predicted to
+  stay below that same limit is read once more (best signal-to-noise ratio); should that one exceed it, the
+  clean shorter reading is kept.
+
+Readings are therefore kept within the same limit whichever way the ladder was walked.
+
+The setting that worked stays for the next point (neighbours around a peak need it too; a dim point costs one
+short extra reading before going back up), so the ladder is walked once per peak, not once per point.
+
+A reading at time ``t`` is converted to the reference exposure: the signal above the dark level scales with the
+integration time, the dark level itself is measured at ``t`` (once, then cached: a photodiode's dark current
+scales with ``t`` while its offset does not, and neither is assumed), so::
+
+    mean_ref = dark_ref + (mean_t - dark_t) * t_ref / t        std_ref = std_t * t_ref / t
+
+which :class:`~acquisition.calibration.Calibration` then turns into f_r exactly as a reading taken at ``t_ref``.
+A spectrometer saturates per pixel: the rules above look at the brightest pixel. Times in seconds, readings in
+raw counts.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from .calibration import Reading
+from .errors import DeviceError
+
+log = logging.getLogger("acquisition.autorange")
+
+__all__ = ["AutoRanger", "Ranged", "ladder", "setting_key", "HEADROOM", "RUNG_RATIO"]
+
+#: Ratio between neighbouring integration times of the ladder.
+RUNG_RATIO = math.sqrt(10.0)
+#: A kept reading's brightest channel (mean + NEAR_SIGMAS standard deviations of one repeat) stays below this
+#: fraction of the saturation; a longer setting is chosen only if it is predicted to.
+HEADROOM = 0.8
+NEAR_SIGMAS = 3.0
+
+
+class RangedDetector(Protocol):
+    """What auto-ranging needs from a detector driver (:class:`~acquisition.serial_link.SerialDetector`)."""
+
+    integration_time_s: float
+    saturation: float
+
+    def read(self, n: int) -> Reading: ...
+
+    def set_integration_time(self, seconds: float) -> float: ...
+
+
+def ladder(t_ref: float, t_min: float) -> list[float]:
+    """Integration times (s): ``t_ref``, then ``t_ref / sqrt(10)**k`` rounded to 6 significant digits while longer
+    than ``t_min``, and ``t_min`` last (when shorter than ``t_ref``)."""
+    out = [t_ref]
+    k = 1
+    while out[-1] > t_min * (1 + 1e-9):
+        t = float(f"{t_ref / RUNG_RATIO ** k:.6g}")
+        out.append(t if t > t_min * (1 + 1e-9) else t_min)
+        k += 1
+    return out
+
+
+def setting_key(t: float) -> str:
+    """The cache key of an integration time (s): 6 significant digits, as the detector reports it."""
+    return f"{t:.6g}"
+
+
+@dataclass(frozen=True)
+class Ranged:
+    """An auto-ranged reading: ``reading`` converted to the reference exposure (counts at ``t_ref``), ``raw``
+    as read at ``integration_time_s`` (s), ``readings`` taken in all (``readings - 1`` discarded) and
+    ``overhead_s`` = integration time spent on the discarded ones and on new dark readings (s)."""
+
+    reading: Reading
+    raw: Reading
+    integration_time_s: float
+    readings: int
+    overhead_s: float
+
+    @property
+    def ranged(self) -> bool:
+        """True if the reading was taken at a shorter integration time than the reference."""
+        return self.raw is not self.reading
+
+
+class AutoRanger:
+    """Auto-ranging state over one capture: the ladder, the current rung, and the dark level per setting.
+
+    ``detector``: the driver; ``t_ref``: the configured integration time (s), the exposure every reading is
+    converted to; ``t_min``: the shortest time to try (s); ``read_dark()``: a dark reading at the present
+    setting (the engine's, with its retries); ``on_dark(t, reading)``: called when a dark at a new setting was
+    measured (the engine stores it in the run record, so a resumed capture converts with the same darks).
+    """
+
+    def __init__(self, detector: RangedDetector, t_ref: float, t_min: float, read_dark: Callable[[], Reading],
+                 on_dark: Callable[[float, Reading], None] | None = None) -> None:
+        self.det = detector
+        self.t_ref = float(t_ref)
+        self.t_min = float(t_min)
+        self.ladder = ladder(self.t_ref, self.t_min)
+        self.read_dark = read_dark
+        self.on_dark = on_dark
+        self.darks: dict[str, Reading] = {}      # setting_key(actual t) -> dark reading at that setting
+        self.ref_dark: Reading | None = None     # the calibration's dark at t_ref
+        self._actual: dict[int, float] = {0: float(detector.integration_time_s)}
+        self._rung = 0                           # where the next point starts (the last rung that worked)
+        self._current = 0                        # the rung the detector is set to
+
+    # -- settings -------------------------------------------------------------------------------------------------
+    def _set(self, i: int) -> float:
+        """Put the detector on rung ``i``; returns the integration time it reports (s)."""
+        if i != self._current or self.det.integration_time_s != self._actual.get(i):
+            self._actual[i] = self.det.set_integration_time(self.ladder[i])
+            self._current = i
+        return self._actual[i]
+
+    def restore(self) -> None:
+        """Back to the reference integration time (next reading, end-of-run dark, the caller's bench)."""
+        if self._current != 0 or self.det.integration_time_s != self._actual[0]:
+            self._actual[0] = self.det.set_integration_time(self.t_ref)
+            self._current = 0
+        self._rung = 0
+
+    @property
+    def current_integration_time_s(self) -> float:
+        return float(self.det.integration_time_s)
+
+    # -- darks -------------------------------------------------------------------------------------------------
+    def dark_at(self, i: int) -> Reading:
+        """The dark reading at rung ``i`` (measured once, then cached; rung 0 is the calibration's dark)."""
+        if i == 0:
+            assert self.ref_dark is not None, "set ref_dark first"
+            return self.ref_dark
+        t = self._set(i)
+        key = setting_key(t)
+        d = self.darks.get(key)
+        if d is None:
+            d = self.read_dark()
+            self.darks[key] = d
+            log.info("dark level at t_int = %s s: %s counts (%d repeats)", key, np.round(d.mean, 3).tolist()[:8],
+                     d.n)
+            if self.on_dark is not None:
+                self.on_dark(t, d)
+        return d
+
+    # -- reading ----------------------------------------------------------------------------------------------
+    def _state(self, rd: Reading) -> str:
+        """"ok", "near" (brightest channel's mean + NEAR_SIGMAS std above HEADROOM of the clip), "partial" or
+        "full" saturation."""
+        if rd.saturated >= rd.n:
+            return "full"
+        if rd.saturated:
+            return "partial"
+        if np.any(rd.mean + NEAR_SIGMAS * rd.std >= HEADROOM * self.det.saturation):
+            return "near"
+        return "ok"
+
+    def _longest_fitting(self, rd: Reading, i: int, t: float, excluded: set[int]) -> int:
+        """The longest rung j < i (not in ``excluded``) at which ``rd`` (taken on rung i, time t) is predicted to
+        stay below HEADROOM of the saturation; ``i`` if none."""
+        base = self.ref_dark.mean if self.ref_dark is not None else np.zeros_like(rd.mean)
+        net = np.max(np.maximum(rd.mean - base, 0.0) + NEAR_SIGMAS * rd.std)
+        top = HEADROOM * self.det.saturation - float(np.max(base))
+        for j in range(i):
+            if j in excluded:
+                continue
+            if net * self.ladder[j] / t < top:
+                return j
+        return i
+
+    def read(self, n: int, what: str, start: int | None = None) -> Ranged:
+        """``n`` repeats, ranged: see the module docstring. ``start``: the rung to begin on (default: the rung
+        the last point needed). Raises DeviceError if even ``t_min`` saturates."""
+        i = self._rung if start is None else start
+        best: tuple[int, float, Reading] | None = None
+        excluded: set[int] = set()
+        retried: set[int] = set()
+        upranged = False
+        reads = 0
+        spent = 0.0
+        last = len(self.ladder) - 1
+        while True:
+            t = self._set(i)
+            rd = self.det.read(n)
+            reads += 1
+            spent += n * t
+            state = self._state(rd)
+            if state == "ok":
+                if best is None or i < best[0]:
+                    best = (i, t, rd)
+                if i > 0 and not upranged:
+                    j = self._longest_fitting(rd, i, t, excluded)
+                    if j < i:
+                        upranged = True
+                        log.debug("%s: clean at t_int = %g s; trying %g s", what, t, self.ladder[j])
+                        i = j
+                        continue
+                break
+            if best is not None:  # a longer setting, tried after a clean reading, saturates: keep the clean one
+                break
+            if state == "partial" and i not in retried:
+                retried.add(i)
+                log.warning("%s: %d of %d repeats saturated at t_int = %g s; reading again", what, rd.saturated,
+                            n, t)
+                continue
+            excluded.add(i)
+            if i == last:
+                raise DeviceError(
+                    f"{what}: the detector saturates ({self.det.saturation:g} counts) even at the shortest "
+                    f"integration time, [detector].min_integration_time_s = {self.t_min:g} s; reduce the gain or "
+                    "the source power")
+            nxt = min(i + (2 if state == "full" else 1), last)
+            log.info("%s: %s at t_int = %g s (%d of %d repeats clipped); trying %g s", what,
+                     "saturated" if state != "near" else "near saturation", t, rd.saturated, n, self.ladder[nxt])
+            i = nxt
+        i, t, rd = best
+        spent -= n * t
+        if i == 0:
+            self._rung = 0
+            return Ranged(rd, rd, t, reads, spent)
+        n_darks = len(self.darks)
+        dark = self.dark_at(i)
+        if len(self.darks) > n_darks:
+            spent += dark.n * t
+        assert self.ref_dark is not None
+        r = self._actual[0] / t
+        conv = Reading(self.ref_dark.mean + (rd.mean - dark.mean) * r, rd.std * r, rd.n, 0)
+        self._rung = i
+        return Ranged(conv, rd, t, reads, spent)
