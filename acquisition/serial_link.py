@@ -277,14 +277,20 @@ class SerialDetector:
 
     def set_integration_time(self, seconds: float) -> float:
         """Set the integration time per repeat (``INT``, s) and return the one the detector reports (``INT?``),
-        which later readings are checked against. A detector that rounds the setting is believed."""
+        which later readings are checked against. A detector that rounds the setting is believed; one without
+        ``INT?`` is taken at its word."""
         self.link.command(f"INT {seconds:.9g}")
 
         def check(r: Reply) -> None:
             if not float(r.fields["t_int"]) > 0:
                 raise ValueError(f"bad t_int {r.fields['t_int']!r}")
 
-        actual = float(self.link.fields("INT?", check=check)["t_int"])
+        try:
+            actual = float(self.link.fields("INT?", check=check)["t_int"])
+        except ControllerError as e:
+            if e.code != 1:
+                raise
+            actual = seconds
         if abs(actual - seconds) > _T_INT_RTOL * seconds:
             log.warning("%s: integration time %.6g s requested, the detector uses %.6g s", self.link.name, seconds,
                         actual)

@@ -132,3 +132,25 @@ def test_serial_reply_checks_and_retries(pty_path):
     det.has_time = True
     assert det.time() == 1.5 and link.stats["corrupt"] == 2
     link.close()
+
+
+def test_serial_detector_integration_time(pty_path):
+    """INT then INT?: a detector that rounds the setting is believed, later readings are checked against it (a
+    reply with another t_int is retried); a detector without INT? is taken at its word."""
+    path, state = pty_path
+    seen: list[str] = []
+    replies = {
+        "INT": [b"ok\n", b"ok\n"],
+        "INT?": [b"INT t_int=0.0032\nok\n", b"error:1\n"],
+        "READ": [b"READ n=2 sat=0 t_int=0.01 mean=300.000 std=0.000 values=300,300\nok\n",
+                 b"READ n=2 sat=0 t_int=0.0032 mean=300.000 std=0.000 values=300,300\nok\n"],
+    }
+    _scripted_peer(state["master"], replies, seen)
+    link = SerialLink(path, 115200, timeout_s=0.5, retries=2)
+    det = SerialDetector(link, "photodiode", 0.01, 65535)
+    assert det.set_integration_time(0.00316228) == 0.0032 and det.integration_time_s == 0.0032
+    rd = det.read(2)
+    assert rd.mean.tolist() == [300.0] and seen.count("READ 2") == 2 and link.stats["corrupt"] == 1
+    assert det.set_integration_time(0.001) == 0.001
+    assert seen[:2] == ["INT 0.00316228", "INT?"] and "INT 0.001" in seen
+    link.close()
