@@ -284,6 +284,7 @@ def write_plot(path: Path, rows: Sequence[dict[str, Any]], title: str) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib import ticker
 
     ok = _ok(rows)
     mats = sorted({r["material"] for r in ok})
@@ -306,6 +307,9 @@ def write_plot(path: Path, rows: Sequence[dict[str, Any]], title: str) -> None:
             ax.axhline(b, color="grey", lw=0.5, ls=":")
         ax.set_xscale("log")
         ax.set_yscale("log")
+        ax.xaxis.set_major_locator(ticker.LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+        ax.xaxis.set_major_formatter(ticker.FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.xaxis.set_minor_formatter(ticker.NullFormatter())
         ax.set_title(m, fontsize=10)
         ax.set_xlabel("simulated capture time (s)")
         ax.set_ylabel("relative RMSE of f cos cos")
