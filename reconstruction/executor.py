@@ -38,11 +38,18 @@ def make_executor(scheduler: str | None = None, workers: int | None = None) -> I
             client.close()
         return
     n = workers or os.cpu_count() or 1
-    pool: Executor = ThreadPoolExecutor(1) if n == 1 else ProcessPoolExecutor(n)
+    pool: Executor = ThreadPoolExecutor(1) if n == 1 else ProcessPoolExecutor(n, initializer=_one_blas_thread)
     try:
         yield pool
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _one_blas_thread() -> None:
+    """Worker initializer: one BLAS thread per process, so N workers do not oversubscribe the N cores."""
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(1, user_api="blas")
 
 
 def run_all(executor: Executor, fn: Callable[..., T], cases: Iterable[Any],

@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares, nnls
+from threadpoolctl import threadpool_limits
 
 from .base import ReconstructionError
 from .geometry import inplane_to_dirs, sph_to_vec
@@ -507,6 +508,7 @@ def _extensions(best: tuple[LobeSpec, ...], allowed: set[str]) -> list[tuple[Lob
     return out
 
 
+@threadpool_limits.wrap(limits=1, user_api="blas")  # tiny matrices: BLAS threads only cost time
 def reconstruct_fit(
     slices: Slice,
     *,

@@ -161,3 +161,14 @@ def test_the_repository_scene_files_load_and_restrict_the_lobes(repo_root):
             for c in rep["selection"]["candidates"]:
                 assert ("(F)" not in c["model"]) or ("fresnel" in scene.lobes)
                 assert all(part.split("(")[0] in scene.lobes for part in c["model"].split("+"))
+
+
+def test_fit_runs_with_one_blas_thread():
+    # tiny matrices: BLAS threads only cost time (and oversubscribe the cores under a process pool)
+    from threadpoolctl import threadpool_info
+
+    seen = []
+    s = synthetic_slice(Material.from_dict({"name": "l", "lobes": [{"type": "lambert", "albedo": 0.5}]}), [30.0])
+    reconstruct_fit(s, progress=lambda name: seen.extend(i["num_threads"] for i in threadpool_info()
+                                                          if i["user_api"] == "blas"))
+    assert seen and set(seen) == {1}
