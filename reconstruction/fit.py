@@ -635,16 +635,21 @@ def reconstruct_fit(
     material = chosen.material(name=f"fit {chosen.name}")
     model = material.eval(wi, wo)
     resid = (model - f) / full.sigma_of(model)  # every sample, whatever subset the model was fitted to
+    # the summary figures judge the model on the samples it is for (a scene's subset, when it was fitted to one)
+    used = fit_mask if fit_mask is not None else np.ones(len(slices), dtype=bool)
+    ru = resid[used]
     info: dict[str, Any] = {
         "selection": {"criterion": "BIC = robust chi^2 + k ln(n)", "chosen": chosen.name, "reason": why,
                       "candidates": [r.summary() for r in ranked], "skipped": skipped},
         "residuals": {
-            "n_values": int(resid.size),
+            "n_values": int(ru.size),
             "fitted_to_values": chosen.n,
-            "chi2_reduced": round(float(np.sum(resid ** 2)) / max(resid.size - chosen.k, 1), 6),
-            "rms_normalised": round(float(np.sqrt(np.mean(resid ** 2))), 6),
-            "max_abs_normalised": round(float(np.max(np.abs(resid))), 6),
-            "relative_rmse_cos": round(relative_rmse_cos_dirs(model, f, wi, wo), 6),
+            "chi2_reduced": round(float(np.sum(ru ** 2)) / max(ru.size - chosen.k, 1), 6),
+            "rms_normalised": round(float(np.sqrt(np.mean(ru ** 2))), 6),
+            "max_abs_normalised": round(float(np.max(np.abs(ru))), 6),
+            "relative_rmse_cos": round(relative_rmse_cos_dirs(model[used], f[used], wi[used], wo[used]), 6),
+            "relative_rmse_cos_all_samples": round(relative_rmse_cos_dirs(model, f, wi, wo), 6),
+            "samples_used": int(used.sum()),
             "samples": {"theta_i_deg": slices.theta_i_deg.tolist(), "theta_o_deg": slices.theta_o_deg.tolist(),
                         "normalised": np.round(resid, 5).tolist()},
         },

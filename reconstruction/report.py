@@ -124,8 +124,9 @@ def build_report(*, rec: Reconstruction, choice: dict[str, Any], working: Slice,
     """Assemble the JSON report (keys in the module docstring)."""
     details = rec.report()
     params = details.get("parameters", {})
-    residuals = dict(details.get("residuals", {})) if isinstance(details.get("residuals"), dict) else {}
-    residuals.update(sample_residuals(rec, working, table))
+    own = details.get("residuals") if isinstance(details.get("residuals"), dict) else {}
+    # the method's own figures win (a fit to a scene's subset is judged on that subset); the rest is added
+    residuals = {**sample_residuals(rec, working, table), **own}
     rep = {
         "method": rec.method,
         "method_requested": choice.get("requested", rec.method),

@@ -218,3 +218,19 @@ def test_every_method_passes_the_plausibility_checks(tmp_path):
             [str(src), "--method", method, "--out", str(tmp_path / f"{method}.binary"), "--quiet"]))
         failed = [k for k in ("non_negative", "albedo", "reciprocity") if not rep["checks"][k]["pass"]]
         assert failed == [], (method, failed)
+
+
+def test_auto_with_a_scene_judges_the_fit_on_the_scene_samples(tmp_path):
+    # glossy-product uses theta_i 15-45 deg: the 60 deg slice lies outside it; the scene's budget picks a
+    # simpler model fitted to the samples inside, and auto must judge that model on those samples
+    s = synthetic_slice(BLUE_PLASTIC, (20.0, 40.0, 60.0), step_deg=2.0, noise=0.01, seed=3)
+    n = len(s)
+    src = tmp_path / "slice.csv"
+    write_slice(src, Slice(s.theta_i_deg, s.theta_o_deg, s.values, s.channels, 0.01 * np.abs(s.values) + 1e-6,
+                           np.full(n, 4), 1.795e9 + np.arange(n), meta={"material": "test"}))
+    rep = cli.run(cli.build_parser().parse_args(
+        [str(src), "--scene", "configs/scenes/glossy-product.toml", "--out", str(tmp_path / "m.binary"), "--quiet"]))
+    assert rep["method"] == "fit", rep["method_reason"]
+    res = rep["residuals"]
+    assert res["samples_used"] < n  # the model was fitted to the scene's samples only
+    assert res["relative_rmse_cos"] <= 0.03 < res["relative_rmse_cos_all_samples"]
