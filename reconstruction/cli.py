@@ -53,6 +53,16 @@ def _supersample(text: str) -> tuple[int, int, int] | str:
     return (vals[0], vals[1], vals[2])
 
 
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return v
+
+
 def _nonneg_float(text: str) -> float:
     try:
         v = float(text)
@@ -108,7 +118,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--previews", action="store_true", help="batch: also render a preview per material")
     b.add_argument("--scheduler", metavar="ADDRESS",
                    help="batch: run on a dask.distributed cluster at ADDRESS (pip install 'gonio-brdf[dask]')")
-    b.add_argument("--workers", type=int, default=None, metavar="N",
+    b.add_argument("--workers", type=_positive_int, default=None, metavar="N",
                    help="batch: local worker processes (default: CPU count)")
     ap.epilog = ("examples:\n"
                  "  gonio-reconstruct out/demo/slice.csv --out out/demo/material.binary "

@@ -18,12 +18,16 @@ __all__ = ["make_executor", "run_all"]
 
 
 @contextmanager
-def make_executor(scheduler: str | None = None, workers: int | None = None) -> Iterator[Executor]:
+def make_executor(scheduler: str | None = None, workers: int | None = None,
+                  connect_timeout_s: float = 10.0) -> Iterator[Executor]:
     """Yield an executor: ``ProcessPoolExecutor(workers)`` locally, or a Dask client's executor.
 
     ``scheduler``: a dask.distributed scheduler address such as ``tcp://10.0.0.5:8786``; ``workers``: local
     processes (default: the number of CPUs; 1 runs in a thread, which keeps tracebacks simple).
+    Raises RuntimeError (with the address) when the scheduler cannot be reached, or ``workers`` < 1.
     """
+    if workers is not None and workers < 1:
+        raise RuntimeError(f"--workers {workers}: expected a positive number of worker processes")
     if scheduler:
         try:
             from distributed import Client
@@ -31,7 +35,10 @@ def make_executor(scheduler: str | None = None, workers: int | None = None) -> I
             raise RuntimeError(
                 "--scheduler needs dask.distributed: pip install 'gonio-brdf[dask]'"
             ) from None
-        client = Client(scheduler)
+        try:
+            client = Client(scheduler, timeout=connect_timeout_s)
+        except (OSError, TimeoutError, ValueError) as e:
+            raise RuntimeError(f"--scheduler {scheduler}: cannot connect to a dask scheduler there ({e})") from None
         try:
             yield client.get_executor()
         finally:

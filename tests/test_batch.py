@@ -46,3 +46,17 @@ def test_batch_files_names(tmp_path):
     (tmp_path / "c.txt").write_text("")
     assert [n for n, _ in cli.batch_files(tmp_path)] == ["a", "b"]
     assert np.all([p.exists() for _, p in cli.batch_files(tmp_path)])
+
+
+def test_unreachable_scheduler_and_bad_worker_counts_are_clear_errors(tmp_path, capsys):
+    from reconstruction.executor import make_executor
+
+    with pytest.raises(RuntimeError, match=r"--scheduler tcp://127.0.0.1:9: cannot connect"):
+        with make_executor("tcp://127.0.0.1:9", connect_timeout_s=1.0):
+            pass
+    with pytest.raises(RuntimeError, match="--workers 0"):
+        with make_executor(workers=0):
+            pass
+    with pytest.raises(SystemExit) as e:
+        cli.main(["--batch", str(tmp_path), "--workers", "-1"])
+    assert e.value.code == 2 and "positive integer" in capsys.readouterr().err
