@@ -132,11 +132,6 @@ def read_table(path: str | Path, *, quantity: str | None, columns: Mapping[str, 
     """Read a generic in-plane CSV table (see the module docstring) into a :class:`Slice` of ``quantity``."""
     path = Path(path)
     columns = dict(columns or {})
-    if quantity is None:
-        raise InputError(f"{path}: a generic table does not say what its values are; pass --quantity "
-                         f"{'|'.join(QUANTITIES)}")
-    if quantity not in QUANTITIES:
-        raise InputError(f"--quantity: unknown quantity {quantity!r}; expected one of {', '.join(QUANTITIES)}")
     try:
         text = path.read_text(encoding="utf-8-sig")
     except FileNotFoundError:
@@ -145,6 +140,13 @@ def read_table(path: str | Path, *, quantity: str | None, columns: Mapping[str, 
         raise InputError(f"{path}: is a directory, expected a CSV file") from None
     except UnicodeDecodeError as e:
         raise InputError(f"{path}: not a UTF-8 text file ({e.reason} at byte {e.start})") from None
+    if not text.strip():
+        raise InputError(f"{path}: empty file")
+    if quantity is None:
+        raise InputError(f"{path}: a generic table does not say what its values are; pass --quantity "
+                         f"{'|'.join(QUANTITIES)}")
+    if quantity not in QUANTITIES:
+        raise InputError(f"--quantity: unknown quantity {quantity!r}; expected one of {', '.join(QUANTITIES)}")
     lines = text.splitlines()
     h = _find_header(lines, path)
     hline = h + 1
@@ -416,6 +418,8 @@ def load_inputs(paths: Sequence[str | Path], *, quantity: str | None = None,
         quantities.append(s.quantity)
         if len(s) == 0:
             raise InputError(f"{s.source}: no samples")
+        if not np.any(s.values != 0.0):
+            raise InputError(f"{s.source}: every value is zero; nothing was measured")
         width = blind_spot_deg
         if width is None:
             w = s.meta.get("blind_spot_half_width_deg")

@@ -168,3 +168,16 @@ def test_decreasing_blocks_and_tabs_are_accepted(tmp_path):
               "10\t40\t0.3\n10\t20\t0.2\n10\t0\t0.1\n50\t-10\t0.1\n50\t30\t0.4\n")
     s = read_table(p, quantity="brdf")
     np.testing.assert_allclose(s.theta_o_deg, [40, 20, 0, -10, 30])
+
+
+def test_all_zero_and_empty_inputs_say_so(tmp_path):
+    from reconstruction.inputs import InputError, load_inputs
+    from reconstruction.slicefile import Slice, write_slice
+
+    p = tmp_path / "zero.csv"
+    write_slice(p, Slice(np.full(20, 30.0), np.linspace(-80, 80, 20), np.zeros((20, 1)), ["value"]))
+    with pytest.raises(InputError, match="every value is zero; nothing was measured"):
+        load_inputs([p])
+    (tmp_path / "empty.csv").write_text("\n")
+    with pytest.raises(InputError, match="empty.csv: empty file"):
+        load_inputs([tmp_path / "empty.csv"])
