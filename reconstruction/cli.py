@@ -53,6 +53,17 @@ def _supersample(text: str) -> tuple[int, int, int] | str:
     return (vals[0], vals[1], vals[2])
 
 
+def _illuminant(text: str) -> str:
+    if text == "D65":
+        return text  # the default: no need to load colour-science to check it
+    from .colour import illuminant_names
+
+    names = illuminant_names()
+    if text not in names:
+        raise argparse.ArgumentTypeError(f"unknown illuminant {text!r}; e.g. {', '.join(n for n in names[:12])}, ...")
+    return text
+
+
 def _positive_int(text: str) -> int:
     try:
         v = int(text)
@@ -98,7 +109,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--blind-spot-deg", type=_nonneg_float, default=None, metavar="DEG",
                     help="half width of the retro blind spot in |theta_i + theta_o| where all-zero rows are missing "
                          "data (default: the slice file's blind_spot_half_width_deg, else 10)")
-    ap.add_argument("--illuminant", default="D65", help="illuminant for spectral -> RGB (default D65; e.g. D50, A)")
+    ap.add_argument("--illuminant", default="D65", type=_illuminant,
+                    help="illuminant for spectral -> RGB (default D65; e.g. D50, A; any colour-science name)")
     ap.add_argument("--scene", metavar="SCENE.toml",
                     help="scene file (configs/scenes/*.toml): ranges, angular resolution and error budget that "
                          "restrict the fit's candidate models")
@@ -107,7 +119,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--fill", choices=("interpolate", "zero"), default="interpolate",
                     help="holes (blind spot, missing samples): interpolate (default) or leave zero "
                          "(bivariate, revolve; a fitted model covers holes itself)")
-    ap.add_argument("--axis", default="auto", help="revolve: axis of revolution (passed to the revolve method)")
+    ap.add_argument("--axis", default="auto", choices=("auto", "vertical", "pca"),
+                    help="revolve: axis of each sub-curve, vertical through its highest point or its first principal "
+                         "component (auto: chosen per sub-curve)")
     ap.add_argument("--smoothing", type=_nonneg_float, default=None, help="revolve: smoothing (passed through)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar and no summary line")
     b = ap.add_argument_group("batch reconstruction of a folder of slices")

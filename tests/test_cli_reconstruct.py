@@ -234,3 +234,12 @@ def test_auto_with_a_scene_judges_the_fit_on_the_scene_samples(tmp_path):
     res = rep["residuals"]
     assert res["samples_used"] < n  # the model was fitted to the scene's samples only
     assert res["relative_rmse_cos"] <= 0.03 < res["relative_rmse_cos_all_samples"]
+
+
+@pytest.mark.parametrize("flag, value", [("--illuminant", "D99"), ("--axis", "diagonal"), ("--method", "magic")])
+def test_bad_flag_values_are_rejected_before_any_work(tmp_path, capsys, flag, value):
+    src = slice_file(tmp_path / "slice.csv", BLUE_PLASTIC)
+    with pytest.raises(SystemExit) as e:
+        cli.main([str(src), "--out", str(tmp_path / "m.binary"), flag, value])
+    assert e.value.code == 2 and value in capsys.readouterr().err
+    assert not (tmp_path / "m.binary").exists()
