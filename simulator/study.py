@@ -19,6 +19,7 @@ import json
 import logging
 import math
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -146,19 +147,29 @@ def truth_table(material: str) -> Any:
 def run_case(job: tuple[Case, str, str]) -> list[dict[str, Any]]:
     """Capture ``case`` on the simulator and reconstruct it with every method; one result row per method.
 
-    ``job`` = (case, base config path, work directory). Runs in a worker process; never raises for a failed
-    capture or method: the row says what failed.
+    ``job`` = (case, base config TOML text, work directory). Runs in a worker process, possibly on another
+    machine of a Dask cluster: the config travels as text and the rows come back as data; captures go to the
+    work directory where the worker can write it, else to a temporary folder. Never raises for a failed capture
+    or method: the row says what failed.
     """
-    case, base_path, workdir = job
+    case, base_text, workdir = job
+    import tempfile
+
     import tomli_w
 
-    out = Path(workdir) / case.name
-    out.mkdir(parents=True, exist_ok=True)
-    base = tomllib.loads(Path(base_path).read_text(encoding="utf-8"))
+    try:
+        out = Path(workdir) / case.name
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError:  # the client's path does not exist on this worker
+        out = Path(tempfile.mkdtemp(prefix=f"gonio-study-{case.name}-"))
+    base = tomllib.loads(base_text)
     cfg_path = out / "bench.toml"
-    cfg_path.write_text(tomli_w.dumps(case_config(base, case)), encoding="utf-8")
-    row0: dict[str, Any] = {**asdict(case), "status": "ok", "error": ""}
+    cfg_text = tomli_w.dumps(case_config(base, case))
     cap_dir = out / "capture"
+    if cap_dir.exists() and (not cfg_path.exists() or cfg_path.read_text(encoding="utf-8") != cfg_text):
+        shutil.rmtree(cap_dir)  # captured with another config (material, noise, plan): start again
+    cfg_path.write_text(cfg_text, encoding="utf-8")
+    row0: dict[str, Any] = {**asdict(case), "status": "ok", "error": ""}
     t0 = time.perf_counter()
     proc = subprocess.run(
         [sys.executable, "-m", "acquisition.cli", "--config", str(cfg_path), "--out", str(cap_dir),
@@ -347,7 +358,8 @@ def run_study(cases: Sequence[Case], base_config: str | Path, workdir: str | Pat
         bar.update(1)
 
     with make_executor(scheduler, workers) as ex:
-        run_all(ex, run_case, [(c, str(base_config), str(workdir)) for c in cases], on_done=done)
+        base_text = base_config.read_text(encoding="utf-8")
+        run_all(ex, run_case, [(c, base_text, str(workdir)) for c in cases], on_done=done)
     bar.close()
     order = {c.name: i for i, c in enumerate(cases)}
     rows.sort(key=lambda r: (order.get(Case(r["material"], float(r["step_deg"]), int(r["n_slices"]),

@@ -3,6 +3,7 @@
 import csv
 import sys
 
+import numpy as np
 import pytest
 
 from simulator import study
@@ -99,3 +100,22 @@ def test_cli_rejects_unknown_materials_and_missing_config(capsys):
     assert "unknown material" in capsys.readouterr().err
     assert main(["bench", "--config", "nowhere.toml"]) == 2
     assert "no such file" in capsys.readouterr().err
+
+
+def test_a_case_is_recaptured_when_its_config_changed_and_resumed_when_not(tmp_path, monkeypatch, request):
+    request.addfinalizer(study.truth_table.cache_clear)  # no truth of the patched material outlives this test
+    case = Case("diffuse", 5.0, 1, 1, "uniform", "low")
+    base = open("configs/simulated.toml", encoding="utf-8").read()
+    first = study.run_case((case, base, str(tmp_path)))[0]
+    slice_csv = tmp_path / case.name / "capture" / "slice.csv"
+    stamp = slice_csv.stat().st_mtime_ns
+    again = study.run_case((case, base, str(tmp_path)))[0]  # same config: the finished capture is reused
+    assert slice_csv.stat().st_mtime_ns == stamp and again["rel_rmse_cos"] == first["rel_rmse_cos"]
+    monkeypatch.setitem(study.MATERIALS, "diffuse", {"name": "diffuse", "lobes": [{"type": "lambert",
+                                                                                    "albedo": 0.3}]})
+    study.truth_table.cache_clear()  # the cached truth belongs to the old material
+    changed = study.run_case((case, base, str(tmp_path)))[0]  # another material: captured again
+    assert changed["status"] == "ok" and changed["rel_rmse_cos"] < 0.05
+    from reconstruction.slicefile import read_slice
+
+    assert read_slice(slice_csv).values.mean() < 0.7 * 0.6 / np.pi  # the new, darker material's samples
