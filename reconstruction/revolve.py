@@ -512,7 +512,6 @@ class _Incidence:
     hole_after: NDArray[np.bool_]  # (n - 1,) the gap after sample k is missing data
     n_removed: int  # blind-spot rows dropped
     n_clipped: int  # negative values set to 0
-    synthetic: NDArray[np.bool_] | None = None  # (n,) samples bridging a hole (fill="interpolate")
     holes_deg: list[tuple[float, float]] = field(default_factory=list)  # gaps of missing data, degrees
     ranges: list[tuple[int, int]] = field(default_factory=list)
     axes: list[Axis] = field(default_factory=list)
@@ -555,12 +554,11 @@ def _bridge_holes(inc: _Incidence) -> int:
         return 0
     t_all = np.concatenate([to, *new_t])
     f_all = np.concatenate([f, *new_f])
-    syn = np.concatenate([np.zeros(to.size, dtype=bool), np.ones(t_all.size - to.size, dtype=bool)])
     order = np.argsort(t_all, kind="stable")
-    inc.theta_o, inc.f, inc.synthetic = t_all[order], f_all[order], syn[order]
+    inc.theta_o, inc.f = t_all[order], f_all[order]
     inc.lum = inc.f.sum(axis=1)
     inc.hole_after = np.zeros(inc.theta_o.size - 1, dtype=bool)
-    return int(syn.sum())
+    return int(t_all.size - to.size)
 
 
 def _prepare(slices: Slice, sort: bool, blind_spot_deg: float | None, bridge: bool = False
