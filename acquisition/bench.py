@@ -3,7 +3,9 @@
 ``transport = "simulated"`` starts ``gonio-sim serve --config FILE`` as a child process (its own session, so a
 Ctrl-C in the terminal reaches only the capture, which then parks the arms through the still-running simulator;
 ``--exit-with-parent`` so a killed capture leaves no orphan) and opens the pseudo-terminals it prints, exactly
-as hardware ports. Nothing here imports the simulator.
+as hardware ports. A simulator that refuses its config (exit status 2) raises :class:`ConfigError` with its
+message; :func:`check_simulator_config` runs ``gonio-sim check`` to validate the simulator's sections without
+starting anything. Nothing here imports the simulator.
 
 Python API for lab-bench scripts::
 
@@ -27,20 +29,59 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import IO, Any
 
 from .calibration import Reading
 from .config import BenchConfig, load_config
 from .dynamixel import DynamixelAxes
-from .errors import CommError, DeviceError
+from .errors import CommError, ConfigError, DeviceError
 from .plan import Geometry, Plan, PlanCheck, Point, load_scene
 from .serial_link import SerialAxes, SerialDetector, SerialLink
 
 log = logging.getLogger("acquisition.bench")
 
-__all__ = ["Bench", "SimulatorProcess"]
+__all__ = ["Bench", "SimulatorProcess", "check_simulator_config"]
+
+#: The simulator's exit status for a config it refuses (``gonio-sim serve`` / ``gonio-sim check``).
+SIMULATOR_CONFIG_STATUS = 2
+
+
+def _simulator_argv(command: str) -> list[str]:
+    """The argv prefix that runs the simulator ``command`` (``gonio-sim``: the console script next to this
+    Python, or ``python -m simulator.cli``, a child process: acquisition does not import it)."""
+    exe = shutil.which(command, path=str(Path(sys.executable).parent)) or shutil.which(command)
+    if exe is not None:
+        return [exe]
+    if command == "gonio-sim":
+        return [sys.executable, "-m", "simulator.cli"]
+    raise CommError(f"simulated bench: cannot find the simulator command {command!r}")
+
+
+def _refusal(stderr: str, status: int) -> str:
+    """The message of a simulator that exited with ``status``: its last stderr line without the program prefix."""
+    lines = [ln.strip() for ln in stderr.splitlines() if ln.strip()]
+    if not lines:
+        return f"the simulator exited with status {status} and printed nothing"
+    last = lines[-1]
+    return last[len("gonio-sim: "):] if last.startswith("gonio-sim: ") else last
+
+
+def check_simulator_config(config_path: str | Path, command: str = "gonio-sim", timeout_s: float = 60.0) -> None:
+    """Validate the simulator's sections of ``config_path`` as ``gonio-sim serve`` would, by running
+    ``COMMAND check --config FILE`` (no port is opened). Raises :class:`ConfigError` with the simulator's message
+    if it refuses the file, :class:`CommError` if the check cannot be run."""
+    argv = [*_simulator_argv(command), "check", "--config", str(config_path)]
+    try:
+        r = subprocess.run(argv, stdin=subprocess.DEVNULL, capture_output=True, timeout=timeout_s)
+    except (OSError, subprocess.TimeoutExpired) as e:
+        raise CommError(f"simulated bench: cannot run {' '.join(argv)}: {e}") from None
+    err = r.stderr.decode(errors="replace")
+    if r.returncode == SIMULATOR_CONFIG_STATUS:
+        raise ConfigError(_refusal(err, r.returncode))
+    if r.returncode != 0:
+        raise CommError(f"simulated bench: {' '.join(argv)} exited with status {r.returncode}: "
+                        f"{err.strip()[-2000:]}")
 
 
 class SimulatorProcess:
@@ -56,27 +97,23 @@ class SimulatorProcess:
         self.proc: subprocess.Popen[bytes] | None = None
         self.ports: dict[str, str | None] = {}
         self._log_fh: IO[bytes] | None = None
+        self._log_start = 0  # where this child's output begins in the log file (earlier runs' logs precede it)
 
     def _argv(self) -> list[str]:
-        exe = shutil.which(self.command, path=str(Path(sys.executable).parent)) or shutil.which(self.command)
-        if exe is None and self.command == "gonio-sim":
-            base = [sys.executable, "-m", "simulator.cli"]  # a child process: acquisition does not import it
-        elif exe is None:
-            raise CommError(f"simulated bench: cannot find the simulator command {self.command!r}")
-        else:
-            base = [exe]
-        return [*base, "serve", "--config", str(self.config_path), "--exit-with-parent", "--log-level", "info",
-                *self.extra_args]
+        return [*_simulator_argv(self.command), "serve", "--config", str(self.config_path), "--exit-with-parent",
+                "--log-level", "info", *self.extra_args]
 
     def start(self) -> dict[str, str | None]:
-        """Start the child and wait for its port line (raises CommError with its stderr if it fails)."""
+        """Start the child and wait for its port line. Raises :class:`ConfigError` with the simulator's message
+        if it refuses the config (exit status 2), else :class:`CommError` with its stderr if it fails."""
         argv = self._argv()
         if self.log_path is not None:
-            self._log_fh = open(self.log_path, "ab")
-            err: Any = self._log_fh
+            self._log_fh = open(self.log_path, "a+b")  # appended to, and read back for the error message
+            self._log_fh.seek(0, os.SEEK_END)
         else:
             self._log_fh = tempfile.TemporaryFile()
-            err = self._log_fh
+        self._log_start = self._log_fh.tell()
+        err: Any = self._log_fh
         log.info("starting the simulator: %s", " ".join(argv))
         self.proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=err, stdin=subprocess.DEVNULL,
                                      start_new_session=True)
@@ -93,9 +130,12 @@ class SimulatorProcess:
                                 f"{self.timeout_s:g} s")
             ch = os.read(fd, 1)
             if not ch:
-                self.proc.wait()
-                raise CommError(f"simulated bench: the simulator exited with status {self.proc.returncode}: "
-                                f"{self._stderr_tail()}")
+                status = self.proc.wait()
+                tail = self._stderr_tail()
+                if status == SIMULATOR_CONFIG_STATUS:
+                    raise ConfigError(_refusal(tail, status))
+                raise CommError(f"simulated bench: the simulator exited with status {status}: "
+                                f"{tail or '(nothing on stderr)'}")
             line += ch
         try:
             self.ports = json.loads(line)
@@ -106,13 +146,14 @@ class SimulatorProcess:
         return self.ports
 
     def _stderr_tail(self) -> str:
+        """The last 2000 bytes the child wrote to its log (only this child's, not an earlier run's)."""
         if self._log_fh is None:
             return ""
         try:
             self._log_fh.flush()
             self._log_fh.seek(0, os.SEEK_END)
             size = self._log_fh.tell()
-            self._log_fh.seek(max(0, size - 2000))
+            self._log_fh.seek(max(self._log_start, size - 2000))
             return self._log_fh.read().decode(errors="replace").strip()
         except OSError:  # pragma: no cover
             return ""
@@ -329,5 +370,3 @@ def _prompt_swap(which: str) -> None:  # pragma: no cover - interactive
     what = "the white reference" if which == "REF" else "the sample"
     input(f"No sample changer: mount {what} now, then press Enter to continue... ")
 
-
-PromptFn = Callable[[str], None]

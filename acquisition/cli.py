@@ -39,7 +39,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="continue an interrupted capture in --out (measured samples are kept and skipped)")
     p.add_argument("--scene", help="scene file restricting the plan (configs/scenes/*.toml)")
     p.add_argument("--check", action="store_true",
-                   help="validate the config and plan, print the points and time estimate, move nothing")
+                   help="validate the config (on a simulated bench also its [simulator] sections, through "
+                        "`gonio-sim check`) and the plan, print the points and time estimate, move nothing")
     prog = p.add_mutually_exclusive_group()
     prog.add_argument("--progress", dest="progress", action="store_true", default=None,
                       help="always show the progress bar (default: only on a terminal)")
@@ -79,9 +80,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from .bench import Bench
-    from .engine import result_dict
-    from .errors import ConfigError, PlanError
+    from .bench import Bench, check_simulator_config
+    from .engine import out_dir_problem, result_dict
+    from .errors import CommError, ConfigError, PlanError
 
     try:
         bench = Bench.from_config(args.config)
@@ -91,6 +92,15 @@ def _run(args: argparse.Namespace) -> int:
         print(f"gonio-capture: {e}\nnothing was moved.", file=sys.stderr)
         return 2
     if args.check:
+        if bench.cfg.bench.transport == "simulated":  # the [simulator] sections, as `gonio-sim serve` reads them
+            try:
+                check_simulator_config(bench.cfg.path, bench.cfg.bench.simulator_command)
+            except ConfigError as e:
+                print(f"gonio-capture: {e}\nnothing was moved.", file=sys.stderr)
+                return 2
+            except CommError as e:
+                print(f"gonio-capture: {e}", file=sys.stderr)
+                return 1
         est = plan.estimate(bench.geometry, bench.cfg.detector.integration_time_s, chk.measurable)
         print(chk.describe(limit=1000))
         print(f"estimated motion time {est['motion_s']:.2f} s in plan order, {est['naive_motion_s']:.2f} s in "
@@ -98,6 +108,11 @@ def _run(args: argparse.Namespace) -> int:
         return 0
     if not args.out:
         print("gonio-capture: --out DIR is required to capture (or use --check)", file=sys.stderr)
+        return 2
+    try:
+        Path(args.out).mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        print(f"gonio-capture: --out {out_dir_problem(Path(args.out), e)}", file=sys.stderr)
         return 2
     try:
         result = bench.capture(plan, out=Path(args.out), resume=args.resume, progress=args.progress)

@@ -4,7 +4,9 @@ A bench file has the sections ``[bench]``, ``[axes.light]``, ``[axes.detector]``
 ``[axes.stage]``), ``[motion]``, ``[detector]``, ``[calibration]`` and ``[plan]`` (see ``configs/*.toml``, whose
 comments document each key). ``[material]`` (the simulated sample) is validated with
 ``reconstruction.models.Material.from_dict``; ``[simulator]`` and its sub-tables belong to ``gonio-sim``,
-which validates them when it starts. Any other section or key is an error.
+which validates them (``gonio-sim check``, run by ``gonio-capture --check``; ``gonio-sim serve`` refuses a bad
+file with exit status 2 when a capture starts it); here they only have to be tables. Any other section or key is
+an error.
 
 Every error is a :class:`~acquisition.errors.ConfigError` whose message names the file and the key, e.g.
 ``configs/x.toml: [axes.light].max_deg: expected a number, got "high"``. Angles in degrees, times in

@@ -39,7 +39,15 @@ from reconstruction.slicefile import Slice, SliceError, SliceWriter, read_slice
 
 from .autorange import AutoRanger, Ranged, setting_key
 from .calibration import Calibration, Reading, reference_rho
-from .errors import AcquisitionError, CaptureInterrupted, CommError, DeviceError, HardwareError, PlanError
+from .errors import (
+    AcquisitionError,
+    CaptureInterrupted,
+    CommError,
+    ConfigError,
+    DeviceError,
+    HardwareError,
+    PlanError,
+)
 from .plan import Plan, Point, order_points, path_time, point_key, refine_points
 
 log = logging.getLogger("acquisition.engine")
@@ -178,6 +186,7 @@ class RunEngine:
         self._t0 = 0.0
         self._run_started = False
         self._ranger: AutoRanger | None = None
+        self._before_motion = False  # the run stopped before the bench was open: nothing to resume or park
 
     # -- public ---------------------------------------------------------------------------------------------------
     def run(self) -> CaptureResult:
@@ -192,7 +201,8 @@ class RunEngine:
         self.result.plan_motion_estimate_s = est["motion_s"]
         self.result.naive_motion_estimate_s = est["naive_motion_s"]
         existing = self._check_out_dir()
-        self.out.mkdir(parents=True, exist_ok=True)
+        self.result.samples_total = len(existing) if existing is not None else 0  # kept if the run stops early
+        self._make_out_dir()
         handler = self._attach_log()
         try:
             self._log_plan(chk, est)
@@ -218,6 +228,13 @@ class RunEngine:
         return self.result
 
     # -- setup ----------------------------------------------------------------------------------------------------
+    def _make_out_dir(self) -> None:
+        """Create the output directory; a path that is a file or cannot be created is a :class:`PlanError`."""
+        try:
+            self.out.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise PlanError(out_dir_problem(self.out, e)) from None
+
     def _check_out_dir(self) -> Slice | None:
         if self.sidecar_path.exists():
             try:
@@ -390,6 +407,10 @@ class RunEngine:
             except (CommError, DeviceError) as e:
                 r.status, r.exit_code = "failed", EXIT_FAILED
                 r.message = f"bench failure: {e}"
+            except ConfigError as e:  # the simulator refused its sections of the config, when it was started
+                self._before_motion = True
+                r.status, r.exit_code = "failed", EXIT_USAGE
+                r.message = f"{e}\nnothing was moved."
             except PlanError as e:
                 r.status, r.exit_code = "failed", EXIT_USAGE
                 r.message = str(e)
@@ -711,12 +732,26 @@ class RunEngine:
             log.info("%s; bench time %.3f s (%s clock): motion %.3f s, settle %.3f s, detector %.3f s; wall %.3f s",
                      r.message, r.bench_time_s, r.bench_clock, r.motion_s, r.settle_s, r.read_s, r.wall_s)
             return
-        hint = self.resume_hint()
-        r.message = f"{r.message}\n{r.samples_total} sample(s) are safely in {self.slice_path}. {hint}"
+        if not self._before_motion:
+            hint = self.resume_hint()
+            if r.samples_total:
+                kept = f"{r.samples_total} sample(s) are safely in {self.slice_path}."
+            else:
+                kept = "No sample was captured yet."
+            r.message = f"{r.message}\n{kept} {hint}"
         log.error(r.message, extra={"final": True})
 
     def resume_hint(self) -> str:
         return (f"Resume with: gonio-capture --config {self.cfg.path} --out {self.out} --resume")
+
+
+def out_dir_problem(out: Path, err: OSError | None = None) -> str:
+    """Why ``out`` cannot be the output directory: one line naming it (``err``: what creating it raised)."""
+    for p in (out, *out.parents):
+        if p.exists() and not p.is_dir():
+            return f"{out}: is a file, not a directory" if p == out else f"{out}: {p} is a file, not a directory"
+    why = (err.strerror or str(err)) if err is not None else "cannot be created"
+    return f"{out}: cannot create the output directory: {why}"
 
 
 def result_dict(r: CaptureResult) -> dict[str, Any]:

@@ -3,6 +3,10 @@
 ``gonio-sim serve --config configs/simulated.toml`` starts the bench on pseudo-terminals, prints one JSON line
 with the port paths on stdout (``{"dynamixel": "/dev/pts/5", "serial": "/dev/pts/6"}``; ``dynamixel`` is null on
 a stepper bench) and serves until SIGINT/SIGTERM, then exits 0. Logs go to stderr.
+
+``gonio-sim check --config FILE`` validates the file as ``serve`` would (without opening any port): silent with
+exit status 0 when it is fine, else one line naming the file and the key on stderr and exit status 2 (which is
+also ``serve``'s status for a bad config). ``gonio-capture --check`` runs it for simulated benches.
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ EPILOG = """\
 examples:
   gonio-sim serve --config configs/simulated.toml
   gonio-sim serve --config configs/simulated.toml --seed 7 --time-scale 0 --log-level debug
+  gonio-sim check --config configs/simulated.toml
 
 protocols:
   dynamixel port: Dynamixel Protocol 2.0 (X-series control table), open with dynamixel_sdk.PortHandler
@@ -55,6 +60,15 @@ def build_parser() -> argparse.ArgumentParser:
                    help="stderr log level (default: info)")
     s.add_argument("--exit-with-parent", action="store_true",
                    help="exit when the parent process dies (for child processes of a capture)")
+    c = sub.add_parser(
+        "check",
+        help="validate a bench config as serve would, without opening any port",
+        description="Validate the config as `gonio-sim serve` would ([simulator], [simulator.faults], "
+                    "[simulator.spectrometer], the keys it reads from the other sections, the material), without "
+                    "opening any port. Prints nothing and exits 0 when the config is fine; otherwise prints one "
+                    "line naming the file and the key and exits 2.",
+    )
+    c.add_argument("--config", required=True, help="bench config TOML (e.g. configs/simulated.toml)")
     b = sub.add_parser(
         "bench",
         help="run the speed/accuracy study: simulated captures x reconstruction methods",
@@ -112,17 +126,39 @@ def _bench(args: argparse.Namespace) -> int:
     return 1 if failed == len(rows) else 0
 
 
-def _serve(args: argparse.Namespace) -> int:
+def _load_bench(config: str, seed: int | None = None, time_scale: float | None = None,
+                motion: str | None = None):
+    """(config, VirtualBench) for ``config``; raises ValueError with a message naming the file."""
     from .bench import VirtualBench
     from .config import load_config
+
+    try:
+        cfg = load_config(config, seed=seed, time_scale=time_scale)
+        if motion:
+            cfg.motion = motion
+        return cfg, VirtualBench(cfg)
+    except (OSError, ValueError) as e:
+        msg = str(e)
+        if not msg.startswith(str(config)):
+            msg = f"{config}: {msg}"
+        raise ValueError(msg) from None
+
+
+def _check(args: argparse.Namespace) -> int:
+    try:
+        _load_bench(args.config)
+    except ValueError as e:
+        print(f"gonio-sim: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+def _serve(args: argparse.Namespace) -> int:
     from .transports import PtyServer
 
     try:
-        cfg = load_config(args.config, seed=args.seed, time_scale=args.time_scale)
-        if args.motion:
-            cfg.motion = args.motion
-        bench = VirtualBench(cfg)
-    except (OSError, ValueError) as e:
+        cfg, bench = _load_bench(args.config, args.seed, args.time_scale, args.motion)
+    except ValueError as e:
         print(f"gonio-sim: {e}", file=sys.stderr)
         return 2
 
@@ -162,6 +198,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "bench":
         logging.basicConfig(level=logging.WARNING, stream=sys.stderr)
         return _bench(args)
+    if args.command == "check":
+        logging.basicConfig(level=logging.WARNING, stream=sys.stderr)
+        return _check(args)
     logging.basicConfig(level=getattr(logging, args.log_level.upper()), stream=sys.stderr,
                         format="%(asctime)s %(name)s %(levelname)s: %(message)s")
     return _serve(args)

@@ -1,12 +1,15 @@
 """Configuration of the virtual bench, read from the shared TOML file (``configs/simulated.toml``).
 
-Only the sections the simulator needs are interpreted; unknown keys are ignored. Angles in degrees, times in
-seconds. The simulator-only keys live in ``[simulator]``, ``[simulator.faults]`` and ``[simulator.spectrometer]``
-(all optional, defaults below).
+Only the sections the simulator needs are interpreted, and in those only the keys it reads (type-checked; other
+keys are ``gonio-capture``'s). Angles in degrees, times in seconds. The simulator-only keys live in
+``[simulator]``, ``[simulator.faults]`` and ``[simulator.spectrometer]`` (all optional, defaults below), which are
+validated strictly: unknown keys, wrong types and impossible values are errors (:class:`ConfigError`, whose message
+names the file, the table and the key).
 """
 
 from __future__ import annotations
 
+import difflib
 import math
 import sys
 from dataclasses import dataclass, field, fields
@@ -121,14 +124,6 @@ class DetectorConfig:
 
 
 @dataclass
-class MotionConfig:
-    profile_velocity: int = 200
-    profile_acceleration: int = 50
-    tolerance_deg: float = 0.25
-    settle_s: float = 0.05
-
-
-@dataclass
 class BenchConfig:
     """Everything the virtual bench needs, plus the raw TOML dict (``raw``) and its directory (``base_dir``)."""
 
@@ -137,7 +132,6 @@ class BenchConfig:
     min_separation_deg: float = 6.0
     blind_spot_half_width_deg: float = 4.0
     axes: dict[str, AxisConfig] = field(default_factory=dict)
-    motion_cfg: MotionConfig = field(default_factory=MotionConfig)
     detector: DetectorConfig = field(default_factory=DetectorConfig)
     sim: SimulatorConfig = field(default_factory=SimulatorConfig)
     material: dict[str, Any] = field(default_factory=dict)
@@ -147,83 +141,188 @@ class BenchConfig:
     base_dir: Path = field(default_factory=Path.cwd)
 
 
-def _fill(cls, d: dict[str, Any] | None, **extra):
-    d = dict(d or {})
-    names = {f.name for f in fields(cls)}
-    kwargs = {k: v for k, v in d.items() if k in names and not isinstance(v, dict)}
+class ConfigError(ValueError):
+    """An invalid simulator config; the message names the file, the table and the key."""
+
+
+def _describe(v: Any) -> str:
+    if isinstance(v, str):
+        return f'"{v}"'
+    if isinstance(v, dict):
+        return "a table"
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    return repr(v)
+
+
+def _convert(kind: str, v: Any) -> tuple[Any, str | None]:
+    """A TOML value as ``kind`` (a dataclass field's annotation: float, int, bool, str, int | str); returns
+    (value, error text)."""
+    is_int = isinstance(v, int) and not isinstance(v, bool)
+    if kind == "float":
+        if not (is_int or isinstance(v, float)):
+            return None, f"expected a number, got {_describe(v)}"
+        if not math.isfinite(float(v)):
+            return None, f"expected a finite number, got {_describe(v)}"
+        return float(v), None
+    if kind == "int":
+        if is_int:
+            return v, None
+        if isinstance(v, float) and v.is_integer():
+            return int(v), None
+        return None, f"expected an integer, got {_describe(v)}"
+    if kind == "bool":
+        return (v, None) if isinstance(v, bool) else (None, f"expected true or false, got {_describe(v)}")
+    if kind == "str":
+        return (v, None) if isinstance(v, str) else (None, f"expected a string, got {_describe(v)}")
+    if kind == "int | str":
+        if is_int or isinstance(v, str):
+            return v, None
+        return None, f"expected an integer ID or an axis letter, got {_describe(v)}"
+    raise AssertionError(kind)  # pragma: no cover - a field type without a reader
+
+
+#: Range checks of the simulator's own keys: field name -> (test, what it must be).
+_CHECKS: dict[str, tuple[Any, str]] = {
+    **{k: (lambda v: 0.0 <= v <= 1.0, "must lie in [0, 1]")
+       for k in ("drop_reply_rate", "corrupt_byte_rate", "overload_rate", "stall_rate", "saturate_rate")},
+    **{k: (lambda v: v >= 0, "must be >= 0")
+       for k in ("time_scale", "source_power", "detector_solid_angle_sr", "dark_offset", "read_noise",
+                 "backlash_deg", "settle_time_s", "settle_ringing_deg", "port_vanish_after_s",
+                 "stall_overload_s")},
+    **{k: (lambda v: v > 0, "must be > 0")
+       for k in ("gain", "stepper_velocity_deg_s", "stepper_acceleration_deg_s2", "wl_step_nm")},
+    "aperture_samples": (lambda v: v >= 1, "must be >= 1"),
+    "adc_bits": (lambda v: 1 <= v <= 32, "must lie in [1, 32]"),
+    "vanish_ports": (lambda v: v in ("all", "dynamixel", "serial"), 'must be "all", "dynamixel" or "serial"'),
+}
+
+
+def _table(src: str, section: str, d: Any) -> dict[str, Any]:
+    if d is None:
+        return {}
+    if not isinstance(d, dict):
+        raise ConfigError(f"{src}: [{section}]: expected a table, got {_describe(d)}")
+    return d
+
+
+def _get(src: str, section: str, d: dict[str, Any], key: str, kind: str, default: Any) -> Any:
+    """``d[key]`` converted to ``kind`` (``default`` when absent)."""
+    if key not in d:
+        return default
+    v, err = _convert(kind, d[key])
+    if err is not None:
+        raise ConfigError(f"{src}: [{section}].{key}: {err}")
+    return v
+
+
+def _fill(cls, d: dict[str, Any], src: str, section: str, checks: bool = False, **extra):
+    """``cls`` from the table ``d``: every known key type-checked (and range-checked with ``checks``); unknown
+    keys are left alone (see :func:`_check_keys`), ``extra`` sets fields directly."""
+    kwargs: dict[str, Any] = {}
+    for f in fields(cls):
+        if f.name in extra or f.name not in d:
+            continue
+        v, err = _convert(str(f.type), d[f.name])
+        if err is None and checks and f.name in _CHECKS:
+            ok, what = _CHECKS[f.name]
+            if not ok(v):
+                err = f"{what}, got {_describe(v)}"
+        if err is not None:
+            raise ConfigError(f"{src}: [{section}].{f.name}: {err}")
+        kwargs[f.name] = v
     kwargs.update(extra)
     return cls(**kwargs)
 
 
-def _check_keys(section: str, d: dict[str, Any] | None, cls, tables: tuple[str, ...] = ()) -> None:
-    known = {f.name for f in fields(cls)} | set(tables)
-    unknown = sorted(set(d or {}) - known)
+def _check_keys(src: str, section: str, d: dict[str, Any], cls, tables: tuple[str, ...] = ()) -> None:
+    known = [f.name for f in fields(cls)] + list(tables)
+    unknown = [k for k in d if k not in known]
     if unknown:
-        raise ValueError(f"config: unknown key(s) {unknown} in [{section}]; known: {sorted(known)}")
+        near = difflib.get_close_matches(unknown[0], known, n=1)
+        hint = f"; did you mean {near[0]!r}?" if near else f"; allowed keys: {', '.join(known)}"
+        raise ConfigError(f"{src}: [{section}].{unknown[0]}: unknown key{hint}")
 
 
-def config_from_dict(raw: dict[str, Any], base_dir: Path | None = None) -> BenchConfig:
-    """Build a :class:`BenchConfig` from a parsed TOML dict (as from ``tomllib.load``).
+def config_from_dict(raw: dict[str, Any], base_dir: Path | None = None, source: str = "config") -> BenchConfig:
+    """Build a :class:`BenchConfig` from a parsed TOML dict (as from ``tomllib.load``); ``source`` names the file
+    in error messages.
 
-    Unknown keys in the simulator's own tables (``[simulator]``, ``[simulator.faults]``,
-    ``[simulator.spectrometer]``) are errors (typos would silently disable a fault); other sections belong to
-    the whole project and are read leniently.
+    The simulator's own tables (``[simulator]``, ``[simulator.faults]``, ``[simulator.spectrometer]``) are read
+    strictly: unknown keys (typos would silently disable a fault), wrong types and impossible values are errors.
+    Other sections belong to the whole project (``gonio-capture`` validates them): their unknown keys are
+    ignored, the keys the simulator reads are type-checked. Errors are :class:`ConfigError` (a ValueError)
+    naming ``source``, the table and the key.
     """
-    bench = raw.get("bench", {})
+    src = source
+    bench = _table(src, "bench", raw.get("bench"))
     axes = {}
-    for name, a in raw.get("axes", {}).items():
+    for name, a in _table(src, "axes", raw.get("axes")).items():
         if not isinstance(a, dict):
             continue
-        axes[name] = _fill(AxisConfig, a, name=name, id=a.get("id", AXIS_LETTERS.get(name, name)))
+        ax_id = _get(src, f"axes.{name}", a, "id", "int | str", AXIS_LETTERS.get(name, name))
+        axes[name] = _fill(AxisConfig, a, src, f"axes.{name}", name=name, id=ax_id)
     for req in ("light", "detector"):
         if req not in axes:
-            raise ValueError(f"config: [axes.{req}] is required")
-    s = raw.get("simulator", {})
-    _check_keys("simulator", s, SimulatorConfig, ("faults", "spectrometer"))
-    _check_keys("simulator.faults", s.get("faults"), FaultConfig)
-    _check_keys("simulator.spectrometer", s.get("spectrometer"), SpectrometerConfig)
+            raise ConfigError(f"{src}: [axes.{req}]: missing table (required)")
+    s = _table(src, "simulator", raw.get("simulator"))
+    faults = _table(src, "simulator.faults", s.get("faults"))
+    spectrometer = _table(src, "simulator.spectrometer", s.get("spectrometer"))
+    _check_keys(src, "simulator", s, SimulatorConfig, ("faults", "spectrometer"))
+    _check_keys(src, "simulator.faults", faults, FaultConfig)
+    _check_keys(src, "simulator.spectrometer", spectrometer, SpectrometerConfig)
     sim = _fill(
-        SimulatorConfig,
-        s,
-        faults=_fill(FaultConfig, s.get("faults")),
-        spectrometer=_fill(SpectrometerConfig, s.get("spectrometer")),
+        SimulatorConfig, s, src, "simulator", checks=True,
+        faults=_fill(FaultConfig, faults, src, "simulator.faults", checks=True),
+        spectrometer=_fill(SpectrometerConfig, spectrometer, src, "simulator.spectrometer", checks=True),
     )
-    cal = raw.get("calibration", {})
+    if sim.spectrometer.wl_max_nm < sim.spectrometer.wl_min_nm:
+        raise ConfigError(f"{src}: [simulator.spectrometer].wl_max_nm: {sim.spectrometer.wl_max_nm:g} is less than "
+                          f"wl_min_nm {sim.spectrometer.wl_min_nm:g}")
+    cal = _table(src, "calibration", raw.get("calibration"))
     ref = cal.get("reference_reflectance", 0.99)
     cfg = BenchConfig(
-        name=bench.get("name", "simulated bench"),
-        motion=bench.get("motion", "dynamixel"),
-        min_separation_deg=float(bench.get("min_separation_deg", 6.0)),
-        blind_spot_half_width_deg=float(bench.get("blind_spot_half_width_deg", 4.0)),
+        name=_get(src, "bench", bench, "name", "str", "simulated bench"),
+        motion=_get(src, "bench", bench, "motion", "str", "dynamixel"),
+        min_separation_deg=_get(src, "bench", bench, "min_separation_deg", "float", 6.0),
+        blind_spot_half_width_deg=_get(src, "bench", bench, "blind_spot_half_width_deg", "float", 4.0),
         axes=axes,
-        motion_cfg=_fill(MotionConfig, raw.get("motion")),
-        detector=_fill(DetectorConfig, raw.get("detector")),
+        detector=_fill(DetectorConfig, _table(src, "detector", raw.get("detector")), src, "detector"),
         sim=sim,
-        material=dict(raw.get("material", {})),
+        material=dict(_table(src, "material", raw.get("material"))),
         reference_reflectance=float(ref) if isinstance(ref, (int, float)) else 0.99,
         reference_spectrum=cal.get("reference_spectrum"),
         raw=raw,
         base_dir=Path(base_dir) if base_dir is not None else Path.cwd(),
     )
     if cfg.motion not in ("dynamixel", "serial"):
-        raise ValueError(f"config: [bench].motion must be 'dynamixel' or 'serial', not {cfg.motion!r}")
+        raise ConfigError(f"{src}: [bench].motion: must be \"dynamixel\" or \"serial\", got {_describe(cfg.motion)}")
     if cfg.detector.type not in ("photodiode", "spectrometer"):
-        raise ValueError(f"config: [detector].type must be 'photodiode' or 'spectrometer', not {cfg.detector.type!r}")
-    if cfg.sim.faults.vanish_ports not in ("all", "dynamixel", "serial"):
-        raise ValueError("config: [simulator.faults].vanish_ports must be 'all', 'dynamixel' or 'serial'")
-    if cfg.sim.time_scale < 0:
-        raise ValueError("config: [simulator].time_scale must be >= 0")
+        raise ConfigError(f"{src}: [detector].type: must be \"photodiode\" or \"spectrometer\", got "
+                          f"{_describe(cfg.detector.type)}")
     return cfg
 
 
 def load_config(path: str | Path, **overrides: Any) -> BenchConfig:
-    """Load the TOML file at ``path``. ``overrides`` set ``[simulator]`` keys (e.g. ``seed=3, time_scale=0``)."""
+    """Load the TOML file at ``path``. ``overrides`` set ``[simulator]`` keys (e.g. ``seed=3, time_scale=0``).
+
+    Raises :class:`ConfigError` (a ValueError) naming the file for a missing, unreadable or malformed file."""
     path = Path(path)
-    with open(path, "rb") as fh:
-        raw = tomllib.load(fh)
+    try:
+        with open(path, "rb") as fh:
+            raw = tomllib.load(fh)
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: is a directory, expected a TOML bench file") from None
+    except OSError as e:
+        raise ConfigError(f"{path}: cannot read: {e.strerror or e}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(f"{path}: invalid TOML: {e}") from None
     if overrides:
-        raw.setdefault("simulator", {})
-        for k, v in overrides.items():
-            if v is not None:
-                raw["simulator"][k] = v
-    return config_from_dict(raw, base_dir=path.resolve().parent)
+        sim = raw.setdefault("simulator", {})
+        if isinstance(sim, dict):
+            for k, v in overrides.items():
+                if v is not None:
+                    sim[k] = v
+    return config_from_dict(raw, base_dir=path.resolve().parent, source=str(path))

@@ -176,3 +176,91 @@ def test_cli_check_lists_unmeasurable_points(tmp_path, capsys):
     assert main(["--config", str(REPO / "configs" / "simulated.toml"), "--check"]) == 0
     out = capsys.readouterr().out
     assert "not measurable" in out and "(40, -40): collision" in out and "naive order" in out
+
+
+@pytest.mark.parametrize("over, where, what", [
+    ({"simulator": {"settle_time_s": "abc"}}, "[simulator].settle_time_s", 'expected a number, got "abc"'),
+    ({"simulator": {"settle_tme_s": 0.1}}, "[simulator].settle_tme_s", "unknown key; did you mean 'settle_time_s'"),
+    ({"simulator": {"faults": {"drop_reply_rate": 2.0}}}, "[simulator.faults].drop_reply_rate", "must lie in [0, 1]"),
+])
+def test_cli_bad_simulator_section_exits_2_with_the_simulators_message(tmp_path, capsys, over, where, what):
+    """gonio-capture validates [simulator*] through `gonio-sim check` (--check) or the simulator's exit status 2
+    (capture): exit 2, the message names file and key, no resume hint."""
+    cfg = write_config(tmp_path / "bad.toml", make_raw(over))
+    assert main(["--config", str(cfg), "--check"]) == 2
+    err = capsys.readouterr().err
+    assert f"gonio-capture: {cfg}: {where}: {what}" in err and "nothing was moved" in err, err
+    out = tmp_path / "out"
+    assert main(["--config", str(cfg), "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert f"gonio-capture: {cfg}: {where}: {what}" in err and "nothing was moved" in err, err
+    assert "Resume with" not in err and "bench failure" not in err and "exited with status" not in err, err
+    assert not (out / "slice.csv").exists()
+    assert f"{where}: {what}" in (out / "capture.log").read_text()
+
+
+def test_cli_check_runs_the_simulator_check_only_for_simulated_benches(tmp_path, capsys):
+    assert main(["--config", str(REPO / "configs" / "simulated.toml"), "--check"]) == 0
+    raw = tomllib.loads((REPO / "configs" / "dynamixel-bench.toml").read_text())
+    raw["simulator"] = {"settle_time_s": "abc"}  # not read on a hardware bench: gonio-sim is not involved
+    cfg = write_config(tmp_path / "hw.toml", raw)
+    assert main(["--config", str(cfg), "--check"]) == 0, capsys.readouterr().err
+
+
+@pytest.mark.parametrize("rel", ["afile", "afile/sub"])
+def test_cli_out_that_is_a_file_exits_2_with_one_line(tmp_path, capsys, rel):
+    (tmp_path / "afile").write_text("x")
+    out = tmp_path / rel
+    cfg = write_config(tmp_path / "c.toml", make_raw())
+    assert main(["--config", str(cfg), "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"gonio-capture: --out {out}: ") and "is a file" in err, err
+    assert "Traceback" not in err
+
+
+def test_out_dir_that_cannot_be_created_is_a_plan_error(tmp_path):
+    """Through the Python API the engine refuses the directory before anything is opened."""
+    from acquisition import Bench, PlanError
+
+    (tmp_path / "afile").write_text("x")
+    bench = Bench.from_config(write_config(tmp_path / "c.toml", make_raw()))
+    with pytest.raises(PlanError, match=r"afile: is a file, not a directory"):
+        bench.capture(out=tmp_path / "afile", progress=False)
+    assert not bench.is_open
+
+
+def test_commented_adaptive_example_is_valid_when_uncommented():
+    """configs/simulated.toml shows [plan.adaptive] commented out; uncommenting it must give a valid config."""
+    lines = (REPO / "configs" / "simulated.toml").read_text().splitlines()
+    k = next(i for i, ln in enumerate(lines) if ln.startswith("# [plan.adaptive]"))
+    lines[k] = lines[k][2:]
+    k += 1
+    while lines[k].startswith("# ") and " = " in lines[k]:
+        lines[k] = lines[k][2:]
+        k += 1
+    cfg = config_from_dict(tomllib.loads("\n".join(lines)), REPO / "configs" / "simulated.toml")
+    a = cfg.plan.adaptive
+    assert a is not None and a.coarse_step_deg == 8.0 and a.min_step_deg == 1.0 and a.tolerance == 0.05
+
+
+def test_simulator_that_fails_to_start_reports_its_stderr_from_the_log(tmp_path):
+    """The child's stderr goes to the log file (appended to); a start failure quotes this child's part of it."""
+    from acquisition import CommError, SimulatorProcess
+
+    fake = tmp_path / "fake-sim"
+    fake.write_text("#!/bin/sh\necho 'fake-sim: the bench is on fire' >&2\nexit 1\n")
+    fake.chmod(0o755)
+    log = tmp_path / "simulator.log"
+    log.write_text("an earlier run's log\n")
+    sp = SimulatorProcess(REPO / "configs" / "simulated.toml", command=str(fake), log_path=log)
+    with pytest.raises(CommError) as ei:
+        sp.start()
+    msg = str(ei.value)
+    assert "exited with status 1: fake-sim: the bench is on fire" in msg and "earlier run" not in msg, msg
+    sp.stop()
+    assert log.read_text() == "an earlier run's log\nfake-sim: the bench is on fire\n"
+    fake.write_text("#!/bin/sh\necho 'gonio-sim: x.toml: [simulator].seed: expected an integer' >&2\nexit 2\n")
+    sp = SimulatorProcess(REPO / "configs" / "simulated.toml", command=str(fake), log_path=log)
+    with pytest.raises(ConfigError, match=r"^x\.toml: \[simulator\]\.seed: expected an integer$"):
+        sp.start()
+    sp.stop()
