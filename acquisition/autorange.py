@@ -139,10 +139,6 @@ class AutoRanger:
             self._current = 0
         self._rung = 0
 
-    @property
-    def current_integration_time_s(self) -> float:
-        return float(self.det.integration_time_s)
-
     # -- darks -------------------------------------------------------------------------------------------------
     def dark_at(self, i: int) -> Reading:
         """The dark reading at rung ``i`` (measured once, then cached; rung 0 is the calibration's dark)."""

@@ -398,8 +398,6 @@ def _read_bench(src: str, raw: Any) -> BenchSection:
             raise t.error("serial_port", "missing: the serial controller (detector"
                                          + (" and stepper axes" if transport == "serial" else "")
                                          + ') needs a port, e.g. "/dev/ttyACM0"')
-    if t["min_separation_deg"] < t["blind_spot_half_width_deg"]:
-        pass  # allowed: the blind spot is then the wider exclusion
     return BenchSection(t["name"], transport, motion, t["dynamixel_port"], t["dynamixel_baudrate"],
                         t["serial_port"], t["serial_baudrate"], t["serial_timeout_s"], t["min_separation_deg"],
                         t["blind_spot_half_width_deg"], t["simulator_command"])

@@ -16,9 +16,6 @@ from .serial_controller import SerialController, StepperAxis
 
 log = logging.getLogger("simulator.bench")
 
-PORT_NAMES = ("dynamixel", "serial")
-
-
 class VirtualBench:
     """Everything behind the two ports. Thread-safe: :meth:`process` serialises access with one lock.
 

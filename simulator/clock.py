@@ -36,12 +36,6 @@ class SimClock:
             return self._offset
         return self._offset + self.time_scale * (time.monotonic() - self._wall0)
 
-    def advance_to(self, t: float) -> None:
-        """Make simulated time at least ``t``: jump (fast mode) or sleep until then (scaled mode)."""
-        dt = t - self.now()
-        if dt > 0:
-            self.advance(dt)
-
     def advance(self, dt: float) -> None:
         """Let ``dt`` simulated seconds pass (jump in fast mode, sleep ``dt / time_scale`` otherwise)."""
         if dt <= 0:

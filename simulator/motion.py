@@ -196,10 +196,3 @@ class AxisMotion:
         self.profile = TrapezoidProfile(x, x, t)
         self.stall_time = None
         self.frozen_at = None
-
-    def set_position(self, x: float, t: float) -> None:
-        """Teleport motor and arm to ``x`` (power-up, homing reference)."""
-        self.profile = TrapezoidProfile(x, x, t)
-        self._arm0 = float(x)
-        self.stall_time = None
-        self.frozen_at = None

@@ -68,10 +68,6 @@ class PtyPort:
         self._thread.start()
         return self
 
-    @property
-    def alive(self) -> bool:
-        return self._thread.is_alive()
-
     def _write_all(self, data: bytes) -> None:
         view = memoryview(data)
         deadline = time.monotonic() + 1.0
