@@ -16,7 +16,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import time
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -171,15 +170,21 @@ def _nearest_neighbour(pts: np.ndarray, geom: Geometry, start: Point) -> list[in
     return order
 
 
-def _two_opt(seq: np.ndarray, geom: Geometry, budget_s: float) -> np.ndarray:
-    """2-opt on a path with fixed first and last nodes (``seq`` (N, 2)); stops when no gain or out of time."""
-    t0 = time.perf_counter()
+#: Work budget of the 2-opt improvement in :func:`order_points`: candidate segment reversals evaluated (about
+#: 0.5 s of computing on a 2-core machine). A count, not a clock, so the order does not depend on machine load.
+TWO_OPT_MAX_EVALUATIONS = 4_000_000
+
+
+def _two_opt(seq: np.ndarray, geom: Geometry, max_evaluations: int) -> np.ndarray:
+    """2-opt on a path with fixed first and last nodes (``seq`` (N, 2)); stops when no reversal gains or after
+    ``max_evaluations`` candidate reversals were evaluated (deterministic: the same input gives the same path)."""
     n = len(seq)
     if n < 5:
         return seq
     seq = seq.copy()
+    evaluations = 0
     improved = True
-    while improved and time.perf_counter() - t0 < budget_s:
+    while improved and evaluations < max_evaluations:
         improved = False
         for i in range(0, n - 3):
             a, b = seq[i], seq[i + 1]
@@ -187,22 +192,24 @@ def _two_opt(seq: np.ndarray, geom: Geometry, budget_s: float) -> np.ndarray:
             d = seq[i + 3:n]
             gain = (geom.move_time(a, b) + geom.move_times(c, d)
                     - geom.move_times(a[None, :], c) - geom.move_times(b[None, :], d))
+            evaluations += len(c)
             k = int(np.argmax(gain))
             if gain[k] > 1e-9:
                 j = i + 2 + k
                 seq[i + 1:j + 1] = seq[i + 1:j + 1][::-1].copy()
                 improved = True
-            if time.perf_counter() - t0 > budget_s:
+            if evaluations >= max_evaluations:
                 break
     return seq
 
 
 def order_points(points: Sequence[Point], geom: Geometry, start: Point | None = None,
-                 end: Point | None = None, budget_s: float = 0.5) -> list[Point]:
+                 end: Point | None = None, max_evaluations: int = TWO_OPT_MAX_EVALUATIONS) -> list[Point]:
     """Order ``points`` to minimise the total move time from ``start`` to ``end`` (default: park).
 
     Tries serpentine orders (incidence by incidence, alternating the outgoing sweep) and a nearest-neighbour
-    tour, improves the best with 2-opt within ``budget_s`` seconds of computing, and returns the fastest.
+    tour, improves the best with 2-opt (at most ``max_evaluations`` candidate reversals), and returns the
+    fastest. Deterministic: the same points give the same order on any machine and under any load.
     """
     start = geom.park if start is None else tuple(start)
     end = geom.park if end is None else tuple(end)
@@ -215,7 +222,7 @@ def order_points(points: Sequence[Point], geom: Geometry, start: Point | None = 
         cands.append([pts[k] for k in _nearest_neighbour(arr, geom, start)])
     best = min(cands, key=lambda s: path_time(s, geom, start, end))
     full = np.array([start, *best, end], dtype=float)
-    improved = _two_opt(full, geom, budget_s)[1:-1]
+    improved = _two_opt(full, geom, max_evaluations)[1:-1]
     improved_list = [(float(x), float(y)) for x, y in improved]
     if path_time(improved_list, geom, start, end) < path_time(best, geom, start, end):
         best = improved_list
@@ -460,9 +467,9 @@ def refine_points(samples: Mapping[float, Sequence[tuple[float, float, float]]],
     noise alone contributes to it) and compared with ``tolerance`` times the local level (floored at three
     times the noise and 1 % of the slice maximum). A jump between neighbours larger than twice the tolerance
     (beyond three sigma of noise) also splits the gap, so that a narrow peak between two coarse samples is
-    found. Gaps whose estimate exceeds the tolerance get
-    their midpoint, unless that would make a gap narrower than ``min_step_deg`` or the midpoint cannot be
-    measured. Deterministic: the same samples give the same points.
+    found. Gaps whose estimate exceeds the tolerance get their midpoint, unless that would make a gap narrower
+    than ``min_step_deg`` or the midpoint cannot be measured. Computed for all gaps of a slice at once (numpy).
+    Deterministic: the same samples give the same points.
     """
     measured = set() if measured is None else measured
     out: list[Point] = []
@@ -475,26 +482,24 @@ def refine_points(samples: Mapping[float, Sequence[tuple[float, float, float]]],
         s = np.array([r[2] for r in rows])
         vmax = float(np.max(np.abs(v))) if len(v) else 0.0
         n = len(x)
-        # second differences normalised to a uniform spacing (divided difference times h^2)
+        # second differences at the inner samples, normalised to a uniform spacing (divided difference times h^2)
         d2 = np.zeros(n)
-        for k in range(1, n - 1):
-            h1, h2 = x[k] - x[k - 1], x[k + 1] - x[k]
-            dd = 2.0 * ((v[k + 1] - v[k]) / h2 - (v[k] - v[k - 1]) / h1) / (h1 + h2)
-            d2[k] = abs(dd)
-        for k in range(n - 1):
-            h = x[k + 1] - x[k]
-            if h / 2.0 < min_step_deg - 1e-9:
-                continue
-            curv = max(d2[k], d2[k + 1]) if n > 2 else 0.0
-            sig = float(np.max(s[max(k - 1, 0):k + 3]))  # noise of the values entering the estimate
-            # max error of linear interpolation on the gap, less what noise alone would produce (3 sigma of the
-            # second difference, sqrt(6) sigma / h^2 for equal gaps)
-            err = max(curv * h * h / 8.0 - 3.0 * math.sqrt(6.0) * sig / 8.0, 0.0)
-            jump = abs(v[k + 1] - v[k])
-            noise = 3.0 * max(s[k], s[k + 1])
-            level = max(0.5 * (abs(v[k]) + abs(v[k + 1])), noise, 0.01 * vmax, 1e-300)
-            if max(err, 0.5 * jump - noise) / level <= tolerance:
-                continue
+        h1, h2 = x[1:-1] - x[:-2], x[2:] - x[1:-1]
+        d2[1:-1] = np.abs(2.0 * ((v[2:] - v[1:-1]) / h2 - (v[1:-1] - v[:-2]) / h1) / (h1 + h2))
+        # per gap k (between samples k and k + 1)
+        h = x[1:] - x[:-1]
+        curv = np.maximum(d2[:-1], d2[1:])  # all 0 with two samples
+        # noise of the values entering the estimate: max std over samples k - 1 .. k + 2 (those that exist)
+        s_pad = np.concatenate(([-np.inf], s, [-np.inf, -np.inf]))
+        sig = np.lib.stride_tricks.sliding_window_view(s_pad, 4)[: n - 1].max(axis=1)
+        # max error of linear interpolation on the gap, less what noise alone would produce (3 sigma of the
+        # second difference, sqrt(6) sigma / h^2 for equal gaps)
+        err = np.maximum(curv * h * h / 8.0 - 3.0 * math.sqrt(6.0) * sig / 8.0, 0.0)
+        jump = np.abs(v[1:] - v[:-1])
+        noise = 3.0 * np.maximum(s[:-1], s[1:])
+        level = np.maximum(np.maximum(0.5 * (np.abs(v[:-1]) + np.abs(v[1:])), noise), max(0.01 * vmax, 1e-300))
+        split = (h / 2.0 >= min_step_deg - 1e-9) & (np.maximum(err, 0.5 * jump - noise) / level > tolerance)
+        for k in np.flatnonzero(split):
             mid = (float(ti), round(0.5 * (x[k] + x[k + 1]), 9))
             if point_key(mid) in measured or geom.reason(*mid) is not None:
                 continue

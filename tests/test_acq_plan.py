@@ -85,6 +85,24 @@ def test_optimized_order_is_a_permutation_and_faster(geom):
     assert est["motion_s"] == pytest.approx(t_opt, rel=0.05) and est["naive_motion_s"] == pytest.approx(t_naive)
 
 
+def test_order_does_not_depend_on_machine_speed(geom, monkeypatch):
+    """The 2-opt improvement stops on a work budget, not a clock: a machine so loaded that every clock reading
+    is a second later orders the points exactly as an idle one."""
+    import time
+
+    rng = np.random.default_rng(7)
+    pts = [(float(a), float(b)) for a, b in zip(rng.uniform(0, 80, 300), rng.uniform(-80, 80, 300), strict=True)
+           if abs(a + b) > 8]
+    idle = order_points(pts, geom)
+    clock = itertools.count()
+    monkeypatch.setattr(time, "perf_counter", lambda: float(next(clock)))
+    monkeypatch.setattr(time, "monotonic", lambda: float(next(clock)))
+    assert order_points(pts, geom) == idle
+    assert sorted(idle) == sorted(pts)
+    unimproved = order_points(pts, geom, max_evaluations=0)  # the best of the initial tours
+    assert path_time(idle, geom) < path_time(unimproved, geom)  # 2-opt did improve it
+
+
 def test_order_small_sets_optimal(geom):
     pts = [(20.0, 10.0), (60.0, -10.0), (40.0, 70.0), (20.0, 50.0), (60.0, 30.0)]
     best = min(path_time(list(p), geom) for p in itertools.permutations(pts))
