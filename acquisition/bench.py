@@ -85,7 +85,8 @@ def check_simulator_config(config_path: str | Path, command: str = "gonio-sim", 
 
 
 class SimulatorProcess:
-    """``gonio-sim serve`` as a child process; :attr:`ports` is the JSON line it printed."""
+    """``gonio-sim serve`` as a child process; :attr:`ports` is the JSON line it printed. Its stderr goes to
+    ``log_path`` (appended; a temporary file without one)."""
 
     def __init__(self, config_path: str | Path, command: str = "gonio-sim", log_path: str | Path | None = None,
                  extra_args: tuple[str, ...] = (), timeout_s: float = 30.0) -> None:
@@ -96,6 +97,7 @@ class SimulatorProcess:
         self.timeout_s = timeout_s
         self.proc: subprocess.Popen[bytes] | None = None
         self.ports: dict[str, str | None] = {}
+        self.stdout_rest = b""  # what the child printed after its port line (nothing, by its protocol)
         self._log_fh: IO[bytes] | None = None
         self._log_start = 0  # where this child's output begins in the log file (earlier runs' logs precede it)
 
@@ -158,18 +160,22 @@ class SimulatorProcess:
         except OSError:  # pragma: no cover
             return ""
 
-    def stop(self, timeout_s: float = 5.0) -> int | None:
-        """SIGTERM the child and wait (SIGKILL after ``timeout_s``); returns its exit status."""
+    def stop(self, timeout_s: float = 5.0, sig: int = signal.SIGTERM) -> int | None:
+        """Send ``sig`` (SIGTERM; ``gonio-sim serve`` exits 0 on SIGTERM and SIGINT) and wait (SIGKILL after
+        ``timeout_s``); returns its exit status."""
         if self.proc is None:
             return None
         if self.proc.poll() is None:
             try:
-                self.proc.send_signal(signal.SIGTERM)
+                self.proc.send_signal(sig)
                 self.proc.wait(timeout_s)
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait()
-        if self.proc.stdout is not None:
+        if self.proc.stdout is not None and not self.proc.stdout.closed:
+            self.stdout_rest = self.proc.stdout.read()  # the child is gone: reads up to EOF
+            if self.stdout_rest:
+                log.warning("the simulator printed more than its port line: %r", self.stdout_rest[:200])
             self.proc.stdout.close()
         if self._log_fh is not None:
             self._log_fh.close()

@@ -41,23 +41,22 @@ class FaultInjector:
         self.counts["corrupted"] += int(hits.sum())
         return arr.tobytes()
 
-    def overload_fraction(self) -> float | None:
-        """Per move: fraction of the move at which an overload occurs, or None."""
-        if self.cfg.overload_rate <= 0:
+    def _move_fault(self, rate: float, kind: str) -> float | None:
+        """With probability ``rate``: the fraction of the move (0.1 .. 0.9) at which the fault ``kind`` occurs."""
+        if rate <= 0:
             return None
-        if self.rng.random() < self.cfg.overload_rate:
-            self.counts["overload"] += 1
+        if self.rng.random() < rate:
+            self.counts[kind] += 1
             return float(self.rng.uniform(0.1, 0.9))
         return None
 
+    def overload_fraction(self) -> float | None:
+        """Per move: fraction of the move at which an overload occurs, or None."""
+        return self._move_fault(self.cfg.overload_rate, "overload")
+
     def stall_fraction(self) -> float | None:
         """Per move: fraction of the move at which the axis stalls, or None."""
-        if self.cfg.stall_rate <= 0:
-            return None
-        if self.rng.random() < self.cfg.stall_rate:
-            self.counts["stall"] += 1
-            return float(self.rng.uniform(0.1, 0.9))
-        return None
+        return self._move_fault(self.cfg.stall_rate, "stall")
 
     def saturate(self, n: int) -> np.ndarray:
         """Per reading: boolean mask of ``n`` readings forced to saturate."""

@@ -37,6 +37,17 @@ E_BUSY = 11
 E_COLLISION = 20
 E_STALL = 21
 
+
+def _one_float(args: list[str], lo: float, hi: float) -> float | None:
+    """The single numeric argument of a command if it lies in [lo, hi], else None (the caller answers error:2)."""
+    if len(args) != 1:
+        return None
+    try:
+        v = float(args[0])
+    except ValueError:
+        return None
+    return v if lo <= v <= hi else None
+
 ERROR_TEXT = {
     E_UNKNOWN: "unknown command",
     E_ARGUMENT: "bad or missing argument",
@@ -250,11 +261,8 @@ class SerialController:
         return [f"TIME t={self.clock.now():.6f}", "ok"]
 
     def _cmd_dwell(self, args: list[str]) -> list[str]:
-        try:
-            dt = float(args[0])
-        except (IndexError, ValueError):
-            return self._err(E_ARGUMENT)
-        if not 0 <= dt <= 3600 or len(args) != 1:
+        dt = _one_float(args, 0.0, 3600.0)
+        if dt is None:
             return self._err(E_ARGUMENT)
         self._advance(dt)
         return ["ok"]
@@ -381,11 +389,8 @@ class SerialController:
         return ["DETECTOR " + " ".join(fields), "ok"]
 
     def _cmd_int(self, args: list[str]) -> list[str]:
-        try:
-            v = float(args[0])
-        except (IndexError, ValueError):
-            return self._err(E_ARGUMENT)
-        if len(args) != 1 or not 1e-5 <= v <= 10.0:
+        v = _one_float(args, 1e-5, 10.0)
+        if v is None:
             return self._err(E_ARGUMENT)
         self.physics.detector.integration_time_s = v
         return ["ok"]
@@ -394,11 +399,8 @@ class SerialController:
         return [f"INT t_int={self.physics.detector.integration_time_s:g}", "ok"]
 
     def _cmd_gain(self, args: list[str]) -> list[str]:
-        try:
-            v = float(args[0])
-        except (IndexError, ValueError):
-            return self._err(E_ARGUMENT)
-        if len(args) != 1 or not 0.01 <= v <= 1000.0:
+        v = _one_float(args, 0.01, 1000.0)
+        if v is None:
             return self._err(E_ARGUMENT)
         self.physics.detector.gain = v
         return ["ok"]

@@ -2,13 +2,7 @@
 
 from __future__ import annotations
 
-import json
-import os
-import select
-import signal
-import subprocess
 import sys
-import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -16,6 +10,7 @@ from typing import Any
 import pytest
 import tomli_w
 
+from acquisition.bench import SimulatorProcess
 from tests import helpers
 
 if sys.version_info >= (3, 11):
@@ -44,10 +39,22 @@ def deep_merge() -> Callable[[dict[str, Any], dict[str, Any]], dict[str, Any]]:
     return helpers.deep_merge
 
 
+def start_serve(config: Path, *extra: str, log_dir: Path) -> SimulatorProcess:
+    """``gonio-sim serve --config CONFIG --log-level warning EXTRA...`` started through the capture's own
+    :class:`acquisition.SimulatorProcess` (its stderr in ``log_dir``/serve-N.log, ``.log_path``)."""
+    n = len(list(log_dir.glob("serve-*.log")))
+    sp = SimulatorProcess(config, log_path=log_dir / f"serve-{n}.log", extra_args=("--log-level", "warning", *extra),
+                          timeout_s=20.0)
+    sp.start()
+    return sp
+
+
 @pytest.fixture(scope="session")
-def serve_process() -> type:
-    """The ServeProcess class, for module-scoped fixtures: ``serve_process(config_path, *extra_args)``."""
-    return ServeProcess
+def serve_process(tmp_path_factory) -> Callable[..., SimulatorProcess]:
+    """For module-scoped fixtures: ``serve_process(config_path, *extra_args)`` starts ``gonio-sim serve``; the
+    caller stops it (``sp.stop()`` returns the exit status)."""
+    log_dir = tmp_path_factory.mktemp("serve")
+    return lambda config, *extra: start_serve(config, *extra, log_dir=log_dir)
 
 
 @pytest.fixture(scope="session")
@@ -81,55 +88,13 @@ def config_file(tmp_path, config_dict) -> Callable[..., Path]:
     return make
 
 
-class ServeProcess:
-    """A running ``gonio-sim serve`` child; ``ports`` is the JSON line it printed."""
-
-    def __init__(self, config: Path, *extra: str, timeout: float = 20.0) -> None:
-        cmd = [sys.executable, "-m", "simulator.cli", "serve", "--config", str(config), "--exit-with-parent",
-               "--log-level", "warning", *extra]
-        self.proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                     stdin=subprocess.DEVNULL)
-        deadline = time.monotonic() + timeout
-        line = b""
-        while not line.endswith(b"\n"):
-            left = deadline - time.monotonic()
-            r, _, _ = select.select([self.proc.stdout], [], [], max(left, 0))
-            if not r:
-                self.stop()
-                raise RuntimeError("gonio-sim serve printed no port line in time")
-            ch = os.read(self.proc.stdout.fileno(), 1)
-            if not ch:
-                err = self.proc.stderr.read().decode(errors="replace")
-                self.stop()
-                raise RuntimeError(f"gonio-sim serve exited early: {err}")
-            line += ch
-        self.ports: dict[str, str | None] = json.loads(line)
-        self.rest_stdout = ""
-        self.stderr = ""
-
-    def stop(self, sig: int = signal.SIGTERM, timeout: float = 10.0) -> int:
-        if self.proc.poll() is None:
-            self.proc.send_signal(sig)
-            try:
-                self.proc.wait(timeout)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        if self.proc.stdout and not self.proc.stdout.closed:
-            self.rest_stdout = self.proc.stdout.read().decode(errors="replace")
-            self.stderr = self.proc.stderr.read().decode(errors="replace")
-            self.proc.stdout.close()
-            self.proc.stderr.close()
-        return self.proc.returncode
-
-
 @pytest.fixture
-def serve() -> Iterator[Callable[..., ServeProcess]]:
-    """Factory starting ``gonio-sim serve`` children; all are stopped at teardown."""
-    procs: list[ServeProcess] = []
+def serve(tmp_path) -> Iterator[Callable[..., SimulatorProcess]]:
+    """Factory starting ``gonio-sim serve`` children (:func:`start_serve`); all are stopped at teardown."""
+    procs: list[SimulatorProcess] = []
 
-    def start(config: Path, *extra: str) -> ServeProcess:
-        sp = ServeProcess(config, *extra)
+    def start(config: Path, *extra: str) -> SimulatorProcess:
+        sp = start_serve(config, *extra, log_dir=tmp_path)
         procs.append(sp)
         return sp
 

@@ -3,7 +3,11 @@
 from __future__ import annotations
 
 import copy
+from pathlib import Path
 from typing import Any
+
+#: Dynamixel position units (and the simulated stepper's steps) per degree in configs/simulated.toml.
+UNITS_PER_DEG = 4096 / 360
 
 
 def deep_merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
@@ -16,3 +20,17 @@ def deep_merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
         else:
             out[k] = copy.deepcopy(v)
     return out
+
+
+def units(deg: float) -> int:
+    """Controller position (Dynamixel units, stepper steps) of ``deg`` on the axes of configs/simulated.toml
+    (zero offset 2048, 4096 units per turn)."""
+    return round(2048 + deg * UNITS_PER_DEG)
+
+
+def planned(cfg: str | Path) -> list[tuple[float, float]]:
+    """The measurable points of the bench file's ``[plan]``, sorted and rounded to 1e-6 deg."""
+    from acquisition import Bench
+
+    b = Bench.from_config(cfg)
+    return sorted((round(ti, 6), round(to, 6)) for ti, to in b.check(b.plan()).measurable)

@@ -17,29 +17,16 @@ from acquisition.autorange import AutoRanger, ladder
 from acquisition.calibration import Reading
 from acquisition.cli import main
 from acquisition.errors import DeviceError
-
-try:
-    from .test_acq_support import (
-        integration_times,
-        keys,
-        make_raw,
-        popen_capture,
-        read,
-        run_capture,
-        write_config,
-        zscores,
-    )
-except ImportError:  # tests/ is not a package
-    from test_acq_support import (
-        integration_times,
-        keys,
-        make_raw,
-        popen_capture,
-        read,
-        run_capture,
-        write_config,
-        zscores,
-    )
+from tests.test_acq_support import (
+    integration_times,
+    keys,
+    make_raw,
+    popen_capture,
+    read,
+    run_capture,
+    write_config,
+    zscores,
+)
 
 T_REF = 0.01
 WL = [float(w) for w in np.arange(400.0, 701.0, 20.0)]

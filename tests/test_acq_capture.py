@@ -10,11 +10,7 @@ import pytest
 
 from acquisition import Bench, Plan
 from acquisition.cli import main
-
-try:
-    from .test_acq_support import REPO, keys, make_raw, read, run_capture, write_config, zscores
-except ImportError:  # tests/ is not a package
-    from test_acq_support import REPO, keys, make_raw, read, run_capture, write_config, zscores
+from tests.test_acq_support import REPO, keys, make_raw, read, run_capture, write_config, zscores
 
 
 def _check_against_truth(raw, s, z_max=5.0):

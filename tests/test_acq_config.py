@@ -16,10 +16,7 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-try:
-    from .test_acq_support import REPO, make_raw, write_config
-except ImportError:  # tests/ is not a package
-    from test_acq_support import REPO, make_raw, write_config
+from tests.test_acq_support import REPO, make_raw, write_config
 
 
 @pytest.mark.parametrize("name", ["simulated.toml", "dynamixel-bench.toml", "serial-bench.toml"])

@@ -13,11 +13,7 @@ from acquisition import CommError
 from acquisition.config import config_from_dict
 from acquisition.dynamixel import DynamixelAxes
 from acquisition.serial_link import ControllerError, SerialDetector, SerialLink
-
-try:
-    from .test_acq_support import make_raw
-except ImportError:  # tests/ is not a package
-    from test_acq_support import make_raw
+from tests.test_acq_support import make_raw
 
 
 @pytest.fixture

@@ -11,16 +11,8 @@ import pytest
 
 from acquisition import Bench, HardwareError
 from acquisition.cli import main
-
-try:
-    from .test_acq_support import integration_times, keys, make_raw, read, write_config, zscores
-except ImportError:  # tests/ is not a package
-    from test_acq_support import integration_times, keys, make_raw, read, write_config, zscores
-
-
-def planned(cfg) -> list[tuple[float, float]]:
-    b = Bench.from_config(cfg)
-    return sorted((round(ti, 6), round(to, 6)) for ti, to in b.check(b.plan()).measurable)
+from tests.helpers import planned
+from tests.test_acq_support import integration_times, keys, make_raw, read, write_config, zscores
 
 
 def assert_exact(out, cfg):
@@ -158,3 +150,17 @@ def test_refused_goal_is_a_hardware_error_and_reconnect_reboots(tmp_path, caplog
         bench.move(40.0, 40.0)
         ti, to = bench.positions()
         assert abs(ti - 40.0) < 0.25 and abs(to - 40.0) < 0.25
+
+
+def test_failure_before_the_first_sample_says_nothing_was_captured(tmp_path, capsys):
+    raw = make_raw({"simulator": {"faults": {"port_vanish_after_s": 0.1, "vanish_ports": "serial"}}})
+    cfg = write_config(tmp_path / "early.toml", raw)
+    out = tmp_path / "out"
+    assert main(["--config", str(cfg), "--out", str(out), "--no-progress"]) == 1
+    err = capsys.readouterr().err
+    assert "No sample was captured yet." in err and "safely in" not in err, err
+    assert f"Resume with: gonio-capture --config {cfg} --out {out} --resume" in err
+    assert not (out / "slice.csv").exists()
+    fixed = write_config(tmp_path / "fixed.toml", make_raw())
+    assert main(["--config", str(fixed), "--out", str(out), "--resume", "--no-progress"]) == 0
+    assert_exact(out, fixed)

@@ -16,11 +16,7 @@ from acquisition.config import config_from_dict
 from acquisition.plan import Geometry, _trapezoid_time, order_points, path_time, refine_points
 from acquisition.plan import load_scene as acq_load_scene
 from reconstruction.scene import Scene, load_scene
-
-try:
-    from .test_acq_support import REPO, make_raw
-except ImportError:  # tests/ is not a package
-    from test_acq_support import REPO, make_raw
+from tests.test_acq_support import REPO, make_raw
 
 
 @pytest.fixture(scope="module")

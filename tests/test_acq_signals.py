@@ -10,19 +10,10 @@ import time
 import numpy as np
 import pytest
 
-from acquisition import Bench
-
-try:
-    from .test_acq_support import keys, make_raw, popen_capture, read, run_capture, write_config, zscores
-except ImportError:  # tests/ is not a package
-    from test_acq_support import keys, make_raw, popen_capture, read, run_capture, write_config, zscores
+from tests.helpers import planned
+from tests.test_acq_support import keys, make_raw, popen_capture, read, run_capture, write_config, zscores
 
 SLOW = {"simulator": {"time_scale": 8.0}}  # ~1.2 s of wall time for the 26-point plan
-
-
-def planned(cfg) -> list[tuple[float, float]]:
-    b = Bench.from_config(cfg)
-    return sorted((round(ti, 6), round(to, 6)) for ti, to in b.check(b.plan()).measurable)
 
 
 def rows(path) -> int:

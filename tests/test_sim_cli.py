@@ -44,9 +44,9 @@ def test_serve_prints_one_json_line_and_exits_0_on_signals(serve, simulated_toml
     sp = serve(simulated_toml, "--seed", "3", "--time-scale", "0", "--log-level", "info")
     assert set(sp.ports) == {"dynamixel", "serial"}
     assert all(os.path.exists(p) for p in sp.ports.values())
-    assert sp.stop(sig) == 0
-    assert sp.rest_stdout == ""  # exactly one line on stdout
-    assert "total simulated time" in sp.stderr
+    assert sp.stop(sig=sig) == 0
+    assert sp.stdout_rest == b""  # exactly one line on stdout
+    assert "total simulated time" in sp.log_path.read_text()
 
 
 def _variant(tmp_path: Path, name: str, old: str, new: str) -> Path:

@@ -16,13 +16,9 @@ from dynamixel_sdk import (
 )
 
 from simulator import dxl_codec as c
+from tests.helpers import UNITS_PER_DEG, units
 
 LIGHT, DET = 1, 2
-UPD = 4096 / 360
-
-
-def units(deg: float) -> int:
-    return round(2048 + deg * UPD)
 
 
 def le32(v: int) -> list[int]:
@@ -122,7 +118,7 @@ def test_collision_refused_with_alert(dxl):
     port, ph = dxl
     for i in (LIGHT, DET):
         assert ph.write1ByteTxRx(port, i, 64, 1) == (COMM_SUCCESS, 0)
-    light_deg = (ph.read4ByteTxRx(port, LIGHT, 132)[0] - 2048) / UPD
+    light_deg = (ph.read4ByteTxRx(port, LIGHT, 132)[0] - 2048) / UNITS_PER_DEG
     det_goal = ph.read4ByteTxRx(port, DET, 116)[0]
     # detector goal 3 deg from the retro direction (-theta_i): closer than min_separation = 6
     res, err = ph.write4ByteTxRx(port, DET, 116, units(-light_deg + 3.0))

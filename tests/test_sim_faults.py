@@ -14,12 +14,7 @@ from simulator.bench import VirtualBench
 from simulator.config import config_from_dict
 from simulator.sdk_port import SimPortHandler
 from simulator.transports import PtyServer, register_bench, unregister_bench
-
-UPD = 4096 / 360
-
-
-def units(deg: float) -> int:
-    return round(2048 + deg * UPD)
+from tests.helpers import units
 
 
 @pytest.fixture

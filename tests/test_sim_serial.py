@@ -10,12 +10,7 @@ import tomli_w
 
 import simulator  # noqa: F401 - registers sim://
 from simulator.transports import register_bench, unregister_bench
-
-UPD = 4096 / 360
-
-
-def steps(deg: float) -> int:
-    return round(2048 + deg * UPD)
+from tests.helpers import units as steps  # the simulated stepper counts the same units
 
 
 class Link:
@@ -140,3 +135,21 @@ def test_homing_required(config_dict):
     assert b.process("serial", b"HOME\n") == b"ok\n"
     assert b.process("serial", b"STATUS?\n").decode().split()[1] == "state=Idle"
     assert b.process("serial", f"MOVE L{steps(10)}\n".encode()) == b"ok\n"
+
+
+def test_single_number_arguments(config_dict):
+    """DWELL, INT and GAIN take exactly one number within their range, else error:2 and nothing changes."""
+    from simulator.bench import VirtualBench
+    from simulator.config import config_from_dict
+
+    b = VirtualBench(config_from_dict(config_dict()))
+    for line in ("DWELL", "DWELL x", "DWELL -1", "DWELL 3601", "DWELL 1 2", "DWELL nan", "INT", "INT 1e-6",
+                 "INT 11", "INT 0.01 0.02", "GAIN 0.001", "GAIN 1001", "GAIN 1 1", "GAIN inf"):
+        assert b.process("serial", f"{line}\n".encode()) == b"error:2\n", line
+    assert b.sim_time() == 0.0
+    assert b.process("serial", b"INT?\n") == b"INT t_int=0.01\nok\n"
+    for line in ("DWELL 0", "DWELL 2.5", "INT 1e-5", "INT 10", "GAIN 0.01", "GAIN 1000"):
+        assert b.process("serial", f"{line}\n".encode()) == b"ok\n", line
+    assert b.sim_time() == pytest.approx(2.5)
+    assert b.process("serial", b"INT?\n") == b"INT t_int=10\nok\n"
+    assert b.physics.detector.gain == 1000.0
