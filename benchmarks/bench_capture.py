@@ -1,9 +1,22 @@
-"""Capture software overhead per sample, with the simulator in fast mode (time_scale = 0).
+"""Capture software overhead per sample and per capture, with the simulator in fast mode (time_scale = 0).
 
 In fast mode simulated time costs no wall time, so the wall time of a capture is all software: the acquisition
-code, the real dynamixel_sdk / pyserial, the pseudo-terminals and the simulator's own processing. The overhead
-per sample is the slope of wall time against the number of samples (two plan sizes), which excludes the fixed
-costs (simulator start, set-up, dark and white-reference readings), printed separately.
+code, the real dynamixel_sdk / pyserial, the pseudo-terminals and the simulator's own processing. Every figure is
+measured directly, from the wall clock around ``Bench.capture`` and the capture's own record (each slice row
+carries the unix time it was written):
+
+* per sample = (time of the last row - time of the first row) / (samples - 1): one pass of the measuring loop
+  (move command and in-position polling, settle, the detector readings, calibration, appending the row with
+  fsync). Plan ordering happens before the first sample and is not in it.
+* fixed cost per capture = wall time of a one-point capture - one sample: plan validation, output folder and
+  log, dark and white-reference readings, final dark reading, park, run record.
+* plan ordering: ``order_points`` on the large plan's points, timed on its own. It is not fixed: it grows with
+  the plan, and a capture runs it before its first sample.
+* the large capture as a whole: samples x per sample + the time before the first row (set-up, plan ordering;
+  measured as the time to the first row minus one sample) + the time after the last row (final dark reading,
+  park, run record).
+* opening the bench (simulator start, connection, device initialisation) happens once per bench, not per
+  capture.
 
     .venv/bin/python benchmarks/bench_capture.py [--repeats 3]
 """
@@ -11,6 +24,7 @@ costs (simulator start, set-up, dark and white-reference readings), printed sepa
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import sys
 import tempfile
@@ -27,7 +41,8 @@ else:  # pragma: no cover
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from acquisition import Bench, Plan  # noqa: E402
+from acquisition import Bench, Plan, order_points  # noqa: E402
+from reconstruction.slicefile import read_slice  # noqa: E402
 
 
 def config(tmp: Path, motion: str) -> Path:
@@ -39,22 +54,34 @@ def config(tmp: Path, motion: str) -> Path:
     return p
 
 
-def timed_capture(bench: Bench, plan: Plan, out: Path) -> tuple[float, int, float]:
-    t0 = time.perf_counter()
+def timed_capture(bench: Bench, plan: Plan, out: Path) -> dict[str, float]:
+    """Capture ``plan``; wall time, samples, bench (simulated) time and the phases read from the slice rows."""
+    t0 = time.time()
     r = bench.capture(plan, out=out, progress=False)
-    wall = time.perf_counter() - t0
+    t1 = time.time()
     r.raise_for_status()
-    return wall, r.samples_new, r.bench_time_s
+    rows = sorted(read_slice(r.slice_path).unix_time_s)
+    n = len(rows)
+    wall = t1 - t0
+    per = (rows[-1] - rows[0]) / (n - 1) if n > 1 else float("nan")
+    return {"wall": wall, "n": n, "bench": r.bench_time_s, "per": per,
+            "before": rows[0] - t0 - per, "after": t1 - rows[-1], "fixed": wall - n * per}
+
+
+def ms(x: float) -> str:
+    return f"{x * 1e3:.1f} ms"
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--repeats", type=int, default=3, help="captures per plan size (median taken)")
+    ap.add_argument("--repeats", type=int, default=3, help="captures per plan (median taken)")
     args = ap.parse_args()
-    small = Plan.grid([30.0], -80.0, 80.0, 4.0)                    # 38 samples
-    large = Plan.grid([20.0, 40.0, 60.0], -80.0, 80.0, 1.0)         # ~450 samples
-    print(f"simulator in fast mode (time_scale = 0); plans of {len(small.requested_points())} and "
-          f"{len(large.requested_points())} points, 4 repeats per point; median of {args.repeats}")
+    one = Plan.grid([30.0], 10.0, 10.0, 1.0)                        # one point
+    large = Plan.grid([20.0, 40.0, 60.0], -80.0, 80.0, 1.0)         # ~450 measurable points
+    load = " / ".join(f"{x:.1f}" for x in os.getloadavg())
+    print(f"simulator in fast mode (time_scale = 0); {os.cpu_count()} CPUs, load average {load} (1 / 5 / 15 min); "
+          f"median of {args.repeats} captures; {large.repeats} detector readings per point")
+    summary = []
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         for motion in ("dynamixel", "serial"):
@@ -63,20 +90,41 @@ def main() -> int:
             bench = Bench.from_config(cfg).open()
             t_open = time.perf_counter() - t_open
             try:
-                res = {}
-                for name, plan in (("small", small), ("large", large)):
-                    runs = [timed_capture(bench, plan, tmp / f"{motion}-{name}-{k}") for k in range(args.repeats)]
-                    res[name] = (statistics.median(r[0] for r in runs), runs[0][1], runs[0][2])
+                pts = large.validate(bench.geometry).measurable
+                t_order = []
+                for _ in range(args.repeats):
+                    t = time.perf_counter()
+                    order_points(pts, bench.geometry, start=bench.positions())
+                    t_order.append(time.perf_counter() - t)
+                big = [timed_capture(bench, large, tmp / f"{motion}-large-{k}") for k in range(args.repeats)]
+                small = [timed_capture(bench, one, tmp / f"{motion}-one-{k}") for k in range(args.repeats)]
             finally:
                 bench.shutdown()
                 bench.close()
-            (w1, n1, _), (w2, n2, s2) = res["small"], res["large"]
-            per = (w2 - w1) / (n2 - n1)
-            fixed = w1 - per * n1
-            print(f"{motion:9s} bench: {per * 1e3:6.2f} ms software overhead per sample "
-                  f"({n2} samples in {w2:.2f} s wall for {s2:.1f} s of simulated capture time, "
-                  f"{s2 / w2:.0f}x faster than real time); fixed cost per capture {fixed * 1e3:.0f} ms "
-                  f"(dark, white reference, final dark, park); opening the bench {t_open * 1e3:.0f} ms")
+
+            def med(runs: list[dict[str, float]], key: str) -> float:
+                return statistics.median(r[key] for r in runs)
+
+            per, before, after = (med(big, k) for k in ("per", "before", "after"))
+            wall, bench_s, n = med(big, "wall"), med(big, "bench"), int(big[0]["n"])
+            order = statistics.median(t_order)
+            fixed = med(small, "wall") - per
+            print(f"{motion} bench:")
+            print(f"  per sample:             {ms(per):>9}  (wall time from the first to the last slice row / "
+                  f"{n - 1}: move, settle, {large.repeats} readings, calibration, row append)")
+            print(f"  fixed cost per capture: {ms(fixed):>9}  (one-point capture wall time {ms(med(small, 'wall'))} "
+                  f"- one sample: validation, output folder and log, dark and white-reference readings, final dark, "
+                  f"park, run record)")
+            print(f"  plan ordering:          {ms(order):>9}  (order_points on {len(pts)} points, timed alone; "
+                  f"grows with the plan; a capture orders its points before the first sample)")
+            print(f"  whole large capture:    {wall * 1e3:6.0f} ms  = {n} x per sample {n * per:.2f} s + before the "
+                  f"first sample {ms(before)} (set-up, plan ordering) + after the last {ms(after)} (final dark, park, "
+                  f"run record); {bench_s:.1f} s of simulated bench time, {bench_s / wall:.0f}x faster than real time")
+            print(f"  opening the bench:      {ms(t_open):>9}  (simulator start, connection, device set-up; once "
+                  f"per bench, not per capture)")
+            summary.append(f"{ms(per)} per sample, {ms(fixed)} per capture, plan ordering {ms(order)} for "
+                           f"{len(pts)} points ({motion} bench)")
+    print("capture software overhead, simulator in fast mode: " + "; ".join(summary))
     return 0
 
 

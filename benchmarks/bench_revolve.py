@@ -11,6 +11,7 @@ slice, the thesis's hemisphere map, and the O(n log n) merge of 10^6 points. Tar
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import time
 from collections.abc import Callable
@@ -50,13 +51,16 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=5)
     args = ap.parse_args()
     r = args.repeats
+    load = " / ".join(f"{x:.1f}" for x in os.getloadavg())
     one, four = plan_slice([30.0]), plan_slice([10.0, 30.0, 50.0, 70.0])
     merl.tabulate(lambda wi, wo: np.zeros((wi.shape[0], 1)))  # warm tabulate's cached cell directions
     rv.revolve_table(one)  # warm-up
     t_table = timed(lambda: rv.revolve_table(one), r)
     t_build = timed(lambda: rv.reconstruct_revolve(one), r)
     rec = rv.reconstruct_revolve(one)
-    wi, wo = (a.reshape(-1, 3) for a in merl._cell_dirs())
+    # the bin-centre pairs merl.tabulate evaluates, from the public cell_to_dirs
+    cells = np.meshgrid(np.arange(merl.SHAPE[1]), np.arange(merl.SHAPE[2]), np.arange(merl.SHAPE[3]), indexing="ij")
+    wi, wo = (a.reshape(-1, 3) for a in merl.cell_to_dirs(*cells))
     t_eval = timed(lambda: rec.eval(wi, wo), r)
     t_four = timed(lambda: rv.revolve_table(four), r)
     t_hemi = timed(lambda: rv.thesis_hemisphere(one), r)
@@ -64,6 +68,7 @@ def main() -> None:
     n = 1_000_000
     pts = sph_to_vec(np.arccos(rng.uniform(0, 1, n)), rng.uniform(-np.pi, np.pi, n)) * rng.uniform(0, 1, n)[:, None]
     t_merge = timed(lambda: rv.merge_solids(pts), r)
+    print(f"{os.cpu_count()} CPUs, load average {load} (1 / 5 / 15 min) before the runs")
     print(f"revolve, one slice -> full MERL table: {t_table * 1e3:7.1f} ms  (target < 1000 ms; median of {r})")
     print(f"  reconstruct_revolve:                 {t_build * 1e3:7.1f} ms")
     print(f"  eval of {wi.shape[0]:,} pairs:             {t_eval * 1e3:7.1f} ms")
