@@ -26,6 +26,8 @@ from .base import Reconstruction, ReconstructionError
 from .bivariate import reconstruct_bivariate
 from .fit import FitReconstruction, reconstruct_fit
 from .inputs import check_slice
+from .metrics import directional_albedo
+from .report import ALBEDO_INCIDENCES_DEG, ALBEDO_TOLERANCE
 from .revolve import reconstruct_revolve
 from .scene import Scene
 from .slicefile import Slice
@@ -68,6 +70,13 @@ def _run(method: str, s: Slice, opts: Options, progress: Callable[[str], None] |
 
 
 def _fit_explains(rec: FitReconstruction, s: Slice) -> tuple[bool, str]:
+    # a model that reflects more light than it receives somewhere is not used, however well it fits the
+    # samples (with few photons a fit can extrapolate wildly outside the measured plane)
+    alb = directional_albedo(rec.eval, np.radians(ALBEDO_INCIDENCES_DEG), 64, 128)
+    if alb.max() > 1.0 + ALBEDO_TOLERANCE:
+        k = int(np.argmax(alb.max(axis=1)))
+        return False, (f"the best analytic model, {rec.result.name}, is not physically plausible: its directional "
+                       f"albedo reaches {alb.max():.3g} > 1 at theta_i = {ALBEDO_INCIDENCES_DEG[k]:g} deg")
     res = rec.info["residuals"]
     rel, chi2r = float(res["relative_rmse_cos"]), float(res["chi2_reduced"])
     has_std = s.std is not None and bool(np.any(s.std > 0))
