@@ -40,11 +40,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 from scipy.optimize import least_squares, nnls
 from threadpoolctl import threadpool_limits
 
 from .base import ReconstructionError
+from .energy import microfacet_albedo, retro_albedo
 from .geometry import inplane_to_dirs, sph_to_vec
 from .metrics import relative_rmse_cos_dirs
 from .models import Colour, Lambert, Lobe, Material, Microfacet, Retro
@@ -58,8 +59,12 @@ __all__ = ["LobeSpec", "FitResult", "FitReconstruction", "fit_model", "reconstru
 
 ALPHA_MIN, ALPHA_MAX = 0.005, 1.5
 F0_MIN, F0_MAX = 0.002, 0.998
+IOR_MIN, IOR_MAX = (1 + math.sqrt(F0_MIN)) / (1 - math.sqrt(F0_MIN)), (1 + math.sqrt(F0_MAX)) / (1 - math.sqrt(F0_MAX))
 EXP_MIN, EXP_MAX = 0.5, 2000.0
-LOG_AMP_MIN, LOG_AMP_MAX = math.log(1e-12), math.log(1e4)
+# amplitudes are physical fractions: lambert albedo, microfacet specular and retro amount each lie in (0, 1]
+LOG_AMP_MIN, LOG_AMP_MAX = math.log(1e-12), 0.0
+#: incidences (radians) at which every candidate's directional albedo is held <= 1 during the fit
+ENERGY_INCIDENCES = np.radians(np.arange(0.0, 89.0, 4.0))
 FLOOR = 1e-4  # of each channel's peak |f|
 SELECTION_MAX_VALUES = 2400  # residuals (samples x channels) beyond which candidates are compared on a subset
 
@@ -121,7 +126,7 @@ class LobeSpec:
     def nonlinear(self) -> tuple[str, ...]:
         """Names of the shared (geometry) parameters in the fit's parametrisation."""
         if self.kind in ("ggx", "beckmann"):
-            return ("log_alpha", "logit_f0") if self.fresnel else ("log_alpha",)
+            return ("log_alpha", "log_ior_minus_1") if self.fresnel else ("log_alpha",)
         if self.kind == "retro":
             return ("log_exponent",)
         return ()
@@ -131,12 +136,20 @@ def model_name(specs: Sequence[LobeSpec]) -> str:
     return "+".join(s.name for s in specs)
 
 
-def _sigmoid(v: ArrayLike) -> Any:
-    return 1.0 / (1.0 + np.exp(-np.asarray(v, dtype=np.float64)))
+def f0_of_ior(ior: float) -> float:
+    """Normal-incidence Fresnel reflectance of an interface of relative index ``ior``: ((n - 1) / (n + 1))^2."""
+    return ((ior - 1.0) / (ior + 1.0)) ** 2
 
 
-def _logit(p: float) -> float:
-    return math.log(p / (1.0 - p))
+def ior_of_f0(f0: float) -> float:
+    """The relative index whose normal-incidence reflectance is ``f0`` (0 < f0 < 1)."""
+    r = math.sqrt(f0)
+    return (1.0 + r) / (1.0 - r)
+
+
+def _f0(p: float) -> float:
+    """f0 of the fit parameter log(ior - 1)."""
+    return f0_of_ior(1.0 + math.exp(p))
 
 
 def _lobe(spec: LobeSpec, nl: Sequence[float], colour: Array | None = None) -> Lobe:
@@ -145,7 +158,7 @@ def _lobe(spec: LobeSpec, nl: Sequence[float], colour: Array | None = None) -> L
     if spec.kind == "lambert":
         return Lambert(colour=col)
     if spec.kind in ("ggx", "beckmann"):
-        f0 = float(_sigmoid(nl[1])) if spec.fresnel else None
+        f0 = _f0(nl[1]) if spec.fresnel else None
         return Microfacet(colour=col, alpha=float(math.exp(nl[0])), f0=f0, distribution=spec.kind)
     if spec.kind == "retro":
         return Retro(colour=col, exponent=float(math.exp(nl[0])))
@@ -153,11 +166,26 @@ def _lobe(spec: LobeSpec, nl: Sequence[float], colour: Array | None = None) -> L
 
 
 def _column(spec: LobeSpec, nl: Sequence[float], wi: Array, wo: Array) -> Array:
-    """The lobe's shape for unit amplitude (N,), 1/sr; with Fresnel divided by f0 (amplitude = specular f0)."""
-    s = _lobe(spec, nl).shape(wi, wo)
-    if spec.fresnel:
-        s = s / float(_sigmoid(nl[1]))
-    return s
+    """The lobe's shape for unit amplitude (N,), 1/sr (with its Fresnel factor: the amplitude is the specular
+    scale, <= 1)."""
+    return _lobe(spec, nl).shape(wi, wo)
+
+
+def _unit_albedo(spec: LobeSpec, nl: Sequence[float], theta_i: Array) -> Array:
+    """Directional albedo (n_theta,) of the lobe with unit amplitude at incidences ``theta_i`` (radians)."""
+    if spec.kind == "lambert":
+        return np.ones_like(theta_i)
+    if spec.kind in ("ggx", "beckmann"):
+        return microfacet_albedo(theta_i, math.exp(nl[0]), _f0(nl[1]) if spec.fresnel else None, spec.kind)
+    return retro_albedo(theta_i, math.exp(nl[0]))
+
+
+def _energy_scale(specs: Sequence[LobeSpec], nl: Sequence[Array], amps: Array) -> tuple[Array, Array, Array]:
+    """(scale (C,), albedo (n_theta, C) before scaling, unit albedos (L, n_theta)): the factor <= 1 per channel
+    that brings the model's largest directional albedo over :data:`ENERGY_INCIDENCES` down to 1."""
+    e = np.stack([_unit_albedo(s, p, ENERGY_INCIDENCES) for s, p in zip(specs, nl, strict=True)])
+    alb = e.T @ amps
+    return 1.0 / np.maximum(alb.max(axis=0), 1.0), alb, e
 
 
 @dataclass
@@ -172,11 +200,12 @@ class _Problem:
     std: Array  # (N, C) the samples' own standard deviations
     relative_sigma: float
     floor: Array  # (1, C)
+    exponent_max: float = EXP_MAX  # retro lobes no narrower than the gap around the retro direction
 
     def take(self, mask: NDArray[np.bool_]) -> _Problem:
         """The problem restricted to the samples ``mask`` (N,)."""
         return _Problem(self.wi[mask], self.wo[mask], self.f[mask], self.sigma[mask], self.alpha_min,
-                        self.std[mask], self.relative_sigma, self.floor)
+                        self.std[mask], self.relative_sigma, self.floor, self.exponent_max)
 
     def sigma_of(self, pred: Array) -> Array:
         """sigma with the relative term taken from the model's prediction (not from the noisy, maybe outlying,
@@ -188,30 +217,31 @@ class _Problem:
         return int(self.f.size)
 
 
-def _nl_grid(spec: LobeSpec, alpha_min: float) -> list[tuple[float, ...]]:
+def _nl_grid(spec: LobeSpec, alpha_min: float, exponent_max: float = EXP_MAX) -> list[tuple[float, ...]]:
     if spec.kind in ("ggx", "beckmann"):
         alphas = np.log(np.geomspace(max(alpha_min, ALPHA_MIN), 1.0, 16))
         if spec.fresnel:
-            return [(a, _logit(f0)) for a in alphas for f0 in (0.02, 0.08, 0.3)]
+            return [(a, math.log(ior_of_f0(f0) - 1.0)) for a in alphas for f0 in (0.02, 0.08, 0.3)]
         return [(a,) for a in alphas]
     if spec.kind == "retro":
-        return [(math.log(e),) for e in (1.0, 3.0, 10.0, 30.0, 100.0)]
+        return [(math.log(e),) for e in (1.0, 3.0, 10.0, 30.0, 100.0) if e <= exponent_max] or [
+            (math.log(exponent_max),)]
     return [()]
 
 
-def _nl_bounds(spec: LobeSpec, alpha_min: float) -> tuple[list[float], list[float]]:
+def _nl_bounds(spec: LobeSpec, alpha_min: float, exponent_max: float = EXP_MAX) -> tuple[list[float], list[float]]:
     lo: list[float] = []
     hi: list[float] = []
     for name in spec.nonlinear:
         if name == "log_alpha":
             lo.append(math.log(max(alpha_min, ALPHA_MIN)))
             hi.append(math.log(ALPHA_MAX))
-        elif name == "logit_f0":
-            lo.append(_logit(F0_MIN))
-            hi.append(_logit(F0_MAX))
+        elif name == "log_ior_minus_1":
+            lo.append(math.log(IOR_MIN - 1.0))
+            hi.append(math.log(IOR_MAX - 1.0))
         else:
             lo.append(math.log(EXP_MIN))
-            hi.append(math.log(EXP_MAX))
+            hi.append(math.log(max(EXP_MIN * 1.01, min(EXP_MAX, exponent_max))))
     return lo, hi
 
 
@@ -231,7 +261,7 @@ def _start(specs: Sequence[LobeSpec], prob: _Problem) -> tuple[list[tuple[float,
     """Best grid point of the geometry parameters with NNLS amplitudes (variable projection)."""
     per_lobe = []
     for spec in specs:  # each lobe's columns over its own grid (the product only combines them)
-        grid = _nl_grid(spec, prob.alpha_min)
+        grid = _nl_grid(spec, prob.alpha_min, prob.exponent_max)
         per_lobe.append([(g, _column(spec, g, prob.wi, prob.wo)) for g in grid])
     best: tuple[float, list[tuple[float, ...]], Array] | None = None
     for combo in itertools.product(*per_lobe):
@@ -282,18 +312,22 @@ class FitResult:
             k += m
         return nl, x[self.n_nonlinear:].reshape(len(self.specs), self.n_channels)
 
+    def amplitudes(self, x: Array | None = None) -> Array:
+        """The amplitudes (L, C) of ``x`` as the model uses them: held to a directional albedo <= 1."""
+        nl, la = self.split(x)
+        amps = np.exp(la)
+        return amps * _energy_scale(self.specs, nl, amps)[0][None, :]
+
     def natural(self, x: Array | None = None) -> Array:
         """The reported parameters as one vector (see :meth:`parameter_names`)."""
-        nl, la = self.split(x)
+        nl, _ = self.split(x)
         out: list[float] = []
-        for spec, p, a in zip(self.specs, nl, la, strict=True):
-            amp = np.exp(a)
+        for spec, p, amp in zip(self.specs, nl, self.amplitudes(x), strict=True):
             if spec.kind in ("ggx", "beckmann"):
                 out.append(math.exp(p[0]))
                 if spec.fresnel:
-                    f0 = float(_sigmoid(p[1]))
-                    out.append(f0)
-                    amp = amp / f0
+                    out.append(1.0 + math.exp(p[1]))
+                    out.append(_f0(p[1]))
             elif spec.kind == "retro":
                 out.append(math.exp(p[0]))
             out.extend(amp.tolist())
@@ -306,6 +340,7 @@ class FitResult:
             if spec.kind in ("ggx", "beckmann"):
                 names.append((i, "alpha", None))
                 if spec.fresnel:
+                    names.append((i, "ior", None))
                     names.append((i, "f0", None))
                 key = "specular"
             elif spec.kind == "retro":
@@ -317,14 +352,16 @@ class FitResult:
         return names
 
     def material(self, name: str = "fit") -> Material:
-        nl, la = self.split()
-        lobes = []
-        for spec, p, a in zip(self.specs, nl, la, strict=True):
-            amp = np.exp(a)
-            if spec.fresnel:
-                amp = amp / float(_sigmoid(p[1]))
-            lobes.append(_lobe(spec, p, amp))
+        nl, _ = self.split()
+        lobes = [_lobe(spec, p, amp) for spec, p, amp in zip(self.specs, nl, self.amplitudes(), strict=True)]
         return Material(name, lobes)
+
+    def albedo(self) -> Array:
+        """Directional albedo (n_theta, C) of the fitted model at :data:`ENERGY_INCIDENCES` (from the lobes'
+        tabulated unit albedos)."""
+        nl, _ = self.split()
+        e = np.stack([_unit_albedo(s, p, ENERGY_INCIDENCES) for s, p in zip(self.specs, nl, strict=True)])
+        return e.T @ self.amplitudes()
 
     def covariance(self) -> Array:
         """Covariance of the fit parameters x: pinv(J^T J) * max(1, reduced chi^2); inf where not determined."""
@@ -376,6 +413,43 @@ class FitResult:
                 "chi2": round(self.chi2, 4), "converged": self.success}
 
 
+#: GGX half width at half maximum in theta_h: tan(theta) = HWHM_PER_ALPHA alpha (sqrt(sqrt(2) - 1))
+HWHM_PER_ALPHA = math.sqrt(math.sqrt(2.0) - 1.0)
+
+
+def _nearest_gap(offsets: Array) -> float:
+    """Half the width of the sample gap around offset 0 (degrees): the larger distance to the nearest sample on
+    either side; 0 when a sample lies within 0.25 deg of it."""
+    if offsets.size == 0 or np.min(np.abs(offsets)) <= 0.25:
+        return 0.0
+    below, above = offsets[offsets < 0], offsets[offsets > 0]
+    sides = [float(-below.max())] if below.size else []
+    sides += [float(above.min())] if above.size else []
+    return max(sides)
+
+
+def gap_bounds(s: Slice) -> dict[str, float]:
+    """Bounds that keep lobes where the samples constrain them (degrees of theta_o in, dimensionless out).
+
+    A specular lobe whose mirror direction falls in a sampling gap of every incidence could hide a narrow peak
+    there: ``alpha_min`` makes its half width at half maximum (tan theta_h = 0.64 alpha) at least half the gap
+    in theta_h at the best-sampled incidence. A retro lobe peaks at theta_o = -theta_i, always inside the blind
+    spot: ``exponent_max`` keeps its value at the nearest sample at least half its peak (cos^n(gap) >= 0.5),
+    so the samples around the gap bound its amplitude.
+    """
+    mirror, retro = [], []
+    for t in s.incidences():  # a handful of incidences
+        to = s.theta_o_deg[s.theta_i_deg == t]
+        mirror.append(_nearest_gap(to - t))
+        retro.append(_nearest_gap(to + t))
+    m_gap = min(mirror) if mirror else 0.0
+    r_gap = min(retro) if retro else 0.0
+    alpha_min = math.tan(math.radians(m_gap) / 2.0) / HWHM_PER_ALPHA if m_gap > 0 else 0.0
+    exponent_max = math.log(0.5) / math.log(math.cos(math.radians(r_gap))) if r_gap > 0 else EXP_MAX
+    return {"mirror_gap_deg": m_gap, "retro_gap_deg": r_gap, "alpha_min": alpha_min,
+            "retro_exponent_max": min(EXP_MAX, exponent_max)}
+
+
 def _problem(s: Slice, relative_sigma: float, alpha_min: float) -> _Problem:
     f, std = s.brdf()
     assert std is not None
@@ -394,7 +468,7 @@ def fit_model(specs: Sequence[LobeSpec], prob: _Problem, *, loss: str = "soft_l1
     lo: list[float] = []
     hi: list[float] = []
     for spec in specs:
-        a, b = _nl_bounds(spec, prob.alpha_min)
+        a, b = _nl_bounds(spec, prob.alpha_min, prob.exponent_max)
         lo += a
         hi += b
     n_nl = len(lo)
@@ -422,15 +496,22 @@ def fit_model(specs: Sequence[LobeSpec], prob: _Problem, *, loss: str = "soft_l1
 
     sigma = prob.sigma
 
+    # The model is energy-conserving by construction: the amplitudes of each channel are scaled by
+    # s_c = 1 / max(1, max_theta albedo_c(theta)), so no candidate ever reflects more than it receives.
+    def predict(nl: list[Array], amps: Array) -> tuple[Array, Array, Array, Array, Array]:
+        cols = columns(nl)
+        scale, alb, e = _energy_scale(specs, nl, amps)
+        return cols @ (amps * scale[None, :]), cols, scale, alb, e
+
     def fun(x: Array) -> Array:
         nl, amps = unpack(x)
-        return ((columns(nl) @ amps - prob.f) / sigma).ravel()
+        return ((predict(nl, amps)[0] - prob.f) / sigma).ravel()
 
     def jac(x: Array) -> Array:
-        # amplitude columns analytically (d pred / d log a = column * a); geometry by forward differences
+        # amplitudes analytically (through the energy scale); geometry by forward differences
         nl, amps = unpack(x)
-        cols = columns(nl)
-        base = ((cols @ amps - prob.f) / sigma).ravel()
+        pred, cols, scale, alb, e = predict(nl, amps)
+        base = ((pred - prob.f) / sigma).ravel()
         j = np.zeros((base.size, x.size))
         for k in range(n_nl):  # a few geometry parameters
             h = 1e-7 * max(1.0, abs(x[k]))
@@ -438,10 +519,15 @@ def fit_model(specs: Sequence[LobeSpec], prob: _Problem, *, loss: str = "soft_l1
             xk[k] = min(x[k] + h, hi_a[k]) if x[k] + h <= hi_a[k] else x[k] - h
             j[:, k] = (fun(xk) - base) / (xk[k] - x[k])
         n_s = prob.f.shape[0]
-        for li in range(len(specs)):  # d r[s, c] / d log a[li, c] = cols[s, li] a[li, c] / sigma[s, c]
-            blk = cols[:, li:li + 1] * amps[li][None, :] / sigma  # (N, C)
+        unscaled = cols @ amps  # (N, C)
+        top = np.argmax(alb, axis=0)  # the incidence of each channel's largest albedo
+        active = alb.max(axis=0) > 1.0
+        rows = np.arange(n_s)[:, None] * n_c + np.arange(n_c)[None, :]
+        for li in range(len(specs)):
+            # d pred[s, c] / d log a[li, c] = s_c cols[s, li] a[li, c] + unscaled[s, c] d s_c / d log a[li, c]
+            ds = np.where(active, -scale ** 2 * e[li, top] * amps[li], 0.0)
+            blk = (cols[:, li:li + 1] * (amps[li] * scale)[None, :] + unscaled * ds[None, :]) / sigma
             idx = n_nl + li * n_c + np.arange(n_c)
-            rows = np.arange(n_s)[:, None] * n_c + np.arange(n_c)[None, :]
             j[rows, np.broadcast_to(idx, (n_s, n_c))] = blk
         return j
 
@@ -450,7 +536,7 @@ def fit_model(specs: Sequence[LobeSpec], prob: _Problem, *, loss: str = "soft_l1
     res = least_squares(fun, x0, **kw)
     # second pass: the relative uncertainty of each sample from the model's value there, warm-started
     nl, amps = unpack(res.x)
-    sigma = prob.sigma_of(columns(nl) @ amps)
+    sigma = prob.sigma_of(predict(nl, amps)[0])
     nfev = res.nfev
     res = least_squares(fun, np.clip(res.x, *inner), **kw)
     r = res.fun.reshape(prob.f.shape)
@@ -543,7 +629,9 @@ def reconstruct_fit(
         raise ReconstructionError("fit needs at least one of the lobes lambert, ggx, beckmann")
     rel = relative_sigma if relative_sigma is not None else (scene.relative_sigma if scene and scene.relative_sigma
                                                              else 0.01)
-    full = _problem(slices, rel, scene_alpha_min(scene))
+    gaps = gap_bounds(slices)
+    full = _problem(slices, rel, max(scene_alpha_min(scene), gaps["alpha_min"]))
+    full.exponent_max = gaps["retro_exponent_max"]
     wi, wo, f = full.wi, full.wo, full.f
     # many samples: candidates are compared on an evenly strided subset (every stride-th sample in
     # (theta_i, theta_o) order), then the chosen model is refitted to all samples
@@ -657,6 +745,14 @@ def reconstruct_fit(
                     "f_scale_sigma": f_scale},
         "fit": {"converged": chosen.success, "message": chosen.message, "evaluations": chosen.nfev},
         "holes": "the blind spot and missing samples are covered by the fitted model",
+        "constraints": {
+            "amplitudes": "lambert albedo, microfacet specular and retro amount each in (0, 1]",
+            "fresnel": "Schlick's approximation of a dielectric interface: f0 = ((ior - 1) / (ior + 1))^2, "
+                       f"ior in [{IOR_MIN:.3f}, {IOR_MAX:.0f}]",
+            "energy": "each channel's directional albedo held <= 1 at theta_i = 0-88 deg during the fit",
+            "max_directional_albedo": [round(float(v), 5) for v in chosen.albedo().max(axis=0)],
+            **{k: round(v, 6) for k, v in gaps.items()},
+        },
     }
     if scene_info is not None:
         info["scene"] = scene_info

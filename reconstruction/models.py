@@ -38,6 +38,8 @@ __all__ = [
     "Phong",
     "Retro",
     "Tabulated",
+    "Nbrdf",
+    "NBRDF_SUFFIXES",
     "Material",
     "MaterialError",
     "ggx_d",
@@ -372,6 +374,83 @@ class Tabulated(Lobe):
         return {"path": self.path}
 
 
+NBRDF_SUFFIXES = ("fc1", "b1", "fc2", "b2", "fc3", "b3")
+_NBRDF_SHAPES = {"fc1": (6, 21), "b1": (21,), "fc2": (21, 21), "b2": (21,), "fc3": (21, 3), "b3": (3,)}
+
+
+def _nbrdf_weights(prefix: str) -> dict[str, Array]:
+    """The six arrays of a neural BRDF (``PREFIX_fc1.npy`` ... ``PREFIX_b3.npy``), checked for shape."""
+    out: dict[str, Array] = {}
+    for suffix in NBRDF_SUFFIXES:
+        path = Path(f"{prefix}_{suffix}.npy")
+        try:
+            a = np.load(path, allow_pickle=False)
+        except FileNotFoundError:
+            raise MaterialError(f"{path}: no such file (a neural BRDF needs {prefix}_{{"
+                                f"{','.join(NBRDF_SUFFIXES)}}}.npy)") from None
+        except (OSError, ValueError) as e:
+            raise MaterialError(f"{path}: not a readable .npy array ({e})") from None
+        want = _NBRDF_SHAPES[suffix]
+        if a.shape != want or not np.issubdtype(a.dtype, np.floating) or not np.all(np.isfinite(a)):
+            raise MaterialError(f"{path}: expected finite floats of shape {want}, got {a.dtype} {a.shape}")
+        out[suffix] = a.astype(np.float64)
+    return out
+
+
+@dataclass
+class Nbrdf(Lobe):
+    """A neural BRDF (Sztrajman et al. 2021, the published ``npy`` layout of asztr/Neural-BRDF), linear RGB.
+
+    ``path`` is the prefix of the six files ``PATH_fc1.npy`` (6, 21), ``_b1`` (21,), ``_fc2`` (21, 21),
+    ``_b2`` (21,), ``_fc3`` (21, 3), ``_b3`` (3,). At a direction pair: the Rusinkiewicz angles, phi_d folded into
+    [0, pi), x = (sin theta_h, 0, cos theta_h, sin theta_d cos phi_d, sin theta_d sin phi_d, cos theta_d),
+    two ReLU layers and f = max(exp(a2 fc3 + b3) - 1, 0) in 1/sr; ``scale`` (the colour) multiplies it.
+    """
+
+    type_name: ClassVar[str] = "nbrdf"
+    colour_keys: ClassVar[tuple[str, ...]] = ("scale",)
+    path: str = ""
+    weights: dict[str, Array] | None = None
+
+    def _weights(self) -> dict[str, Array]:
+        if self.weights is None:
+            self.weights = _nbrdf_weights(self.path)
+        return self.weights
+
+    def shape(self, wi: Array, wo: Array) -> Array:  # pragma: no cover - eval is overridden
+        raise NotImplementedError
+
+    def eval(self, wi: ArrayLike, wo: ArrayLike, n_channels: int = 0, wavelengths_nm: Array | None = None
+             ) -> Array:
+        from .geometry import half_diff_from_dirs
+
+        w = self._weights()
+        wi = np.asarray(wi, dtype=np.float64)
+        wo = np.asarray(wo, dtype=np.float64)
+        wi, wo = np.broadcast_arrays(wi, wo)
+        th, _, td, pd = half_diff_from_dirs(wi, wo)
+        pd = np.mod(pd, np.pi)
+        sd = np.sin(td)
+        x = np.stack([np.sin(th), np.zeros_like(th), np.cos(th), sd * np.cos(pd), sd * np.sin(pd), np.cos(td)],
+                     axis=-1)
+        a1 = np.maximum(x @ w["fc1"] + w["b1"], 0.0)
+        a2 = np.maximum(a1 @ w["fc2"] + w["b2"], 0.0)
+        with np.errstate(over="ignore"):
+            rgb = np.maximum(np.expm1(a2 @ w["fc3"] + w["b3"]), 0.0)
+        rgb = np.nan_to_num(rgb, nan=0.0, posinf=np.finfo(np.float64).max)
+        up = (wi[..., 2] > 0) & (wo[..., 2] > 0)
+        rgb = np.where(up[..., None], rgb, 0.0) * self.colour.on(3, None)
+        n = n_channels or 3
+        if n == 3:
+            return rgb
+        if n == 1:
+            return rgb.mean(axis=-1, keepdims=True)
+        raise MaterialError("a neural BRDF gives RGB; it cannot be mixed with spectral lobes")
+
+    def params(self) -> dict[str, Any]:
+        return {"path": self.path}
+
+
 LOBE_TYPES: dict[str, type[Lobe]] = {
     "lambert": Lambert,
     "oren_nayar": OrenNayar,
@@ -380,9 +459,10 @@ LOBE_TYPES: dict[str, type[Lobe]] = {
     "phong": Phong,
     "retro": Retro,
     "tabulated": Tabulated,
+    "nbrdf": Nbrdf,
 }
 
-# key -> (required, kind) for each lobe type; kind is "colour", "float" or "path"
+# key -> (required, kind) for each lobe type; kind is "colour", "float", "path" or "prefix" (of a file set)
 _LOBE_KEYS: dict[str, dict[str, tuple[bool, str]]] = {
     "lambert": {"albedo": (True, "colour")},
     "oren_nayar": {"albedo": (True, "colour"), "sigma_deg": (True, "float")},
@@ -391,6 +471,7 @@ _LOBE_KEYS: dict[str, dict[str, tuple[bool, str]]] = {
     "phong": {"exponent": (True, "float"), "specular": (True, "colour")},
     "retro": {"exponent": (True, "float"), "amount": (True, "colour")},
     "tabulated": {"path": (True, "path"), "scale": (False, "colour")},
+    "nbrdf": {"path": (True, "prefix"), "scale": (False, "colour")},
 }
 
 
@@ -421,6 +502,16 @@ def _lobe_from_dict(d: Mapping[str, Any], where: str, base_dir: Path) -> Lobe:
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
                 raise MaterialError(f"{where}.{key}: expected a finite number, got {v!r}")
             kw[key] = float(v)
+        elif kind == "prefix":
+            if not isinstance(v, str) or not v:
+                raise MaterialError(f"{where}.{key}: expected the prefix of the neural BRDF's npy files, got {v!r}")
+            p = Path(v)
+            p = p if p.is_absolute() else base_dir / p
+            kw[key] = str(p)
+            try:
+                kw["weights"] = _nbrdf_weights(str(p))
+            except MaterialError as e:
+                raise MaterialError(f"{where}.{key}: {e}") from None
         else:
             if not isinstance(v, str) or not v:
                 raise MaterialError(f"{where}.{key}: expected a file path, got {v!r}")
@@ -456,7 +547,7 @@ class Material:
             raise MaterialError(f"material {self.name!r}: needs at least one lobe")
         spectral = [lb.colour for lb in self.lobes if lb.colour.wavelengths_nm is not None]
         rgb = any(lb.colour.n == 3 and lb.colour.wavelengths_nm is None for lb in self.lobes) or any(
-            isinstance(lb, Tabulated) for lb in self.lobes
+            isinstance(lb, (Tabulated, Nbrdf)) for lb in self.lobes
         )
         if spectral and rgb:
             raise MaterialError(f"material {self.name!r}: cannot mix RGB and spectral colours")

@@ -51,7 +51,7 @@ class Options:
     lobes: Sequence[str] | None = None
     revolve_axis: str = "auto"
     revolve_smoothing: float | None = None
-    cos_power: float = 1.5
+    cos_power: float | None = None  # bivariate: None = its default for the number of incidences
 
 
 def _run(method: str, s: Slice, opts: Options, progress: Callable[[str], None] | None) -> Reconstruction:
