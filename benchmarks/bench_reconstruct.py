@@ -3,9 +3,10 @@
 Time = reconstruction + tabulation at bin centres (what `gonio-reconstruct` does before writing: revolve with
 pipeline's reciprocal=True, twice the eval time of benchmarks/bench_revolve.py's table), median of
 ``--repeats`` runs, for one slice (theta_i = 30 deg, theta_o -80..80 deg every 2 deg, blind spot +-4 deg) and for
-six incidences. The targets (2-core development machine) are for a full table from one slice: revolve and
-bivariate < 1 s, fit < 3 s; only the one-slice rows are compared with them (ok / SLOW), the six-slice rows are
-information. The load average is printed: other jobs on the machine slow every figure down.
+six incidences. The targets (2-core development machine) are for a full table from one slice: revolve,
+bivariate and microfacet < 1 s, fit < 3 s; auto (cross-validation of every method, then the chosen method's
+table) < 10 s; only the one-slice rows are compared with them (ok / SLOW), the six-slice rows are information.
+The load average is printed: other jobs on the machine slow every figure down.
 Error = relative RMSE of f cos(theta_i) cos(theta_o) over the table (reconstruction.metrics.relative_rmse_cos).
 
 Run: .venv/bin/python benchmarks/bench_reconstruct.py [--repeats N] [--material configs/simulated.toml]
@@ -27,7 +28,7 @@ from reconstruction.models import Material
 from reconstruction.synthetic import synthetic_slice
 
 REPO = Path(__file__).resolve().parents[1]
-TARGETS = {"fit": 3.0, "bivariate": 1.0, "revolve": 1.0}
+TARGETS = {"fit": 3.0, "microfacet": 1.0, "bivariate": 1.0, "revolve": 1.0, "auto": 10.0}
 
 
 def main() -> None:
@@ -37,7 +38,7 @@ def main() -> None:
     args = ap.parse_args()
     mat = Material.from_toml(args.material)
     truth = merl.tabulate(mat.eval)
-    methods = ["fit", "bivariate", "revolve"]
+    methods = ["fit", "microfacet", "bivariate", "revolve", "auto"]
     load = " / ".join(f"{x:.1f}" for x in os.getloadavg())
     print(f"material {mat.name} ({args.material}); median of {args.repeats} repeats; {os.cpu_count()} CPUs, "
           f"load average {load} (1 / 5 / 15 min)")
@@ -68,9 +69,8 @@ def main() -> None:
             err = relative_rmse_cos(table, truth)
             print(f"{m:<10} {label:<22} {r:>11.3f}s {t:>8.3f}s {r + t:>7.3f}s {target:>12} {err:>8.4f}")
     one, six = totals[1], totals[6]
-    print(f"full table from one slice: fit {one['fit']:.2f} s (target < {TARGETS['fit']:.0f} s), bivariate "
-          f"{one['bivariate']:.2f} s, revolve {one['revolve']:.2f} s (targets < {TARGETS['revolve']:.0f} s); "
-          f"from six slices (no target): {six['fit']:.2f} s, {six['bivariate']:.2f} s, {six['revolve']:.2f} s")
+    print("full table from one slice: " + ", ".join(f"{m} {one[m]:.2f} s (< {TARGETS[m]:g} s)" for m in methods)
+          + "; from six slices (no target): " + ", ".join(f"{m} {six[m]:.2f} s" for m in methods))
 
 
 if __name__ == "__main__":

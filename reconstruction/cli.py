@@ -17,6 +17,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from tqdm import tqdm
 
 from .base import ReconstructionError
@@ -33,10 +34,21 @@ Inputs are gonio-brdf slice files (docs/slice-format.md) or generic CSV tables f
 R,G,B); generic tables need --quantity. Several inputs (e.g. one per incidence) are merged. All-zero rows in
 the retro blind spot are missing data and are interpolated, not taken as zero.
 
-Methods: fit (analytic lobes chosen by BIC), bivariate (f tabulated over theta_h, theta_d), revolve (the
-thesis's solids of revolution), auto (fit if a model explains the data, else bivariate with 3+ incidences,
-else revolve; the report says which and why). Spectral data are converted to linear sRGB (CIE 1931 2 degree
-observer, --illuminant); grey data give a grey table."""
+Methods: fit (analytic lobes chosen by BIC, energy-constrained), microfacet (a tabulated normal distribution
+with Smith shadowing and a physical Fresnel), bivariate (f tabulated over theta_h, theta_d), revolve (the
+thesis's solids of revolution), auto (the method that best predicts held-out samples: leave-one-incidence-out,
+or held-out blocks of theta_o with one slice; the report says which and why). Spectral data are converted to
+linear sRGB (CIE 1931 2 degree observer, --illuminant); grey data give a grey table.
+
+A table that fails a plausibility check (negative or missing cells, directional albedo above 1, a
+non-reciprocal BRDF) is not written: the command exits with status 3 and says which check failed, unless
+--allow-implausible is given."""
+
+EXIT_IMPLAUSIBLE = 3
+
+
+class ImplausibleError(ReconstructionError):
+    """The reconstruction fails a plausibility check; nothing was written."""
 
 
 def _supersample(text: str) -> tuple[int, int, int] | str:
@@ -123,6 +135,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="revolve: axis of each sub-curve, vertical through its highest point or its first principal "
                          "component (auto: chosen per sub-curve)")
     ap.add_argument("--smoothing", type=_nonneg_float, default=None, help="revolve: smoothing (passed through)")
+    ap.add_argument("--allow-implausible", action="store_true",
+                    help="write the table even if it fails a plausibility check (the report and the console say so)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar and no summary line")
     b = ap.add_argument_group("batch reconstruction of a folder of slices")
     b.add_argument("--batch", metavar="FOLDER",
@@ -201,14 +215,16 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         t0 = step("tabulating" + (f" (supersample {args.supersample})" if args.supersample else ""))
         table = pipeline.tabulate(rec, args.supersample)
         done("tabulate", t0)
+        t0 = step("plausibility checks")
+        checks = report.plausibility(rec, table)
+        done("checks", t0)
+        if not checks["all_pass"] and not getattr(args, "allow_implausible", False):
+            raise ImplausibleError(implausible_message(rec.method, checks))
         t0 = step("writing table")
         from . import merl
 
         merl.write(out, table, require_above_horizon=True)
         done("write", t0)
-        t0 = step("plausibility checks")
-        checks = report.plausibility(rec, table)
-        done("checks", t0)
         outputs: dict[str, Any] = {"table": str(out), "table_bytes": out.stat().st_size}
         if args.preview:
             t0 = step("preview")
@@ -227,11 +243,33 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                     "bin_centres": "theta_h = ((i + 0.5) / 90)^2 * 90 deg, theta_d = j + 0.5 deg, "
                                    "phi_d = k + 0.5 deg"},
         outputs=outputs, timings=timings, dropped_blind_spot=loaded.dropped_blind_spot)
+    if not checks["all_pass"]:
+        rep["implausible_table_written"] = "written with --allow-implausible: " + implausible_message(rec.method,
+                                                                                                      checks)
     if args.report:
         outputs["report"] = str(args.report)
         rep["outputs"]["report"] = str(args.report)
         report.write_json(args.report, rep)
     return rep
+
+
+def implausible_message(method: str, checks: dict[str, Any]) -> str:
+    """One line: which plausibility checks of ``checks`` failed, with figures, and what to try."""
+    why = []
+    if not checks["non_negative"]["pass"]:
+        c = checks["non_negative"]
+        why.append(f"non_negative: {c['missing_cells']} cell(s) without a value, minimum {c['min_1_per_sr']:.3g} 1/sr")
+    if not checks["albedo"]["pass"]:
+        c = checks["albedo"]
+        alb = np.asarray(c["albedo"], dtype=np.float64)
+        k = int(np.argmax(alb.max(axis=1)))
+        why.append(f"albedo: the table reflects more light than it receives (directional albedo {alb.max():.3g} > "
+                   f"1 + {c['tolerance']:g} at theta_i = {c['theta_i_deg'][k]:g} deg)")
+    if not checks["reciprocity"]["pass"]:
+        why.append(f"reciprocity: relative error {checks['reciprocity']['relative_error']:.3g}")
+    return (f"method {method}: the table fails the plausibility check(s) " + "; ".join(why)
+            + "; nothing written. Try --method fit or microfacet (energy-conserving by construction), slices at "
+              "more incidences, or --allow-implausible to write it anyway")
 
 
 def batch_files(folder: Path) -> list[tuple[str, Path]]:
@@ -252,6 +290,8 @@ def _batch_one(job: tuple[dict[str, Any], str, Path, Path]) -> dict[str, Any]:
     ns.quiet = True
     try:
         rep = run(ns)
+    except ImplausibleError as e:
+        return {"name": name, "input": str(path), "ok": False, "error": str(e), "implausible": True}
     except (ReconstructionError, SliceError, MerlError, MaterialError, OSError) as e:
         return {"name": name, "input": str(path), "ok": False, "error": str(e)}
     return {"name": name, "input": str(path), "ok": True, "method": rep["method"], "table": ns.out}
@@ -307,6 +347,9 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("give INPUT... and --out MATERIAL.binary (or --batch FOLDER)")
     try:
         rep = run(args)
+    except ImplausibleError as e:
+        print(f"{PROG}: error: {e}", file=sys.stderr)
+        return EXIT_IMPLAUSIBLE
     except (ReconstructionError, SliceError, MerlError, MaterialError) as e:
         print(f"{PROG}: error: {e}", file=sys.stderr)
         return 2
@@ -319,8 +362,8 @@ def main(argv: list[str] | None = None) -> int:
         failed = [k for k in ("non_negative", "albedo", "reciprocity") if not checks[k]["pass"]]
         model = f" ({rep['details']['model']})" if "model" in rep.get("details", {}) else ""
         print(f"{PROG}: method {rep['method']}{model}: wrote {rep['outputs']['table']} ({FILE_SIZE:,} bytes)"
-              + (f"; plausibility check(s) failed: {', '.join(failed)}" if failed else "; checks passed"),
-              file=sys.stderr)
+              + (f"; IMPLAUSIBLE, written because of --allow-implausible: check(s) failed: {', '.join(failed)}"
+                 if failed else "; checks passed"), file=sys.stderr)
     return 0
 
 

@@ -604,8 +604,11 @@ def reconstruct_fit(
     f_scale: float = 2.0,
     relative_sigma: float | None = None,
     progress: Callable[[str], None] | None = None,
+    specs: Sequence[LobeSpec] | None = None,
 ) -> FitReconstruction:
     """Fit analytic lobes to ``slices`` (f_r, 1 or 3 channels) and choose the model by BIC (and the scene).
+
+    ``specs``: fit this model structure only (no search), e.g. to refit a chosen model to a subset of samples.
 
     ``lobes``: the lobe kinds allowed (subset of :data:`LOBE_KINDS`; default all, or the scene's list).
     ``relative_sigma``: relative uncertainty added to the samples' std (default the scene's, else 0.01).
@@ -656,26 +659,27 @@ def reconstruct_fit(
             progress(name)
         fitted[name] = fit_model(specs, prob, loss=loss, f_scale=f_scale)
 
-    for specs in _candidates_stage1(allowed):
-        run(specs)
+    fixed = tuple(specs) if specs is not None else None
+    for cand in [fixed] if fixed else _candidates_stage1(allowed):
+        run(cand)
     if not fitted:
         raise ReconstructionError(f"{slices.source}: too few samples ({len(slices)}) for any candidate model")
     # stage 2: the best stage-1 model of each distribution (and the best overall), made richer
-    bases = [min(fitted.values(), key=lambda r: r.bic)]
-    for d in ("ggx", "beckmann"):
+    bases = [] if fixed else [min(fitted.values(), key=lambda r: r.bic)]
+    for d in ("ggx", "beckmann") if not fixed else ():
         of_d = [r for r in fitted.values() if any(s.kind == d for s in r.specs)]
         if of_d:
             bases.append(min(of_d, key=lambda r: r.bic))
     for base in bases:
-        for specs in _extensions(base.specs, allowed):
-            run(specs)
+        for cand in _extensions(base.specs, allowed):
+            run(cand)
     ranked = sorted(fitted.values(), key=lambda r: r.bic)
     chosen = ranked[0]
     why = (f"lowest BIC ({chosen.bic:.1f}) of {len(ranked)} candidates; the next, {ranked[1].name}, has "
            f"{ranked[1].bic:.1f}" if len(ranked) > 1 else "the only candidate")
     scene_info: dict[str, Any] | None = None
     fit_mask: NDArray[np.bool_] | None = None  # the samples the chosen model is fitted to, if not all
-    if scene is not None:
+    if scene is not None and not fixed:
         scene_info = {"scene": _scene_report(scene)}
         (ti_lo, ti_hi), (to_lo, to_hi) = scene.ranges(SCENE_DEFAULT_RANGE_DEG)
         if scene.relative_rmse is not None:

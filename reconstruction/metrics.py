@@ -14,7 +14,7 @@ BRDF = Callable[[Array, Array], ArrayLike]
 
 __all__ = ["hemisphere_quadrature", "directional_albedo", "reciprocity_error", "relative_rmse_cos", "log_rmse",
            "sphere_relative_error", "albedo_error", "table_errors",
-           "relative_rmse_cos_dirs"]
+           "relative_rmse_cos_dirs", "within_angle_mask", "median_relative_error"]
 
 
 def hemisphere_quadrature(n_theta: int = 128, n_phi: int = 256) -> tuple[Array, Array]:
@@ -66,23 +66,50 @@ def _table_cosines() -> Array:
     return np.clip(wi[..., 2], 0.0, None) * np.clip(wo[..., 2], 0.0, None)
 
 
-def relative_rmse_cos(table: ArrayLike, truth_table: ArrayLike) -> float:
+def within_angle_mask(max_theta_deg: float | None = None) -> NDArray[np.bool_]:
+    """(90, 90, 180) bool: MERL cells above the horizon whose bin-centre theta_i and theta_o are both
+    <= ``max_theta_deg`` (all cells above the horizon when None)."""
+    from .merl import _cell_dirs, valid_mask
+
+    m = valid_mask()
+    if max_theta_deg is None:
+        return m
+    wi, wo = _cell_dirs()
+    c = np.cos(np.radians(max_theta_deg)) - 1e-12
+    return m & (wi[..., 2] >= c) & (wo[..., 2] >= c)
+
+
+def relative_rmse_cos(table: ArrayLike, truth_table: ArrayLike, max_theta_deg: float | None = None) -> float:
     """Relative RMSE of f cos(theta_i) cos(theta_o) between two MERL tables (3, 90, 90, 180), over valid cells.
 
     sqrt(sum((f - g)^2 c^2) / sum(g^2 c^2)) with c = cos theta_i cos theta_o at the bin centres, pooled over the
-    three channels and over every cell above the horizon where both tables are finite. Dimensionless; 0.02 = 2 %.
+    three channels and over every cell above the horizon where both tables are finite (and, with
+    ``max_theta_deg``, whose theta_i and theta_o are both within it: "rmse80" is ``max_theta_deg=80``).
+    Dimensionless; 0.02 = 2 %.
     """
-    from .merl import SHAPE, valid_mask
+    from .merl import SHAPE
 
     f = np.asarray(table, dtype=np.float64)
     g = np.asarray(truth_table, dtype=np.float64)
     if f.shape != SHAPE or g.shape != SHAPE:
         raise ValueError(f"tables must have shape {SHAPE}, got {f.shape} and {g.shape}")
     c = _table_cosines()[None]
-    ok = valid_mask()[None] & np.isfinite(f) & np.isfinite(g)
+    ok = within_angle_mask(max_theta_deg)[None] & np.isfinite(f) & np.isfinite(g)
     num = np.sum(np.where(ok, (f - g) * c, 0.0) ** 2)
     den = np.sum(np.where(ok, g * c, 0.0) ** 2)
     return float(np.sqrt(num / den)) if den > 0 else float("inf")
+
+
+def median_relative_error(table: ArrayLike, truth_table: ArrayLike, max_theta_deg: float | None = 80.0,
+                          min_fraction: float = 0.01) -> float:
+    """Median of |f - g| / g over the cells (every channel) where the truth g is above ``min_fraction`` of its
+    channel's maximum, within ``max_theta_deg`` (see :func:`within_angle_mask`). Dimensionless."""
+    f = np.asarray(table, dtype=np.float64)
+    g = np.asarray(truth_table, dtype=np.float64)
+    ok = within_angle_mask(max_theta_deg)[None] & np.isfinite(f) & np.isfinite(g)
+    peak = np.max(np.where(ok, g, -np.inf), axis=(1, 2, 3), keepdims=True)
+    big = ok & (g > min_fraction * peak)
+    return float(np.median(np.abs(f[big] - g[big]) / g[big])) if big.any() else float("inf")
 
 
 def relative_rmse_cos_dirs(f: ArrayLike, g: ArrayLike, wi: ArrayLike, wo: ArrayLike) -> float:

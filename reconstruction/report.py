@@ -10,8 +10,10 @@ Checks (each ``{"pass": bool, ...figures}``):
   <= 1e-6 (the table itself is reciprocal by construction: phi_d and phi_d + pi share a cell).
 
 Top-level report keys: ``method`` (the method used), ``method_requested``, ``method_reason``, ``parameters``,
-``residuals``, ``coverage``, ``checks``, ``inputs``, ``colour``, ``table``, ``outputs``, ``timings_s``, and
-``details`` (everything the method reported).
+``residuals``, ``coverage``, ``checks``, ``inputs``, ``colour``, ``table``, ``outputs``, ``timings_s``,
+``details`` (everything the method reported) and, for ``--method auto``, ``cross_validation`` (the scheme, every
+method's held-out error, the choice). The method's own ``residuals`` are on the samples it was built from: they
+are reported as such and never used to choose a method.
 """
 
 from __future__ import annotations
@@ -142,8 +144,8 @@ def build_report(*, rec: Reconstruction, choice: dict[str, Any], working: Slice,
         "timings_s": {k: round(v, 4) for k, v in timings.items()},
         "details": {k: v for k, v in details.items() if k not in ("parameters", "residuals", "method")},
     }
-    if "alternatives" in choice:
-        rep["method_alternatives"] = choice["alternatives"]
+    if "cross_validation" in choice:
+        rep["cross_validation"] = choice["cross_validation"]
     return _json_safe(rep)
 
 

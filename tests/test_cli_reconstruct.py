@@ -50,7 +50,12 @@ def test_end_to_end_on_a_slice_file(tmp_path):
     for key in ("method", "method_reason", "parameters", "residuals", "coverage", "checks"):
         assert key in rep
     assert rep["method"] == "fit" and rep["method_requested"] == "auto"
-    assert "reproduces the samples" in rep["method_reason"]
+    assert "lowest held-out error" in rep["method_reason"]
+    cv = rep["cross_validation"]
+    assert cv["chosen"] == "fit" and "held-out contiguous blocks" in cv["scheme"]
+    assert {c["method"] for c in cv["scores"]} == set(pipeline.METHODS) - {"auto"}
+    errs = [c["held_out_relative_rmse_cos"] for c in cv["scores"]]
+    assert errs == sorted(errs) and cv["scores"][0]["method"] == "fit"
     assert rep["details"]["model"] == "lambert+ggx(F)"
     assert {c for c in rep["checks"]} >= {"non_negative", "albedo", "reciprocity"}
     assert rep["checks"]["all_pass"] is True
@@ -63,8 +68,8 @@ def test_help_answers():
     r = subprocess.run([sys.executable, "-m", "reconstruction.cli", "--help"], capture_output=True, text=True,
                        timeout=60)
     assert r.returncode == 0
-    for word in ("--method", "auto,fit,revolve,bivariate", "--preview", "--report", "--supersample", "--quantity",
-                 "--columns", "--illuminant", "--scene"):
+    for word in ("--method", "auto,fit,microfacet,revolve,bivariate", "--preview", "--report", "--supersample",
+                 "--quantity", "--columns", "--illuminant", "--scene", "--allow-implausible"):
         assert word in r.stdout
 
 
@@ -153,16 +158,48 @@ def test_bad_options_exit_2(tmp_path, capsys):
 # --- dispatch --------------------------------------------------------------------------------------------
 
 
-def test_auto_uses_bivariate_when_no_model_fits_and_several_incidences():
-    rec, choice = pipeline.reconstruct(synthetic_slice(PHONG, (10.0, 40.0, 70.0)), "auto")
-    assert rec.method == "bivariate" and choice["used"] == "bivariate"
-    assert "misses the samples" in choice["reason"] and "3 incidences" in choice["reason"]
+def test_auto_chooses_by_held_out_prediction_on_a_material_outside_every_family():
+    # rough Oren-Nayar diffuse + a Phong lobe: neither fit nor microfacet can describe it; three incidences
+    s = synthetic_slice(PHONG, (10.0, 40.0, 70.0))
+    rec, choice = pipeline.reconstruct(s, "auto")
+    cv = choice["cross_validation"]
+    assert cv["scheme"] == "leave-one-incidence-out" and cv["folds"] == 3
+    best = min(cv["scores"], key=lambda c: c["held_out_relative_rmse_cos"])
+    assert rec.method == choice["used"] == cv["chosen"] == best["method"]
+    assert "lowest held-out error" in choice["reason"]
+    # and the choice is good for the table, not only for the samples: within 25 % of the best method's error
+    truth = merl.tabulate(PHONG.eval)
+    errs = {m: relative_rmse_cos(pipeline.tabulate(pipeline.reconstruct(s, m)[0]), truth)
+            for m in pipeline.METHODS if m != "auto"}
+    assert errs[rec.method] <= 1.25 * min(errs.values()), (rec.method, errs)
+    assert errs[rec.method] < 0.5 * errs["fit"]  # the residual-based choice of old (fit) was far worse
 
 
-def test_auto_single_slice_uses_revolve(monkeypatch):
-    rec, choice = pipeline.reconstruct(synthetic_slice(PHONG, (30.0,)), "auto")
-    assert rec.method == choice["used"] == "revolve" and "misses the samples" in choice["reason"]
+def test_auto_never_uses_an_implausible_method(monkeypatch):
+    # the best-predicting method reflects more light than it receives: auto takes the next
+    from reconstruction import methods
 
+    class Bright:
+        method = "bivariate"
+        channels = ["R", "G", "B"]
+
+        def eval(self, wi, wo):
+            return np.full((len(wi), 3), 0.5)  # albedo pi / 2
+
+        def report(self):
+            return {"method": "bivariate"}
+
+    monkeypatch.setitem(methods.REGISTRY, "bivariate", methods.Method("bivariate", "bright", lambda s, o, p: Bright()))
+    from reconstruction.crossval import CVScore
+
+    monkeypatch.setattr(pipeline, "cross_validate", lambda s, name, build, masks, inside=None: CVScore(
+        name, 0.0 if name == "bivariate" else 0.1 + 0.01 * len(name), [], 0.0))
+    rec, choice = pipeline.reconstruct(synthetic_slice(BLUE_PLASTIC, (30.0,)), "auto")
+    assert rec.method != "bivariate"
+    assert "bivariate" in choice["reason"] and "reflects more than it receives" in choice["reason"]
+
+
+def test_options_reach_the_method_and_samples_arrive_sorted(monkeypatch):
     calls = []
 
     class Fake:
@@ -179,16 +216,40 @@ def test_auto_single_slice_uses_revolve(monkeypatch):
         calls.append((slices, kw))
         return Fake()
 
-    monkeypatch.setattr(pipeline, "reconstruct_revolve", fake_revolve)
+    monkeypatch.setattr("reconstruction.revolve.reconstruct_revolve", fake_revolve)
     s = synthetic_slice(PHONG, (30.0,))
     order = np.random.default_rng(0).permutation(len(s))
-    rec, choice = pipeline.reconstruct(s.take(order), "auto", pipeline.Options(fill="zero", revolve_axis="pca"))
-    assert rec.method == "revolve" and "solids-of-revolution" in choice["reason"]
+    rec, choice = pipeline.reconstruct(s.take(order), "revolve", pipeline.Options(fill="zero", revolve_axis="pca"))
+    assert rec.method == "revolve" and choice["reason"] == "requested with --method revolve"
     (got, kw), = calls
     assert kw == {"axis": "pca", "fill": "zero", "reciprocal": True}
     assert np.all(np.diff(got.theta_o_deg) > 0)  # handed over sorted
     t = pipeline.tabulate(rec)
     assert np.allclose(t[:, merl.valid_mask()], 0.1)
+
+
+def test_an_implausible_table_is_refused_with_exit_3_unless_allowed(tmp_path, capsys):
+    # a flat f = 0.5 1/sr reflects pi / 2 of the light it receives: no honest table
+    to = np.arange(-80.0, 81.0, 2.0)
+    to = to[np.abs(to + 30.0) >= 4.0]
+    src = tmp_path / "bright.csv"
+    write_slice(src, Slice(np.full(to.size, 30.0), to, np.full((to.size, 1), 0.5), ["value"]))
+    out, report = tmp_path / "m.binary", tmp_path / "m.json"
+    code = cli.main([str(src), "--method", "bivariate", "--out", str(out), "--report", str(report), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 3
+    assert "albedo" in err and "nothing written" in err and "--allow-implausible" in err and "Traceback" not in err
+    assert not out.exists() and not report.exists()
+    code = cli.main([str(src), "--method", "bivariate", "--out", str(out), "--report", str(report),
+                     "--allow-implausible"])
+    err = capsys.readouterr().err
+    assert code == 0 and out.stat().st_size == merl.FILE_SIZE
+    assert "IMPLAUSIBLE" in err and "--allow-implausible" in err
+    rep = json.loads(report.read_text())
+    assert rep["checks"]["all_pass"] is False and "albedo" in rep["implausible_table_written"]
+    # fit and microfacet conserve energy by construction: the same samples give a plausible table
+    for method in ("fit", "microfacet"):
+        assert cli.main([str(src), "--method", method, "--out", str(out), "--quiet"]) == 0
 
 
 def test_tabulate_refuses_negative_or_missing_cells():
@@ -213,23 +274,24 @@ def test_tabulate_refuses_negative_or_missing_cells():
 
 def test_every_method_passes_the_plausibility_checks(tmp_path):
     src = slice_file(tmp_path / "slice.csv", BLUE_PLASTIC, incidences=(20.0, 40.0, 60.0))
-    for method in ("fit", "bivariate", "revolve"):
+    for method in ("fit", "microfacet", "bivariate", "revolve"):
         rep = cli.run(cli.build_parser().parse_args(
             [str(src), "--method", method, "--out", str(tmp_path / f"{method}.binary"), "--quiet"]))
         failed = [k for k in ("non_negative", "albedo", "reciprocity") if not rep["checks"][k]["pass"]]
         assert failed == [], (method, failed)
 
 
-def test_auto_with_a_scene_judges_the_fit_on_the_scene_samples(tmp_path):
+def test_fit_with_a_scene_reports_its_residuals_on_the_scene_samples(tmp_path):
     # glossy-product uses theta_i 15-45 deg: the 60 deg slice lies outside it; the scene's budget picks a
-    # simpler model fitted to the samples inside, and auto must judge that model on those samples
+    # simpler model fitted to the samples inside, and its figures are judged on those samples
     s = synthetic_slice(BLUE_PLASTIC, (20.0, 40.0, 60.0), step_deg=2.0, noise=0.01, seed=3)
     n = len(s)
     src = tmp_path / "slice.csv"
     write_slice(src, Slice(s.theta_i_deg, s.theta_o_deg, s.values, s.channels, 0.01 * np.abs(s.values) + 1e-6,
                            np.full(n, 4), 1.795e9 + np.arange(n), meta={"material": "test"}))
     rep = cli.run(cli.build_parser().parse_args(
-        [str(src), "--scene", "configs/scenes/glossy-product.toml", "--out", str(tmp_path / "m.binary"), "--quiet"]))
+        [str(src), "--scene", "configs/scenes/glossy-product.toml", "--method", "fit",
+         "--out", str(tmp_path / "m.binary"), "--quiet"]))
     assert rep["method"] == "fit", rep["method_reason"]
     res = rep["residuals"]
     assert res["samples_used"] < n  # the model was fitted to the scene's samples only

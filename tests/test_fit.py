@@ -183,7 +183,8 @@ from reconstruction.metrics import directional_albedo  # noqa: E402
 
 
 def _max_albedo(rec):
-    return float(directional_albedo(rec.eval, np.radians(np.arange(0.0, 89.0, 4.0)), 48, 96).max())
+    # a fine quadrature: a coarse one overstates the albedo of narrow lobes by up to 1 %
+    return float(directional_albedo(rec.eval, np.radians(np.arange(0.0, 89.0, 4.0)), 128, 256).max())
 
 
 @settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -196,7 +197,7 @@ def test_fit_never_reflects_more_than_it_receives_on_fuzzed_slices(seed, noise, 
     f = f + rng.normal(0.0, noise * float(f.max()), f.shape)
     s = Slice(base.theta_i_deg, base.theta_o_deg, f, base.channels, np.abs(f) * 0.05 + 1e-4)
     rec = reconstruct_fit(s)
-    assert _max_albedo(rec) <= 1.0 + 2e-3
+    assert _max_albedo(rec) <= 1.0 + 1e-3
     assert max(rec.report()["constraints"]["max_directional_albedo"]) <= 1.0 + 1e-9
     for lobe in rec.report()["parameters"]:
         for key in ("albedo", "specular", "amount"):
@@ -215,7 +216,7 @@ def test_a_retro_lobe_cannot_hide_in_the_blind_spot():
     for lobe in rec.report()["parameters"]:
         if lobe["type"] == "retro":
             assert lobe["exponent"] <= c["retro_exponent_max"] * (1 + 1e-6)
-    assert _max_albedo(rec) <= 1.0 + 2e-3
+    assert _max_albedo(rec) <= 1.0 + 1e-3
 
 
 def test_fresnel_comes_from_an_index_of_refraction():

@@ -1,0 +1,272 @@
+"""Reconstruction on real measured materials: every method and ``auto``, from 1 and from 3 in-plane slices.
+
+Reads the 48 MERL materials of ``../shared/realdata/nbrdf-merl`` (neural BRDFs, see its README; never copied into
+the project), extracts in-plane slices as a bench would measure them (theta_o = -80..80 deg by 2 deg, the blind
+spot |theta_i + theta_o| < 4 deg left out; 1 slice at theta_i = 40 deg, 3 slices at 20/40/60 deg), reconstructs
+with every method and ``auto``, and compares each table with the material's own table:
+
+* ``rmse80``: relative RMSE of f cos(theta_i) cos(theta_o) over every cell with both angles <= 80 deg;
+* ``medrel``: the median relative error of f over those cells where f is above 1 % of its maximum;
+* ``plausible``: the table passes the plausibility checks (non-negative, directional albedo <= 1 + 0.01 at every
+  incidence, reciprocity) that gonio-reconstruct applies before it writes a table;
+* the reconstruction time (method + tabulation).
+
+Prints a line per material and method, then the median and the worst material per method; with ``--docs DIR``
+writes ``DIR/real-materials.md`` (the whole table) and ``DIR/real-materials.png`` (error per material and
+method). Usage::
+
+    .venv/bin/python benchmarks/bench_real_materials.py [--data ../shared/realdata] [--materials chrome,steel]
+        [--methods auto,fit,microfacet,revolve,bivariate] [--workers 2] [--docs docs]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+import warnings
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from reconstruction import merl, pipeline, report  # noqa: E402
+from reconstruction.geometry import inplane_to_dirs  # noqa: E402
+from reconstruction.metrics import median_relative_error, relative_rmse_cos  # noqa: E402
+from reconstruction.models import NBRDF_SUFFIXES, Material  # noqa: E402
+from reconstruction.slicefile import Slice  # noqa: E402
+
+MODES = {"1": (40.0,), "3": (20.0, 40.0, 60.0)}
+STEP_DEG, BLIND_DEG, MAX_DEG = 2.0, 4.0, 80.0
+
+
+def material_names(folder: Path) -> list[str]:
+    """Every NAME with the six NAME_{fc1,b1,fc2,b2,fc3,b3}.npy files in ``folder``, sorted."""
+    names = {p.name[: -len(f"_{NBRDF_SUFFIXES[0]}.npy")] for p in folder.glob(f"*_{NBRDF_SUFFIXES[0]}.npy")}
+    return sorted(n for n in names if all((folder / f"{n}_{s}.npy").is_file() for s in NBRDF_SUFFIXES))
+
+
+def slices_of(mat: Material, incidences: tuple[float, ...]) -> Slice:
+    """In-plane samples of ``mat`` as the benchmark defines them (README of the real data)."""
+    to = np.arange(-MAX_DEG, MAX_DEG + 1e-9, STEP_DEG)
+    ti_all, to_all = [], []
+    for t in incidences:
+        o = to[np.abs(to + t) >= BLIND_DEG]
+        ti_all.append(np.full(o.size, t))
+        to_all.append(o)
+    a, b = np.concatenate(ti_all), np.concatenate(to_all)
+    f = mat.eval(*inplane_to_dirs(np.radians(a), np.radians(b)))
+    return Slice(a, b, f, ["R", "G", "B"], np.zeros_like(f), source=f"{mat.name} ({len(incidences)} slice(s))")
+
+
+def run_material(job: tuple[str, str, list[str], str | None]) -> list[dict[str, Any]]:
+    """Worker: the truth table of one material, then every method and mode; one record per (mode, method)."""
+    name, folder, methods, cache, modes = job
+    warnings.simplefilter("ignore")
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(1):
+        mat = Material.from_dict({"name": name, "lobes": [{"type": "nbrdf", "path": str(Path(folder) / name)}]})
+        cached = Path(cache) / f"{name}.npy" if cache else None
+        if cached is not None and cached.is_file():
+            truth = np.load(cached).astype(np.float64)
+        else:
+            truth = merl.tabulate(mat.eval)
+            if cached is not None:
+                cached.parent.mkdir(parents=True, exist_ok=True)
+                np.save(cached, truth.astype(np.float32))
+        out = []
+        for mode, inc in MODES.items():
+            if mode not in modes:
+                continue
+            s = slices_of(mat, inc)
+            for m in methods:
+                t0 = time.perf_counter()
+                rec_out: dict[str, Any] = {"material": name, "slices": mode, "method": m}
+                try:
+                    rec, choice = pipeline.reconstruct(s, m)
+                    table = pipeline.tabulate(rec)
+                    rec_out["seconds"] = time.perf_counter() - t0
+                    checks = report.plausibility(rec, table)
+                    rec_out.update(used=choice["used"], rmse80=relative_rmse_cos(table, truth, MAX_DEG),
+                                   medrel=median_relative_error(table, truth, MAX_DEG),
+                                   plausible=bool(checks["all_pass"]), max_albedo=float(checks["albedo"]["max"]))
+                    if "cross_validation" in choice:
+                        scores = choice["cross_validation"]["scores"]
+                        rec_out["cv_seconds"] = sum(c["seconds"] for c in scores)
+                        rec_out["cv"] = {c["method"]: c["held_out_relative_rmse_cos"] for c in scores}
+                except Exception as e:  # a benchmark reports a failure and goes on
+                    rec_out.update(error=f"{type(e).__name__}: {e}", seconds=time.perf_counter() - t0)
+                out.append(rec_out)
+    return out
+
+
+def summarise(records: list[dict[str, Any]], methods: list[str]) -> list[str]:
+    """Lines: per mode and method, median and worst rmse80 / medrel, plausibility, times; auto vs the best."""
+    lines = []
+    for mode in sorted({r["slices"] for r in records}):
+        lines.append(f"{mode} slice(s) ({', '.join(f'{t:g}' for t in MODES[mode])} deg):")
+        for m in methods:
+            rs = [r for r in records if r["slices"] == mode and r["method"] == m]
+            ok = [r for r in rs if "rmse80" in r]
+            if not ok:
+                lines.append(f"  {m:11s} no result")
+                continue
+            e = np.array([r["rmse80"] for r in ok]) * 100
+            md = np.array([r["medrel"] for r in ok]) * 100
+            worst = ok[int(np.argmax(e))]
+            lines.append(f"  {m:11s} rmse80 median {np.median(e):6.1f} %, worst {e.max():7.1f} % ({worst['material']});"
+                         f" medrel median {np.median(md):5.1f} %, worst {md.max():6.1f} %;"
+                         f" > 50 %: {int(np.sum(e > 50))}"
+                         f"; implausible tables: {sum(not r['plausible'] for r in ok)}; failed: {len(rs) - len(ok)};"
+                         f" time median {np.median([r['seconds'] for r in ok]):.2f} s, max "
+                         f"{max(r['seconds'] for r in ok):.2f} s")
+        if "auto" in methods and len(methods) > 1:
+            by = {}
+            for r in records:
+                if r["slices"] == mode and "rmse80" in r:
+                    by.setdefault(r["material"], {})[r["method"]] = r["rmse80"]
+            within = sum(1 for v in by.values() if "auto" in v and
+                         v["auto"] <= 1.1 * min(x for k, x in v.items() if k != "auto"))
+            lines.append(f"  auto within 10 % (relative) of the best method's rmse80: {within} of {len(by)}")
+    return lines
+
+
+def write_docs(records: list[dict[str, Any]], methods: list[str], docs: Path, summary: list[str]) -> None:
+    """docs/real-materials.md (every figure) and docs/real-materials.png."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = sorted({r["material"] for r in records})
+    fig, axes = plt.subplots(2, 1, figsize=(15, 9), sharex=True)
+    for ax, mode in zip(axes, MODES, strict=True):
+        for k, m in enumerate(methods):
+            v = {r["material"]: r.get("rmse80", np.nan) * 100 for r in records if r["slices"] == mode and
+                 r["method"] == m}
+            ax.plot(np.arange(len(names)) + (k - len(methods) / 2) * 0.12, [v.get(n, np.nan) for n in names],
+                    "o" if m == "auto" else ".", ms=7 if m == "auto" else 5, label=m,
+                    color="k" if m == "auto" else None)
+        ax.set_yscale("log")
+        ax.axhline(15 if mode == "1" else 8, color="g", lw=0.8, ls="--", label="median target")
+        ax.set_ylabel("rmse80 (%)")
+        ax.set_title(f"{mode} slice(s) at theta_i = {', '.join(f'{t:g}' for t in MODES[mode])} deg")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].legend(ncol=len(methods) + 1, fontsize=8)
+    axes[1].set_xticks(np.arange(len(names)))
+    axes[1].set_xticklabels(names, rotation=75, fontsize=7)
+    fig.tight_layout()
+    fig.savefig(docs / "real-materials.png", dpi=90)
+    rows = ["| material | " + " | ".join(f"{m} ({mode})" for mode in MODES for m in methods) + " |",
+            "|---|" + "---|" * (len(methods) * len(MODES))]
+    for n in names:
+        cells = []
+        for mode in MODES:
+            for m in methods:
+                r = next((r for r in records if r["material"] == n and r["slices"] == mode and r["method"] == m),
+                         None)
+                if r is None or "rmse80" not in r:
+                    cells.append("failed" if r else "")
+                else:
+                    used = f" [{r['used']}]" if m == "auto" else ""
+                    flag = "" if r["plausible"] else " (implausible)"
+                    cells.append(f"{r['rmse80'] * 100:.1f} / {r['medrel'] * 100:.1f}{used}{flag}")
+        rows.append(f"| {n} | " + " | ".join(cells) + " |")
+    text = f"""# Reconstruction on real materials
+
+Regenerate: `.venv/bin/python benchmarks/bench_real_materials.py --docs docs` (reads `../shared/realdata`, which
+is not part of the project; about 15 minutes on 2 cores).
+
+The 48 MERL materials of `../shared/realdata/nbrdf-merl` (neural BRDF fits of the MERL measurements), sliced as
+a bench measures them: theta_o from -80 to 80 deg every 2 deg, the blind spot |theta_i + theta_o| < 4 deg left out;
+1 slice at theta_i = 40 deg, or 3 slices at 20, 40 and 60 deg. Each method's table is compared with the
+material's own table. Figures: **rmse80** (relative RMSE of f cos theta_i cos theta_o over every cell with both
+angles <= 80 deg) / **medrel** (median relative error of f where f is above 1 % of its maximum, same cells),
+in %. `[method]` is the method `auto` chose by cross-validation; "(implausible)" marks a table that fails the
+plausibility checks (gonio-reconstruct refuses to write it without `--allow-implausible`).
+
+## Summary
+
+```
+{chr(10).join(summary)}
+```
+
+![rmse80 per material and method](real-materials.png)
+
+## Every material
+
+{chr(10).join(rows)}
+"""
+    (docs / "real-materials.md").write_text(text, encoding="utf-8")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--data", default=str(ROOT.parent / "shared" / "realdata"),
+                    help="the real-data folder (with nbrdf-merl/); default ../shared/realdata")
+    ap.add_argument("--materials", help="comma-separated material names (default: all)")
+    ap.add_argument("--methods", default=",".join(pipeline.METHODS),
+                    help=f"comma-separated methods (default: {','.join(pipeline.METHODS)})")
+    ap.add_argument("--slices", default="1,3", help="which cases: 1 (one slice at 40 deg), 3 (20/40/60 deg)")
+    ap.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1), help="worker processes")
+    ap.add_argument("--cache", default=str(ROOT / "out" / "real-materials-cache"),
+                    help="folder for the materials' own tables (computed once); '' for none")
+    ap.add_argument("--docs", metavar="DIR", help="write DIR/real-materials.md and DIR/real-materials.png")
+    ap.add_argument("--jsonl", default=str(ROOT / "out" / "real-materials.jsonl"), help="every record, one per line")
+    args = ap.parse_args(argv)
+    folder = Path(args.data) / "nbrdf-merl"
+    if not folder.is_dir():
+        print(f"bench_real_materials: {folder} not found (see ../shared/realdata/README.md)", file=sys.stderr)
+        return 2
+    names = material_names(folder)
+    if args.materials:
+        want = [n.strip() for n in args.materials.split(",") if n.strip()]
+        missing = sorted(set(want) - set(names))
+        if missing:
+            print(f"bench_real_materials: unknown material(s) {missing}", file=sys.stderr)
+            return 2
+        names = want
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    bad = [m for m in methods if m not in pipeline.METHODS]
+    if bad:
+        print(f"bench_real_materials: unknown method(s) {bad}; expected {', '.join(pipeline.METHODS)}", file=sys.stderr)
+        return 2
+    from tqdm import tqdm
+
+    records: list[dict[str, Any]] = []
+    t0 = time.perf_counter()
+    modes = [m.strip() for m in args.slices.split(",") if m.strip() in MODES]
+    jobs = [(n, str(folder), methods, args.cache or None, modes) for n in names]
+    with ProcessPoolExecutor(max_workers=max(1, args.workers)) as ex:
+        for recs in tqdm(ex.map(run_material, jobs), total=len(jobs), desc="materials", file=sys.stderr):
+            records.extend(recs)
+            for r in recs:
+                if "rmse80" in r:
+                    used = f" [{r['used']}]" if r["method"] == "auto" else ""
+                    print(f"{r['material']:26s} {r['slices']} slice(s) {r['method']:11s} "
+                          f"rmse80 {r['rmse80'] * 100:7.1f} %"
+                          f"  medrel {r['medrel'] * 100:6.1f} %  {'plausible' if r['plausible'] else 'IMPLAUSIBLE'}"
+                          f" (albedo max {r['max_albedo']:.3f})  {r['seconds']:5.2f} s{used}")
+                else:
+                    print(f"{r['material']:26s} {r['slices']} slice(s) {r['method']:11s} FAILED: {r['error']}")
+    summary = summarise(records, methods)
+    summary.append(f"{len(names)} materials, {len(records)} reconstructions, {time.perf_counter() - t0:.0f} s "
+                   f"wall with {args.workers} worker(s)")
+    print("\n".join(summary))
+    if args.jsonl:
+        Path(args.jsonl).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.jsonl).write_text("".join(json.dumps(r) + "\n" for r in records), encoding="utf-8")
+    if args.docs:
+        write_docs(records, methods, Path(args.docs), summary)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

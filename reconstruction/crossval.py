@@ -1,0 +1,123 @@
+"""Cross-validated prediction error of reconstruction methods on the measured samples (what ``auto`` chooses by).
+
+A method's residual on its own samples says nothing about the table (``bivariate`` interpolates its samples
+exactly and can still be far off elsewhere), so methods are compared on samples they did not see:
+
+* slices at several incidences: **leave-one-incidence-out**, each incidence predicted from the others;
+* one incidence: **held-out contiguous blocks of theta_o**: the whole forward side beyond the specular peak as
+  one block (it lies on theta_d = theta_i + theta_h, so predicting it from the rest tests the extrapolation in
+  theta_d that the table needs at every other incidence) and the backward side in ``n_blocks`` - 1 blocks of
+  neighbouring outgoing angles (so interpolation between immediate neighbours cannot hide a bad model). The
+  samples within two steps of the mirror direction are never held out: every table is built on its measured
+  specular peak, and a peak predicted from its shoulders alone would rank the methods by a guess the table never
+  has to make.
+
+The error is the relative RMSE of f cos(theta_i) cos(theta_o) pooled over every held-out sample and channel (the
+same weighting as the table metric). ``fit`` is cross-validated with its model structure fixed to the one chosen
+on all samples (its lobes refitted in every fold), so the score is of that model.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .base import Reconstruction, ReconstructionError
+from .geometry import inplane_to_dirs
+from .slicefile import Slice
+
+Array = NDArray[np.float64]
+
+__all__ = ["folds", "cross_validate", "CVScore", "N_BLOCKS"]
+
+N_BLOCKS = 8
+
+
+def folds(s: Slice, n_blocks: int = N_BLOCKS) -> tuple[str, list[NDArray[np.bool_]]]:
+    """(scheme, held-out masks (N,) bool) for ``s``."""
+    inc = np.unique(s.theta_i_deg)
+    if inc.size >= 2:
+        return "leave-one-incidence-out", [s.theta_i_deg == t for t in inc]
+    to = s.theta_o_deg
+    step = float(np.median(np.diff(np.unique(to)))) if np.unique(to).size > 1 else 1.0
+    keep = np.abs(to - inc[0]) <= 2.0 * step + 1e-9  # the specular peak stays in every training set
+    forward = ~keep & (to > inc[0])
+    masks = [forward] if forward.sum() >= 2 else []
+    back = ~keep & ~(forward if masks else np.zeros_like(keep))
+    order = np.argsort(np.where(back, to, np.inf), kind="stable")[: int(np.sum(back))]
+    k = max(1, min(n_blocks - len(masks), order.size // 3))
+    for block in np.array_split(order, k):  # contiguous runs of theta_o
+        m = np.zeros(len(s), dtype=bool)
+        m[block] = True
+        masks.append(m)
+    fwd = "the forward side beyond the peak and " if forward.sum() >= 2 else ""
+    return (f"{len(masks)} held-out contiguous blocks of theta_o ({fwd}{k} on the other side; the mirror direction "
+            f"+- {2 * step:g} deg always kept)"), masks
+
+
+@dataclass
+class CVScore:
+    """Held-out error of one method."""
+
+    method: str
+    error: float  # relative RMSE of f cos cos over all held-out samples; inf if a fold failed
+    fold_errors: list[float]
+    seconds: float
+    failure: str | None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"method": self.method, "held_out_relative_rmse_cos": self.error if math.isfinite(self.error) else None,
+                "fold_errors": [e if math.isfinite(e) else None for e in self.fold_errors],
+                "seconds": round(self.seconds, 3), **({"failure": self.failure} if self.failure else {})}
+
+
+def _score(pred: Array, f: Array, c: Array) -> tuple[float, float]:
+    return float(np.sum(((pred - f) * c) ** 2)), float(np.sum((f * c) ** 2))
+
+
+def scene_mask(s: Slice, scene: Any) -> NDArray[np.bool_] | None:
+    """The samples inside a scene's theta_i and |theta_o| ranges (what the scene needs), or None for no scene."""
+    if scene is None:
+        return None
+    from .fit import SCENE_DEFAULT_RANGE_DEG
+
+    (ti_lo, ti_hi), (to_lo, to_hi) = scene.ranges(SCENE_DEFAULT_RANGE_DEG)
+    to = np.abs(s.theta_o_deg)
+    return ((s.theta_i_deg >= ti_lo - 1e-9) & (s.theta_i_deg <= ti_hi + 1e-9)
+            & (to >= to_lo - 1e-9) & (to <= to_hi + 1e-9))
+
+
+def cross_validate(s: Slice, name: str, build: Callable[[Slice], Reconstruction],
+                   masks: list[NDArray[np.bool_]], score_mask: NDArray[np.bool_] | None = None) -> CVScore:
+    """Held-out error of ``build`` (a function of the training slice) over the folds ``masks``; with
+    ``score_mask`` only the held-out samples inside it count (a scene's directions)."""
+    f, _ = s.brdf()
+    wi, wo = inplane_to_dirs(np.radians(s.theta_i_deg), np.radians(s.theta_o_deg))
+    c = (np.clip(wi[:, 2], 0, None) * np.clip(wo[:, 2], 0, None))[:, None]
+    t0 = time.perf_counter()
+    num = den = 0.0
+    per: list[float] = []
+    for held in masks:  # a handful of folds
+        out = held & score_mask if score_mask is not None else held
+        if not out.any():
+            continue
+        train = s.take(~held)
+        try:
+            rec = build(train)
+            pred = np.asarray(rec.eval(wi[out], wo[out]), dtype=np.float64).reshape(int(out.sum()), -1)
+        except (ReconstructionError, ValueError, np.linalg.LinAlgError) as e:
+            return CVScore(name, math.inf, per, time.perf_counter() - t0, f"fold {len(per) + 1}: {e}")
+        if not np.all(np.isfinite(pred)):
+            return CVScore(name, math.inf, per, time.perf_counter() - t0, f"fold {len(per) + 1}: non-finite values")
+        a, b = _score(np.broadcast_to(pred, f[out].shape), f[out], c[out])
+        num += a
+        den += b
+        per.append(math.sqrt(a / b) if b > 0 else math.inf)
+    err = math.sqrt(num / den) if den > 0 else math.inf
+    return CVScore(name, err, per, time.perf_counter() - t0)

@@ -1,0 +1,74 @@
+"""Cross-validation folds and scores (what auto chooses by)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from reconstruction.base import ReconstructionError
+from reconstruction.crossval import cross_validate, folds, scene_mask
+from reconstruction.models import Material
+from reconstruction.scene import scene_from_dict
+from reconstruction.synthetic import synthetic_slice
+
+MAT = Material.from_dict({"lobes": [{"type": "lambert", "albedo": 0.3},
+                                    {"type": "ggx", "alpha": 0.2, "specular": 0.3}]})
+
+
+def test_one_incidence_gives_contiguous_blocks_that_never_hold_out_the_peak():
+    s = synthetic_slice(MAT, (30.0,), step_deg=2.0)
+    scheme, masks = folds(s)
+    assert "contiguous blocks of theta_o" in scheme and len(masks) == 8
+    held = np.zeros(len(s), dtype=bool)
+    for m in masks:
+        assert not (held & m).any()  # disjoint
+        held |= m
+        to = np.sort(s.theta_o_deg[m])
+        inside = (s.theta_o_deg >= to[0]) & (s.theta_o_deg <= to[-1])
+        peak = np.abs(s.theta_o_deg - 30.0) <= 4.0
+        assert np.array_equal(inside & ~peak, m)  # a block is every sample of its theta_o range but the peak
+    assert np.array_equal(~held, np.abs(s.theta_o_deg - 30.0) <= 4.0)  # only the peak is never held out
+
+
+def test_several_incidences_leave_one_incidence_out():
+    s = synthetic_slice(MAT, (20.0, 40.0, 60.0))
+    scheme, masks = folds(s)
+    assert scheme == "leave-one-incidence-out"
+    assert [float(np.unique(s.theta_i_deg[m])[0]) for m in masks] == [20.0, 40.0, 60.0]
+
+
+def test_scores_pool_the_held_out_samples_and_honour_a_scene():
+    s = synthetic_slice(MAT, (20.0, 40.0, 60.0))
+    _, masks = folds(s)
+
+    class Const:  # predicts 0.1 everywhere
+        def eval(self, wi, wo):
+            return np.full((len(wi), 1), 0.1)
+
+    sc = cross_validate(s, "const", lambda tr: Const(), masks)
+    f = s.values
+    from reconstruction.geometry import inplane_to_dirs
+
+    wi, wo = inplane_to_dirs(np.radians(s.theta_i_deg), np.radians(s.theta_o_deg))
+    c = (wi[:, 2] * wo[:, 2])[:, None]
+    assert sc.error == pytest.approx(math.sqrt(np.sum(((0.1 - f) * c) ** 2) / np.sum((f * c) ** 2)))
+    assert len(sc.fold_errors) == 3
+    scene = scene_from_dict({"scene": {"theta_i_deg": [15.0, 45.0]}}, "test")
+    inside = scene_mask(s, scene)
+    assert set(np.unique(s.theta_i_deg[inside])) == {20.0, 40.0}
+    sc2 = cross_validate(s, "const", lambda tr: Const(), masks, inside)
+    assert len(sc2.fold_errors) == 2  # the 60 deg fold has nothing the scene needs
+    assert sc2.error == pytest.approx(math.sqrt(np.sum(((0.1 - f[inside]) * c[inside]) ** 2)
+                                                / np.sum((f[inside] * c[inside]) ** 2)))
+
+
+def test_a_failing_method_scores_infinity_with_the_reason():
+    s = synthetic_slice(MAT, (30.0,))
+    _, masks = folds(s)
+
+    def boom(tr):
+        raise ReconstructionError("too few samples")
+
+    sc = cross_validate(s, "boom", boom, masks)
+    assert math.isinf(sc.error) and "too few samples" in sc.failure
+    assert sc.as_dict()["held_out_relative_rmse_cos"] is None
