@@ -88,7 +88,14 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--name", default=None, help="file name stem (default: study-quick or study)")
     b.add_argument("--workdir", default="out/study", help="captures and per-case configs (default: out/study)")
     b.add_argument("--materials", default=None,
-                   help="comma-separated subset of: diffuse, glossy-ggx, sharp-ggx, back-scatter, rough-oren-nayar")
+                   help="comma-separated subset of: diffuse, glossy-ggx, sharp-ggx, back-scatter, rough-oren-nayar "
+                        "(or of the --material-dir names)")
+    b.add_argument("--material-dir", default=None, metavar="DIR",
+                   help="study the materials of DIR instead: every neural BRDF set NAME_fc1.npy ... NAME_b3.npy "
+                        "(e.g. ../shared/realdata/nbrdf-merl) and every material TOML file; recommendations then "
+                        "use rmse80 (cells with both angles <= 80 deg)")
+    b.add_argument("--reduced", action="store_true",
+                   help="a reduced grid: 1 and 4 slices, 2 deg steps, 4 repeats, uniform plan, low noise")
     b.add_argument("--scheduler", default=None,
                    help="dask.distributed scheduler address: run the cases on that cluster (pip install "
                         "'gonio-brdf[dask]')")
@@ -100,23 +107,32 @@ def build_parser() -> argparse.ArgumentParser:
 def _bench(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from .study import grid, run_study
+    from .study import MATERIALS, grid, materials_from_dir, run_study
 
     if not Path(args.config).is_file():
         print(f"gonio-sim bench: --config {args.config}: no such file", file=sys.stderr)
         return 2
+    catalogue = MATERIALS
+    if args.material_dir:
+        try:
+            catalogue = materials_from_dir(args.material_dir)
+        except ValueError as e:
+            print(f"gonio-sim bench: --material-dir: {e}", file=sys.stderr)
+            return 2
     try:
-        cases = grid(args.quick, args.materials.split(",") if args.materials else None)
+        cases = grid(args.quick, args.materials.split(",") if args.materials else None, catalogue, args.reduced)
     except ValueError as e:
         print(f"gonio-sim bench: --materials: {e}", file=sys.stderr)
         return 2
     name = args.name or ("study-quick" if args.quick else "study")
-    command = "gonio-sim bench" + (" --quick" if args.quick else "") + (
+    command = "gonio-sim bench" + (" --quick" if args.quick else "") + (" --reduced" if args.reduced else "") + (
+        f" --material-dir {args.material_dir}" if args.material_dir else "") + (
         f" --materials {args.materials}" if args.materials else "")
     t0 = time.perf_counter()
     try:
         rows = run_study(cases, args.config, args.workdir, args.out, name, command, args.scheduler, args.workers,
-                         progress=not args.no_progress)
+                         progress=not args.no_progress, catalogue=catalogue,
+                         metric="rmse80" if args.material_dir else "rel_rmse_cos")
     except RuntimeError as e:
         print(f"gonio-sim bench: {e}", file=sys.stderr)
         return 2

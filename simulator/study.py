@@ -68,11 +68,50 @@ NOISE: dict[str, dict[str, float]] = {
     "high": {"source_power": 2.0e5, "read_noise": 20.0},
 }
 
-METHODS: tuple[str, ...] = ("fit", "bivariate", "revolve")
+METHODS: tuple[str, ...] = ("fit", "microfacet", "bivariate", "revolve", "auto")
 BUDGETS: tuple[float, ...] = (0.02, 0.05, 0.10)
 FIELDS = ["material", "step_deg", "n_slices", "repeats", "plan", "noise", "method", "method_used", "status",
-          "samples", "capture_time_s", "capture_wall_s", "recon_time_s", "rel_rmse_cos", "log_rmse",
+          "samples", "capture_time_s", "capture_wall_s", "recon_time_s", "rel_rmse_cos", "rmse80", "log_rmse",
           "sphere_rel_error", "albedo_max_abs_error", "error"]
+#: The reduced grid (``--reduced``): one slice and four slices, 2 deg steps, 4 repeats, low noise.
+REDUCED_SETTINGS = [(2.0, 1, 4, "uniform", "low"), (2.0, 4, 4, "uniform", "low")]
+
+
+def materials_from_dir(folder: str | Path) -> dict[str, dict[str, Any]]:
+    """The study materials of ``folder``: every neural BRDF set (``NAME_fc1.npy`` ... ``NAME_b3.npy``, as in
+    ../shared/realdata/nbrdf-merl) as an ``nbrdf`` material named NAME, and every ``*.toml`` with a ``[material]``
+    table (named after its ``name`` or the file). Paths become absolute, so the case configs work anywhere.
+    Raises ValueError naming the file for a bad material, or when the folder holds none."""
+    from reconstruction.models import NBRDF_SUFFIXES, Material, MaterialError
+
+    d = Path(folder)
+    if not d.is_dir():
+        raise ValueError(f"{d}: not a folder")
+    out: dict[str, dict[str, Any]] = {}
+    first = f"_{NBRDF_SUFFIXES[0]}.npy"
+    for p in sorted(d.glob(f"*{first}")):
+        name = p.name[: -len(first)]
+        if all((d / f"{name}_{x}.npy").is_file() for x in NBRDF_SUFFIXES):
+            out[name] = {"name": name, "lobes": [{"type": "nbrdf", "path": str((d / name).resolve())}]}
+    for p in sorted(d.glob("*.toml")):
+        try:
+            data = tomllib.loads(p.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
+            raise ValueError(f"{p}: not a readable TOML file ({e})") from None
+        if "material" not in data:
+            continue
+        try:
+            Material.from_dict(data["material"], p.parent, source=f"{p}: [material]")  # validated as the bench will
+        except MaterialError as e:
+            raise ValueError(str(e)) from None
+        mat = json.loads(json.dumps(data["material"]))
+        for lobe in mat.get("lobes", []):
+            if isinstance(lobe.get("path"), str) and not Path(lobe["path"]).is_absolute():
+                lobe["path"] = str((p.parent / lobe["path"]).resolve())
+        out[str(mat.get("name") or p.stem)] = mat
+    if not out:
+        raise ValueError(f"{d}: no neural BRDF (NAME_fc1.npy ...) and no material TOML file inside")
+    return out
 
 
 @dataclass(frozen=True)
@@ -97,15 +136,20 @@ class Case:
         return zlib.crc32(self.name.encode()) & 0x7FFFFFFF
 
 
-def grid(quick: bool = False, materials: Sequence[str] | None = None) -> list[Case]:
+def grid(quick: bool = False, materials: Sequence[str] | None = None,
+         catalogue: dict[str, dict[str, Any]] | None = None, reduced: bool = False) -> list[Case]:
     """The study's cases. Full: every combination of step (0.5, 1, 2, 5 deg), slices (1, 2, 4, 8), repeats
     (1, 4, 16), plan (uniform, adaptive) and noise (low, high) for each material. Quick: four settings that
-    span cheap to expensive, per material."""
-    mats = list(materials or MATERIALS)
-    unknown = [m for m in mats if m not in MATERIALS]
+    span cheap to expensive, per material; reduced: :data:`REDUCED_SETTINGS`. ``catalogue``: the materials to
+    choose from (default :data:`MATERIALS`; e.g. :func:`materials_from_dir`)."""
+    known = catalogue if catalogue is not None else MATERIALS
+    mats = list(materials or known)
+    unknown = [m for m in mats if m not in known]
     if unknown:
-        raise ValueError(f"unknown material(s) {unknown}; choose from {sorted(MATERIALS)}")
-    if quick:
+        raise ValueError(f"unknown material(s) {unknown}; choose from {sorted(known)}")
+    if reduced:
+        settings = list(REDUCED_SETTINGS)
+    elif quick:
         settings = [(5.0, 1, 1, "uniform", "low"), (2.0, 2, 4, "uniform", "low"),
                     (2.0, 1, 4, "adaptive", "low"), (2.0, 4, 4, "uniform", "high")]
     else:
@@ -114,11 +158,12 @@ def grid(quick: bool = False, materials: Sequence[str] | None = None) -> list[Ca
     return [Case(m, *s) for m in mats for s in settings]
 
 
-def case_config(base: dict[str, Any], case: Case) -> dict[str, Any]:
-    """The bench config dict of ``case``: ``base`` (a parsed simulated bench file) with its material, plan,
-    repeats, noise and seed replaced; simulated time runs as fast as possible."""
+def case_config(base: dict[str, Any], case: Case, material: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The bench config dict of ``case``: ``base`` (a parsed simulated bench file) with its material (``material``,
+    default the study's own of that name), plan, repeats, noise and seed replaced; simulated time runs as fast as
+    possible."""
     cfg = json.loads(json.dumps(base))  # deep copy of plain TOML data
-    cfg["material"] = MATERIALS[case.material]
+    cfg["material"] = material if material is not None else MATERIALS[case.material]
     plan = {k: v for k, v in cfg.get("plan", {}).items() if k not in ("adaptive", "theta_i_min_deg",
                                                                        "theta_i_max_deg", "theta_i_step_deg")}
     plan.update(theta_i_deg=INCIDENCES[case.n_slices], theta_o_step_deg=case.step_deg, repeats=case.repeats)
@@ -136,23 +181,33 @@ def case_config(base: dict[str, Any], case: Case) -> dict[str, Any]:
 
 
 @lru_cache(maxsize=8)
-def truth_table(material: str) -> Any:
-    """The material's own MERL table (bin centres, adaptive cell averages where lobes are sharp); cached."""
+def _truth(material_json: str) -> Any:
     from reconstruction import merl
     from reconstruction.models import Material
 
-    return merl.tabulate(Material.from_dict(MATERIALS[material]).eval, supersample="adaptive")
+    return merl.tabulate(Material.from_dict(json.loads(material_json)).eval, supersample="adaptive")
+
+
+def truth_table(material: str | dict[str, Any]) -> Any:
+    """The material's own MERL table (bin centres, adaptive cell averages where lobes are sharp); cached.
+    ``material``: a study material's name or a material dict."""
+    d = MATERIALS[material] if isinstance(material, str) else material
+    return _truth(json.dumps(d, sort_keys=True))
+
+
+truth_table.cache_clear = _truth.cache_clear  # type: ignore[attr-defined]
 
 
 def run_case(job: tuple[Case, str, str]) -> list[dict[str, Any]]:
     """Capture ``case`` on the simulator and reconstruct it with every method; one result row per method.
 
-    ``job`` = (case, base config TOML text, work directory). Runs in a worker process, possibly on another
-    machine of a Dask cluster: the config travels as text and the rows come back as data; captures go to the
-    work directory where the worker can write it, else to a temporary folder. Never raises for a failed capture
-    or method: the row says what failed.
+    ``job`` = (case, base config TOML text, work directory[, material dict]). Runs in a worker process, possibly
+    on another machine of a Dask cluster: the config travels as text and the rows come back as data; captures go
+    to the work directory where the worker can write it, else to a temporary folder. Never raises for a failed
+    capture or method: the row says what failed.
     """
-    case, base_text, workdir = job
+    case, base_text, workdir = job[:3]
+    material = job[3] if len(job) > 3 else MATERIALS[case.material]  # type: ignore[misc]
     import tempfile
 
     import tomli_w
@@ -164,7 +219,7 @@ def run_case(job: tuple[Case, str, str]) -> list[dict[str, Any]]:
         out = Path(tempfile.mkdtemp(prefix=f"gonio-study-{case.name}-"))
     base = tomllib.loads(base_text)
     cfg_path = out / "bench.toml"
-    cfg_text = tomli_w.dumps(case_config(base, case))
+    cfg_text = tomli_w.dumps(case_config(base, case, material))
     cap_dir = out / "capture"
     if cap_dir.exists() and (not cfg_path.exists() or cfg_path.read_text(encoding="utf-8") != cfg_text):
         shutil.rmtree(cap_dir)  # captured with another config (material, noise, plan): start again
@@ -190,7 +245,7 @@ def run_case(job: tuple[Case, str, str]) -> list[dict[str, Any]]:
     from reconstruction.inputs import load_inputs
 
     s = load_inputs([cap_dir / "slice.csv"]).slice
-    truth = truth_table(case.material)
+    truth = truth_table(material)
     rows = []
     for method in METHODS:
         row = {**row0, "method": method}
@@ -201,6 +256,7 @@ def run_case(job: tuple[Case, str, str]) -> list[dict[str, Any]]:
             row["recon_time_s"] = time.perf_counter() - t1
             row["method_used"] = choice["used"]
             row.update(metrics.table_errors(table, truth))
+            row["rmse80"] = metrics.relative_rmse_cos(table, truth, max_theta_deg=80.0)
         except Exception as e:  # noqa: BLE001 - a failed method is a result of the study, not a crash
             row.update(status="method failed", error=f"{type(e).__name__}: {e}")
         rows.append(row)
@@ -226,12 +282,14 @@ def pareto_front(rows: Sequence[dict[str, Any]], x: str = "capture_time_s", y: s
     return front
 
 
-def recommend(rows: Sequence[dict[str, Any]], budget: float) -> dict[str, dict[str, Any] | None]:
-    """Per material, the row with the least capture time whose relative RMSE (f cos cos) is within ``budget``."""
+def recommend(rows: Sequence[dict[str, Any]], budget: float, metric: str = "rel_rmse_cos"
+              ) -> dict[str, dict[str, Any] | None]:
+    """Per material, the row with the least capture time whose error ``metric`` (relative RMSE of f cos cos over
+    the table, or ``rmse80``: within 80 deg) is within ``budget``."""
     out: dict[str, dict[str, Any] | None] = {}
     for m in sorted({r["material"] for r in rows}):
-        ok = [r for r in _ok(rows) if r["material"] == m and float(r["rel_rmse_cos"]) <= budget]
-        out[m] = min(ok, key=lambda r: (float(r["capture_time_s"]), float(r["rel_rmse_cos"]))) if ok else None
+        ok = [r for r in _ok(rows) if r["material"] == m and float(r.get(metric, math.inf)) <= budget]
+        out[m] = min(ok, key=lambda r: (float(r["capture_time_s"]), float(r[metric]))) if ok else None
     return out
 
 
@@ -248,8 +306,11 @@ def write_csv(path: Path, rows: Sequence[dict[str, Any]]) -> None:
             w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
 
 
-def write_markdown(path: Path, rows: Sequence[dict[str, Any]], title: str, command: str) -> None:
+def write_markdown(path: Path, rows: Sequence[dict[str, Any]], title: str, command: str,
+                   metric: str = "rel_rmse_cos") -> None:
     ok = _ok(rows)
+    what = ("relative RMSE of f cos cos over the cells with both angles <= 80 deg (rmse80)" if metric == "rmse80"
+            else "relative RMSE of f cos cos")
     lines = [f"# {title}", "", f"Produced by `{command}`. Capture time is simulated bench time (motion, settling,",
              "integration, dark and white-reference readings); errors are against the material's own table: relative",
              "RMSE of f cos(theta_i) cos(theta_o) over all valid cells, RMSE of its logarithm, relative error of the",
@@ -257,16 +318,17 @@ def write_markdown(path: Path, rows: Sequence[dict[str, Any]], title: str, comma
     failed = [r for r in rows if r.get("status") != "ok"]
     lines += [f"{len(rows)} rows ({len({_setting(r) + r['material'] for r in rows})} captures), {len(failed)} failed.",
               ""]
-    lines += ["## Recommendations", "", "The least capture time that reaches an error budget (relative RMSE of "
-              "f cos cos), per material:", ""]
+    lines += ["## Recommendations", "", f"The least capture time that reaches an error budget ({what}), per "
+              "material:", ""]
     lines += ["| budget | material | capture time (s) | plan | method | error |", "|---|---|---|---|---|---|"]
     for b in BUDGETS:
-        for m, r in recommend(rows, b).items():
+        for m, r in recommend(rows, b, metric).items():
             if r is None:
-                lines.append(f"| {b:.0%} | {m} | - | not reached by any case | - | - |")
+                best = min((float(x.get(metric, math.inf)) for x in ok if x["material"] == m), default=math.inf)
+                lines.append(f"| {b:.0%} | {m} | - | not reached by any case (best {best:.1%}) | - | - |")
             else:
                 lines.append(f"| {b:.0%} | {m} | {float(r['capture_time_s']):.1f} | {_setting(r)} | {r['method']} | "
-                             f"{float(r['rel_rmse_cos']):.2%} |")
+                             f"{float(r[metric]):.2%} |")
     lines += ["", "## Pareto fronts (capture time vs error)", ""]
     for m in sorted({r["material"] for r in ok}):
         front = pareto_front([r for r in ok if r["material"] == m])
@@ -275,7 +337,7 @@ def write_markdown(path: Path, rows: Sequence[dict[str, Any]], title: str, comma
             for r in front))
     lines += ["", "## All results", "",
               "| material | step | slices | repeats | plan | noise | method | capture s | recon s | rel RMSE cos | "
-              "log RMSE | sphere err | albedo err |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+              "rmse80 | log RMSE | sphere err | albedo err |", "|" + "---|" * 14]
     for r in sorted(rows, key=lambda r: (r["material"], float(r.get("capture_time_s") or 0), r["method"])):
         if r.get("status") != "ok":
             lines.append(f"| {r['material']} | {float(r['step_deg']):g} | {r['n_slices']} | {r['repeats']} | "
@@ -284,7 +346,8 @@ def write_markdown(path: Path, rows: Sequence[dict[str, Any]], title: str, comma
         lines.append(
             f"| {r['material']} | {float(r['step_deg']):g} | {r['n_slices']} | {r['repeats']} | {r['plan']} | "
             f"{r['noise']} | {r['method']} | {float(r['capture_time_s']):.1f} | {float(r['recon_time_s']):.2f} | "
-            f"{float(r['rel_rmse_cos']):.2%} | {float(r['log_rmse']):.3f} | {float(r['sphere_rel_error']):.2%} | "
+            f"{float(r['rel_rmse_cos']):.2%} | {float(r.get('rmse80', math.nan)):.2%} | "
+            f"{float(r['log_rmse']):.3f} | {float(r['sphere_rel_error']):.2%} | "
             f"{float(r['albedo_max_abs_error']):.3f} |")
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
 
@@ -304,7 +367,7 @@ def write_plot(path: Path, rows: Sequence[dict[str, Any]], title: str) -> None:
     ncol = min(3, len(mats))
     nrow = math.ceil(len(mats) / ncol)
     fig, axes = plt.subplots(nrow, ncol, figsize=(4.2 * ncol, 3.4 * nrow), squeeze=False)
-    markers = {"fit": "o", "bivariate": "s", "revolve": "^"}
+    markers = {"fit": "o", "microfacet": "D", "bivariate": "s", "revolve": "^", "auto": "*"}
     for ax, m in zip(axes.flat, mats, strict=False):
         mr = [r for r in ok if r["material"] == m]
         for method in METHODS:
@@ -335,8 +398,11 @@ def write_plot(path: Path, rows: Sequence[dict[str, Any]], title: str) -> None:
 
 def run_study(cases: Sequence[Case], base_config: str | Path, workdir: str | Path, out_dir: str | Path,
               name: str, command: str, scheduler: str | None = None, workers: int | None = None,
-              progress: bool = True) -> list[dict[str, Any]]:
-    """Run ``cases`` through the executor, write ``out_dir/name.{csv,md}`` and ``name-pareto.png``; return rows."""
+              progress: bool = True, catalogue: dict[str, dict[str, Any]] | None = None,
+              metric: str = "rel_rmse_cos") -> list[dict[str, Any]]:
+    """Run ``cases`` through the executor, write ``out_dir/name.{csv,md}`` and ``name-pareto.png``; return rows.
+    ``catalogue``: material dicts by name (default :data:`MATERIALS`); ``metric``: what the recommendations use."""
+    catalogue = catalogue if catalogue is not None else MATERIALS
     from tqdm import tqdm
 
     from reconstruction.executor import make_executor, run_all
@@ -359,14 +425,14 @@ def run_study(cases: Sequence[Case], base_config: str | Path, workdir: str | Pat
 
     with make_executor(scheduler, workers) as ex:
         base_text = base_config.read_text(encoding="utf-8")
-        run_all(ex, run_case, [(c, base_text, str(workdir)) for c in cases], on_done=done)
+        run_all(ex, run_case, [(c, base_text, str(workdir), catalogue[c.material]) for c in cases], on_done=done)
     bar.close()
     order = {c.name: i for i, c in enumerate(cases)}
     rows.sort(key=lambda r: (order.get(Case(r["material"], float(r["step_deg"]), int(r["n_slices"]),
                                             int(r["repeats"]), r["plan"], r["noise"]).name, 0),
                              METHODS.index(r["method"])))
     write_csv(out_dir / f"{name}.csv", rows)
-    write_markdown(out_dir / f"{name}.md", rows, f"Speed/accuracy study ({name})", command)
+    write_markdown(out_dir / f"{name}.md", rows, f"Speed/accuracy study ({name})", command, metric)
     write_plot(out_dir / f"{name}-pareto.png", rows, f"Error against capture time ({name})")
     os.sync()
     return rows

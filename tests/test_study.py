@@ -119,3 +119,34 @@ def test_a_case_is_recaptured_when_its_config_changed_and_resumed_when_not(tmp_p
     from reconstruction.slicefile import read_slice
 
     assert read_slice(slice_csv).values.mean() < 0.7 * 0.6 / np.pi  # the new, darker material's samples
+
+
+def test_a_material_dir_gives_neural_and_toml_materials_to_the_study(tmp_path):
+    from tests.test_nbrdf_energy import write_nbrdf
+
+    d = tmp_path / "mats"
+    d.mkdir()
+    write_nbrdf(d / "neural", seed=4)
+    (d / "paint.toml").write_text('[material]\nname = "paint"\n[[material.lobes]]\ntype = "lambert"\nalbedo = 0.4\n')
+    (d / "notes.toml").write_text('title = "not a material"\n')
+    cat = study.materials_from_dir(d)
+    assert sorted(cat) == ["neural", "paint"]
+    assert cat["neural"]["lobes"][0] == {"type": "nbrdf", "path": str((d / "neural").resolve())}
+    cases = study.grid(reduced=True, catalogue=cat)
+    assert len(cases) == 2 * len(study.REDUCED_SETTINGS)
+    with pytest.raises(ValueError, match="no neural BRDF"):
+        study.materials_from_dir(tmp_path / "mats" / "..")  # no material at that level
+    # a real simulated capture of the neural material, judged within 80 deg as well
+    base = open("configs/simulated.toml", encoding="utf-8").read()
+    case = Case("neural", 5.0, 1, 1, "uniform", "low")
+    rows = study.run_case((case, base, str(tmp_path / "work"), cat["neural"]))
+    assert [r["method"] for r in rows] == list(study.METHODS)
+    assert all(r["status"] == "ok" for r in rows), rows
+    assert all(0 <= r["rmse80"] < 10 for r in rows)
+
+
+def test_cli_material_dir_errors_are_one_line(capsys, tmp_path):
+    from simulator.cli import main
+
+    assert main(["bench", "--material-dir", str(tmp_path / "none")]) == 2
+    assert "--material-dir" in capsys.readouterr().err
