@@ -336,6 +336,16 @@ class Retro(Lobe):
         return {"exponent": self.exponent}
 
 
+def _rgb_on(rgb: Array, n_channels: int, what: str) -> Array:
+    """An RGB lobe's values (..., 3) on a material of ``n_channels``: 3 as they are, 1 as their mean."""
+    n = n_channels or 3
+    if n == 3:
+        return rgb
+    if n == 1:
+        return rgb.mean(axis=-1, keepdims=True)
+    raise MaterialError(f"{what} gives RGB; it cannot be mixed with spectral lobes")
+
+
 @dataclass
 class Tabulated(Lobe):
     """A measured MERL table (linear RGB), looked up with trilinear interpolation; ``scale`` multiplies it."""
@@ -362,13 +372,7 @@ class Tabulated(Lobe):
         wi = np.asarray(wi, dtype=np.float64)
         wo = np.asarray(wo, dtype=np.float64)
         rgb = np.nan_to_num(merl.lookup(self._table(), wi, wo, interpolate=True), nan=0.0)
-        rgb = rgb * self.colour.on(3, None)
-        n = n_channels or 3
-        if n == 3:
-            return rgb
-        if n == 1:
-            return rgb.mean(axis=-1, keepdims=True)
-        raise MaterialError("a tabulated lobe gives RGB; it cannot be mixed with spectral lobes")
+        return _rgb_on(rgb * self.colour.on(3, None), n_channels, "a tabulated lobe")
 
     def params(self) -> dict[str, Any]:
         return {"path": self.path}
@@ -439,13 +443,7 @@ class Nbrdf(Lobe):
             rgb = np.maximum(np.expm1(a2 @ w["fc3"] + w["b3"]), 0.0)
         rgb = np.nan_to_num(rgb, nan=0.0, posinf=np.finfo(np.float64).max)
         up = (wi[..., 2] > 0) & (wo[..., 2] > 0)
-        rgb = np.where(up[..., None], rgb, 0.0) * self.colour.on(3, None)
-        n = n_channels or 3
-        if n == 3:
-            return rgb
-        if n == 1:
-            return rgb.mean(axis=-1, keepdims=True)
-        raise MaterialError("a neural BRDF gives RGB; it cannot be mixed with spectral lobes")
+        return _rgb_on(np.where(up[..., None], rgb, 0.0) * self.colour.on(3, None), n_channels, "a neural BRDF")
 
     def params(self) -> dict[str, Any]:
         return {"path": self.path}
