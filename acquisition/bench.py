@@ -41,7 +41,7 @@ from .serial_link import SerialAxes, SerialDetector, SerialLink
 
 log = logging.getLogger("acquisition.bench")
 
-__all__ = ["Bench", "SimulatorProcess", "check_simulator_config"]
+__all__ = ["Bench", "SimulatorProcess", "SimulatorCheck", "check_simulator_config"]
 
 #: The simulator's exit status for a config it refuses (``gonio-sim serve`` / ``gonio-sim check``).
 SIMULATOR_CONFIG_STATUS = 2
@@ -71,17 +71,41 @@ def check_simulator_config(config_path: str | Path, command: str = "gonio-sim", 
     """Validate the simulator's sections of ``config_path`` as ``gonio-sim serve`` would, by running
     ``COMMAND check --config FILE`` (no port is opened). Raises :class:`ConfigError` with the simulator's message
     if it refuses the file, :class:`CommError` if the check cannot be run."""
-    argv = [*_simulator_argv(command), "check", "--config", str(config_path)]
-    try:
-        r = subprocess.run(argv, stdin=subprocess.DEVNULL, capture_output=True, timeout=timeout_s)
-    except (OSError, subprocess.TimeoutExpired) as e:
-        raise CommError(f"simulated bench: cannot run {' '.join(argv)}: {e}") from None
-    err = r.stderr.decode(errors="replace")
-    if r.returncode == SIMULATOR_CONFIG_STATUS:
-        raise ConfigError(_refusal(err, r.returncode))
-    if r.returncode != 0:
-        raise CommError(f"simulated bench: {' '.join(argv)} exited with status {r.returncode}: "
-                        f"{err.strip()[-2000:]}")
+    SimulatorCheck(config_path, command).result(timeout_s)
+
+
+class SimulatorCheck:
+    """``gonio-sim check --config FILE`` started in the background (so that ``gonio-capture --check`` validates
+    the plan meanwhile); :meth:`result` waits for it and raises as :func:`check_simulator_config`."""
+
+    def __init__(self, config_path: str | Path, command: str = "gonio-sim") -> None:
+        self.argv = [*_simulator_argv(command), "check", "--config", str(config_path)]
+        try:
+            self.proc: subprocess.Popen[bytes] | None = subprocess.Popen(
+                self.argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        except OSError as e:
+            raise CommError(f"simulated bench: cannot run {' '.join(self.argv)}: {e}") from None
+
+    def result(self, timeout_s: float = 60.0) -> None:
+        assert self.proc is not None
+        try:
+            _, err_b = self.proc.communicate(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            self.cancel()
+            raise CommError(f"simulated bench: {' '.join(self.argv)} gave no answer within {timeout_s:g} s") from None
+        err = err_b.decode(errors="replace")
+        code = self.proc.returncode
+        if code == SIMULATOR_CONFIG_STATUS:
+            raise ConfigError(_refusal(err, code))
+        if code != 0:
+            raise CommError(f"simulated bench: {' '.join(self.argv)} exited with status {code}: "
+                            f"{err.strip()[-2000:]}")
+
+    def cancel(self) -> None:
+        """Stop the check (the config was refused before its answer was needed)."""
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.communicate()
 
 
 class SimulatorProcess:

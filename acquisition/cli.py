@@ -79,32 +79,57 @@ def main(argv: list[str] | None = None) -> int:
         lg.removeHandler(handler)
 
 
+def _duration(seconds: float) -> str:
+    """``seconds`` for a person: 41.2 s, 12.5 min, 3.2 h, 4.1 days."""
+    if seconds < 120:
+        return f"{seconds:.2f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.1f} min"
+    if seconds < 3 * 86400:
+        return f"{seconds / 3600:.1f} h"
+    return f"{seconds / 86400:.1f} days"
+
+
 def _run(args: argparse.Namespace) -> int:
-    from .bench import Bench, check_simulator_config
+    from .bench import Bench, SimulatorCheck
+    from .config import MAX_PLAN_POINTS
     from .engine import out_dir_problem, result_dict
     from .errors import CommError, ConfigError, PlanError
 
+    sim_check = None
     try:
         bench = Bench.from_config(args.config)
+        if args.check and bench.cfg.bench.transport == "simulated":
+            # the [simulator] sections, as `gonio-sim serve` reads them, checked while the plan is
+            sim_check = SimulatorCheck(bench.cfg.path, bench.cfg.bench.simulator_command)
         plan = bench.plan(scene=args.scene)
         chk = plan.validate(bench.geometry)
     except (ConfigError, PlanError) as e:
+        if sim_check is not None:
+            sim_check.cancel()
         print(f"gonio-capture: {e}\nnothing was moved.", file=sys.stderr)
         return 2
+    except CommError as e:
+        print(f"gonio-capture: {e}", file=sys.stderr)
+        return 1
     if args.check:
-        if bench.cfg.bench.transport == "simulated":  # the [simulator] sections, as `gonio-sim serve` reads them
+        est = plan.estimate(bench.geometry, bench.cfg.detector.integration_time_s, chk.measurable)
+        if sim_check is not None:
             try:
-                check_simulator_config(bench.cfg.path, bench.cfg.bench.simulator_command)
+                sim_check.result()
             except ConfigError as e:
                 print(f"gonio-capture: {e}\nnothing was moved.", file=sys.stderr)
                 return 2
             except CommError as e:
                 print(f"gonio-capture: {e}", file=sys.stderr)
                 return 1
-        est = plan.estimate(bench.geometry, bench.cfg.detector.integration_time_s, chk.measurable)
         print(chk.describe(limit=1000))
+        grows = " (before adaptive refinement, which may add up to " \
+                f"{plan.size() - len(chk.measurable) - len(chk.unmeasurable):.0f})" if plan.adaptive else ""
+        print(f"plan size: {len(chk.measurable) + len(chk.unmeasurable)} points{grows}, limit {MAX_PLAN_POINTS}")
         print(f"estimated motion time {est['motion_s']:.2f} s in plan order, {est['naive_motion_s']:.2f} s in "
-              f"naive order; total with settling and detector {est['total_s']:.2f} s")
+              f"naive order; total with settling and detector {est['total_s']:.2f} s"
+              + (f" ({_duration(est['total_s'])})" if est["total_s"] >= 120 else ""))
         return 0
     if not args.out:
         print("gonio-capture: --out DIR is required to capture (or use --check)", file=sys.stderr)
