@@ -221,6 +221,8 @@ class Bench:
         self.link: SerialLink | None = None
         self.detector: SerialDetector | None = None
         self.motion: DynamixelAxes | SerialAxes | None = None
+        #: extra arguments of ``gonio-sim serve`` (the engine passes ``--attempt N`` on a resumed capture)
+        self.sim_args: tuple[str, ...] = ()
         self._opened = False
         self._wall0 = time.monotonic()
 
@@ -255,7 +257,8 @@ class Bench:
         try:
             dxl_port, ser_port = b.dynamixel_port, b.serial_port
             if b.transport == "simulated":
-                self.sim = SimulatorProcess(cfg.path, b.simulator_command, self.simulator_log)
+                self.sim = SimulatorProcess(cfg.path, b.simulator_command, self.simulator_log,
+                                            extra_args=self.sim_args)
                 ports = self.sim.start()
                 if b.motion == "dynamixel" and not ports.get("dynamixel"):
                     raise CommError("simulated bench: the simulator offers no Dynamixel port (is [bench].motion "
@@ -297,13 +300,14 @@ class Bench:
         self._opened = False
 
     def shutdown(self, park: bool = True) -> None:
-        """Safe end: park the arms (if ``park`` and no axis reports a fault), then torque off. Never raises."""
+        """Safe end: park the arms (if ``park`` and no axis reports a fault), then torque off. Never raises. The
+        parking move checks ``motion.cancel`` (a no-op unless a capture set it: a second Ctrl-C aborts it)."""
         m = self.motion
         if m is None:
             return
         try:
             if park and m.healthy():
-                self.park(check_cancel=False)
+                self.park(check_cancel=True)
                 log.info("arms parked at (%g, %g)", self.cfg.light.park_deg, self.cfg.det_axis.park_deg)
             elif park:
                 log.warning("arms not parked: an axis reports a fault or its port is gone")

@@ -375,13 +375,21 @@ class SliceWriter:
         for c, v, e in zip(self.channels, values, std, strict=True):
             cells[c] = _fmt(v)
             cells[f"{c}_std"] = _fmt(e)
-        self._fh.write(",".join(cells[c] for c in self.columns) + self.newline)
-        self._sync()
+        try:
+            self._fh.write(",".join(cells[c] for c in self.columns) + self.newline)
+            self._sync()
+        except OSError as e:  # a full disk: name the file (buffered writes do not)
+            raise OSError(e.errno, e.strerror or str(e), str(self.path)) from None
 
     def close(self) -> None:
         if not self._fh.closed:
-            self._sync()
-            self._fh.close()
+            try:
+                self._sync()
+            finally:
+                try:
+                    self._fh.close()
+                except OSError:  # the sync above already failed and said why
+                    pass
 
     def __enter__(self) -> SliceWriter:
         return self

@@ -65,7 +65,7 @@ def test_check_of_the_largest_plan_prints_its_size_and_time_within_a_second(tmp_
     cfg = tmp_path / "big.toml"
     cfg.write_text(tomli_w.dumps(raw) + f"\n[plan]\nrepeats = 4\npoints = [{points}]\n")
     walls = []
-    for _ in range(2):  # the better of two runs: a busy machine must not fail the test
+    for _ in range(3):  # the best of three runs: a busy machine must not fail the test
         t0 = time.perf_counter()
         r = run_capture("--config", str(cfg), "--check")
         walls.append(time.perf_counter() - t0)
