@@ -47,15 +47,20 @@ __all__ = ["Bench", "SimulatorProcess", "SimulatorCheck", "check_simulator_confi
 SIMULATOR_CONFIG_STATUS = 2
 
 
-def _simulator_argv(command: str) -> list[str]:
+def _simulator_argv(command: str, source: str | Path = "config") -> list[str]:
     """The argv prefix that runs the simulator ``command`` (``gonio-sim``: the console script next to this
-    Python, or ``python -m simulator.cli``, a child process: acquisition does not import it)."""
-    exe = shutil.which(command, path=str(Path(sys.executable).parent)) or shutil.which(command)
+    Python, or ``python -m simulator.cli``, a child process: acquisition does not import it). A command that
+    cannot be found is a :class:`ConfigError` naming ``[bench].simulator_command`` of ``source``."""
+    exe = None
+    if command and "\0" not in command and len(command) < 4096:
+        exe = shutil.which(command, path=str(Path(sys.executable).parent)) or shutil.which(command)
     if exe is not None:
         return [exe]
     if command == "gonio-sim":
         return [sys.executable, "-m", "simulator.cli"]
-    raise CommError(f"simulated bench: cannot find the simulator command {command!r}")
+    shown = command if len(command) <= 60 else command[:40] + f"... ({len(command)} characters)"
+    raise ConfigError(f"{source}: [bench].simulator_command: cannot find the simulator command {shown!r} (not "
+                      "next to this Python nor on PATH)")
 
 
 def _refusal(stderr: str, status: int) -> str:
@@ -79,7 +84,7 @@ class SimulatorCheck:
     the plan meanwhile); :meth:`result` waits for it and raises as :func:`check_simulator_config`."""
 
     def __init__(self, config_path: str | Path, command: str = "gonio-sim") -> None:
-        self.argv = [*_simulator_argv(command), "check", "--config", str(config_path)]
+        self.argv = [*_simulator_argv(command, config_path), "check", "--config", str(config_path)]
         try:
             self.proc: subprocess.Popen[bytes] | None = subprocess.Popen(
                 self.argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
@@ -126,7 +131,8 @@ class SimulatorProcess:
         self._log_start = 0  # where this child's output begins in the log file (earlier runs' logs precede it)
 
     def _argv(self) -> list[str]:
-        return [*_simulator_argv(self.command), "serve", "--config", str(self.config_path), "--exit-with-parent",
+        return [*_simulator_argv(self.command, self.config_path), "serve", "--config", str(self.config_path),
+                "--exit-with-parent",
                 "--log-level", "info", *self.extra_args]
 
     def start(self) -> dict[str, str | None]:

@@ -118,7 +118,11 @@ def _run(args: argparse.Namespace) -> int:
             # the [simulator] sections, as `gonio-sim serve` reads them, checked while the plan is
             sim_check = SimulatorCheck(bench.cfg.path, bench.cfg.bench.simulator_command)
         plan = bench.plan(scene=args.scene)
-        chk = plan.validate(bench.geometry)
+        try:
+            chk = plan.validate(bench.geometry)
+        except PlanError as e:  # the plan and the bench disagree: say which file
+            where = f"--scene {args.scene} with " if args.scene else ""
+            raise PlanError(f"{where}{bench.cfg.path}: [plan]: {e}") from None
     except (ConfigError, PlanError) as e:
         if sim_check is not None:
             sim_check.cancel()

@@ -464,7 +464,7 @@ def _read_axis(src: str, name: str, raw: Any, motion: str) -> AxisConfig:
         key = "min_deg" if lo < -90 else "max_deg"
         raise t.error(key, f"the {name} arm must stay within [-90, 90] degrees of the normal, got {t[key]:g}")
     if not lo <= t["park_deg"] <= hi:
-        raise t.error("park_deg", f"{t['park_deg']:g} is outside the soft limits [{lo:g}, {hi:g}]")
+        raise t.error("park_deg", f"{t['park_deg']:g} is outside the soft limits [{lo:g}, {hi:g}] (min_deg, max_deg)")
     ax = AxisConfig(name, ax_id, t["model"], t["units_per_deg"], t["zero_offset"], t["direction"], lo, hi,
                     t["park_deg"])
     u = sorted((ax.deg_to_units(lo), ax.deg_to_units(hi)))
@@ -863,7 +863,7 @@ def _open_text(path: Path, what: str, limit: int = MAX_CONFIG_BYTES) -> str:
     except OSError as e:
         raise ConfigError(f"{path}: cannot read ({e.strerror or e})") from None
     try:
-        return data.decode("utf-8")
+        return data.decode("utf-8-sig")  # a byte-order mark (Windows editors write one) is not part of the text
     except UnicodeDecodeError as e:
         line = data.count(b"\n", 0, e.start) + 1
         raise ConfigError(f"{path}:{line}: not a UTF-8 text file ({e.reason} at byte {e.start}); {what} is "

@@ -12,6 +12,7 @@ from __future__ import annotations
 import errno
 import fcntl
 import os
+import time
 from pathlib import Path
 
 from .errors import PlanError
@@ -69,6 +70,11 @@ class OutLock:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError as e:
             pid = _read_pid(fd)
+            for _ in range(50):  # the holder writes its PID right after taking the lock: give it a moment
+                if pid is not None:
+                    break
+                time.sleep(0.01)
+                pid = _read_pid(fd)
             os.close(fd)
             if e.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
                 raise PlanError(f"--out {self.out}: cannot lock {self.path} ({e.strerror or e})") from None

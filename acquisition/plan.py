@@ -103,10 +103,10 @@ class Geometry:
             return "outside (-90, 90) degrees"
         if not self.light.within(ti):
             return (f"theta_i {ti:g} outside the light arm soft limits "
-                    f"[{self.light.min_deg:g}, {self.light.max_deg:g}]")
+                    f"[{self.light.min_deg:g}, {self.light.max_deg:g}] ([axes.light].min_deg, max_deg)")
         if not self.detector.within(to):
             return (f"theta_o {to:g} outside the detector arm soft limits "
-                    f"[{self.detector.min_deg:g}, {self.detector.max_deg:g}]")
+                    f"[{self.detector.min_deg:g}, {self.detector.max_deg:g}] ([axes.detector].min_deg, max_deg)")
         sep = abs(self.quantise(self.light, ti) + self.quantise(self.detector, to))  # at the goals as sent
         if sep < self.min_separation_deg:
             return (f"collision: arms {sep:.3f} deg apart, closer than min_separation_deg "
@@ -269,6 +269,9 @@ SCENE_DEFAULT_RANGE_DEG = (0.0, 89.999)
 def load_scene(path: str | Path) -> Scene:
     """Read and validate a scene file (:func:`reconstruction.scene.load_scene`); errors are :class:`ConfigError`
     (the message names the file and the key), as for bench configs."""
+    p = Path(path)
+    if p.exists() and not p.is_file():  # a directory, a device or a pipe (which would block the read)
+        raise ConfigError(f"{p}: not a regular file, expected a scene file (TOML)")
     try:
         return _load_scene(path)
     except SceneError as e:

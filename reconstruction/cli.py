@@ -202,7 +202,15 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         t0 = step("reading inputs")
         loaded = inputs.load_inputs(args.inputs, quantity=args.quantity, columns=inputs.parse_columns(args.columns),
                                     blind_spot_deg=args.blind_spot_deg)
-        scene = load_scene(args.scene) if args.scene else None
+        scene = None
+        if args.scene:
+            sp = Path(args.scene)
+            if sp.exists() and not sp.is_file():
+                raise ReconstructionError(f"--scene {sp}: not a regular file, expected a scene file (TOML)")
+            try:
+                scene = load_scene(sp)
+            except RecursionError:
+                raise ReconstructionError(f"--scene {sp}: invalid TOML: nested too deeply") from None
         done("read", t0)
         t0 = step("colour")
         try:

@@ -42,6 +42,7 @@ from .base import ReconstructionError
 from .merl import MAX_CELL_VALUE
 from .slicefile import (
     MAGIC,
+    MAX_REPEATS,
     QUANTITIES,
     Slice,
     SliceError,
@@ -311,7 +312,7 @@ def read_table(path: str | Path, *, quantity: str | None, columns: Mapping[str, 
     times = data[:, [k for k, r in role.items() if r == "unix_time_s"][0]] if "unix_time_s" in role.values() \
         else None
     if repeats is not None:
-        badr = (repeats < 1) | (repeats != np.round(repeats))
+        badr = ~((repeats >= 1) & (repeats <= MAX_REPEATS)) | (repeats != np.round(repeats))
         if badr.any():
             r = int(np.argmax(badr))
             raise InputError(f"{path}:{line_of[r]}, column repeats: expected a positive integer, got {repeats[r]}")
@@ -367,6 +368,16 @@ def _check_order(path: Path, ti: Array, to: Array, line_of: NDArray[np.int_], ti
 
 
 def _is_slice_file(path: Path) -> bool:
+    import stat
+
+    try:
+        mode = path.stat().st_mode
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such file") from None
+    except OSError as e:
+        raise InputError(f"{path}: cannot read ({e.strerror})") from None
+    if not stat.S_ISREG(mode) and not stat.S_ISDIR(mode):  # a pipe would block the read
+        raise InputError(f"{path}: not a regular file (a device or a pipe), expected a slice file or a CSV table")
     try:
         with open(path, "rb") as fh:
             first = fh.read(len(MAGIC) + 16)

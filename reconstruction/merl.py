@@ -398,6 +398,8 @@ def read(path: str | Path, max_value: float | None = MAX_CELL_VALUE) -> Array:
     """
     path = Path(path)
     try:
+        if path.exists() and not path.is_file() and not path.is_dir():
+            raise MerlError(f"{path}: not a regular file (a device or a pipe), expected a .binary file")
         with open(path, "rb") as fh:
             data = fh.read(FILE_SIZE + 1)
     except FileNotFoundError:

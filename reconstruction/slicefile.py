@@ -43,6 +43,8 @@ _WAVELENGTH = re.compile(r"^(\d+(?:\.\d+)?)nm$")
 #: Largest input file (slice file or generic table) the readers accept, in bytes; a larger one is refused with a
 #: message (read in memory: a 100 MB table takes a few seconds and about 0.5 GB).
 MAX_INPUT_BYTES = 256 * 1024 * 1024
+#: Largest ``repeats`` a row may give (far above any detector's; beyond it the count is not one).
+MAX_REPEATS = 10**9
 #: Names and cells longer than this are cut in messages.
 SHOW_CHARS = 60
 
@@ -419,7 +421,8 @@ def _check_row(data: NDArray[np.float64], r: int, cells: list[str], header: list
         x = data[r, col[name]]
         if not -90.0 < x < 90.0:
             raise SliceError(f"{where}, column {name}: {x} is outside (-90, 90) degrees")
-    if data[r, col["repeats"]] < 1 or data[r, col["repeats"]] != int(data[r, col["repeats"]]):
+    rep = data[r, col["repeats"]]
+    if not 1 <= rep <= MAX_REPEATS or rep != int(rep):
         raise SliceError(f"{where}, column repeats: expected a positive integer, got "
                          f"{shorten(cells[col['repeats']])!r}")
     for k in std_cols:
@@ -434,7 +437,8 @@ def _rows_ok(data: NDArray[np.float64], col: dict[str, int], std_cols: list[int]
         return False
     ang = data[:, [col["theta_i_deg"], col["theta_o_deg"]]]
     rep = data[:, col["repeats"]]
-    return bool(np.all(np.abs(ang) < 90.0) and np.all((rep >= 1) & (rep == np.floor(rep)))
+    rep_ok = (rep >= 1) & (rep <= MAX_REPEATS) & (rep == np.floor(rep))
+    return bool(np.all(np.abs(ang) < 90.0) and np.all(rep_ok)
                 and np.all(data[:, std_cols] >= 0))
 
 
