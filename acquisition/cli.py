@@ -27,8 +27,9 @@ examples:
   gonio-capture --config configs/simulated.toml --out out/paint --scene configs/scenes/glossy-product.toml
   gonio-capture --config configs/dynamixel-bench.toml --check
 
-exit status: 0 complete, 1 stopped by a hardware/communication fault (resumable), 2 bad config/plan (nothing
-moved), 130/143 interrupted by SIGINT/SIGTERM (resumable with --resume).
+exit status: 0 complete, 1 stopped by a hardware/communication fault or a full disk (resumable), 2 bad
+config/plan, output folder not writable or in use by another capture (nothing moved), 130/143 interrupted by
+SIGINT/SIGTERM (resumable with --resume).
 """
 
 

@@ -414,3 +414,30 @@ def test_read_only_outputs_are_refused_before_anything_moves(tmp_path, capsys):
     assert {p.name: p.read_bytes() for p in out.iterdir()} == snapshot  # no simulator started, nothing logged
     (out / "slice.csv").chmod(0o644)
     assert main(["--config", str(cfg), "--out", str(out), "--resume", "--no-progress"]) == 0
+
+
+@pytest.mark.parametrize("signals", [1, 2])
+def test_a_signal_while_parking_after_a_complete_capture_is_not_exit_0(tmp_path, capsys, monkeypatch, signals):
+    """SIGTERM arriving while the arms park at the end (sent from inside the parking, in this process): the
+    samples are all there, the exit status says 143; a second one aborts the parking, torque still goes off."""
+    from acquisition.bench import Bench
+
+    real_shutdown = Bench.shutdown
+
+    def shutdown_with_signals(self, park=True):
+        for _ in range(signals):
+            os.kill(os.getpid(), signal.SIGTERM)
+        return real_shutdown(self, park)
+
+    monkeypatch.setattr(Bench, "shutdown", shutdown_with_signals)
+    cfg = write_config(tmp_path / "c.toml", make_raw({"plan": {"theta_o_step_deg": 20.0}}))
+    out = tmp_path / "out"
+    assert main(["--config", str(cfg), "--out", str(out), "--no-progress"]) == 143
+    err = capsys.readouterr().err
+    assert "captured 7 new sample(s)" in err and "SIGTERM arrived while parking the arms" in err
+    assert "Traceback" not in err
+    log = (out / "capture.log").read_text()
+    assert "motion released (torque off)" in log
+    assert ("parking failed: parking aborted by a second SIGTERM" in log) == (signals == 2)
+    assert ("arms parked at" in log) == (signals == 1)
+    assert sorted(keys(read(out / "slice.csv"))) == planned(cfg)
