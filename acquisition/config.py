@@ -77,6 +77,8 @@ MAX_CONFIG_BYTES = 512 * 1024
 MAX_SERIAL_UNITS = 2**31 - 1
 #: Largest |f_r| (1/sr) a simulated [material] may reach anywhere (the bound the reconstruction accepts too).
 MAX_MATERIAL_BRDF = 1e8
+#: Most wavelengths a [material] spectrum may have.
+MAX_MATERIAL_CHANNELS = 4096
 
 log = logging.getLogger("acquisition.config")
 
@@ -796,6 +798,9 @@ def _check_material(src: str, mat: Any, raw: Mapping[str, Any]) -> None:
     from reconstruction.geometry import inplane_to_dirs
 
     lobes_raw = raw.get("lobes", [])
+    if mat.n_channels > MAX_MATERIAL_CHANNELS:
+        raise ConfigError(f"{src}: [material].lobes: spectra of {mat.n_channels} wavelengths; at most "
+                          f"{MAX_MATERIAL_CHANNELS} are accepted")
     ti, to = np.meshgrid(np.radians(np.arange(0.0, 90.0, 5.0)), np.radians(np.arange(-85.0, 90.0, 5.0)))
     wi, wo = inplane_to_dirs(ti.ravel(), to.ravel())
     for i, lobe in enumerate(mat.lobes):

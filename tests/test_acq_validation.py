@@ -107,6 +107,9 @@ def test_python_api_and_scene_plans_are_bounded_too(tmp_path):
      "[calibration].source_power: must lie in"),
     ("dynamixel", {"material": {"lobes": [{"type": "lambert", "albedo": 1e300}]}},
      "[material].lobes[0].albedo: the lobe reaches f_r = 3.18e+299 1/sr, beyond the physical bound"),
+    ("dynamixel", {"material": {"lobes": [{"type": "lambert", "albedo": {
+        "wavelengths_nm": list(np.linspace(380.0, 780.0, 5000)), "values": [0.5] * 5000}}]}},
+     "[material].lobes: spectra of 5000 wavelengths; at most 4096 are accepted"),
     ("dynamixel", {"material": {"lobes": [{"type": "phong", "exponent": 1e9, "specular": 1.0}]}},
      "[material].lobes[0].exponent/specular: the lobe reaches"),
 ])
