@@ -40,12 +40,12 @@ from typing import Protocol
 
 import numpy as np
 
-from .calibration import Reading
+from .calibration import Reading, pool
 from .errors import DeviceError
 
 log = logging.getLogger("acquisition.autorange")
 
-__all__ = ["AutoRanger", "Ranged", "ladder", "setting_key", "HEADROOM", "RUNG_RATIO"]
+__all__ = ["AutoRanger", "Ranged", "ladder", "setting_key", "read_clean", "HEADROOM", "RUNG_RATIO"]
 
 #: Ratio between neighbouring integration times of the ladder.
 RUNG_RATIO = math.sqrt(10.0)
@@ -76,6 +76,35 @@ def ladder(t_ref: float, t_min: float) -> list[float]:
         out.append(t if t > t_min * (1 + 1e-9) else t_min)
         k += 1
     return out
+
+
+def read_clean(read: Callable[[int], Reading], n: int, retries: int = 3) -> tuple[Reading, int, int]:
+    """``n`` repeats through ``read(n)`` without transient clips: (reading, commands sent, repeats read).
+
+    A reading with some, but not all, repeats clipped is read again in two halves, recursively; a half that
+    clips entirely is read again up to ``retries`` times. A transient (a glitch that clips random repeats) then
+    costs a few short readings instead of failing a long one, however often it strikes; a real saturation (every
+    repeat of the reading clipped) comes back clipped at once for the caller to range down, and a reading at the
+    edge of the range comes back clipped or near the clip, which the ranger's headroom rule also ranges down. At
+    most about ``(retries + 1) n log2 n`` repeats."""
+    stats = [0, 0]
+
+    def clean(m: int, top: bool) -> Reading:
+        for _ in range(retries + 1):
+            rd = read(m)
+            stats[0] += 1
+            stats[1] += m
+            if not rd.saturated:
+                return rd
+            if rd.saturated < m:  # some repeats clipped: read the two halves
+                k = m // 2
+                return pool(clean(k, False), clean(m - k, False))
+            if top:  # every repeat clipped: a real saturation, for the caller to range down
+                return rd
+            # a piece of a split reading clipped entirely: a transient again, or real; read it once more
+        return rd
+
+    return clean(n, True), stats[0], stats[1]
 
 
 def setting_key(t: float) -> str:
@@ -111,8 +140,9 @@ class AutoRanger:
     """
 
     def __init__(self, detector: RangedDetector, t_ref: float, t_min: float, read_dark: Callable[[], Reading],
-                 on_dark: Callable[[float, Reading], None] | None = None) -> None:
+                 on_dark: Callable[[float, Reading], None] | None = None, retries: int = 3) -> None:
         self.det = detector
+        self.retries = retries
         self.t_ref = float(t_ref)
         self.t_min = float(t_min)
         self.ladder = ladder(self.t_ref, self.t_min)
@@ -195,9 +225,12 @@ class AutoRanger:
         last = len(self.ladder) - 1
         while True:
             t = self._set(i)
-            rd = self.det.read(n)
-            reads += 1
-            spent += n * t
+            if i in retried:  # read again after a partial clip: transients are read around (read_clean)
+                rd, _, repeats = read_clean(self.det.read, n, self.retries)
+            else:
+                rd, repeats = self.det.read(n), n
+            reads += 1  # one (possibly pieced) reading
+            spent += repeats * t
             state = self._state(rd)
             if state == "ok":
                 if best is None or i < best[0]:

@@ -41,21 +41,26 @@ from .serial_link import SerialAxes, SerialDetector, SerialLink
 
 log = logging.getLogger("acquisition.bench")
 
-__all__ = ["Bench", "SimulatorProcess", "check_simulator_config"]
+__all__ = ["Bench", "SimulatorProcess", "SimulatorCheck", "check_simulator_config"]
 
 #: The simulator's exit status for a config it refuses (``gonio-sim serve`` / ``gonio-sim check``).
 SIMULATOR_CONFIG_STATUS = 2
 
 
-def _simulator_argv(command: str) -> list[str]:
+def _simulator_argv(command: str, source: str | Path = "config") -> list[str]:
     """The argv prefix that runs the simulator ``command`` (``gonio-sim``: the console script next to this
-    Python, or ``python -m simulator.cli``, a child process: acquisition does not import it)."""
-    exe = shutil.which(command, path=str(Path(sys.executable).parent)) or shutil.which(command)
+    Python, or ``python -m simulator.cli``, a child process: acquisition does not import it). A command that
+    cannot be found is a :class:`ConfigError` naming ``[bench].simulator_command`` of ``source``."""
+    exe = None
+    if command and "\0" not in command and len(command) < 4096:
+        exe = shutil.which(command, path=str(Path(sys.executable).parent)) or shutil.which(command)
     if exe is not None:
         return [exe]
     if command == "gonio-sim":
         return [sys.executable, "-m", "simulator.cli"]
-    raise CommError(f"simulated bench: cannot find the simulator command {command!r}")
+    shown = command if len(command) <= 60 else command[:40] + f"... ({len(command)} characters)"
+    raise ConfigError(f"{source}: [bench].simulator_command: cannot find the simulator command {shown!r} (not "
+                      "next to this Python nor on PATH)")
 
 
 def _refusal(stderr: str, status: int) -> str:
@@ -71,17 +76,41 @@ def check_simulator_config(config_path: str | Path, command: str = "gonio-sim", 
     """Validate the simulator's sections of ``config_path`` as ``gonio-sim serve`` would, by running
     ``COMMAND check --config FILE`` (no port is opened). Raises :class:`ConfigError` with the simulator's message
     if it refuses the file, :class:`CommError` if the check cannot be run."""
-    argv = [*_simulator_argv(command), "check", "--config", str(config_path)]
-    try:
-        r = subprocess.run(argv, stdin=subprocess.DEVNULL, capture_output=True, timeout=timeout_s)
-    except (OSError, subprocess.TimeoutExpired) as e:
-        raise CommError(f"simulated bench: cannot run {' '.join(argv)}: {e}") from None
-    err = r.stderr.decode(errors="replace")
-    if r.returncode == SIMULATOR_CONFIG_STATUS:
-        raise ConfigError(_refusal(err, r.returncode))
-    if r.returncode != 0:
-        raise CommError(f"simulated bench: {' '.join(argv)} exited with status {r.returncode}: "
-                        f"{err.strip()[-2000:]}")
+    SimulatorCheck(config_path, command).result(timeout_s)
+
+
+class SimulatorCheck:
+    """``gonio-sim check --config FILE`` started in the background (so that ``gonio-capture --check`` validates
+    the plan meanwhile); :meth:`result` waits for it and raises as :func:`check_simulator_config`."""
+
+    def __init__(self, config_path: str | Path, command: str = "gonio-sim") -> None:
+        self.argv = [*_simulator_argv(command, config_path), "check", "--config", str(config_path)]
+        try:
+            self.proc: subprocess.Popen[bytes] | None = subprocess.Popen(
+                self.argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        except OSError as e:
+            raise CommError(f"simulated bench: cannot run {' '.join(self.argv)}: {e}") from None
+
+    def result(self, timeout_s: float = 60.0) -> None:
+        assert self.proc is not None
+        try:
+            _, err_b = self.proc.communicate(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            self.cancel()
+            raise CommError(f"simulated bench: {' '.join(self.argv)} gave no answer within {timeout_s:g} s") from None
+        err = err_b.decode(errors="replace")
+        code = self.proc.returncode
+        if code == SIMULATOR_CONFIG_STATUS:
+            raise ConfigError(_refusal(err, code))
+        if code != 0:
+            raise CommError(f"simulated bench: {' '.join(self.argv)} exited with status {code}: "
+                            f"{err.strip()[-2000:]}")
+
+    def cancel(self) -> None:
+        """Stop the check (the config was refused before its answer was needed)."""
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.communicate()
 
 
 class SimulatorProcess:
@@ -102,7 +131,8 @@ class SimulatorProcess:
         self._log_start = 0  # where this child's output begins in the log file (earlier runs' logs precede it)
 
     def _argv(self) -> list[str]:
-        return [*_simulator_argv(self.command), "serve", "--config", str(self.config_path), "--exit-with-parent",
+        return [*_simulator_argv(self.command, self.config_path), "serve", "--config", str(self.config_path),
+                "--exit-with-parent",
                 "--log-level", "info", *self.extra_args]
 
     def start(self) -> dict[str, str | None]:
@@ -197,6 +227,8 @@ class Bench:
         self.link: SerialLink | None = None
         self.detector: SerialDetector | None = None
         self.motion: DynamixelAxes | SerialAxes | None = None
+        #: extra arguments of ``gonio-sim serve`` (the engine passes ``--attempt N`` on a resumed capture)
+        self.sim_args: tuple[str, ...] = ()
         self._opened = False
         self._wall0 = time.monotonic()
 
@@ -231,7 +263,8 @@ class Bench:
         try:
             dxl_port, ser_port = b.dynamixel_port, b.serial_port
             if b.transport == "simulated":
-                self.sim = SimulatorProcess(cfg.path, b.simulator_command, self.simulator_log)
+                self.sim = SimulatorProcess(cfg.path, b.simulator_command, self.simulator_log,
+                                            extra_args=self.sim_args)
                 ports = self.sim.start()
                 if b.motion == "dynamixel" and not ports.get("dynamixel"):
                     raise CommError("simulated bench: the simulator offers no Dynamixel port (is [bench].motion "
@@ -273,13 +306,14 @@ class Bench:
         self._opened = False
 
     def shutdown(self, park: bool = True) -> None:
-        """Safe end: park the arms (if ``park`` and no axis reports a fault), then torque off. Never raises."""
+        """Safe end: park the arms (if ``park`` and no axis reports a fault), then torque off. Never raises. The
+        parking move checks ``motion.cancel`` (a no-op unless a capture set it: a second Ctrl-C aborts it)."""
         m = self.motion
         if m is None:
             return
         try:
             if park and m.healthy():
-                self.park(check_cancel=False)
+                self.park(check_cancel=True)
                 log.info("arms parked at (%g, %g)", self.cfg.light.park_deg, self.cfg.det_axis.park_deg)
             elif park:
                 log.warning("arms not parked: an axis reports a fault or its port is gone")

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["Reading", "Calibration", "reference_rho"]
+__all__ = ["Reading", "Calibration", "reference_rho", "pool"]
 
 Array = NDArray[np.float64]
 
@@ -50,6 +50,15 @@ class Reading:
     @classmethod
     def from_meta(cls, d: dict[str, Any]) -> Reading:
         return cls(np.asarray(d["mean"], dtype=float), np.asarray(d["std"], dtype=float), int(d["n"]))
+
+
+def pool(a: Reading, b: Reading) -> Reading:
+    """One reading of ``a.n + b.n`` repeats from two readings of the same quantity (mean and sample standard
+    deviation pooled exactly; saturated repeats added)."""
+    n = a.n + b.n
+    mean = (a.n * a.mean + b.n * b.mean) / n
+    ss = (a.n - 1) * a.std ** 2 + (b.n - 1) * b.std ** 2 + a.n * b.n / n * (a.mean - b.mean) ** 2
+    return Reading(mean, np.sqrt(np.maximum(ss, 0.0) / max(n - 1, 1)), n, a.saturated + b.saturated)
 
 
 def reference_rho(reflectance: float | None, spectrum: tuple[Sequence[float], Sequence[float]] | None,

@@ -17,8 +17,11 @@ from __future__ import annotations
 
 import csv
 import difflib
+import logging
 import math
+import stat
 import sys
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -44,6 +47,8 @@ __all__ = [
     "config_from_dict",
     "DXL_MODELS",
     "DXL_BAUDRATES",
+    "MAX_PLAN_POINTS",
+    "resolution_deg",
 ]
 
 #: Dynamixel model names accepted in ``[axes.*].model`` -> model number answered to a ping.
@@ -59,6 +64,23 @@ DXL_POSITION_RANGE = (0, 4095)  # position mode (operating mode 3), one turn
 MIN_INTEGRATION_TIME_S, MAX_INTEGRATION_TIME_S = 1e-5, 10.0
 
 _TOP_SECTIONS = ("bench", "axes", "motion", "detector", "calibration", "plan", "material", "simulator")
+
+#: A plan may hold at most this many points (incidences x outgoing angles, or the adaptive refinement's worst
+#: case): bigger plans are a config error, not a capture of days. That is more than a full 1 x 1 degree in-plane
+#: grid (86 x 177 points), about 6 hours at 1 s per point on a real bench; ``gonio-capture --check`` prints the
+#: size and estimated time of any plan within it in under a second.
+MAX_PLAN_POINTS = 20_000
+#: Largest bench file read (bytes): a bench file is a few kilobytes (an explicit list of MAX_PLAN_POINTS points
+#: fits); anything larger is not one, and would take seconds to parse.
+MAX_CONFIG_BYTES = 512 * 1024
+#: Largest controller position a serial-protocol axis may be sent (the controller's int32 step counter).
+MAX_SERIAL_UNITS = 2**31 - 1
+#: Largest |f_r| (1/sr) a simulated [material] may reach anywhere (the bound the reconstruction accepts too).
+MAX_MATERIAL_BRDF = 1e8
+#: Most wavelengths a [material] spectrum may have.
+MAX_MATERIAL_CHANNELS = 4096
+
+log = logging.getLogger("acquisition.config")
 
 
 # --- typed, strict reading of one table ----------------------------------------------------------------------
@@ -78,11 +100,15 @@ class _F:
 
 def _describe(v: Any) -> str:
     if isinstance(v, str):
-        return f'"{v}"'
+        return f'"{v}"' if len(v) <= 60 else f'"{v[:40]}..." ({len(v)} characters)'
     if isinstance(v, dict):
         return "a table"
     if isinstance(v, bool):
         return "true" if v else "false"
+    if isinstance(v, int) and abs(v) >= 10**15:
+        return f"{v:.6g}"  # not 300 digits
+    if isinstance(v, list) and len(repr(v)) > 80:
+        return repr(v)[:60] + f"... ({len(v)} items)"
     return repr(v)
 
 
@@ -375,8 +401,8 @@ def _read_bench(src: str, raw: Any) -> BenchSection:
         "dynamixel_port": _F("str", default=""),
         "dynamixel_baudrate": _F("int", default=1000000, choices=DXL_BAUDRATES),
         "serial_port": _F("str", default=""),
-        "serial_baudrate": _F("int", default=115200, check=_pos),
-        "serial_timeout_s": _F("float", default=1.0, check=_pos),
+        "serial_baudrate": _F("int", default=115200, check=lambda v: _pos(v) or _range(50, 1e8)(v)),
+        "serial_timeout_s": _F("float", default=1.0, check=lambda v: _pos(v) or _range(1e-3, 60)(v)),
         "min_separation_deg": _F("float", required=True, check=_range(0, 90)),
         "blind_spot_half_width_deg": _F("float", required=True, check=_range(0, 90)),
         "simulator_command": _F("str", default="gonio-sim"),
@@ -408,8 +434,11 @@ def _read_axis(src: str, name: str, raw: Any, motion: str) -> AxisConfig:
     t = _Table(src, sec, raw, {
         "id": _F("str|int", required=True),
         "model": _F("str"),
-        "units_per_deg": _F("float", required=True, check=_pos),
-        "zero_offset": _F("float", required=True),
+        "units_per_deg": _F("float", required=True,
+                            check=lambda v: _pos(v) or (None if 1e-2 <= v <= 1e6 else
+                                                        f"must lie in [0.01, 1e+06] units per degree, got {v:g}")),
+        "zero_offset": _F("float", required=True,
+                          check=lambda v: None if abs(v) <= 1e9 else f"must lie in [-1e+09, 1e+09], got {v:g}"),
         "direction": _F("int", required=True, choices=(1, -1)),
         "min_deg": _F("float", required=True, check=_range(-180, 180)),
         "max_deg": _F("float", required=True, check=_range(-180, 180)),
@@ -437,15 +466,21 @@ def _read_axis(src: str, name: str, raw: Any, motion: str) -> AxisConfig:
         key = "min_deg" if lo < -90 else "max_deg"
         raise t.error(key, f"the {name} arm must stay within [-90, 90] degrees of the normal, got {t[key]:g}")
     if not lo <= t["park_deg"] <= hi:
-        raise t.error("park_deg", f"{t['park_deg']:g} is outside the soft limits [{lo:g}, {hi:g}]")
+        raise t.error("park_deg", f"{t['park_deg']:g} is outside the soft limits [{lo:g}, {hi:g}] (min_deg, max_deg)")
     ax = AxisConfig(name, ax_id, t["model"], t["units_per_deg"], t["zero_offset"], t["direction"], lo, hi,
                     t["park_deg"])
+    u = sorted((ax.deg_to_units(lo), ax.deg_to_units(hi)))
     if motion == "dynamixel":
-        u = sorted((ax.deg_to_units(lo), ax.deg_to_units(hi)))
         if u[0] < DXL_POSITION_RANGE[0] - 0.5 or u[1] > DXL_POSITION_RANGE[1] + 0.5:
             raise t.error("zero_offset", f"the soft limits [{lo:g}, {hi:g}] deg map to positions "
-                                         f"[{u[0]:.0f}, {u[1]:.0f}], outside the servo's one-turn range 0..4095 "
-                                         "(position mode); change zero_offset or the limits")
+                                         f"[{u[0]:.6g}, {u[1]:.6g}], outside the servo's one-turn range 0..4095 "
+                                         f"(position mode); change zero_offset or the limits (units_per_deg = "
+                                         f"{ax.units_per_deg:g})")
+    elif max(abs(u[0]), abs(u[1])) > MAX_SERIAL_UNITS:
+        key = "zero_offset" if abs(ax.zero_offset) > MAX_SERIAL_UNITS / 2 else "units_per_deg"
+        raise t.error(key, f"the soft limits [{lo:g}, {hi:g}] deg map to controller positions [{u[0]:.6g}, "
+                           f"{u[1]:.6g}], beyond the controller's step counter (+-{MAX_SERIAL_UNITS}); check "
+                           f"units_per_deg ({ax.units_per_deg:g}) and zero_offset ({ax.zero_offset:g})")
     return ax
 
 
@@ -453,11 +488,11 @@ def _read_motion(src: str, raw: Any, motion: str) -> MotionConfig:
     t = _Table(src, "motion", raw, {
         "profile_velocity": _F("int", default=None, check=_range(0, 32767)),
         "profile_acceleration": _F("int", default=None, check=_range(0, 32767)),
-        "velocity_deg_s": _F("float", default=60.0, check=_pos),
-        "acceleration_deg_s2": _F("float", default=240.0, check=_pos),
+        "velocity_deg_s": _F("float", default=60.0, check=lambda v: _pos(v) or _range(1e-3, 1e5)(v)),
+        "acceleration_deg_s2": _F("float", default=240.0, check=lambda v: _pos(v) or _range(1e-3, 1e7)(v)),
         "tolerance_deg": _F("float", required=True, check=_pos),
         "settle_s": _F("float", required=True, check=_range(0, 60)),
-        "timeout_s": _F("float", default=20.0, check=_pos),
+        "timeout_s": _F("float", default=20.0, check=lambda v: _pos(v) or _range(1e-3, 3600)(v)),
         "retries": _F("int", default=3, check=_range(0, 100)),
         "poll_interval_s": _F("float", default=0.01, check=_range(0, 10)),
     })
@@ -478,7 +513,7 @@ def _read_detector(src: str, raw: Any) -> DetectorConfig:
         "integration_time_s": _F("float", required=True,
                                  check=_range(MIN_INTEGRATION_TIME_S, MAX_INTEGRATION_TIME_S)),
         "repeats": _F("int", required=True, check=_range(1, 1000)),
-        "saturation": _F("float", required=True, check=_pos),
+        "saturation": _F("float", required=True, check=lambda v: _pos(v) or _range(1, 2.0**32)(v)),
         "dark_repeats": _F("int", default=32, check=_range(1, 1000)),
         "auto_range": _F("bool", default=True),
         "min_integration_time_s": _F("float", default=MIN_INTEGRATION_TIME_S,
@@ -496,26 +531,31 @@ def read_spectrum_csv(path: Path, where: str) -> tuple[tuple[float, ...], tuple[
     wl: list[float] = []
     val: list[float] = []
     try:
-        fh = open(path, newline="", encoding="utf-8")
-    except OSError as e:
-        raise ConfigError(f"{where}: cannot read {path}: {e.strerror or e}") from None
-    with fh:
-        for lineno, row in enumerate(csv.reader(fh), 1):
-            if not row or not row[0].strip() or row[0].strip().startswith("#"):
-                continue
-            try:
-                w, v = float(row[0]), float(row[1])
-            except (ValueError, IndexError):
-                if not wl and lineno == 1:
-                    continue  # header
-                raise ConfigError(f"{where}: {path}:{lineno}: expected wavelength_nm,reflectance numbers, "
-                                  f"got {','.join(row)!r}") from None
-            if not (math.isfinite(w) and math.isfinite(v) and 0 < v <= 1.5):
-                raise ConfigError(f"{where}: {path}:{lineno}: reflectance must lie in (0, 1.5], got {v:g}")
-            if wl and w <= wl[-1]:
-                raise ConfigError(f"{where}: {path}:{lineno}: wavelengths must increase")
-            wl.append(w)
-            val.append(v)
+        text = _open_text(path, "a wavelength_nm,reflectance CSV file")
+    except ConfigError as e:
+        raise ConfigError(f"{where}: cannot read {e}") from None
+    for lineno, line in enumerate(text.splitlines(), 1):
+        try:
+            row = next(csv.reader([line]), [])
+        except csv.Error as e:
+            raise ConfigError(f"{where}: {path}:{lineno}: {e}") from None
+        if not row or not row[0].strip() or row[0].strip().startswith("#"):
+            continue
+        try:
+            w, v = float(row[0]), float(row[1])
+        except (ValueError, IndexError):
+            if not wl and lineno == 1:
+                continue  # header
+            raise ConfigError(f"{where}: {path}:{lineno}: expected wavelength_nm,reflectance numbers, "
+                              f"got {','.join(row)[:60]!r}") from None
+        if not (math.isfinite(w) and math.isfinite(v) and 0 < v <= 1.5):
+            raise ConfigError(f"{where}: {path}:{lineno}: reflectance must lie in (0, 1.5], got {v:g}")
+        if not 100.0 <= w <= 3000.0:
+            raise ConfigError(f"{where}: {path}:{lineno}: wavelength must lie in [100, 3000] nm, got {w:g}")
+        if wl and w <= wl[-1]:
+            raise ConfigError(f"{where}: {path}:{lineno}: wavelengths must increase")
+        wl.append(w)
+        val.append(v)
     if len(wl) < 2:
         raise ConfigError(f"{where}: {path}: needs at least two wavelength_nm,reflectance rows")
     return tuple(wl), tuple(val)
@@ -530,8 +570,8 @@ def _read_calibration(src: str, raw: Any, base_dir: Path) -> CalibrationConfig:
         "reference_theta_i_deg": _F("float", check=_range(-89.9, 89.9)),
         "reference_theta_o_deg": _F("float", check=_range(-89.9, 89.9)),
         "reference_repeats": _F("int", default=32, check=_range(1, 1000)),
-        "source_power": _F("float", check=_pos),
-        "detector_solid_angle_sr": _F("float", check=_pos),
+        "source_power": _F("float", check=lambda v: _pos(v) or _range(1e-6, 1e18)(v)),
+        "detector_solid_angle_sr": _F("float", check=lambda v: _pos(v) or _range(1e-12, 2 * math.pi)(v)),
     })
     mode = t["mode"]
     spectrum = None
@@ -561,6 +601,25 @@ def _read_calibration(src: str, raw: Any, base_dir: Path) -> CalibrationConfig:
                              t["reference_repeats"], t["source_power"], t["detector_solid_angle_sr"])
 
 
+def resolution_deg(ax: AxisConfig) -> float:
+    """The smallest angle step (deg) an axis can make: one controller unit."""
+    return 1.0 / ax.units_per_deg
+
+
+def _count(lo: float, hi: float, step: float) -> float:
+    """Number of angles ``lo, lo + step, ... <= hi`` plus the end (as :func:`_frange` and the plan make them),
+    computed without building them (a float: may be astronomically large)."""
+    return math.floor((hi - lo) / step + 1e-9) + 2.0
+
+
+def _finer_than_axis(src: str, section: str, key: str, step: float, ax: AxisConfig) -> None:
+    res = resolution_deg(ax)
+    if step < res * (1 - 1e-9):
+        raise ConfigError(f"{src}: [{section}].{key}: {step:g} deg is finer than the {ax.name} axis resolution of "
+                          f"{res:.4g} deg (1 / [axes.{ax.name}].units_per_deg = 1 / {ax.units_per_deg:g}); no "
+                          "position between two controller units can be reached")
+
+
 def _read_adaptive(src: str, raw: Any, step: float | None) -> AdaptiveConfig:
     t = _Table(src, "plan.adaptive", raw, {
         "enabled": _F("bool", default=True),
@@ -580,7 +639,7 @@ def _read_adaptive(src: str, raw: Any, step: float | None) -> AdaptiveConfig:
                           t["max_points"], t["max_rounds"])
 
 
-def _read_plan(src: str, raw: Any, det: DetectorConfig) -> PlanConfig:
+def _read_plan(src: str, raw: Any, det: DetectorConfig, axes: Mapping[str, AxisConfig]) -> PlanConfig:
     raw = dict(raw) if isinstance(raw, Mapping) else raw
     adaptive_raw = raw.pop("adaptive", None) if isinstance(raw, dict) else None
     t = _Table(src, "plan", raw, {
@@ -612,6 +671,11 @@ def _read_plan(src: str, raw: Any, det: DetectorConfig) -> PlanConfig:
                                  "together)")
         if t["theta_i_max_deg"] < t["theta_i_min_deg"]:
             raise t.error("theta_i_max_deg", "must be >= theta_i_min_deg")
+        _finer_than_axis(src, "plan", "theta_i_step_deg", t["theta_i_step_deg"], axes["light"])
+        n = _count(t["theta_i_min_deg"], t["theta_i_max_deg"], t["theta_i_step_deg"])
+        if n > MAX_PLAN_POINTS:
+            raise t.error("theta_i_step_deg", f"{n:.3g} incidences, more than a plan may hold "
+                                              f"({MAX_PLAN_POINTS} points); use a coarser step")
         ti = _frange(t["theta_i_min_deg"], t["theta_i_max_deg"], t["theta_i_step_deg"])
     for x in ti:
         if not -90 < x < 90:
@@ -626,12 +690,30 @@ def _read_plan(src: str, raw: Any, det: DetectorConfig) -> PlanConfig:
         if t["theta_o_max_deg"] < t["theta_o_min_deg"]:
             raise t.error("theta_o_max_deg", f"{t['theta_o_max_deg']:g} is less than theta_o_min_deg "
                                              f"{t['theta_o_min_deg']:g}")
+        _finer_than_axis(src, "plan", "theta_o_step_deg", t["theta_o_step_deg"], axes["detector"])
+        n = len(ti) * _count(t["theta_o_min_deg"], t["theta_o_max_deg"], t["theta_o_step_deg"])
+        if n > MAX_PLAN_POINTS:
+            raise t.error("theta_o_step_deg", f"the plan would have {n:.3g} points ({len(ti)} incidence(s) x "
+                                              f"{n / len(ti):.3g} outgoing angles), more than the {MAX_PLAN_POINTS} "
+                                              "a plan may hold; use a coarser step or fewer incidences")
     elif ti or has_range:
         raise t.error("points", "give either an explicit points list or theta_i_deg with a theta_o range, "
                                 "not both")
+    if t["points"] is not None and len(t["points"]) > MAX_PLAN_POINTS:
+        raise t.error("points", f"{len(t['points'])} points, more than the {MAX_PLAN_POINTS} a plan may hold")
     adaptive = None
     if adaptive_raw is not None:
         adaptive = _read_adaptive(src, adaptive_raw, t["theta_o_step_deg"])
+        for key in ("coarse_step_deg", "min_step_deg"):
+            if adaptive.enabled:
+                _finer_than_axis(src, "plan.adaptive", key, getattr(adaptive, key), axes["detector"])
+        if ti and t["theta_o_min_deg"] is not None and adaptive.enabled:
+            worst = len(ti) * _count(t["theta_o_min_deg"], t["theta_o_max_deg"], adaptive.min_step_deg)
+            if worst > MAX_PLAN_POINTS and not 0 < adaptive.max_points <= MAX_PLAN_POINTS:
+                raise ConfigError(f"{src}: [plan.adaptive].min_step_deg: the refinement could reach {worst:.3g} "
+                                  f"points ({len(ti)} incidence(s) at {adaptive.min_step_deg:g} deg), more than the "
+                                  f"{MAX_PLAN_POINTS} a plan may hold; set max_points (at most {MAX_PLAN_POINTS}) "
+                                  "or a coarser min_step_deg")
         if t["points"] is not None and adaptive.enabled:
             raise ConfigError(f"{src}: [plan.adaptive].enabled: adaptive refinement needs a theta_o range, "
                               "not an explicit points list")
@@ -686,15 +768,16 @@ def config_from_dict(raw: Mapping[str, Any], path: str | Path = "<config>") -> B
     motion = _read_motion(src, raw["motion"], bench.motion)
     detector = _read_detector(src, raw["detector"])
     calibration = _read_calibration(src, raw["calibration"], path.resolve().parent)
-    plan = _read_plan(src, raw["plan"], detector)
+    plan = _read_plan(src, raw["plan"], detector, axes)
     material = None
     if "material" in raw:
         from reconstruction.models import Material, MaterialError
 
         try:
-            Material.from_dict(raw["material"], path.resolve().parent, source=f"{src}: [material]")
+            mat = Material.from_dict(raw["material"], path.resolve().parent, source=f"{src}: [material]")
         except MaterialError as e:
             raise ConfigError(str(e)) from None
+        _check_material(src, mat, raw["material"])
         material = dict(raw["material"])
     elif bench.transport == "simulated":
         raise ConfigError(f"{src}: [material]: missing section: the simulated bench needs a material")
@@ -703,6 +786,42 @@ def config_from_dict(raw: Mapping[str, Any], path: str | Path = "<config>") -> B
     cfg = BenchConfig(path, bench, axes, motion, detector, calibration, plan, material, dict(raw))
     _check_cross(cfg)
     return cfg
+
+
+def _check_material(src: str, mat: Any, raw: Mapping[str, Any]) -> None:
+    """What the material's own validation cannot see: a ``tabulated`` lobe's table must be a readable MERL file
+    (read now, not when the simulator first needs it), and every lobe must stay finite and within
+    :data:`MAX_MATERIAL_BRDF` over the in-plane geometries a capture can measure."""
+    import numpy as np
+
+    from reconstruction import merl
+    from reconstruction.geometry import inplane_to_dirs
+
+    lobes_raw = raw.get("lobes", [])
+    if mat.n_channels > MAX_MATERIAL_CHANNELS:
+        raise ConfigError(f"{src}: [material].lobes: spectra of {mat.n_channels} wavelengths; at most "
+                          f"{MAX_MATERIAL_CHANNELS} are accepted")
+    ti, to = np.meshgrid(np.radians(np.arange(0.0, 90.0, 5.0)), np.radians(np.arange(-85.0, 90.0, 5.0)))
+    wi, wo = inplane_to_dirs(ti.ravel(), to.ravel())
+    for i, lobe in enumerate(mat.lobes):
+        keys = [k for k in lobes_raw[i] if k != "type"] if isinstance(lobes_raw[i], Mapping) else []
+        where = f"{src}: [material].lobes[{i}]"
+        if getattr(lobe, "type_name", "") == "tabulated":
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                try:
+                    lobe.table = merl.read(lobe.path)
+                except merl.MerlError as e:
+                    raise ConfigError(f"{where}.path: {e}") from None
+            for w in caught:
+                log.warning("%s.path: %s", where, w.message)
+        with np.errstate(all="ignore"):
+            f = np.asarray(lobe.eval(wi, wo, mat.n_channels, mat.wavelengths_nm), dtype=float)
+        peak = float(np.max(np.abs(f))) if f.size and np.all(np.isfinite(f)) else math.inf
+        if not peak <= MAX_MATERIAL_BRDF:
+            raise ConfigError(f"{where}.{'/'.join(keys) or 'type'}: the lobe reaches f_r = {peak:.3g} 1/sr, beyond "
+                              f"the physical bound {MAX_MATERIAL_BRDF:g} 1/sr that a capture or reconstruction "
+                              "accepts; check its parameters")
 
 
 def _check_cross(cfg: BenchConfig) -> None:
@@ -729,16 +848,41 @@ def _check_cross(cfg: BenchConfig) -> None:
         raise ConfigError(f"{src}: [detector].saturation: must be > 0")
 
 
+def _open_text(path: Path, what: str, limit: int = MAX_CONFIG_BYTES) -> str:
+    """The UTF-8 text of a config-like file; every failure is a :class:`ConfigError` naming the file."""
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such file") from None
+    except OSError as e:
+        raise ConfigError(f"{path}: cannot read ({e.strerror or e})") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise ConfigError(f"{path}: is a directory, expected {what}")
+    if not stat.S_ISREG(st.st_mode):
+        raise ConfigError(f"{path}: not a regular file (a device or a pipe), expected {what}")
+    if st.st_size > limit:
+        raise ConfigError(f"{path}: {st.st_size} bytes; {what} is at most {limit} bytes")
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read(limit + 1)
+    except OSError as e:
+        raise ConfigError(f"{path}: cannot read ({e.strerror or e})") from None
+    try:
+        return data.decode("utf-8-sig")  # a byte-order mark (Windows editors write one) is not part of the text
+    except UnicodeDecodeError as e:
+        line = data.count(b"\n", 0, e.start) + 1
+        raise ConfigError(f"{path}:{line}: not a UTF-8 text file ({e.reason} at byte {e.start}); {what} is "
+                          "UTF-8 TOML") from None
+
+
 def load_config(path: str | Path) -> BenchConfig:
     """Read and validate the bench file at ``path`` (raises :class:`ConfigError`)."""
     path = Path(path)
+    text = _open_text(path, "a TOML bench file")
     try:
-        with open(path, "rb") as fh:
-            raw = tomllib.load(fh)
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise ConfigError(f"{path}: is a directory, expected a TOML bench file") from None
+        raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{path}: invalid TOML: {e}") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: invalid TOML: arrays or tables nested too deeply") from None
     return config_from_dict(raw, path)

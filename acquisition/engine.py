@@ -14,8 +14,17 @@ measured (``auto_range.darks``), as is the setting of every auto-ranged point (`
 resumed capture converts with the same darks and the record counts every point once.
 
 Ctrl-C and SIGTERM set a flag that the motion wait loops and the point loop check: the engine then parks the
-arms, switches torque off and returns an "interrupted" result (a second signal aborts the parking). A hardware
-fault or a communication failure stops the same way, without parking when an axis reports a fault.
+arms, switches torque off and returns an "interrupted" result (a second signal aborts the parking; no signal
+ever ends in a traceback, and one that arrives during the final dark reading or the parking still makes the exit
+status 130 / 143). A hardware fault or a communication failure stops the same way, without parking when an axis
+reports a fault; a full disk stops it with one line saying so (what was written stays consistent).
+
+One capture owns an output folder: ``DIR/capture.lock`` is locked (``fcntl.flock``, :mod:`acquisition.lock`) for
+the whole run, and everything the run will write is checked to be writable before anything moves. The slice
+metadata holds a fingerprint of every setting that gives a sample its meaning (:mod:`acquisition.fingerprint`);
+a resume with any of them changed is refused, naming each, and harmless changes are listed in the log. A resumed
+run starts the simulator with ``--attempt N`` (N = earlier runs), so its noise and faults continue the random
+streams instead of replaying the first run's.
 """
 
 from __future__ import annotations
@@ -26,6 +35,7 @@ import math
 import os
 import signal
 import sys
+import tempfile
 import threading
 import time
 from dataclasses import asdict, dataclass, field
@@ -34,10 +44,10 @@ from typing import Any
 
 import numpy as np
 
-from reconstruction.atomic import atomic_open
+from reconstruction.atomic import atomic_open, is_no_space
 from reconstruction.slicefile import Slice, SliceError, SliceWriter, read_slice
 
-from .autorange import AutoRanger, Ranged, setting_key
+from .autorange import AutoRanger, Ranged, read_clean, setting_key
 from .calibration import Calibration, Reading, reference_rho
 from .errors import (
     AcquisitionError,
@@ -48,6 +58,8 @@ from .errors import (
     HardwareError,
     PlanError,
 )
+from .fingerprint import describe_differences, differences, fingerprint, settings
+from .lock import OutLock
 from .plan import Plan, Point, order_points, path_time, point_key, refine_points
 
 log = logging.getLogger("acquisition.engine")
@@ -113,7 +125,8 @@ class CaptureResult:
 def _has_rows(path: Path) -> bool:
     """True if the slice file has its column header and at least one complete (newline-terminated) data row."""
     with open(path, "rb") as fh:
-        lines = fh.read().split(b"\n")
+        data = fh.read()
+    lines = data.replace(b"\r\n", b"\n").replace(b"\r", b"\n").split(b"\n")  # any line ending
     complete = lines[:-1]  # the last element is "" or a torn line
     body = [ln for ln in complete if ln and not ln.startswith(b"#")]
     return len(body) >= 2  # column header + one row
@@ -132,11 +145,15 @@ def _atomic_json(path: Path, data: dict[str, Any]) -> None:
 
 
 class _SignalGuard:
-    """Turns SIGINT/SIGTERM into a flag (first signal) or KeyboardInterrupt (second), main thread only."""
+    """SIGINT/SIGTERM become flags, main thread only: the first asks the capture to stop after the current step
+    (:meth:`check` raises :class:`CaptureInterrupted` there); a second also aborts the parking
+    (:meth:`check_abort`). The handler itself never raises, so a signal arriving anywhere (in logging, in a write,
+    in the clean-up) cannot end in a traceback; the exit status is the first signal's."""
 
     def __init__(self, enabled: bool) -> None:
         self.enabled = enabled and threading.current_thread() is threading.main_thread()
         self.signum: int | None = None
+        self.abort = False
         self._old: dict[int, Any] = {}
 
     def __enter__(self) -> _SignalGuard:
@@ -147,19 +164,49 @@ class _SignalGuard:
         return self
 
     def _handler(self, signum: int, frame: Any) -> None:
-        if self.signum is not None:
-            raise KeyboardInterrupt  # second signal: stop whatever is going on (parking included)
-        self.signum = signum
-        log.warning("%s received: stopping after the current step (send it again to abort parking)",
-                    signal.Signals(signum).name)
+        name = signal.Signals(signum).name
+        if self.signum is None:
+            self.signum = signum
+            log.warning("%s received: stopping after the current step (send it again to abort parking)", name)
+        elif not self.abort:
+            self.abort = True
+            log.warning("%s received again: not waiting for the arms to park", name)
 
     def check(self) -> None:
         if self.signum is not None:
             raise CaptureInterrupted(f"interrupted by {signal.Signals(self.signum).name}", self.signum)
 
+    def check_abort(self) -> None:
+        """The cancel check while parking: only a second signal stops it."""
+        if self.abort:
+            assert self.signum is not None
+            raise CaptureInterrupted(f"parking aborted by a second {signal.Signals(self.signum).name}", self.signum)
+
     def __exit__(self, *exc: object) -> None:
         for s, h in self._old.items():
             signal.signal(s, h)
+
+
+class _LogFile(logging.FileHandler):
+    """``capture.log``: a write that fails (a full disk) never prints logging's "--- Logging error ---" traceback;
+    the log stops growing and the capture reports its own write failures in one line."""
+
+    failed = False
+
+    def handleError(self, record: logging.LogRecord) -> None:
+        self.failed = True
+
+    def flush(self) -> None:
+        try:
+            super().flush()
+        except OSError:
+            self.failed = True
+
+    def close(self) -> None:
+        try:
+            super().close()
+        except OSError:
+            pass
 
 
 class RunEngine:
@@ -187,11 +234,17 @@ class RunEngine:
         self._run_started = False
         self._ranger: AutoRanger | None = None
         self._before_motion = False  # the run stopped before the bench was open: nothing to resume or park
+        self._io_fault = False  # an output file could not be written (a full disk)
+        self._fingerprint: dict[str, Any] = {}
+        self._settings: dict[str, Any] = {}
+        self._setting_changes: list[tuple[str, Any, Any]] = []
+        self._legacy_resume = False
 
     # -- public ---------------------------------------------------------------------------------------------------
     def run(self) -> CaptureResult:
-        """Validate, then capture. Raises PlanError / ConfigError before any motion; every later failure is
-        returned as a result with ``status`` and ``exit_code`` after the arms were made safe."""
+        """Validate, lock the output folder, check it is writable, then capture. Raises PlanError / ConfigError
+        before any motion (:class:`~acquisition.lock.OutDirLocked` when another capture holds the folder); every
+        later failure is returned as a result with ``status`` and ``exit_code`` after the arms were made safe."""
         t_wall0 = time.monotonic()
         geom = self.bench.geometry
         chk = self.plan.validate(geom)  # before anything moves or opens
@@ -200,23 +253,44 @@ class RunEngine:
         est = self.plan.estimate(geom, self.cfg.detector.integration_time_s, chk.measurable)
         self.result.plan_motion_estimate_s = est["motion_s"]
         self.result.naive_motion_estimate_s = est["naive_motion_s"]
-        existing = self._check_out_dir()
+        self._fingerprint = fingerprint(self.cfg, self.plan.fingerprint())
+        self._settings = settings(self.cfg)
+        with _SignalGuard(self.handle_signals) as guard:  # from here on no signal ends in a traceback
+            self._guard = guard
+            self._make_out_dir()
+            lock = OutLock(self.out)
+            stale = lock.acquire()
+            try:
+                self._check_writable()
+                self._run_locked(chk, est, existing=self._check_out_dir(), stale_pid=stale, t_wall0=t_wall0)
+            finally:
+                lock.release()
+        return self.result
+
+    def _run_locked(self, chk: Any, est: dict[str, float], existing: Slice | None, stale_pid: int | None,
+                    t_wall0: float) -> None:
         self.result.samples_total = len(existing) if existing is not None else 0  # kept if the run stops early
-        self._make_out_dir()
         handler = self._attach_log()
         try:
+            if stale_pid is not None:
+                log.info("took over %s from PID %d, which ended without releasing it (killed?)",
+                         self.out / "capture.lock", stale_pid)
             self._log_plan(chk, est)
+            self._log_resume_checks()
             if existing is not None and self._sidecar.get("status") == "complete" \
                     and self._all_done(existing, chk.measurable):
                 self.result.status = "complete"
                 self.result.samples_total = len(existing)
                 self.result.message = f"{self.slice_path} is already complete ({len(existing)} samples)"
                 log.info(self.result.message)
-                return self.result
-            self._start_run_record(existing)
-            with _SignalGuard(self.handle_signals) as guard:
-                self._guard = guard
-                self._capture(existing, chk.measurable)
+                return
+            try:
+                self._start_run_record(existing)
+            except OSError as e:  # a full disk before anything moved
+                self._before_motion = True
+                self._io_failure(e)
+                return
+            self._capture(existing, chk.measurable)
         finally:
             self.result.wall_s = time.monotonic() - t_wall0
             if self.result.samples_new:
@@ -225,7 +299,6 @@ class RunEngine:
             self._report()
             logging.getLogger("acquisition").removeHandler(handler)
             handler.close()
-        return self.result
 
     # -- setup ----------------------------------------------------------------------------------------------------
     def _make_out_dir(self) -> None:
@@ -234,6 +307,49 @@ class RunEngine:
             self.out.mkdir(parents=True, exist_ok=True)
         except OSError as e:
             raise PlanError(out_dir_problem(self.out, e)) from None
+
+    def _check_writable(self) -> None:
+        """Everything this run writes must be writable, checked before anything moves: the folder (run record,
+        new files), and the slice, log and simulator log it appends to."""
+        try:
+            fd, tmp = tempfile.mkstemp(prefix=".write-test.", dir=self.out)
+            os.close(fd)
+            os.unlink(tmp)
+        except OSError as e:
+            raise PlanError(f"--out {self.out}: cannot write in the output folder ({e.strerror or e})") from None
+        for p in (self.slice_path, self.out / LOG_NAME, self.out / SIM_LOG_NAME):
+            if not p.exists():
+                continue
+            try:
+                os.close(os.open(p, os.O_WRONLY | os.O_APPEND))
+            except OSError as e:
+                raise PlanError(f"--out {self.out}: {p.name} cannot be written ({e.strerror or e}); a capture "
+                                "appends to it") from None
+
+    def _check_fingerprint(self, meta: dict[str, Any]) -> None:
+        """Refuse a resume whose config changes the meaning of a sample; remember the harmless changes."""
+        old = meta.get("config_fingerprint")
+        if not isinstance(old, dict):
+            self._legacy_resume = True
+            return
+        diffs = differences(old, self._fingerprint)
+        if diffs:
+            plan = [d for d in diffs if d[0].startswith(("[plan", "plan "))]
+            what = ("plan" if len(plan) == len(diffs) else "plan and configuration" if plan else "configuration")
+            raise PlanError(f"cannot resume: {self.slice_path} was captured with a different {what}: "
+                            f"{describe_differences(diffs)}; restore {'it' if len(diffs) == 1 else 'them'} or "
+                            "choose another --out")
+        old_settings = meta.get("config_settings")
+        if isinstance(old_settings, dict):
+            self._setting_changes = differences(old_settings, self._settings)
+
+    def _log_resume_checks(self) -> None:
+        if self._setting_changes:
+            log.info("resuming with changed setting(s) that cannot change a sample: %s",
+                     describe_differences(self._setting_changes))
+        if self._legacy_resume:
+            log.info("%s has no configuration fingerprint (an older capture): only the plan, calibration mode, "
+                     "detector type and integration time were checked", self.slice_path)
 
     def _check_out_dir(self) -> Slice | None:
         if self.sidecar_path.exists():
@@ -263,11 +379,16 @@ class RunEngine:
         except SliceError as e:
             raise PlanError(f"cannot resume: {e}") from None
         meta = existing.meta
+        self._check_fingerprint(meta)
         fp = meta.get("plan_fingerprint")
         if fp != self.plan.fingerprint():
             raise PlanError(f"cannot resume: {self.slice_path} was captured with a different plan (fingerprint "
                             f"{fp}, the config now gives {self.plan.fingerprint()}); restore the plan or choose "
                             "another --out")
+        kind = existing.kind
+        if (self.cfg.detector.type == "photodiode") != (kind == "grey"):
+            raise PlanError(f"cannot resume: {self.slice_path} has value columns {existing.channels[:4]}, but a "
+                            f"{self.cfg.detector.type} gives {'one value column' if kind != 'grey' else 'spectra'}")
         cal = meta.get("calibration", {})
         if cal.get("mode") != self.cfg.calibration.mode:
             raise PlanError(f"cannot resume: {self.slice_path} used {cal.get('mode')!r} calibration, the config "
@@ -283,7 +404,7 @@ class RunEngine:
         return existing
 
     def _attach_log(self) -> logging.Handler:
-        h = logging.FileHandler(self.out / LOG_NAME, encoding="utf-8")
+        h = _LogFile(self.out / LOG_NAME, encoding="utf-8")
         h.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
         h.setLevel(logging.INFO)
         lg = logging.getLogger("acquisition")
@@ -324,6 +445,9 @@ class RunEngine:
                            "samples_before": 0 if existing is None else len(existing), "pid": os.getpid()})
         _atomic_json(self.sidecar_path, sc)
         self._run_started = True
+        attempt = len(sc["runs"]) - 1
+        if attempt and hasattr(self.bench, "sim_args"):  # the simulator's random streams continue, not replay
+            self.bench.sim_args = ("--attempt", str(attempt))
 
     def _finish_run_record(self) -> None:
         if not self._run_started:
@@ -358,6 +482,7 @@ class RunEngine:
         hardware_fault = False
         try:
             try:
+                self._guard.check()  # a signal during the start-up: stop before anything opens
                 if not bench.is_open:
                     if bench.cfg.bench.transport == "simulated":
                         bench.simulator_log = self.out / SIM_LOG_NAME
@@ -379,7 +504,9 @@ class RunEngine:
                         self._ranger.restore()
                         self._log_auto_range()
                     if self.plan.dark_at_end:
+                        self._guard.check()
                         d_end = self._read_checked(self.cfg.detector.dark_repeats, "dark reading", dark=True)
+                        self._guard.check()  # a signal during the final dark: stopped; a resume measures it again
                         drift = d_end.mean - cal.dark.mean
                         r.dark_drift = [float(x) for x in drift]
                         noise = cal.dark.std_of_mean + d_end.std_of_mean
@@ -414,6 +541,8 @@ class RunEngine:
             except PlanError as e:
                 r.status, r.exit_code = "failed", EXIT_USAGE
                 r.message = str(e)
+            except OSError as e:  # the slice, the run record or the log cannot be written (a full disk)
+                self._io_failure(e)
             except Exception as e:  # a bug or an unforeseen device reply: still stop safely and stay resumable
                 log.exception("unexpected error")
                 r.status, r.exit_code = "failed", EXIT_FAILED
@@ -422,29 +551,55 @@ class RunEngine:
             if self._pbar is not None:
                 self._pbar.close()
             if self._writer is not None:
-                self._writer.close()
+                try:
+                    self._writer.close()
+                except OSError as e:  # every row was fsynced when appended; only the final sync failed
+                    log.info("closing %s: %s", self.slice_path, e)
             if r.status != "complete" and not hardware_fault:
                 self._restore_integration_time()
             try:
                 if bench.is_open:
+                    if bench.motion is not None:
+                        bench.motion.cancel = self._guard.check_abort  # only a second signal stops the parking
                     if opened_here or r.status != "complete":
                         bench.shutdown(park=not hardware_fault)  # park, torque off
                     else:  # the caller's bench stays ready: park only
                         try:
-                            bench.park()
+                            bench.park(check_cancel=True)
                         except BaseException as e:  # noqa: BLE001 - make safe whatever went wrong
                             log.error("parking failed: %s", e)
                             bench.shutdown(park=False)
+                    if bench.motion is not None:
+                        bench.motion.cancel = lambda: None
             finally:
                 if opened_here:
                     bench.close()
+            if self._guard.signum is not None and r.status == "complete":
+                # everything was measured, but the signal arrived while stopping: say so in the exit status
+                name = signal.Signals(self._guard.signum).name
+                r.exit_code = 128 + self._guard.signum
+                r.message += f"; {name} arrived while parking the arms: check that they are parked"
+
+    def _io_failure(self, e: OSError) -> None:
+        """The run stops because an output file cannot be written; one line says which and why."""
+        r = self.result
+        r.status, r.exit_code = "failed", EXIT_FAILED
+        self._io_fault = True
+        where = e.filename or "an output file"
+        if is_no_space(e):
+            r.message = (f"the disk is full (or a file size limit was reached): cannot write {where} "
+                         f"({e.strerror or e})")
+        else:
+            r.message = f"cannot write {where} ({e.strerror or e})"
 
     def _read_checked(self, n: int, what: str, dark: bool = False) -> Reading:
         """A reading without saturated repeats at the present setting (re-read up to ``retries`` times; then a
         DeviceError)."""
         det = self.bench.detector
+        read = det.dark if dark else det.read
         for attempt in range(self.cfg.motion.retries + 1):
-            rd = det.dark(n) if dark else det.read(n)
+            # read again around transient clips (in pieces) after the first attempt
+            rd = read(n) if attempt == 0 else read_clean(read, n, self.cfg.motion.retries)[0]
             if not rd.saturated:
                 return rd
             log.warning("%s: %d of %d repeats saturated (attempt %d); reading again", what, rd.saturated, n,
@@ -485,7 +640,7 @@ class RunEngine:
         ranger = AutoRanger(det, d.integration_time_s, d.min_integration_time_s,
                             read_dark=lambda: self._read_checked(
                                 d.dark_repeats, f"dark reading at t_int = {det.integration_time_s:g} s", dark=True),
-                            on_dark=self._store_dark)
+                            on_dark=self._store_dark, retries=self.cfg.motion.retries)
         rec.update(enabled=True, reference_integration_time_s=d.integration_time_s,
                    min_integration_time_s=d.min_integration_time_s, ladder_s=ranger.ladder)
         for key, m in rec["darks"].items():
@@ -567,7 +722,7 @@ class RunEngine:
         ranger = self._ranger
         if existing is not None:
             channels = det.channels
-            if existing.channels != channels:
+            if sorted(existing.channels) != sorted(channels):
                 raise PlanError(f"cannot resume: {self.slice_path} has channels {existing.channels[:4]}..., the "
                                 f"detector gives {channels[:4]}...")
             m = existing.meta["calibration"]
@@ -630,6 +785,8 @@ class RunEngine:
                          "saturation": det.saturation, "auto_range": self.cfg.detector.auto_range},
             "plan": self.plan.to_meta(),
             "plan_fingerprint": self.plan.fingerprint(),
+            "config_fingerprint": self._fingerprint,
+            "config_settings": self._settings,
             "unmeasurable": self.result.unmeasurable,
             "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         }
@@ -732,17 +889,22 @@ class RunEngine:
             log.info("%s; bench time %.3f s (%s clock): motion %.3f s, settle %.3f s, detector %.3f s; wall %.3f s",
                      r.message, r.bench_time_s, r.bench_clock, r.motion_s, r.settle_s, r.read_s, r.wall_s)
             return
-        if not self._before_motion:
-            hint = self.resume_hint()
-            if r.samples_total:
-                kept = f"{r.samples_total} sample(s) are safely in {self.slice_path}."
-            else:
-                kept = "No sample was captured yet."
-            r.message = f"{r.message}\n{kept} {hint}"
+        if r.samples_total:
+            kept = f"{r.samples_total} sample(s) are safely in {self.slice_path}."
+        else:
+            kept = "No sample was captured yet."
+        if self._io_fault:  # one line: what could not be written, what is safe, how to go on
+            how = "Free some space, then resume" if "disk is full" in r.message else "Once it can be written, resume"
+            r.message = f"{r.message}; {kept} {how} with: {self.resume_command()}"
+        elif not self._before_motion:
+            r.message = f"{r.message}\n{kept} {self.resume_hint()}"
         log.error(r.message, extra={"final": True})
 
+    def resume_command(self) -> str:
+        return f"gonio-capture --config {self.cfg.path} --out {self.out} --resume"
+
     def resume_hint(self) -> str:
-        return (f"Resume with: gonio-capture --config {self.cfg.path} --out {self.out} --resume")
+        return f"Resume with: {self.resume_command()}"
 
 
 def out_dir_problem(out: Path, err: OSError | None = None) -> str:

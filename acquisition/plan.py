@@ -26,7 +26,16 @@ import numpy as np
 from reconstruction.scene import Scene, SceneError
 from reconstruction.scene import load_scene as _load_scene
 
-from .config import AdaptiveConfig, AxisConfig, BenchConfig, PlanConfig, _frange
+from .config import (
+    MAX_PLAN_POINTS,
+    AdaptiveConfig,
+    AxisConfig,
+    BenchConfig,
+    PlanConfig,
+    _count,
+    _frange,
+    resolution_deg,
+)
 from .errors import ConfigError, PlanError
 
 __all__ = ["Point", "Geometry", "Plan", "PlanCheck", "Scene", "load_scene", "order_points", "path_time",
@@ -94,10 +103,10 @@ class Geometry:
             return "outside (-90, 90) degrees"
         if not self.light.within(ti):
             return (f"theta_i {ti:g} outside the light arm soft limits "
-                    f"[{self.light.min_deg:g}, {self.light.max_deg:g}]")
+                    f"[{self.light.min_deg:g}, {self.light.max_deg:g}] ([axes.light].min_deg, max_deg)")
         if not self.detector.within(to):
             return (f"theta_o {to:g} outside the detector arm soft limits "
-                    f"[{self.detector.min_deg:g}, {self.detector.max_deg:g}]")
+                    f"[{self.detector.min_deg:g}, {self.detector.max_deg:g}] ([axes.detector].min_deg, max_deg)")
         sep = abs(self.quantise(self.light, ti) + self.quantise(self.detector, to))  # at the goals as sent
         if sep < self.min_separation_deg:
             return (f"collision: arms {sep:.3f} deg apart, closer than min_separation_deg "
@@ -106,6 +115,27 @@ class Geometry:
             return (f"blind spot: the source arm shadows the detector (|theta_i + theta_o| = {sep:.3f} < "
                     f"{self.blind_spot_half_width_deg:g})")
         return None
+
+    def reasons(self, points: np.ndarray) -> list[str | None]:
+        """:meth:`reason` for many points (N, 2) at once (vectorised; strings only for the unmeasurable ones)."""
+        pts = np.asarray(points, dtype=float).reshape(-1, 2)
+        ti, to = pts[:, 0], pts[:, 1]
+        lt, dt = self.light, self.detector
+        outside = ~((np.abs(ti) < 90.0) & (np.abs(to) < 90.0))
+        off_light = ~((ti >= lt.min_deg - 1e-9) & (ti <= lt.max_deg + 1e-9))
+        off_det = ~((to >= dt.min_deg - 1e-9) & (to <= dt.max_deg + 1e-9))
+        with np.errstate(all="ignore"):
+            q_ti = (np.round(lt.zero_offset + lt.direction * lt.units_per_deg * ti) - lt.zero_offset) / (
+                lt.direction * lt.units_per_deg)
+            q_to = (np.round(dt.zero_offset + dt.direction * dt.units_per_deg * to) - dt.zero_offset) / (
+                dt.direction * dt.units_per_deg)
+            sep = np.abs(q_ti + q_to)
+        bad = outside | off_light | off_det | (sep < self.min_separation_deg) | (
+            sep < self.blind_spot_half_width_deg)
+        out: list[str | None] = [None] * len(pts)
+        for k in np.flatnonzero(bad):
+            out[k] = self.reason(float(ti[k]), float(to[k]))
+        return out
 
     @staticmethod
     def quantise(ax: AxisConfig, deg: float) -> float:
@@ -239,10 +269,19 @@ SCENE_DEFAULT_RANGE_DEG = (0.0, 89.999)
 def load_scene(path: str | Path) -> Scene:
     """Read and validate a scene file (:func:`reconstruction.scene.load_scene`); errors are :class:`ConfigError`
     (the message names the file and the key), as for bench configs."""
+    p = Path(path)
+    if p.exists() and not p.is_file():  # a directory, a device or a pipe (which would block the read)
+        raise ConfigError(f"{p}: not a regular file, expected a scene file (TOML)")
     try:
         return _load_scene(path)
     except SceneError as e:
         raise ConfigError(str(e)) from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: is a directory, expected a scene file (TOML)") from None
+    except OSError as e:
+        raise ConfigError(f"{path}: cannot read the scene file ({e.strerror or e})") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: invalid TOML: nested too deeply") from None
 
 
 # --- plans -----------------------------------------------------------------------------------------------------
@@ -396,18 +435,49 @@ class Plan:
 
     def check(self, geom: Geometry) -> PlanCheck:
         """Sort the requested points into measurable and unmeasurable (with reasons)."""
+        pts = self.requested_points()
         ok, bad = [], []
-        for p in self.requested_points():
-            why = geom.reason(*p)
+        for p, why in zip(pts, geom.reasons(np.array(pts, dtype=float).reshape(-1, 2)), strict=True):
             if why is None:
                 ok.append(p)
             else:
                 bad.append((p[0], p[1], why))
         return PlanCheck(ok, bad)
 
+    def size(self) -> float:
+        """How many points the plan can grow to, computed without building them: the requested points, or with
+        adaptive refinement (and no ``max_points``) the number at its ``min_step_deg``. A float (may be huge)."""
+        if self.explicit is not None:
+            return float(len(self.explicit))
+        a = self.adaptive
+        if a is not None:
+            worst = sum(_count(s.lo, s.hi, a.min_step_deg) for s in self.sweeps)
+            return float(min(worst, a.max_points)) if a.max_points else float(worst)
+        return float(sum(_count(s.lo, s.hi, s.step) for s in self.sweeps))
+
+    def check_size(self, geom: Geometry) -> None:
+        """Raise :class:`PlanError` for a step finer than the detector axis can make or for a plan larger than
+        :data:`~acquisition.config.MAX_PLAN_POINTS`; runs before any point is built."""
+        res = resolution_deg(geom.detector)
+        steps = [("theta_o step", s.step) for s in self.sweeps]
+        if self.adaptive is not None:
+            steps += [("adaptive coarse_step_deg", self.adaptive.coarse_step_deg),
+                      ("adaptive min_step_deg", self.adaptive.min_step_deg)]
+        scene = f" (from scene {self.scene!r})" if self.scene else ""
+        for what, step in steps:
+            if not step >= res * (1 - 1e-9):
+                raise PlanError(f"the plan's {what} of {step:g} deg{scene} is finer than the detector axis "
+                                f"resolution of {res:.4g} deg (1 / units_per_deg)")
+        n = self.size()
+        if n > MAX_PLAN_POINTS:
+            raise PlanError(f"the plan{scene} has {n:.3g} points, more than the {MAX_PLAN_POINTS} a plan may hold; "
+                            "use a coarser step, fewer incidences or (adaptive) max_points")
+
     def validate(self, geom: Geometry) -> PlanCheck:
-        """:meth:`check`, raising :class:`PlanError` for points outside the soft limits (or, with ``strict``,
-        for any unmeasurable point) and for a plan with nothing to measure."""
+        """:meth:`check`, raising :class:`PlanError` for a plan beyond the axes' resolution or the point limit
+        (:meth:`check_size`), for points outside the soft limits (or, with ``strict``, for any unmeasurable point)
+        and for a plan with nothing to measure."""
+        self.check_size(geom)
         chk = self.check(geom)
         bad = chk.unmeasurable if self.strict else chk.unreachable
         if bad:
@@ -440,12 +510,14 @@ class Plan:
                "adaptive": self.to_meta().get("adaptive")}
         return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
 
-    def estimate(self, geom: Geometry, integration_time_s: float, points: Sequence[Point] | None = None
-                 ) -> dict[str, float]:
+    def estimate(self, geom: Geometry, integration_time_s: float, points: Sequence[Point] | None = None,
+                 max_evaluations: int = TWO_OPT_MAX_EVALUATIONS) -> dict[str, float]:
         """Estimated times (s): ``motion_s`` in this plan's order, ``naive_motion_s`` in naive order, and
-        ``total_s`` with settle and detector time."""
+        ``total_s`` with settle and detector time. ``max_evaluations``: the 2-opt budget of the ordering (a
+        smaller one gives the same order for plans of up to about a thousand points, and a slightly longer
+        estimate for bigger ones, faster)."""
         pts = self.check(geom).measurable if points is None else list(points)
-        ordered = order_points(pts, geom) if self.order == "optimized" else pts
+        ordered = order_points(pts, geom, max_evaluations=max_evaluations) if self.order == "optimized" else pts
         motion = path_time(ordered, geom)
         naive = path_time(pts, geom)
         per_point = geom.settle_s + self.repeats * integration_time_s

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 import serial
 
-from .calibration import Reading
+from .calibration import Reading, pool
 from .config import AxisConfig
 from .errors import PORT_ERRORS, CommError, DeviceError, HardwareError
 
@@ -323,12 +323,22 @@ class SerialDetector:
         return Reading(mean, std, n, sat)
 
     def _read(self, word: str, n: int) -> Reading:
+        """``word n`` (READ or DARK); if its reply keeps failing (the longer the reply, the likelier a corrupt
+        byte), the ``n`` repeats are read in two halves, recursively, and pooled: one repeat per command at
+        worst, so a noisy line slows a reading down instead of stopping the capture."""
         out: list[Reading] = []
 
         def check(reply: Reply) -> None:
             out.append(self._parse(reply.fields, n))
 
-        self.link.command(f"{word} {n}", expect_s=n * self.integration_time_s, check=check)
+        try:
+            self.link.command(f"{word} {n}", expect_s=n * self.integration_time_s, check=check)
+        except CommError:
+            if self.link.dead or n < 2:
+                raise
+            k = n // 2
+            log.info("%s: %s %d kept failing; reading it as %d + %d repeats", self.link.name, word, n, k, n - k)
+            return pool(self._read(word, k), self._read(word, n - k))
         return out[-1]
 
     def read(self, n: int) -> Reading:

@@ -5,14 +5,19 @@ Example::
     gonio-reconstruct out/demo/slice.csv --method auto --out out/demo/material.binary \\
         --preview out/demo/material.exr --report out/demo/material.json
 
-Bad input exits with status 2 and one line on stderr naming the file, line and what was expected.
+Bad input exits with status 2 and one line on stderr naming the file, line and what was expected; an I/O fault
+while writing (a full disk) exits with status 1 and one line naming the file. Outputs are written atomically: a
+failure never leaves a half-written file under its real name.
 """
 
 from __future__ import annotations
 
 import argparse
+import errno
+import os
 import sys
 import time
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -20,6 +25,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from .atomic import is_no_space
 from .base import ReconstructionError
 from .merl import FILE_SIZE, MerlError
 from .models import MaterialError
@@ -157,12 +163,20 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
-def _check_output(path: Path, suffix: str, flag: str) -> None:
-    if path.suffix.lower() != suffix:
+def _check_output(path: Path, suffix: str | None, flag: str) -> None:
+    """An output path must name a file (``suffix``) in an existing, writable folder; checked before any work."""
+    if suffix is not None and path.suffix.lower() != suffix:
         raise ReconstructionError(f"{flag} {path}: expected a file name ending in {suffix}")
+    if path.is_dir():
+        raise ReconstructionError(f"{flag} {path}: is a folder; give a file name"
+                                  + (f" ending in {suffix}" if suffix else ""))
     parent = path.parent if str(path.parent) else Path(".")
     if not parent.is_dir():
         raise ReconstructionError(f"{flag} {path}: the folder {parent} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise ReconstructionError(f"{flag} {path}: the folder {parent} is not writable")
+    if path.exists() and not path.is_file():
+        raise ReconstructionError(f"{flag} {path}: exists and is not a regular file")
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
@@ -174,10 +188,11 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     _check_output(out, ".binary", "--out")
     if args.preview:
         _check_output(Path(args.preview), ".exr", "--preview")
+        png = Path(args.preview).with_suffix(".png")
+        if png.is_dir():
+            raise ReconstructionError(f"--preview {args.preview}: {png} (the PNG beside it) is a folder")
     if args.report:
-        parent = Path(args.report).parent
-        if str(parent) and not parent.is_dir():
-            raise ReconstructionError(f"--report {args.report}: the folder {parent} does not exist")
+        _check_output(Path(args.report), None, "--report")
     lobes = None
     if args.lobes:
         lobes = [x.strip() for x in args.lobes.split(",") if x.strip()]
@@ -201,10 +216,21 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         t0 = step("reading inputs")
         loaded = inputs.load_inputs(args.inputs, quantity=args.quantity, columns=inputs.parse_columns(args.columns),
                                     blind_spot_deg=args.blind_spot_deg)
-        scene = load_scene(args.scene) if args.scene else None
+        scene = None
+        if args.scene:
+            sp = Path(args.scene)
+            if sp.exists() and not sp.is_file():
+                raise ReconstructionError(f"--scene {sp}: not a regular file, expected a scene file (TOML)")
+            try:
+                scene = load_scene(sp)
+            except RecursionError:
+                raise ReconstructionError(f"--scene {sp}: invalid TOML: nested too deeply") from None
         done("read", t0)
         t0 = step("colour")
-        working, colour_info = colour.to_working_channels(loaded.slice, args.illuminant)
+        try:
+            working, colour_info = colour.to_working_channels(loaded.slice, args.illuminant)
+        except ReconstructionError as e:  # e.g. spectral channels outside the observer: say which input
+            raise ReconstructionError(f"{', '.join(loaded.files)}: {e}") from None
         done("colour", t0)
         t0 = step("reconstructing")
         opts = pipeline.Options(scene=scene, fill=args.fill, lobes=lobes, revolve_axis=args.axis,
@@ -289,11 +315,18 @@ def _batch_one(job: tuple[dict[str, Any], str, Path, Path]) -> dict[str, Any]:
     ns.preview = str(out_dir / f"{name}.exr") if options.get("previews") else None
     ns.quiet = True
     try:
-        rep = run(ns)
+        with warnings.catch_warnings(), np_quiet():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            rep = run(ns)
     except ImplausibleError as e:
         return {"name": name, "input": str(path), "ok": False, "error": str(e), "implausible": True}
-    except (ReconstructionError, SliceError, MerlError, MaterialError, OSError) as e:
+    except (ReconstructionError, SliceError, MerlError, MaterialError) as e:
         return {"name": name, "input": str(path), "ok": False, "error": str(e)}
+    except OSError as e:
+        return {"name": name, "input": str(path), "ok": False, "error": _os_error(e)}
+    except Exception as e:  # noqa: BLE001 - one file must never abort the batch
+        return {"name": name, "input": str(path), "ok": False, "error": f"unexpected error: {type(e).__name__}: "
+                                                                        f"{str(e)[:300]}"}
     return {"name": name, "input": str(path), "ok": True, "method": rep["method"], "table": ns.out}
 
 
@@ -310,7 +343,14 @@ def run_batch(args: argparse.Namespace) -> int:
         print(f"{PROG}: error: --batch {folder}: no *.csv or */slice.csv inside", file=sys.stderr)
         return 2
     out_dir = Path(args.out_dir) if args.out_dir else folder
-    out_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        print(f"{PROG}: error: --out-dir {out_dir}: cannot create the folder ({e.strerror or e})", file=sys.stderr)
+        return 2
+    if not os.access(out_dir, os.W_OK | os.X_OK):
+        print(f"{PROG}: error: --out-dir {out_dir}: the folder is not writable", file=sys.stderr)
+        return 2
     options = {k: v for k, v in vars(args).items() if k not in ("inputs", "out", "preview", "report", "batch")}
     results: list[dict[str, Any]] = []
     with tqdm(total=len(files), desc=PROG, unit="file", disable=True if args.quiet else None,
@@ -336,9 +376,38 @@ def run_batch(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
+def np_quiet() -> Any:
+    """numpy floating-point warnings off: the checks report bad input; warnings must never reach a user."""
+    import numpy as np
+
+    return np.errstate(all="ignore")
+
+
+#: OSError numbers that are I/O faults (exit status 1); other OSErrors are about the paths given (status 2).
+_IO_FAULTS = frozenset({errno.EIO, errno.ENOSPC, errno.EDQUOT, errno.EFBIG})
+
+
+def _os_error(e: OSError) -> str:
+    where = f"{e.filename}: " if e.filename else ""
+    what = e.strerror or str(e)
+    if is_no_space(e):
+        what += " (the disk is full: free some space and run again; nothing was left half-written)"
+    return f"{where}{what}"
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
+    try:
+        with warnings.catch_warnings(), np_quiet():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            return _main(ap, args)
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted; nothing was left half-written", file=sys.stderr)
+        return 130
+
+
+def _main(ap: argparse.ArgumentParser, args: argparse.Namespace) -> int:
     if args.batch:
         if args.inputs or args.out or args.preview or args.report:
             ap.error("--batch takes no INPUT, --out, --preview or --report (outputs are named after the inputs)")
@@ -354,9 +423,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{PROG}: error: {e}", file=sys.stderr)
         return 2
     except OSError as e:
-        where = f"{e.filename}: " if e.filename else ""
-        print(f"{PROG}: error: {where}{e.strerror or e}", file=sys.stderr)
-        return 2
+        print(f"{PROG}: error: {_os_error(e)}", file=sys.stderr)
+        return 1 if e.errno in _IO_FAULTS else 2
     if not args.quiet:
         checks = rep["checks"]
         failed = [k for k in ("non_negative", "albedo", "reciprocity") if not checks[k]["pass"]]

@@ -39,7 +39,19 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .base import ReconstructionError
-from .slicefile import MAGIC, QUANTITIES, Slice, SliceError, channel_kind, read_slice
+from .merl import MAX_CELL_VALUE
+from .slicefile import (
+    MAGIC,
+    MAX_REPEATS,
+    QUANTITIES,
+    Slice,
+    SliceError,
+    channel_kind,
+    parse_rows,
+    read_input_text,
+    read_slice,
+    shorten,
+)
 
 Array = NDArray[np.float64]
 
@@ -47,6 +59,7 @@ __all__ = [
     "InputError",
     "LoadedInput",
     "DEFAULT_BLIND_SPOT_DEG",
+    "MAX_BRDF",
     "MIN_SAMPLES",
     "parse_columns",
     "read_input",
@@ -56,6 +69,9 @@ __all__ = [
     "check_slice",
 ]
 
+#: Largest |f_r| (and standard deviation of f_r) an input may hold, 1/sr: far above any real BRDF, low enough
+#: that f cos cos and the fits' weights stay finite.
+MAX_BRDF = MAX_CELL_VALUE
 DEFAULT_BLIND_SPOT_DEG = 10.0  # half width of the retro blind spot, in |theta_i + theta_o| (degrees)
 MIN_SAMPLES = 3  # fewer samples cannot define any reconstruction
 
@@ -128,18 +144,59 @@ def _canonical_value_name(name: str) -> str | None:
     return None
 
 
+def _column_list(names: Sequence[str], limit: int = 12) -> str:
+    shown = ", ".join(shorten(n) for n in list(names)[:limit])
+    return shown + (f", ... ({len(names)} columns)" if len(names) > limit else "")
+
+
+def _cells(path: Path, line: str, lineno: int, delim: str) -> list[str]:
+    try:
+        return next(csv.reader([line], delimiter=delim))
+    except csv.Error as e:
+        raise InputError(f"{path}:{lineno}: {e}") from None
+    except StopIteration:  # pragma: no cover - blank lines were skipped
+        return []
+
+
+def _parse_slowly(path: Path, rows: Sequence[str], line_of: Sequence[int], header: Sequence[str], delim: str
+                  ) -> Array:
+    """Rows one by one (csv rules: quoted fields), for the message when the fast parse failed: the first line with
+    the wrong number of fields, else the first non-numeric cell (column by column). Memory: the result only."""
+    n = len(header)
+    data = np.full((len(rows), n), np.nan)
+    first_bad: tuple[int, int] | None = None  # (column, row) of the first non-numeric cell, column-major
+    reader = csv.reader(rows, delimiter=delim)
+    r = 0
+    while True:
+        try:
+            cells = next(reader)
+        except StopIteration:
+            break
+        except csv.Error as e:
+            raise InputError(f"{path}:{line_of[r]}: {e}") from None
+        if len(cells) != n:
+            raise InputError(f"{path}:{line_of[r]}: {len(cells)} fields, expected {n} "
+                             f"({shorten(delim.join(header), 200)})")
+        for k, cell in enumerate(cells):
+            try:
+                data[r, k] = float(cell.strip())
+            except ValueError:
+                if first_bad is None or (k, r) < first_bad:
+                    first_bad = (k, r)
+        r += 1
+    if first_bad is not None:
+        k, r = first_bad
+        cell = _cells(path, rows[r], line_of[r], delim)[k].strip()
+        raise InputError(f"{path}:{line_of[r]}, column {shorten(header[k])}: expected a number, got "
+                         f"{shorten(cell)!r}")
+    return data
+
+
 def read_table(path: str | Path, *, quantity: str | None, columns: Mapping[str, str] | None = None) -> Slice:
     """Read a generic in-plane CSV table (see the module docstring) into a :class:`Slice` of ``quantity``."""
     path = Path(path)
     columns = dict(columns or {})
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise InputError(f"{path}: is a directory, expected a CSV file") from None
-    except UnicodeDecodeError as e:
-        raise InputError(f"{path}: not a UTF-8 text file ({e.reason} at byte {e.start})") from None
+    text = read_input_text(path, InputError, "a CSV file")
     if not text.strip():
         raise InputError(f"{path}: empty file")
     if quantity is None:
@@ -151,14 +208,17 @@ def read_table(path: str | Path, *, quantity: str | None, columns: Mapping[str, 
     h = _find_header(lines, path)
     hline = h + 1
     delim = _delimiter(lines[h])
-    header = [c.strip() for c in next(csv.reader([lines[h]], delimiter=delim))]
+    try:
+        header = [c.strip() for c in next(csv.reader([lines[h]], delimiter=delim))]
+    except csv.Error as e:
+        raise InputError(f"{path}:{hline}: cannot read the header line: {e}") from None
     if len(set(header)) != len(header):
         dup = next(c for c in header if header.count(c) > 1)
-        raise InputError(f"{path}:{hline}, column {dup}: the column name appears twice")
+        raise InputError(f"{path}:{hline}, column {shorten(dup)}: the column name appears twice")
     for key, name in columns.items():
         if name not in header:
-            raise InputError(f"{path}:{hline}: --columns {key}={name}: no such column; the columns are "
-                             f"{', '.join(header)}")
+            raise InputError(f"{path}:{hline}: --columns {key}={shorten(name)}: no such column; the columns are "
+                             f"{_column_list(header)}")
     role: dict[int, str] = {}  # column index -> role ("theta_i", "theta_o", value name, "<value>_std", ...)
     for key, name in columns.items():
         role[header.index(name)] = key
@@ -168,7 +228,7 @@ def read_table(path: str | Path, *, quantity: str | None, columns: Mapping[str, 
         found = [n for n in names if n in header]
         if not found:
             raise InputError(f"{path}:{hline}: no {key} column (looked for {', '.join(names)}); the columns are "
-                             f"{', '.join(header)}; map one with --columns {key}=NAME")
+                             f"{_column_list(header)}; map one with --columns {key}=NAME")
         role[header.index(found[0])] = key
     renamed = {name: key for key, name in columns.items() if key not in ("theta_i", "theta_o")}
     for k, name in enumerate(header):
@@ -186,7 +246,7 @@ def read_table(path: str | Path, *, quantity: str | None, columns: Mapping[str, 
             raise InputError(f"{path}:{hline}, column {name}: a second angle column; map the one to use with "
                              f"--columns")
         else:
-            raise InputError(f"{path}:{hline}, column {name}: unknown column; expected theta_i/theta_o angle "
+            raise InputError(f"{path}:{hline}, column {shorten(name)}: unknown column; expected theta_i/theta_o angle "
                              f"columns, value, R,G,B or wavelength columns such as 450nm (with optional _std "
                              f"columns), repeats, unix_time_s; map other names with --columns theta_i=NAME,"
                              f"theta_o=NAME")
@@ -196,7 +256,7 @@ def read_table(path: str | Path, *, quantity: str | None, columns: Mapping[str, 
         raise InputError(f"{path}:{hline}: no value columns; expected value, R,G,B or wavelength columns such "
                          f"as 450nm")
     if len(set(channels)) != len(channels):
-        raise InputError(f"{path}:{hline}: two columns give the same channel {channels}")
+        raise InputError(f"{path}:{hline}: two columns give the same channel {_column_list(channels)}")
     if all(c.endswith("nm") for c in channels):
         order = np.argsort([float(c[:-2]) for c in channels], kind="stable")
         value_cols = [value_cols[i] for i in order]
@@ -211,65 +271,48 @@ def read_table(path: str | Path, *, quantity: str | None, columns: Mapping[str, 
     std_cols = {role[k][:-4]: k for k in role if role[k].endswith("_std")}
     for c in std_cols:
         if c not in channels:
-            raise InputError(f"{path}:{hline}, column {header[std_cols[c]]}: a _std column without its value "
-                             f"column")
+            raise InputError(f"{path}:{hline}, column {shorten(header[std_cols[c]])}: a _std column without its "
+                             f"value column")
     names_by_role = {r: header[k] for k, r in role.items()}
 
-    # rows: parsed with numpy once the field count is checked line by line (messages need the line number)
-    rows: list[list[str]] = []
-    line_of: list[int] = []
-    for k in range(h + 1, len(lines)):
-        s = lines[k].strip()
-        if not s or s.startswith("#"):
-            continue
-        cells = next(csv.reader([lines[k]], delimiter=delim))
-        if len(cells) != len(header):
-            raise InputError(f"{path}:{k + 1}: {len(cells)} fields, expected {len(header)} "
-                             f"({delim.join(header)})")
-        rows.append(cells)
-        line_of.append(k + 1)
+    # rows: parsed in one vectorised pass; only a table that fails is read again line by line, for the message
+    line_of = [k + 1 for k in range(h + 1, len(lines)) if (t := lines[k].strip()) and not t.startswith("#")]
+    rows = [lines[k - 1] for k in line_of]
+    del lines, text
     if not rows:
         raise InputError(f"{path}: no samples (the table has a header but no rows)")
-    lines_arr = np.asarray(line_of)
-    data = np.empty((len(rows), len(header)))
-    for k in range(len(header)):  # one vectorised conversion per column; the slow path only finds the culprit
-        col = [r[k].strip() for r in rows]
-        try:
-            data[:, k] = np.array(col, dtype=np.float64)
-        except ValueError:
-            for r, cell in enumerate(col):
-                try:
-                    float(cell)
-                except ValueError:
-                    raise InputError(f"{path}:{line_of[r]}, column {header[k]}: expected a number, got "
-                                     f"{cell!r}") from None
+    data = parse_rows(rows, len(header), delimiter=delim, quotechar='"')
+    if data is None or not np.all(np.isfinite(data)):
+        data = _parse_slowly(path, rows, line_of, header, delim)
     bad = ~np.isfinite(data)
     if bad.any():
         r, k = (int(x) for x in np.argwhere(bad)[0])
-        raise InputError(f"{path}:{line_of[r]}, column {header[k]}: value is {rows[r][k].strip()!r}; NaN and "
+        cell = _cells(path, rows[r], line_of[r], delim)[k].strip()
+        raise InputError(f"{path}:{line_of[r]}, column {shorten(header[k])}: value is {shorten(cell)!r}; NaN and "
                          f"infinity are not allowed (leave missing samples out)")
+    lines_arr = np.asarray(line_of)
     ti = data[:, [k for k, r in role.items() if r == "theta_i"][0]]
     to = data[:, [k for k, r in role.items() if r == "theta_o"][0]]
     for name, arr in (("theta_i", ti), ("theta_o", to)):
         out = np.abs(arr) >= 90.0
         if out.any():
             r = int(np.argmax(out))
-            raise InputError(f"{path}:{line_of[r]}, column {names_by_role[name]}: {arr[r]} is outside (-90, 90) "
-                             f"degrees")
-    _check_order(path, ti, to, lines_arr, names_by_role["theta_i"], names_by_role["theta_o"])
+            raise InputError(f"{path}:{line_of[r]}, column {shorten(names_by_role[name])}: {arr[r]} is outside "
+                             f"(-90, 90) degrees")
+    _check_order(path, ti, to, lines_arr, shorten(names_by_role["theta_i"]), shorten(names_by_role["theta_o"]))
     values = data[:, value_cols]
     std = np.zeros_like(values)
     for c, k in std_cols.items():
         std[:, channels.index(c)] = data[:, k]
     if (std < 0).any():
         r, c = (int(x) for x in np.argwhere(std < 0)[0])
-        raise InputError(f"{path}:{line_of[r]}, column {header[std_cols[channels[c]]]}: a standard deviation "
-                         f"must be >= 0, got {std[r, c]}")
+        raise InputError(f"{path}:{line_of[r]}, column {shorten(header[std_cols[channels[c]]])}: a standard "
+                         f"deviation must be >= 0, got {std[r, c]}")
     repeats = data[:, [k for k, r in role.items() if r == "repeats"][0]] if "repeats" in role.values() else None
     times = data[:, [k for k, r in role.items() if r == "unix_time_s"][0]] if "unix_time_s" in role.values() \
         else None
     if repeats is not None:
-        badr = (repeats < 1) | (repeats != np.round(repeats))
+        badr = ~((repeats >= 1) & (repeats <= MAX_REPEATS)) | (repeats != np.round(repeats))
         if badr.any():
             r = int(np.argmax(badr))
             raise InputError(f"{path}:{line_of[r]}, column repeats: expected a positive integer, got {repeats[r]}")
@@ -325,16 +368,27 @@ def _check_order(path: Path, ti: Array, to: Array, line_of: NDArray[np.int_], ti
 
 
 def _is_slice_file(path: Path) -> bool:
+    import stat
+
+    try:
+        mode = path.stat().st_mode
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such file") from None
+    except OSError as e:
+        raise InputError(f"{path}: cannot read ({e.strerror})") from None
+    if not stat.S_ISREG(mode) and not stat.S_ISDIR(mode):  # a pipe would block the read
+        raise InputError(f"{path}: not a regular file (a device or a pipe), expected a slice file or a CSV table")
     try:
         with open(path, "rb") as fh:
-            first = fh.readline(len(MAGIC) + 8)
+            first = fh.read(len(MAGIC) + 16)
     except FileNotFoundError:
         raise InputError(f"{path}: no such file") from None
     except IsADirectoryError:
         raise InputError(f"{path}: is a directory, expected a slice file or a CSV table") from None
     except OSError as e:
         raise InputError(f"{path}: cannot read ({e.strerror})") from None
-    return first.decode("utf-8", "replace").strip() == MAGIC
+    text = first.decode("utf-8", "replace").lstrip("\ufeff")  # a byte-order mark; any line ending
+    return text.replace("\r", "\n").split("\n")[0].strip() == MAGIC
 
 
 def read_input(path: str | Path, *, quantity: str | None = None, columns: Mapping[str, str] | None = None
@@ -400,6 +454,18 @@ def _merge(slices: Sequence[Slice]) -> Slice:
     return merged
 
 
+def _check_bounds(s: Slice, f: Array, sd: Array) -> None:
+    """f_r and its standard deviation within [-MAX_BRDF, MAX_BRDF] (1/sr): beyond it the input is not a BRDF,
+    and f cos cos or the fits' weights would overflow."""
+    for what, arr in (("f_r", f), ("the standard deviation of f_r", sd)):
+        big = ~(np.abs(arr) <= MAX_BRDF)
+        if big.any():
+            r, c = (int(x) for x in np.argwhere(big)[0])
+            raise InputError(f"{s.source}: sample theta_i = {s.theta_i_deg[r]:g}, theta_o = {s.theta_o_deg[r]:g}, "
+                             f"column {shorten(s.channels[c])}: {what} = {arr[r, c]:.3g} 1/sr is beyond the physical "
+                             f"bound {MAX_BRDF:g} 1/sr ({int(big.sum())} value(s) in all)")
+
+
 def load_inputs(paths: Sequence[str | Path], *, quantity: str | None = None,
                 columns: Mapping[str, str] | None = None, blind_spot_deg: float | None = None) -> LoadedInput:
     """Read every input, drop blind-spot zero rows, convert to f_r (1/sr) and merge into one :class:`Slice`.
@@ -431,7 +497,9 @@ def load_inputs(paths: Sequence[str | Path], *, quantity: str | None = None,
                          f"{width:g} deg) treated as missing data")
         if len(s) == 0:
             raise InputError(f"{s.source}: every row is zero in the blind spot; no samples left")
-        f, sd = s.brdf()
+        with np.errstate(all="ignore"):
+            f, sd = s.brdf()
+        _check_bounds(s, f, sd)
         out.append(Slice(s.theta_i_deg, s.theta_o_deg, f, list(s.channels), sd, s.repeats, s.unix_time_s,
                          meta={"quantity": "brdf"}, source=s.source))
     merged = _merge(out)

@@ -11,6 +11,7 @@ phi_d = (k + 0.5) deg, with phi_h = 0.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
@@ -36,6 +37,8 @@ __all__ = [
     "FILE_SIZE",
     "SCALES",
     "MerlError",
+    "MerlWarning",
+    "MAX_CELL_VALUE",
     "read",
     "write",
     "theta_h_index",
@@ -377,16 +380,34 @@ def write(path: str | Path, f: ArrayLike, require_above_horizon: bool = False) -
         fh.write(memoryview(np.ascontiguousarray(stored)).cast("B"))
 
 
-def read(path: str | Path) -> Array:
-    """Read a MERL binary file -> (3, 90, 90, 180) float64 f_r in 1/sr; negative (invalid) cells -> NaN."""
+#: Physical bound of a stored cell that :func:`read` accepts by default (1/sr): a real BRDF, even a mirror seen by a
+#: detector of a few square millidegrees, stays far below it; random bytes after a valid header do not.
+MAX_CELL_VALUE = 1e8
+
+
+class MerlWarning(UserWarning):
+    """A MERL file was read, but something in it was taken as invalid (the message says how many cells)."""
+
+
+def read(path: str | Path, max_value: float | None = MAX_CELL_VALUE) -> Array:
+    """Read a MERL binary file -> (3, 90, 90, 180) float64 f_r in 1/sr; negative (invalid) cells -> NaN.
+
+    Cells stored as -1 are the format's invalid marker; other negative cells are also read as NaN, with a
+    :class:`MerlWarning` saying how many. A cell above ``max_value`` (1/sr; default :data:`MAX_CELL_VALUE`) is a
+    :class:`MerlError` (the file is not a BRDF table); ``max_value=None`` accepts any finite value.
+    """
     path = Path(path)
     try:
+        if path.exists() and not path.is_file() and not path.is_dir():
+            raise MerlError(f"{path}: not a regular file (a device or a pipe), expected a .binary file")
         with open(path, "rb") as fh:
             data = fh.read(FILE_SIZE + 1)
     except FileNotFoundError:
         raise MerlError(f"{path}: no such file") from None
     except IsADirectoryError:
         raise MerlError(f"{path}: is a directory, expected a .binary file") from None
+    except OSError as e:
+        raise MerlError(f"{path}: cannot read ({e.strerror or e})") from None
     if len(data) < 12:
         raise MerlError(f"{path}: {len(data)} bytes, too short for the 12-byte header")
     dims = np.frombuffer(data[:12], dtype="<i4")
@@ -395,12 +416,29 @@ def read(path: str | Path) -> Array:
     if len(data) < FILE_SIZE:
         raise MerlError(f"{path}: truncated: {len(data)} bytes, expected {FILE_SIZE}")
     if len(data) > FILE_SIZE:
-        size = path.stat().st_size
+        try:
+            size = path.stat().st_size
+        except OSError:  # pragma: no cover - vanished in between
+            size = len(data)
         raise MerlError(f"{path}: oversized: {size} bytes, expected {FILE_SIZE}")
     stored = np.frombuffer(data, dtype="<f8", offset=12).reshape(SHAPE)
     bad = ~np.isfinite(stored)
     if bad.any():
         raise MerlError(f"{path}: NaN or infinite value stored in {_describe_cells(bad)}")
-    t = stored.astype(np.float64) * SCALES[:, None, None, None]
-    t[stored < 0] = np.nan
+    scales = SCALES[:, None, None, None]
+    if max_value is not None:
+        big = stored > max_value / scales
+        if big.any():
+            with np.errstate(over="ignore"):
+                largest = float(np.max(stored * scales))
+            raise MerlError(f"{path}: {_describe_cells(big)} above {max_value:g} 1/sr, far beyond any physical "
+                            f"BRDF (largest {largest:.3g}); not a BRDF table")
+    negative = stored < 0
+    odd = negative & (stored != -1.0)
+    with np.errstate(over="ignore"):  # only with max_value=None: huge values become inf, as asked
+        t = stored.astype(np.float64) * scales
+    t[negative] = np.nan
+    if odd.any():
+        warnings.warn(MerlWarning(f"{path}: {int(odd.sum())} negative cell(s) other than the invalid marker -1 "
+                                  "read as invalid (NaN)"), stacklevel=2)
     return t

@@ -5,11 +5,13 @@ a point light of intensity I = |L|^2 at L = (-3, 3, 5) (so the irradiance is abo
 no ambient light. Pixel value = f(wi, wo) * I cos(theta_i) / r^2 in the shading frame of the surface point
 (z = the sphere normal; any tangent, the BRDF being isotropic); 0 outside the sphere. The EXR holds these linear
 values as float32 RGB; the PNG is the same image exposed so the 99.5th percentile of the sphere's luminance maps
-to 1, clipped and sRGB-encoded.
+to 1, clipped and sRGB-encoded. Both files are written atomically (temporary file, fsync, rename): a failure (a
+full disk) never leaves a half-written image under the real name.
 """
 
 from __future__ import annotations
 
+import errno
 import struct
 import zlib
 from collections.abc import Callable
@@ -19,6 +21,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from . import merl
+from .atomic import atomic_open, atomic_path
 from .geometry import normalize
 
 Array = NDArray[np.float64]
@@ -68,15 +71,20 @@ def render_sphere(f: Callable[[Array, Array], ArrayLike], size: int = 256,
 
 
 def write_exr(path: str | Path, img: ArrayLike) -> None:
-    """Write linear RGB (H, W, 3) as a float32 OpenEXR file (ZIP compression)."""
+    """Write linear RGB (H, W, 3) as a float32 OpenEXR file (ZIP compression), atomically."""
     import OpenEXR
 
     rgb = np.ascontiguousarray(np.asarray(img, dtype=np.float32))
     if rgb.ndim != 3 or rgb.shape[2] != 3:
         raise ValueError(f"expected an (H, W, 3) image, got shape {rgb.shape}")
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    with OpenEXR.File(header, {"RGB": rgb}) as exr:
-        exr.write(str(path))
+    with atomic_path(path) as tmp:
+        try:
+            with OpenEXR.File(header, {"RGB": rgb}) as exr:
+                exr.write(tmp)
+        except RuntimeError as e:  # OpenEXR reports write failures (a full disk) as RuntimeError
+            msg = str(e).replace(tmp, str(path))
+            raise OSError(errno.EIO, f"cannot write the OpenEXR image ({msg})", str(path)) from None
 
 
 def srgb_encode(linear: ArrayLike) -> Array:
@@ -90,7 +98,7 @@ def _png_chunk(kind: bytes, data: bytes) -> bytes:
 
 
 def write_png(path: str | Path, img: ArrayLike, exposure: float | None = None) -> float:
-    """Write linear RGB (H, W, 3) as an 8-bit sRGB PNG; returns the exposure used (a linear multiplier).
+    """Write linear RGB (H, W, 3) as an 8-bit sRGB PNG, atomically; returns the exposure used (a linear multiplier).
 
     ``exposure`` None: 1 / the 99.5th percentile of the non-zero pixels' luminance (1 if the image is black).
     """
@@ -105,7 +113,8 @@ def write_png(path: str | Path, img: ArrayLike, exposure: float | None = None) -
     raw = np.concatenate([np.zeros((h, 1), np.uint8), px.reshape(h, w * 3)], axis=1)  # filter 0 on every row
     data = (b"\x89PNG\r\n\x1a\n" + _png_chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
             + _png_chunk(b"IDAT", zlib.compress(raw.tobytes(), 6)) + _png_chunk(b"IEND", b""))
-    Path(path).write_bytes(data)
+    with atomic_open(path, "wb") as fh:
+        fh.write(data)
     return exposure
 
 

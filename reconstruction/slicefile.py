@@ -40,6 +40,13 @@ MAGIC = "# gonio-brdf slice"
 META_PREFIX = "# meta: "
 QUANTITIES = ("brdf", "reflectance_factor", "brdf_cos")
 _WAVELENGTH = re.compile(r"^(\d+(?:\.\d+)?)nm$")
+#: Largest input file (slice file or generic table) the readers accept, in bytes; a larger one is refused with a
+#: message (read in memory: a 100 MB table takes a few seconds and about 0.5 GB).
+MAX_INPUT_BYTES = 256 * 1024 * 1024
+#: Largest ``repeats`` a row may give (far above any detector's; beyond it the count is not one).
+MAX_REPEATS = 10**9
+#: Names and cells longer than this are cut in messages.
+SHOW_CHARS = 60
 
 __all__ = [
     "FORMAT_VERSION",
@@ -52,11 +59,89 @@ __all__ = [
     "channel_kind",
     "wavelengths_of",
     "to_brdf",
+    "MAX_INPUT_BYTES",
+    "shorten",
+    "read_input_text",
 ]
 
 
 class SliceError(ValueError):
     """A slice file or slice is invalid; the message names file, line and column where it can."""
+
+
+def shorten(text: str, limit: int = SHOW_CHARS) -> str:
+    """``text`` for a message: as it is when short, else its start and end with the length (a 200 KB column name
+    must not fill the terminal)."""
+    if len(text) <= limit:
+        return text
+    return f"{text[:limit - 20]}...{text[-8:]} ({len(text)} characters)"
+
+
+def _show_list(names: Sequence[str], limit: int = 8) -> str:
+    shown = [repr(shorten(n)) for n in list(names)[:limit]]
+    more = f", ... ({len(names)} in all)" if len(names) > limit else ""
+    return f"[{', '.join(shown)}{more}]"
+
+
+def read_input_text(path: str | Path, error: type[ValueError] = ValueError, what: str = "a CSV file") -> str:
+    """The text of an input file, UTF-8 with an optional byte-order mark, line endings as they are.
+
+    Raises ``error`` naming the file for: no such file, a directory or other non-regular file, an unreadable
+    file, a file above :data:`MAX_INPUT_BYTES`, text that is not UTF-8.
+    """
+    path = Path(path)
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        raise error(f"{path}: no such file") from None
+    except OSError as e:
+        raise error(f"{path}: cannot read ({e.strerror or e})") from None
+    import stat
+
+    if stat.S_ISDIR(st.st_mode):
+        raise error(f"{path}: is a directory, expected {what}")
+    if not stat.S_ISREG(st.st_mode):
+        raise error(f"{path}: not a regular file (a device or a pipe), expected {what}")
+    if st.st_size > MAX_INPUT_BYTES:
+        raise error(f"{path}: {st.st_size / 1e6:.0f} MB is larger than the {MAX_INPUT_BYTES / 1e6:.0f} MB an "
+                    f"input may have; split it (e.g. one file per incidence)")
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read(MAX_INPUT_BYTES + 1)
+    except OSError as e:
+        raise error(f"{path}: cannot read ({e.strerror or e})") from None
+    if len(data) > MAX_INPUT_BYTES:  # grew since the stat
+        raise error(f"{path}: larger than the {MAX_INPUT_BYTES / 1e6:.0f} MB an input may have")
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        line = data.count(b"\n", 0, e.start) + 1
+        raise error(f"{path}:{line}: not a UTF-8 text file ({e.reason} at byte {e.start})") from None
+
+
+def _normalise_newlines(text: str) -> str:
+    """CRLF and CR-only line endings (other tools, old Mac exports) as LF."""
+    if "\r" not in text:
+        return text
+    return text.replace("\r\n", "\n").replace("\r", "\n")
+
+
+def parse_rows(lines: Sequence[str], n_cols: int, delimiter: str = ",", quotechar: str | None = None
+               ) -> NDArray[np.float64] | None:
+    """Fast, vectorised parse of data lines into an (N, n_cols) float array; None if any line does not hold
+    exactly ``n_cols`` numbers (the caller then finds the culprit line by line, for the message)."""
+    if not lines:
+        return np.empty((0, n_cols))
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            a = np.loadtxt(lines, delimiter=delimiter, dtype=np.float64, ndmin=2, comments=None,
+                           quotechar=quotechar)
+    except (ValueError, TypeError, OverflowError):
+        return None
+    if a.shape != (len(lines), n_cols):
+        return None
+    return a
 
 
 def channel_kind(channels: Sequence[str]) -> str:
@@ -69,7 +154,7 @@ def channel_kind(channels: Sequence[str]) -> str:
     if ch and all(_WAVELENGTH.match(c) for c in ch):
         return "spectral"
     raise SliceError(
-        f"value columns {ch} are not one of: value | R,G,B | wavelength columns such as 550nm"
+        f"value columns {_show_list(ch)} are not one of: value | R,G,B | wavelength columns such as 550nm"
     )
 
 
@@ -228,8 +313,10 @@ def write_slice(path: str | Path, s: Slice) -> None:
 class SliceWriter:
     """Append samples to a slice file durably: each :meth:`append` writes one row, flushes and fsyncs.
 
-    Opening an existing file (a resumed capture) checks that its columns match and cuts off a torn last
-    line left by a crash, so appending continues cleanly. Use as a context manager.
+    Opening an existing file (a resumed capture) checks that it has exactly the columns of ``channels`` and cuts
+    off a torn last line left by a crash, so appending continues cleanly. Rows are appended in the file's own
+    column order and with its own line ending (a file whose columns another tool reordered, or whose line endings
+    it converted, stays consistent); a file with other columns is refused. Use as a context manager.
     """
 
     def __init__(self, path: str | Path, channels: Sequence[str], meta: Mapping[str, Any] | None = None
@@ -237,23 +324,41 @@ class SliceWriter:
         self.path = Path(path)
         self.channels = list(channels)
         header = _header(self.channels, meta or {})
+        self.columns = _columns(self.channels)
+        self.newline = "\n"
         if self.path.exists() and self.path.stat().st_size > 0:
             existing = read_slice(self.path)  # validates; warns on a torn last line
-            if existing.channels != self.channels:
-                raise SliceError(f"{self.path}: has value columns {existing.channels}, "
-                                 f"cannot append {self.channels}")
+            if sorted(existing.channels) != sorted(self.channels):
+                raise SliceError(f"{self.path}: has value columns {_show_list(existing.channels)}, "
+                                 f"cannot append {_show_list(self.channels)}")
+            file_columns, self.newline = self._file_layout()
+            if sorted(file_columns) != sorted(self.columns):
+                raise SliceError(f"{self.path}: its columns {_show_list(file_columns)} are not the columns "
+                                 f"{_show_list(self.columns)} of these samples; cannot append")
+            self.columns = file_columns
             self._cut_torn_tail()
-            self._fh = open(self.path, "a", encoding="utf-8", newline="\n")
+            self._fh = open(self.path, "a", encoding="utf-8", newline="")
         else:
             self._fh = open(self.path, "w", encoding="utf-8", newline="\n")
             self._fh.write(header)
             self._sync()
 
+    def _file_layout(self) -> tuple[list[str], str]:
+        """(column names in the file's order, the file's line ending) from its header lines."""
+        with open(self.path, "rb") as fh:
+            head = fh.read(1 << 20)
+        newline = "\r\n" if b"\r\n" in head else ("\r" if b"\r" in head and b"\n" not in head else "\n")
+        text = _normalise_newlines(head.decode("utf-8-sig", errors="replace"))
+        for line in text.split("\n")[1:]:
+            if not line.startswith("#"):
+                return [c.strip() for c in line.split(",")], newline
+        raise SliceError(f"{self.path}: no column header line")  # pragma: no cover - read_slice checked it
+
     def _cut_torn_tail(self) -> None:
         with open(self.path, "rb+") as fh:
             data = fh.read()
-            if data and not data.endswith(b"\n"):
-                fh.truncate(data.rfind(b"\n") + 1)
+            if data and not data.endswith((b"\n", b"\r")):
+                fh.truncate(max(data.rfind(b"\n"), data.rfind(b"\r")) + 1)
                 fh.flush()
                 os.fsync(fh.fileno())
 
@@ -263,17 +368,30 @@ class SliceWriter:
 
     def append(self, theta_i_deg: float, theta_o_deg: float, values: Sequence[float],
                std: Sequence[float], repeats: int, unix_time_s: float) -> None:
-        """Write one sample and make it durable before returning."""
+        """Write one sample (in the file's column order) and make it durable before returning."""
         if len(values) != len(self.channels) or len(std) != len(self.channels):
             raise SliceError(f"{self.path}: expected {len(self.channels)} values and stds, "
                              f"got {len(values)} and {len(std)}")
-        self._fh.write(_row(theta_i_deg, theta_o_deg, values, std, repeats, unix_time_s))
-        self._sync()
+        cells = {"theta_i_deg": _fmt(theta_i_deg), "theta_o_deg": _fmt(theta_o_deg), "repeats": str(int(repeats)),
+                 "unix_time_s": _fmt(unix_time_s)}
+        for c, v, e in zip(self.channels, values, std, strict=True):
+            cells[c] = _fmt(v)
+            cells[f"{c}_std"] = _fmt(e)
+        try:
+            self._fh.write(",".join(cells[c] for c in self.columns) + self.newline)
+            self._sync()
+        except OSError as e:  # a full disk: name the file (buffered writes do not)
+            raise OSError(e.errno, e.strerror or str(e), str(self.path)) from None
 
     def close(self) -> None:
         if not self._fh.closed:
-            self._sync()
-            self._fh.close()
+            try:
+                self._sync()
+            finally:
+                try:
+                    self._fh.close()
+                except OSError:  # the sync above already failed and said why
+                    pass
 
     def __enter__(self) -> SliceWriter:
         return self
@@ -289,23 +407,52 @@ def _parse_float(text: str, where: str, column: str) -> float:
     try:
         x = float(text)
     except ValueError:
-        raise SliceError(f"{where}, column {column}: expected a number, got {text!r}") from None
+        raise SliceError(f"{where}, column {shorten(column)}: expected a number, got {shorten(text)!r}") from None
     if not math.isfinite(x):
-        raise SliceError(f"{where}, column {column}: value is {text!r}; NaN and infinity are not allowed")
+        raise SliceError(f"{where}, column {shorten(column)}: value is {shorten(text)!r}; NaN and infinity are "
+                         "not allowed")
     return x
 
 
+def _check_row(data: NDArray[np.float64], r: int, cells: list[str], header: list[str], col: dict[str, int],
+               std_cols: list[int], where: str) -> None:
+    """The per-row checks of a slice file (angles, repeats, standard deviations), raising the first failure."""
+    for name in ("theta_i_deg", "theta_o_deg"):
+        x = data[r, col[name]]
+        if not -90.0 < x < 90.0:
+            raise SliceError(f"{where}, column {name}: {x} is outside (-90, 90) degrees")
+    rep = data[r, col["repeats"]]
+    if not 1 <= rep <= MAX_REPEATS or rep != int(rep):
+        raise SliceError(f"{where}, column repeats: expected a positive integer, got "
+                         f"{shorten(cells[col['repeats']])!r}")
+    for k in std_cols:
+        if data[r, k] < 0:
+            raise SliceError(f"{where}, column {shorten(header[k])}: a standard deviation must be >= 0, got "
+                             f"{data[r, k]}")
+
+
+def _rows_ok(data: NDArray[np.float64], col: dict[str, int], std_cols: list[int]) -> bool:
+    """True if every row passes :func:`_check_row` and every value is finite (vectorised)."""
+    if not np.all(np.isfinite(data)):
+        return False
+    ang = data[:, [col["theta_i_deg"], col["theta_o_deg"]]]
+    rep = data[:, col["repeats"]]
+    rep_ok = (rep >= 1) & (rep <= MAX_REPEATS) & (rep == np.floor(rep))
+    return bool(np.all(np.abs(ang) < 90.0) and np.all(rep_ok)
+                and np.all(data[:, std_cols] >= 0))
+
+
 def read_slice(path: str | Path) -> Slice:
-    """Read and validate a slice file; a torn last line (from a crash) is dropped with a warning."""
+    """Read and validate a slice file; a torn last line (from a crash) is dropped with a warning.
+
+    UTF-8 with or without a byte-order mark; LF, CRLF or CR-only line endings. Rows are parsed vectorised; a row
+    that fails is then found line by line for the message (``file:line, column NAME: what was expected``).
+    """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise SliceError(f"{path}: no such file") from None
-    except UnicodeDecodeError as e:
-        raise SliceError(f"{path}: not a text file ({e})") from None
+    text = _normalise_newlines(read_input_text(path, SliceError, "a slice file"))
     lines = text.split("\n")
     torn = not text.endswith("\n") and bool(text)
+    del text
     if lines and lines[-1] == "":
         lines.pop()
     if not lines or lines[0].strip() != MAGIC:
@@ -318,17 +465,20 @@ def read_slice(path: str | Path) -> Slice:
         if line.startswith(META_PREFIX):
             try:
                 meta = json.loads(line[len(META_PREFIX):])
-            except json.JSONDecodeError as e:
-                raise SliceError(f"{path}:{lineno + 1}: metadata is not valid JSON: {e}") from None
+            except (json.JSONDecodeError, RecursionError) as e:
+                raise SliceError(f"{path}:{lineno + 1}: metadata is not valid JSON: {shorten(str(e), 200)}"
+                                 ) from None
             if not isinstance(meta, dict):
                 raise SliceError(f"{path}:{lineno + 1}: metadata must be a JSON object")
         lineno += 1
     version = meta.get("format_version")
-    if version != FORMAT_VERSION:
-        raise SliceError(f"{path}: unsupported format_version {version!r}; this reader supports {FORMAT_VERSION}")
+    if isinstance(version, bool) or version != FORMAT_VERSION:
+        raise SliceError(f"{path}: unsupported format_version {shorten(repr(version))}; this reader supports "
+                         f"{FORMAT_VERSION}")
     quantity = meta.get("quantity")
-    if quantity not in QUANTITIES:
-        raise SliceError(f"{path}: unknown quantity {quantity!r}; expected one of {', '.join(QUANTITIES)}")
+    if not isinstance(quantity, str) or quantity not in QUANTITIES:
+        raise SliceError(f"{path}: unknown quantity {shorten(repr(quantity))}; expected one of "
+                         f"{', '.join(QUANTITIES)}")
     if lineno >= len(lines):
         raise SliceError(f"{path}: no column header line")
     header = [c.strip() for c in lines[lineno].split(",")]
@@ -344,29 +494,29 @@ def read_slice(path: str | Path) -> Slice:
         raise SliceError(f"{path}:{header_line}: {e}") from None
     for c in channels:
         if f"{c}_std" not in header:
-            raise SliceError(f"{path}:{header_line}: missing column {c + '_std'!r}")
+            raise SliceError(f"{path}:{header_line}: missing column {shorten(c + '_std')!r}")
     if len(set(header)) != len(header):
         raise SliceError(f"{path}:{header_line}: repeated column names")
     col = {c: k for k, c in enumerate(header)}
+    std_cols = [col[f"{c}_std"] for c in channels]
     rows = lines[lineno + 1:]
+    del lines
     if torn and rows:
         warnings.warn(f"{path}:{lineno + 1 + len(rows)}: torn last line (interrupted write) dropped: "
                       f"{rows[-1][:60]!r}", stacklevel=2)
         rows = rows[:-1]
-    data = np.empty((len(rows), len(header)))
-    for r, line in enumerate(rows):
-        where = f"{path}:{lineno + 2 + r}"
-        cells = line.split(",")
-        if len(cells) != len(header):
-            raise SliceError(f"{where}: {len(cells)} fields, expected {len(header)} ({','.join(header)})")
-        for k, (name, cell) in enumerate(zip(header, cells, strict=True)):
-            data[r, k] = _parse_float(cell.strip(), where, name)
-        for name in ("theta_i_deg", "theta_o_deg"):
-            x = data[r, col[name]]
-            if not -90.0 < x < 90.0:
-                raise SliceError(f"{where}, column {name}: {x} is outside (-90, 90) degrees")
-        if data[r, col["repeats"]] < 1 or data[r, col["repeats"]] != int(data[r, col["repeats"]]):
-            raise SliceError(f"{where}, column repeats: expected a positive integer, got {cells[col['repeats']]!r}")
+    data = parse_rows(rows, len(header))
+    if data is None or not _rows_ok(data, col, std_cols):
+        data = np.empty((len(rows), len(header)))  # the slow path: finds the first bad line for the message
+        for r, line in enumerate(rows):
+            where = f"{path}:{lineno + 2 + r}"
+            cells = line.split(",")
+            if len(cells) != len(header):
+                raise SliceError(f"{where}: {len(cells)} fields, expected {len(header)} "
+                                 f"({shorten(','.join(header), 200)})")
+            for k, (name, cell) in enumerate(zip(header, cells, strict=True)):
+                data[r, k] = _parse_float(cell.strip(), where, name)
+            _check_row(data, r, cells, header, col, std_cols, where)
     key = data[:, [col["theta_i_deg"], col["theta_o_deg"]]]
     if len(rows):
         _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)

@@ -20,15 +20,22 @@ class VirtualBench:
     """Everything behind the two ports. Thread-safe: :meth:`process` serialises access with one lock.
 
     Random streams (all from ``[simulator].seed``): detector noise, Dynamixel comm faults, serial comm faults,
-    motion faults, detector saturation faults - independent, so enabling one fault does not change another.
+    motion faults, detector saturation faults - independent, so enabling one fault does not change another. Each
+    fault decision is drawn per transaction (reply, byte, move, reading) from its stream. ``attempt`` (the number
+    of earlier runs of a resumed capture, ``gonio-sim serve --attempt N``) selects streams of their own
+    (``SeedSequence([seed, attempt])``; attempt 0 is ``SeedSequence(seed)``), so a resumed capture does not replay
+    the faults that stopped the run before it.
     """
 
-    def __init__(self, cfg: BenchConfig, material: BRDF | None = None, reference: BRDF | None = None) -> None:
+    def __init__(self, cfg: BenchConfig, material: BRDF | None = None, reference: BRDF | None = None,
+                 attempt: int = 0) -> None:
         self.cfg = cfg
         s = cfg.sim
         self.clock = SimClock(s.time_scale)
         self.lock = threading.RLock()
-        seeds = np.random.SeedSequence(int(s.seed)).spawn(5)
+        self.attempt = int(attempt)
+        entropy = int(s.seed) if self.attempt == 0 else [int(s.seed), self.attempt]
+        seeds = np.random.SeedSequence(entropy).spawn(5)
         rngs = [np.random.default_rng(sq) for sq in seeds]
         f = s.faults
         self.dxl_comm_faults = FaultInjector(f, rngs[1])

@@ -34,6 +34,16 @@ protocols:
 """
 
 
+def _attempt(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}")
+    return v
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="gonio-sim",
@@ -60,6 +70,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="stderr log level (default: info)")
     s.add_argument("--exit-with-parent", action="store_true",
                    help="exit when the parent process dies (for child processes of a capture)")
+    s.add_argument("--attempt", type=_attempt, default=0, metavar="N",
+                   help="the run of a resumed capture (0 = its first): noise and faults come from random streams "
+                        "of their own, continuing rather than replaying the earlier runs' (default 0)")
     c = sub.add_parser(
         "check",
         help="validate a bench config as serve would, without opening any port",
@@ -143,7 +156,7 @@ def _bench(args: argparse.Namespace) -> int:
 
 
 def _load_bench(config: str, seed: int | None = None, time_scale: float | None = None,
-                motion: str | None = None):
+                motion: str | None = None, attempt: int = 0):
     """(config, VirtualBench) for ``config``; raises ValueError with a message naming the file."""
     from .bench import VirtualBench
     from .config import load_config
@@ -152,7 +165,7 @@ def _load_bench(config: str, seed: int | None = None, time_scale: float | None =
         cfg = load_config(config, seed=seed, time_scale=time_scale)
         if motion:
             cfg.motion = motion
-        return cfg, VirtualBench(cfg)
+        return cfg, VirtualBench(cfg, attempt=attempt)
     except (OSError, ValueError) as e:
         msg = str(e)
         if not msg.startswith(str(config)):
@@ -173,7 +186,7 @@ def _serve(args: argparse.Namespace) -> int:
     from .transports import PtyServer
 
     try:
-        cfg, bench = _load_bench(args.config, args.seed, args.time_scale, args.motion)
+        cfg, bench = _load_bench(args.config, args.seed, args.time_scale, args.motion, args.attempt)
     except ValueError as e:
         print(f"gonio-sim: {e}", file=sys.stderr)
         return 2
@@ -189,8 +202,8 @@ def _serve(args: argparse.Namespace) -> int:
     server = PtyServer(bench)
     try:
         print(json.dumps(server.paths()), flush=True)
-        log.info("serving %s: %s (motion=%s, detector=%s, seed=%d, time_scale=%g)", cfg.name, server.paths(),
-                 cfg.motion, cfg.detector.type, cfg.sim.seed, cfg.sim.time_scale)
+        log.info("serving %s: %s (motion=%s, detector=%s, seed=%d, attempt=%d, time_scale=%g)", cfg.name,
+                 server.paths(), cfg.motion, cfg.detector.type, cfg.sim.seed, args.attempt, cfg.sim.time_scale)
         parent = os.getppid()
         while not stop.wait(0.2):
             if args.exit_with_parent and os.getppid() != parent:

@@ -26,6 +26,8 @@ MODEL_NUMBERS = {"XM430-W350": 1020, "XL430-W250": 1060}
 
 #: Default axis letters on the serial text protocol, by axis name.
 AXIS_LETTERS = {"light": "L", "detector": "D", "stage": "S"}
+#: Largest bench file read (bytes), as gonio-capture's limit.
+MAX_CONFIG_BYTES = 512 * 1024
 
 
 @dataclass
@@ -147,11 +149,15 @@ class ConfigError(ValueError):
 
 def _describe(v: Any) -> str:
     if isinstance(v, str):
-        return f'"{v}"'
+        return f'"{v}"' if len(v) <= 60 else f'"{v[:40]}..." ({len(v)} characters)'
     if isinstance(v, dict):
         return "a table"
     if isinstance(v, bool):
         return "true" if v else "false"
+    if isinstance(v, int) and abs(v) >= 10**15:
+        return f"{v:.6g}"  # not 300 digits
+    if isinstance(v, list) and len(repr(v)) > 80:
+        return repr(v)[:60] + f"... ({len(v)} items)"
     return repr(v)
 
 
@@ -183,18 +189,41 @@ def _convert(kind: str, v: Any) -> tuple[Any, str | None]:
 
 
 #: Range checks of the simulator's own keys: field name -> (test, what it must be).
-_CHECKS: dict[str, tuple[Any, str]] = {
-    **{k: (lambda v: 0.0 <= v <= 1.0, "must lie in [0, 1]")
+_NONNEG = (lambda v: v >= 0, "must be >= 0")
+_POS = (lambda v: v > 0, "must be > 0")
+
+
+def _within(lo: float, hi: float) -> tuple[Any, str]:
+    return (lambda v: lo <= v <= hi, f"must lie in [{lo:g}, {hi:g}]")
+
+
+#: Checks of the simulator's own keys, in order: field name -> ((test, what it must be), ...). Beyond the sign,
+#: every number is bounded so that no value that passes can make the bench hang, overflow or allocate without
+#: bound (a 1e-300 time scale, 1e300 aperture samples, a 1e-9 nm spectrometer step).
+_CHECKS: dict[str, tuple[tuple[Any, str], ...]] = {
+    **{k: ((lambda v: 0.0 <= v <= 1.0, "must lie in [0, 1]"),)
        for k in ("drop_reply_rate", "corrupt_byte_rate", "overload_rate", "stall_rate", "saturate_rate")},
-    **{k: (lambda v: v >= 0, "must be >= 0")
-       for k in ("time_scale", "source_power", "detector_solid_angle_sr", "dark_offset", "read_noise",
-                 "backlash_deg", "settle_time_s", "settle_ringing_deg", "port_vanish_after_s",
-                 "stall_overload_s")},
-    **{k: (lambda v: v > 0, "must be > 0")
-       for k in ("gain", "stepper_velocity_deg_s", "stepper_acceleration_deg_s2", "wl_step_nm")},
-    "aperture_samples": (lambda v: v >= 1, "must be >= 1"),
-    "adc_bits": (lambda v: 1 <= v <= 32, "must lie in [1, 32]"),
-    "vanish_ports": (lambda v: v in ("all", "dynamixel", "serial"), 'must be "all", "dynamixel" or "serial"'),
+    "port_vanish_after_s": (_NONNEG,),
+    "seed": ((lambda v: 0 <= v < 2**63, "must lie in [0, 2**63)"),),
+    "time_scale": (_NONNEG, (lambda v: v == 0 or 1e-3 <= v <= 1e6,
+                             "must be 0 (as fast as possible) or lie in [0.001, 1e+06]")),
+    "source_power": (_NONNEG, _within(0, 1e15)),
+    "detector_solid_angle_sr": (_NONNEG, (lambda v: v <= 2 * math.pi, "must lie in [0, 2 pi] sr")),
+    "dark_offset": (_NONNEG, _within(0, 1e9)),
+    "read_noise": (_NONNEG, _within(0, 1e9)),
+    "backlash_deg": (_NONNEG, _within(0, 10)),
+    "settle_ringing_deg": (_NONNEG, _within(0, 10)),
+    "settle_time_s": (_NONNEG, _within(0, 60)),
+    "stall_overload_s": (_NONNEG, _within(0, 3600)),
+    "gain": (_POS, _within(1e-6, 1e6)),
+    "stepper_velocity_deg_s": (_POS, _within(1e-3, 1e5)),
+    "stepper_acceleration_deg_s2": (_POS, _within(1e-3, 1e7)),
+    "wl_min_nm": (_within(100, 3000),),
+    "wl_max_nm": (_within(100, 3000),),
+    "wl_step_nm": (_POS, _within(0.1, 1000)),
+    "aperture_samples": ((lambda v: v >= 1, "must be >= 1"), _within(1, 4096)),
+    "adc_bits": ((lambda v: 1 <= v <= 32, "must lie in [1, 32]"),),
+    "vanish_ports": ((lambda v: v in ("all", "dynamixel", "serial"), 'must be "all", "dynamixel" or "serial"'),),
 }
 
 
@@ -225,9 +254,10 @@ def _fill(cls, d: dict[str, Any], src: str, section: str, checks: bool = False, 
             continue
         v, err = _convert(str(f.type), d[f.name])
         if err is None and checks and f.name in _CHECKS:
-            ok, what = _CHECKS[f.name]
-            if not ok(v):
-                err = f"{what}, got {_describe(v)}"
+            for ok, what in _CHECKS[f.name]:
+                if not ok(v):
+                    err = f"{what}, got {_describe(v)}"
+                    break
         if err is not None:
             raise ConfigError(f"{src}: [{section}].{f.name}: {err}")
         kwargs[f.name] = v
@@ -279,6 +309,11 @@ def config_from_dict(raw: dict[str, Any], base_dir: Path | None = None, source: 
     if sim.spectrometer.wl_max_nm < sim.spectrometer.wl_min_nm:
         raise ConfigError(f"{src}: [simulator.spectrometer].wl_max_nm: {sim.spectrometer.wl_max_nm:g} is less than "
                           f"wl_min_nm {sim.spectrometer.wl_min_nm:g}")
+    n_wl = (sim.spectrometer.wl_max_nm - sim.spectrometer.wl_min_nm) / sim.spectrometer.wl_step_nm + 1
+    if n_wl > 4096:
+        raise ConfigError(f"{src}: [simulator.spectrometer].wl_step_nm: {n_wl:.0f} wavelengths from "
+                          f"{sim.spectrometer.wl_min_nm:g} to {sim.spectrometer.wl_max_nm:g} nm, more than a "
+                          "spectrometer has (4096); use a coarser step")
     cal = _table(src, "calibration", raw.get("calibration"))
     ref = cal.get("reference_reflectance", 0.99)
     cfg = BenchConfig(
@@ -309,16 +344,25 @@ def load_config(path: str | Path, **overrides: Any) -> BenchConfig:
     Raises :class:`ConfigError` (a ValueError) naming the file for a missing, unreadable or malformed file."""
     path = Path(path)
     try:
+        if path.exists() and not path.is_dir() and not path.is_file():
+            raise ConfigError(f"{path}: not a regular file (a device or a pipe), expected a TOML bench file")
         with open(path, "rb") as fh:
-            raw = tomllib.load(fh)
+            data = fh.read(MAX_CONFIG_BYTES + 1)
+        if len(data) > MAX_CONFIG_BYTES:
+            raise ConfigError(f"{path}: larger than {MAX_CONFIG_BYTES} bytes; not a bench file")
+        raw = tomllib.loads(data.decode("utf-8-sig"))
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such file") from None
     except IsADirectoryError:
         raise ConfigError(f"{path}: is a directory, expected a TOML bench file") from None
     except OSError as e:
         raise ConfigError(f"{path}: cannot read: {e.strerror or e}") from None
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"{path}: not a UTF-8 text file ({e.reason} at byte {e.start})") from None
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{path}: invalid TOML: {e}") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: invalid TOML: nested too deeply") from None
     if overrides:
         sim = raw.setdefault("simulator", {})
         if isinstance(sim, dict):

@@ -63,10 +63,20 @@ class BRDF(Protocol):
 
 
 def load_material(cfg: BenchConfig) -> BRDF:
-    """The ground-truth material of the config's ``[material]`` table."""
+    """The ground-truth material of the config's ``[material]`` table; the tables of ``tabulated`` lobes are read
+    now (a simulator that cannot load its material refuses the config before serving, rather than answering
+    ``error:1`` to a reading later). Raises ValueError naming the lobe."""
+    from reconstruction import merl
     from reconstruction.models import Material
 
-    return Material.from_dict(cfg.material, cfg.base_dir)
+    mat = Material.from_dict(cfg.material, cfg.base_dir)
+    for i, lobe in enumerate(mat.lobes):
+        if getattr(lobe, "type_name", "") == "tabulated":
+            try:
+                lobe.table = merl.read(lobe.path)  # type: ignore[attr-defined]
+            except merl.MerlError as e:
+                raise ValueError(f"[material].lobes[{i}].path: {e}") from None
+    return mat
 
 
 def white_reference(cfg: BenchConfig) -> BRDF:

@@ -34,3 +34,26 @@ def planned(cfg: str | Path) -> list[tuple[float, float]]:
 
     b = Bench.from_config(cfg)
     return sorted((round(ti, 6), round(to, 6)) for ti, to in b.check(b.plan()).measurable)
+
+
+#: Linux capabilities that let root ignore permission bits: CAP_DAC_OVERRIDE, CAP_DAC_READ_SEARCH, CAP_FOWNER.
+_DAC_CAPS = (1, 2, 3)
+
+
+def unprivileged() -> dict[str, Any]:
+    """``subprocess`` keyword arguments that make permission bits apply to the child (and its children) when the
+    tests run as root: the capabilities that bypass them are dropped from its bounding set before it starts, so a
+    read-only file or folder is read-only to it as to an operator. Nothing when the tests run unprivileged."""
+    import ctypes
+    import os
+
+    if os.geteuid() != 0:
+        return {}
+    libc = ctypes.CDLL(None, use_errno=True)
+
+    def drop() -> None:
+        for cap in _DAC_CAPS:
+            if libc.prctl(24, cap, 0, 0, 0) != 0:  # PR_CAPBSET_DROP
+                raise OSError(ctypes.get_errno(), "prctl(PR_CAPBSET_DROP) failed")
+
+    return {"preexec_fn": drop}
