@@ -368,7 +368,8 @@ class FitResult:
         j = self.jac
         _, s, vt = np.linalg.svd(j, full_matrices=False)
         tol = s[0] * 1e-10 if s.size else 0.0
-        inv = np.where(s > tol, 1.0 / np.maximum(s, 1e-300) ** 2, 0.0)
+        keep = (s > tol) & (s > 1e-150)  # 1 / s^2 stays finite
+        inv = np.divide(1.0, s * s, out=np.zeros_like(s), where=keep)
         cov = (vt.T * inv) @ vt
         dof = max(self.n - self.k, 1)
         cov *= max(1.0, 2.0 * self.cost / dof)
