@@ -1,12 +1,21 @@
-"""Preview renders: a sphere under a point light, written as linear float OpenEXR plus an 8-bit sRGB PNG.
+"""Preview renders: a sphere under a point light and a dim uniform environment, as linear OpenEXR + sRGB PNG.
 
-Scene (world frame: x right, y up, z towards the orthographic camera): a unit sphere at the origin seen along -z,
-a point light of intensity I = |L|^2 at L = (-3, 3, 5) (so the irradiance is about 1 near the sphere's front),
-no ambient light. Pixel value = f(wi, wo) * I cos(theta_i) / r^2 in the shading frame of the surface point
-(z = the sphere normal; any tangent, the BRDF being isotropic); 0 outside the sphere. The EXR holds these linear
-values as float32 RGB; the PNG is the same image exposed so the 99.5th percentile of the sphere's luminance maps
-to 1, clipped and sRGB-encoded. Both files are written atomically (temporary file, fsync, rename): a failure (a
-full disk) never leaves a half-written image under the real name.
+:func:`render_sphere` (also the sphere of the error metric): world frame x right, y up, z towards the
+orthographic camera; a unit sphere at the origin filling the frame, seen along -z; a point light of intensity
+I = |L|^2 at L = (-3, 3, 5) (so the irradiance is about 1 near the sphere's front). Pixel value =
+f(wi, wo) I cos(theta_i) / r^2 in the shading frame of the surface point (z = the sphere normal; any tangent, the
+BRDF being isotropic); 0 outside the sphere.
+
+:func:`render_preview` (what ``--preview`` writes) is the same sphere with a margin (radius 0.8 of the half frame)
+and a uniform white environment of radiance ``ambient`` (default 0.05, against the key light's irradiance of
+about 1) added everywhere: the sphere's unlit side reflects ambient * a(theta_o), a(theta_o) being the BRDF's
+directional albedo at the view angle (by reciprocity, exactly what a uniform environment gives a convex object),
+and the background shows the environment itself, a neutral grey distinct from the shadow. Every pixel is thus a
+physical radiance of this scene, in the units of the key light.
+
+The EXR holds linear values as float32 RGB; the PNG is the same image exposed so the 99.5th percentile of the
+sphere's luminance maps to 1, clipped and sRGB-encoded. Both files are written atomically (temporary file, fsync,
+rename): a failure (a full disk) never leaves a half-written image under the real name.
 """
 
 from __future__ import annotations
@@ -26,20 +35,23 @@ from .geometry import normalize
 
 Array = NDArray[np.float64]
 
-__all__ = ["LIGHT_POSITION", "render_sphere", "write_exr", "write_png", "srgb_encode",
-           "write_preview"]
+__all__ = ["LIGHT_POSITION", "AMBIENT", "PREVIEW_RADIUS", "render_sphere", "render_preview", "albedo_at_view",
+           "write_exr", "write_png", "srgb_encode", "write_preview"]
 
 LIGHT_POSITION = np.array([-3.0, 3.0, 5.0])
+AMBIENT = 0.05
+PREVIEW_RADIUS = 0.8
 
 
 def render_sphere(f: Callable[[Array, Array], ArrayLike], size: int = 256,
-                  light_position: ArrayLike = LIGHT_POSITION) -> NDArray[np.float32]:
-    """Render the sphere with BRDF ``f(wi, wo) -> (N, 1 | 3)`` (1/sr).
+                  light_position: ArrayLike = LIGHT_POSITION, radius: float = 1.0) -> NDArray[np.float32]:
+    """Render the sphere with BRDF ``f(wi, wo) -> (N, 1 | 3)`` (1/sr) under the point light.
 
-    Returns (size, size, 3) float32 linear RGB, row 0 on top.
+    ``radius``: the sphere's radius as a fraction of the half frame (1 fills the frame). Returns (size, size, 3)
+    float32 linear RGB, row 0 on top, 0 outside the sphere.
     """
     lp = np.asarray(light_position, dtype=np.float64)
-    c = (np.arange(size) + 0.5) / size * 2.0 - 1.0
+    c = ((np.arange(size) + 0.5) / size * 2.0 - 1.0) / radius
     x, y = np.meshgrid(c, -c)  # y up, row 0 on top
     r2 = x * x + y * y
     inside = r2 < 1.0
@@ -68,6 +80,35 @@ def render_sphere(f: Callable[[Array, Array], ArrayLike], size: int = 256,
     img = np.zeros((size, size, 3), dtype=np.float32)
     img[inside] = np.maximum(radiance, 0.0).astype(np.float32)
     return img
+
+
+def albedo_at_view(f: Callable[[Array, Array], ArrayLike], cos_o: ArrayLike, n_nodes: int = 24) -> Array:
+    """Directional albedo a(theta_o) = integral of f(wi, wo) cos(theta_i) d omega_i, (M, 3), at view cosines
+    ``cos_o`` (M,): a quadrature at ``n_nodes`` view angles (64 x 128 directions each), interpolated in cos."""
+    from .metrics import directional_albedo
+
+    nodes = np.linspace(0.02, 1.0, n_nodes)
+    # by reciprocity a(theta_o) is the albedo of the swapped pair, which directional_albedo integrates
+    alb = directional_albedo(lambda a, b: f(b, a), np.arccos(nodes), 64, 128)
+    alb = np.repeat(alb, 3, axis=1) if alb.shape[1] == 1 else alb
+    c = np.clip(np.asarray(cos_o, dtype=np.float64), nodes[0], 1.0)
+    return np.stack([np.interp(c, nodes, alb[:, k]) for k in range(3)], axis=-1)
+
+
+def render_preview(f: Callable[[Array, Array], ArrayLike], size: int = 256,
+                   light_position: ArrayLike = LIGHT_POSITION, ambient: float = AMBIENT,
+                   radius: float = PREVIEW_RADIUS) -> NDArray[np.float32]:
+    """The preview image (size, size, 3) float32: :func:`render_sphere` with a margin plus the uniform
+    environment of radiance ``ambient`` (see the module docstring)."""
+    img = render_sphere(f, size, light_position, radius).astype(np.float64)
+    c = ((np.arange(size) + 0.5) / size * 2.0 - 1.0) / radius
+    x, y = np.meshgrid(c, -c)
+    r2 = x * x + y * y
+    inside = r2 < 1.0
+    if ambient > 0:
+        img[inside] += ambient * albedo_at_view(f, np.sqrt(1.0 - r2[inside]))  # view direction = +z
+        img[~inside] = ambient
+    return img.astype(np.float32)
 
 
 def write_exr(path: str | Path, img: ArrayLike) -> None:
@@ -118,12 +159,27 @@ def write_png(path: str | Path, img: ArrayLike, exposure: float | None = None) -
     return exposure
 
 
+def _sphere_exposure(img: ArrayLike, radius: float) -> float | None:
+    """1 / the 99.5th percentile of the luminance of the sphere's pixels (the background does not count)."""
+    rgb = np.asarray(img, dtype=np.float64)
+    size = rgb.shape[0]
+    c = ((np.arange(size) + 0.5) / size * 2.0 - 1.0) / radius
+    x, y = np.meshgrid(c, -c)
+    lum = (rgb @ np.array([0.2126, 0.7152, 0.0722]))[x * x + y * y < 1.0]
+    lum = lum[lum > 0]
+    return 1.0 / float(np.percentile(lum, 99.5)) if lum.size and np.percentile(lum, 99.5) > 0 else None
+
+
 def write_preview(exr_path: str | Path, table: ArrayLike, size: int = 256) -> dict[str, object]:
-    """Render the MERL ``table`` (3, 90, 90, 180) on the sphere; write ``exr_path`` and the PNG beside it."""
+    """Render the MERL ``table`` (3, 90, 90, 180) with :func:`render_preview`; write ``exr_path`` and the PNG
+    beside it."""
     exr_path = Path(exr_path)
-    img = render_sphere(merl.brdf_of(table), size)
+    img = render_preview(merl.brdf_of(table), size)
     write_exr(exr_path, img)
     png = exr_path.with_suffix(".png")
-    exposure = write_png(png, img)
+    exposure = write_png(png, img, _sphere_exposure(img, PREVIEW_RADIUS))
     return {"exr": str(exr_path), "png": str(png), "size": size, "light_position": LIGHT_POSITION.tolist(),
+            "ambient_radiance": AMBIENT, "sphere_radius_of_half_frame": PREVIEW_RADIUS,
+            "lighting": "point light of intensity |L|^2 at L plus a uniform white environment of radiance "
+                        "ambient_radiance (also the background); linear radiance",
             "png_exposure": exposure, "max_linear": float(img.max())}

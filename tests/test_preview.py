@@ -9,7 +9,15 @@ import pytest
 
 from reconstruction import merl
 from reconstruction.models import Material
-from reconstruction.preview import LIGHT_POSITION, render_sphere, srgb_encode, write_preview
+from reconstruction.preview import (
+    AMBIENT,
+    LIGHT_POSITION,
+    PREVIEW_RADIUS,
+    render_preview,
+    render_sphere,
+    srgb_encode,
+    write_preview,
+)
 
 
 def material(*lobes):
@@ -79,14 +87,32 @@ def test_write_preview_exr_and_png(tmp_path):
     info = write_preview(tmp_path / "m.exr", table, size=40)
     with OpenEXR.File(str(tmp_path / "m.exr")) as f:
         px = f.channels()["RGB"].pixels
-    ref = render_sphere(merl.brdf_of(table), 40)
+    ref = render_preview(merl.brdf_of(table), 40)
     assert px.dtype == np.float32 and px.shape == (40, 40, 3)
     np.testing.assert_array_equal(px, ref)
     png = read_png(tmp_path / "m.png")
     assert png.shape == (40, 40, 3)
     expected = np.round(srgb_encode(ref * info["png_exposure"]) * 255).astype(np.uint8)
     np.testing.assert_array_equal(png, expected)
-    assert png[..., 2].max() == 255 and png[0, 0].sum() == 0
+    assert png[..., 2].max() == 255
+    # the background is the environment: a neutral grey, neither black nor white
+    assert len(set(png[0, 0])) == 1 and 60 < png[0, 0, 0] < 200
+    assert info["ambient_radiance"] == AMBIENT
+
+
+def test_preview_has_a_margin_and_an_environment_that_lights_the_unlit_side():
+    size = 80
+    albedo = np.array([0.2, 0.4, 0.8])
+    img = render_preview(material({"type": "lambert", "albedo": albedo.tolist()}).eval, size)
+    np.testing.assert_allclose(img[0, 0], AMBIENT)  # the background is the environment's radiance
+    np.testing.assert_allclose(img[size // 2, 2], AMBIENT)  # the margin: the sphere does not reach the edge
+    # on the far side from the light: the key light's term plus the environment's, which a Lambertian reflects
+    # as albedo * ambient whatever the view angle
+    x, y = 0.7 * PREVIEW_RADIUS, -0.55 * PREVIEW_RADIUS
+    col, row = int((x + 1) / 2 * size), int((1 - y) / 2 * size)
+    direct = render_sphere(material({"type": "lambert", "albedo": albedo.tolist()}).eval, size,
+                           radius=PREVIEW_RADIUS)[row, col]
+    np.testing.assert_allclose(img[row, col] - direct, AMBIENT * albedo, rtol=0.01)
 
 
 def test_srgb_encode_endpoints():
