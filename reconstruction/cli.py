@@ -112,6 +112,10 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--out", metavar="MATERIAL.binary", help="MERL table to write (required unless --batch)")
     ap.add_argument("--preview", metavar="MATERIAL.exr",
                     help="render a sphere under a point light: linear float OpenEXR, plus a PNG next to it")
+    ap.add_argument("--html", metavar="REPORT.html", nargs="?", const=True, default=None,
+                    help="a self-contained HTML report: the slices with every method's prediction, the thesis's "
+                         "polar curve, a (theta_h, theta_d) map, spheres, cuts, albedo, checks, parameters, the "
+                         "choice (with --batch: no value, one page per material plus index.html)")
     ap.add_argument("--report", metavar="MATERIAL.json",
                     help="JSON report: method and why, parameters, residuals, coverage, plausibility checks")
     ap.add_argument("--supersample", nargs="?", const="adaptive", type=_supersample, default=None,
@@ -193,6 +197,11 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             raise ReconstructionError(f"--preview {args.preview}: {png} (the PNG beside it) is a folder")
     if args.report:
         _check_output(Path(args.report), None, "--report")
+    html_path = getattr(args, "html", None)
+    if html_path is True:
+        raise ReconstructionError("--html: give the page to write, e.g. --html m.html (a bare --html is for --batch)")
+    if html_path:
+        _check_output(Path(html_path), ".html", "--html")
     lobes = None
     if args.lobes:
         lobes = [x.strip() for x in args.lobes.split(",") if x.strip()]
@@ -200,7 +209,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         if unknown:
             raise ReconstructionError(f"--lobes: unknown kind(s) {unknown}; expected {', '.join(LOBE_KINDS)}")
     timings: dict[str, float] = {}
-    steps = ["read", "colour", "reconstruct", "tabulate", "write", "checks"] + (["preview"] if args.preview else [])
+    steps = (["read", "colour", "reconstruct", "tabulate", "write", "checks"] + (["preview"] if args.preview else [])
+             + (["html"] if html_path else []))
     bar = tqdm(total=len(steps), desc=PROG, unit="step", disable=True if args.quiet else None, file=sys.stderr,
                leave=False)
 
@@ -272,10 +282,31 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     if not checks["all_pass"]:
         rep["implausible_table_written"] = "written with --allow-implausible: " + implausible_message(rec.method,
                                                                                                       checks)
+    if html_path:
+        outputs["html"] = str(html_path)
+        rep["outputs"]["html"] = str(html_path)
     if args.report:
         outputs["report"] = str(args.report)
         rep["outputs"]["report"] = str(args.report)
         report.write_json(args.report, rep)
+    if html_path:
+        from . import htmlreport
+        from .methods import REGISTRY
+
+        t0 = time.perf_counter()
+        ordered = working.sorted()
+        others = {}
+        for name, m in REGISTRY.items():  # every other method on the same samples, for the comparison plot
+            if name != rec.method:
+                try:
+                    others[name] = m.build(ordered, opts, None)
+                except (ReconstructionError, ValueError):
+                    pass
+        held = choice.get("held_out_predictions", {}).get(rec.method)
+        title = str(working.meta.get("material") or Path(args.out).stem)
+        htmlreport.write_html(html_path, report=rep, working=ordered, rec=rec, table=table, alternatives=others,
+                              held_out=held, title=title)
+        rep["timings_s"]["html"] = round(time.perf_counter() - t0, 4)
     return rep
 
 
@@ -312,6 +343,7 @@ def _batch_one(job: tuple[dict[str, Any], str, Path, Path]) -> dict[str, Any]:
     ns.inputs = [str(path)]
     ns.out = str(out_dir / f"{name}.binary")
     ns.report = str(out_dir / f"{name}.json")
+    ns.html = str(out_dir / f"{name}.html") if options.get("html") else None
     ns.preview = str(out_dir / f"{name}.exr") if options.get("previews") else None
     ns.quiet = True
     try:
@@ -327,7 +359,7 @@ def _batch_one(job: tuple[dict[str, Any], str, Path, Path]) -> dict[str, Any]:
     except Exception as e:  # noqa: BLE001 - one file must never abort the batch
         return {"name": name, "input": str(path), "ok": False, "error": f"unexpected error: {type(e).__name__}: "
                                                                         f"{str(e)[:300]}"}
-    return {"name": name, "input": str(path), "ok": True, "method": rep["method"], "table": ns.out}
+    return {"name": name, "input": str(path), "ok": True, "method": rep["method"], "table": ns.out, "html": ns.html}
 
 
 def run_batch(args: argparse.Namespace) -> int:
@@ -365,6 +397,11 @@ def run_batch(args: argparse.Namespace) -> int:
         except RuntimeError as e:
             print(f"{PROG}: error: {e}", file=sys.stderr)
             return 2
+    if args.html:
+        from .htmlreport import write_index
+
+        write_index(out_dir / "index.html", sorted(results, key=lambda r: r["name"]))
+        print(f"{PROG}: HTML reports indexed in {out_dir / 'index.html'}", file=sys.stderr)
     failed = 0
     for r in sorted(results, key=lambda r: r["name"]):
         if r["ok"]:
@@ -429,7 +466,12 @@ def _main(ap: argparse.ArgumentParser, args: argparse.Namespace) -> int:
         checks = rep["checks"]
         failed = [k for k in ("non_negative", "albedo", "reciprocity") if not checks[k]["pass"]]
         model = f" ({rep['details']['model']})" if "model" in rep.get("details", {}) else ""
-        print(f"{PROG}: method {rep['method']}{model}: wrote {rep['outputs']['table']} ({FILE_SIZE:,} bytes)"
+        o = rep["outputs"]
+        written = [f"{o['table']} ({FILE_SIZE:,} bytes)"]
+        if "preview" in o:
+            written += [o["preview"]["exr"], o["preview"]["png"]]
+        written += [o[k] for k in ("report", "html") if k in o]
+        print(f"{PROG}: method {rep['method']}{model}: wrote {', '.join(written)}"
               + (f"; IMPLAUSIBLE, written because of --allow-implausible: check(s) failed: {', '.join(failed)}"
                  if failed else "; checks passed"), file=sys.stderr)
     return 0

@@ -70,6 +70,7 @@ class CVScore:
     fold_errors: list[float]
     seconds: float
     failure: str | None = None
+    predictions: Array | None = None  # (N, C) each sample predicted by the fold that held it out (NaN: never)
 
     def as_dict(self) -> dict[str, Any]:
         return {"method": self.method, "held_out_relative_rmse_cos": self.error if math.isfinite(self.error) else None,
@@ -103,6 +104,7 @@ def cross_validate(s: Slice, name: str, build: Callable[[Slice], Reconstruction]
     t0 = time.perf_counter()
     num = den = 0.0
     per: list[float] = []
+    held_pred = np.full(f.shape, np.nan)
     for held in masks:  # a handful of folds
         out = held & score_mask if score_mask is not None else held
         if not out.any():
@@ -115,9 +117,10 @@ def cross_validate(s: Slice, name: str, build: Callable[[Slice], Reconstruction]
             return CVScore(name, math.inf, per, time.perf_counter() - t0, f"fold {len(per) + 1}: {e}")
         if not np.all(np.isfinite(pred)):
             return CVScore(name, math.inf, per, time.perf_counter() - t0, f"fold {len(per) + 1}: non-finite values")
+        held_pred[out] = np.broadcast_to(pred, f[out].shape)
         a, b = _score(np.broadcast_to(pred, f[out].shape), f[out], c[out])
         num += a
         den += b
         per.append(math.sqrt(a / b) if b > 0 else math.inf)
     err = math.sqrt(num / den) if den > 0 else math.inf
-    return CVScore(name, err, per, time.perf_counter() - t0)
+    return CVScore(name, err, per, time.perf_counter() - t0, predictions=held_pred)

@@ -107,7 +107,8 @@ def _auto(s: Slice, opts: Options, progress: Callable[[str], None] | None) -> tu
           "fit_model": fit_rec.result.name, "rejected": rejected,
           "single_incidence_preference": ({"method": SINGLE_SLICE_PREFERRED, "margin": SINGLE_SLICE_MARGIN}
                                           if single else None)}
-    return chosen, {"requested": "auto", "used": chosen.method, "reason": reason, "cross_validation": cv}
+    return chosen, {"requested": "auto", "used": chosen.method, "reason": reason, "cross_validation": cv,
+                    "held_out_predictions": {c.method: c.predictions for c in scores if c.predictions is not None}}
 
 
 def reconstruct(s: Slice, method: str = "auto", opts: Options | None = None,
