@@ -101,6 +101,7 @@ def run_material(job: tuple[str, str, list[str], str | None]) -> list[dict[str, 
                         scores = choice["cross_validation"]["scores"]
                         rec_out["cv_seconds"] = sum(c["seconds"] for c in scores)
                         rec_out["cv"] = {c["method"]: c["held_out_relative_rmse_cos"] for c in scores}
+                        rec_out["cv_folds"] = {c["method"]: c["fold_errors"] for c in scores}
                 except Exception as e:  # a benchmark reports a failure and goes on
                     rec_out.update(error=f"{type(e).__name__}: {e}", seconds=time.perf_counter() - t0)
                 out.append(rec_out)

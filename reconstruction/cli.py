@@ -17,7 +17,6 @@ import errno
 import os
 import sys
 import time
-import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -103,10 +102,10 @@ _nonneg_float = _number(float, lambda v: v >= 0, "a number >= 0")
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .cliutil import OneLineParser
     from .pipeline import METHODS
 
-    ap = argparse.ArgumentParser(prog=PROG, description=DESCRIPTION,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = OneLineParser(prog=PROG, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("inputs", nargs="*", metavar="INPUT", help="slice files or generic CSV tables")
     ap.add_argument("--method", choices=METHODS, default="auto", help="reconstruction method (default: auto)")
     ap.add_argument("--out", metavar="MATERIAL.binary", help="MERL table to write (required unless --batch)")
@@ -346,9 +345,10 @@ def _batch_one(job: tuple[dict[str, Any], str, Path, Path]) -> dict[str, Any]:
     ns.html = str(out_dir / f"{name}.html") if options.get("html") else None
     ns.preview = str(out_dir / f"{name}.exr") if options.get("previews") else None
     ns.quiet = True
+    from .cliutil import plain_warnings
+
     try:
-        with warnings.catch_warnings(), np_quiet():
-            warnings.simplefilter("ignore", RuntimeWarning)
+        with plain_warnings(PROG), np_quiet():
             rep = run(ns)
     except ImplausibleError as e:
         return {"name": name, "input": str(path), "ok": False, "error": str(e), "implausible": True}
@@ -435,9 +435,10 @@ def _os_error(e: OSError) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
+    from .cliutil import plain_warnings
+
     try:
-        with warnings.catch_warnings(), np_quiet():
-            warnings.simplefilter("ignore", RuntimeWarning)
+        with plain_warnings(PROG), np_quiet():
             return _main(ap, args)
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted; nothing was left half-written", file=sys.stderr)

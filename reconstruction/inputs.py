@@ -134,10 +134,13 @@ def _delimiter(header: str) -> str:
 
 
 def _canonical_value_name(name: str) -> str | None:
-    """``value``, ``R``/``G``/``B`` or ``<wavelength>nm`` for a value column name, else None."""
-    if name in ("value", "R", "G", "B"):
-        return name
-    m = _WAVELENGTH.match(name)
+    """``value``, ``R``/``G``/``B`` or ``<wavelength>nm`` for a value column name (any letter case), else None."""
+    low = name.strip().lower()
+    if low == "value":
+        return "value"
+    if low in ("r", "g", "b"):
+        return low.upper()
+    m = _WAVELENGTH.match(low)
     if m:
         wl = float(m.group(1))
         return f"{int(wl)}nm" if wl == int(wl) else f"{wl}nm"
@@ -215,34 +218,43 @@ def read_table(path: str | Path, *, quantity: str | None, columns: Mapping[str, 
     if len(set(header)) != len(header):
         dup = next(c for c in header if header.count(c) > 1)
         raise InputError(f"{path}:{hline}, column {shorten(dup)}: the column name appears twice")
+    lower = [c.lower() for c in header]  # known names match in any letter case (Value, THETA_I_DEG)
+
+    def index_of(name: str) -> int | None:
+        if name in header:
+            return header.index(name)
+        return lower.index(name.lower()) if name.lower() in lower else None
+
     for key, name in columns.items():
-        if name not in header:
+        if index_of(name) is None:
             raise InputError(f"{path}:{hline}: --columns {key}={shorten(name)}: no such column; the columns are "
                              f"{_column_list(header)}")
     role: dict[int, str] = {}  # column index -> role ("theta_i", "theta_o", value name, "<value>_std", ...)
     for key, name in columns.items():
-        role[header.index(name)] = key
+        role[index_of(name)] = key  # type: ignore[index]
     for key, names in (("theta_i", THETA_I_NAMES), ("theta_o", THETA_O_NAMES)):
         if key in columns:
             continue
-        found = [n for n in names if n in header]
+        found = [k for k in (index_of(n) for n in names) if k is not None]
         if not found:
             raise InputError(f"{path}:{hline}: no {key} column (looked for {', '.join(names)}); the columns are "
                              f"{_column_list(header)}; map one with --columns {key}=NAME")
-        role[header.index(found[0])] = key
-    renamed = {name: key for key, name in columns.items() if key not in ("theta_i", "theta_o")}
+        role[found[0]] = key
+    renamed = {name.lower(): key for key, name in columns.items() if key not in ("theta_i", "theta_o")}
     for k, name in enumerate(header):
         if k in role:
             continue
-        base = name[:-4] if name.endswith("_std") else name
-        canon = renamed.get(base) or _canonical_value_name(base)
-        if name in ("repeats", "unix_time_s"):
-            role[k] = name
-        elif canon is not None and name.endswith("_std"):
+        low = name.lower()
+        is_std = low.endswith("_std")
+        base = name[:-4] if is_std else name
+        canon = renamed.get(base.lower()) or _canonical_value_name(base)
+        if low in ("repeats", "unix_time_s"):
+            role[k] = low
+        elif canon is not None and is_std:
             role[k] = canon + "_std"
         elif canon is not None:
             role[k] = canon
-        elif name in THETA_I_NAMES + THETA_O_NAMES:
+        elif low in THETA_I_NAMES + THETA_O_NAMES:
             raise InputError(f"{path}:{hline}, column {name}: a second angle column; map the one to use with "
                              f"--columns")
         else:

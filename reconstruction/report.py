@@ -19,6 +19,7 @@ are reported as such and never used to choose a method.
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 from typing import Any
 
@@ -128,7 +129,9 @@ def build_report(*, rec: Reconstruction, choice: dict[str, Any], working: Slice,
     params = details.get("parameters", {})
     own = details.get("residuals") if isinstance(details.get("residuals"), dict) else {}
     # the method's own figures win (a fit to a scene's subset is judged on that subset); the rest is added
-    residuals = {**sample_residuals(rec, working, table), **own}
+    residuals = {**sample_residuals(rec, working, table), **own,
+                 "note": "on the samples the method was built from: how well it reproduces them, not how well it "
+                         "predicts (an interpolating method reproduces its samples exactly); see cross_validation"}
     rep = {
         "method": rec.method,
         "method_requested": choice.get("requested", rec.method),
@@ -149,9 +152,20 @@ def build_report(*, rec: Reconstruction, choice: dict[str, Any], working: Slice,
     return _json_safe(rep)
 
 
+_SCALAR = r"(?:-?[0-9][0-9eE.+-]*|null|true|false)"
+_FLAT_LIST = re.compile(rf"\[\s+({_SCALAR}(?:,\s+{_SCALAR})*)\s+\]")  # a list of numbers (no strings)
+
+
+def dumps_compact(report: dict[str, Any]) -> str:
+    """Indented, strict JSON in which every list of numbers (residuals, albedos, angles) takes one line."""
+    text = json.dumps(_json_safe(report), indent=2, allow_nan=False)
+    return _FLAT_LIST.sub(lambda m: "[" + " ".join(m.group(1).split()) + "]", text) + "\n"
+
+
 def write_json(path: str | Path, report: dict[str, Any]) -> None:
-    """Write ``report`` as indented, strict JSON, atomically (temporary file, fsync, rename)."""
+    """Write ``report`` as indented, strict JSON (lists of scalars on one line), atomically (temporary file,
+    fsync, rename)."""
     path = Path(path)
-    text = json.dumps(_json_safe(report), indent=2, allow_nan=False) + "\n"
+    text = dumps_compact(report)
     with atomic_open(path, "w", encoding="utf-8") as fh:
         fh.write(text)

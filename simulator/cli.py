@@ -97,7 +97,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--quick", action="store_true", help="a small grid (4 settings x 5 materials), ~1-2 min")
     b.add_argument("--config", default="configs/simulated.toml",
                    help="base simulated bench file (default: configs/simulated.toml)")
-    b.add_argument("--out", default="docs", help="where the CSV, markdown and plot go (default: docs)")
+    b.add_argument("--out", default="out/study",
+                   help="where the CSV, markdown and plot go (default: out/study, beside the captures; the "
+                        "committed results are regenerated with --out docs)")
     b.add_argument("--name", default=None, help="file name stem (default: study-quick or study)")
     b.add_argument("--workdir", default="out/study", help="captures and per-case configs (default: out/study)")
     b.add_argument("--materials", default=None,
@@ -141,6 +143,13 @@ def _bench(args: argparse.Namespace) -> int:
     command = "gonio-sim bench" + (" --quick" if args.quick else "") + (" --reduced" if args.reduced else "") + (
         f" --material-dir {args.material_dir}" if args.material_dir else "") + (
         f" --materials {args.materials}" if args.materials else "")
+    from .study import METHODS, estimate_seconds
+
+    workers = args.workers or (os.cpu_count() or 1)
+    est = estimate_seconds(cases, 1 if args.scheduler else workers)
+    print(f"gonio-sim bench: {len(cases)} captures x {len(METHODS)} methods; estimated "
+          f"{est / 60:.0f} min" + ("" if args.scheduler else f" on {workers} local worker(s)")
+          + f"; results to {args.out}", file=sys.stderr)
     t0 = time.perf_counter()
     try:
         rows = run_study(cases, args.config, args.workdir, args.out, name, command, args.scheduler, args.workers,

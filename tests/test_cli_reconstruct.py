@@ -319,3 +319,47 @@ def test_the_fit_cannot_reflect_more_light_than_it_receives_on_a_hostile_capture
     alb = directional_albedo(fit.eval, np.radians(np.arange(0.0, 89.0, 5.0)), 64, 128)
     assert alb.max() <= 1.0 + 1e-3
     assert max(fit.report()["constraints"]["max_directional_albedo"]) <= 1.0 + 1e-9
+
+
+# --- what a user sees: one-line messages, any letter case, compact reports --------------------------------
+
+
+def test_a_missing_argument_is_one_line_pointing_at_help(capsys):
+    with pytest.raises(SystemExit) as e:
+        cli.main(["nothing.csv"])
+    err = capsys.readouterr().err
+    assert e.value.code == 2
+    assert err.count("\n") == 1 and "--out" in err and "see gonio-reconstruct --help" in err and "usage:" not in err
+
+
+def test_a_torn_last_line_is_one_plain_warning_line(tmp_path, capsys):
+    src = slice_file(tmp_path / "slice.csv", BLUE_PLASTIC)
+    src.write_text(src.read_text().rstrip("\n") + "\n30,5,0.1")  # an interrupted append
+    assert cli.main([str(src), "--method", "bivariate", "--out", str(tmp_path / "m.binary"), "--quiet"]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("gonio-reconstruct: warning: ") and "torn last line" in err[0]
+    assert ".py" not in err[0] and "UserWarning" not in err[0]
+
+
+def test_generic_column_names_match_in_any_letter_case(tmp_path):
+    s = synthetic_slice(BLUE_PLASTIC, (30.0,))
+    g = s.values.mean(axis=1)
+    src = tmp_path / "other.csv"
+    rows = zip(s.theta_i_deg, s.theta_o_deg, g, strict=True)
+    src.write_text("THETA_I_DEG,Theta_O,Value,VALUE_STD\n" + "".join(f"{a},{b},{v},{0.01 * v}\n" for a, b, v in rows))
+    rep = cli.run(cli.build_parser().parse_args([str(src), "--quantity", "brdf", "--method", "bivariate",
+                                                 "--out", str(tmp_path / "m.binary"), "--quiet"]))
+    assert rep["method"] == "bivariate" and rep["coverage"]["samples"] == len(s)
+
+
+def test_the_report_keeps_arrays_on_one_line(tmp_path):
+    src = slice_file(tmp_path / "slice.csv", BLUE_PLASTIC)
+    report = tmp_path / "m.json"
+    assert cli.main([str(src), "--method", "fit", "--out", str(tmp_path / "m.binary"), "--report", str(report),
+                     "--quiet"]) == 0
+    text = report.read_text()
+    rep = json.loads(text)
+    n = len(rep["residuals"]["samples"]["theta_o_deg"])
+    assert n > 50 and text.count("\n") < 400  # the residual arrays are not one number per line
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip().startswith('"theta_o_deg": [')]
+    assert any(ln[ln.index("["):ln.index("]")].count(",") == n - 1 for ln in lines)

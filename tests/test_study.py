@@ -150,3 +150,16 @@ def test_cli_material_dir_errors_are_one_line(capsys, tmp_path):
 
     assert main(["bench", "--material-dir", str(tmp_path / "none")]) == 2
     assert "--material-dir" in capsys.readouterr().err
+
+
+def test_the_study_writes_to_out_by_default_and_estimates_its_duration():
+    from simulator.cli import build_parser
+
+    args = build_parser().parse_args(["bench", "--quick"])
+    assert args.out == "out/study"  # a user's run never rewrites the committed docs/
+    quick = study.grid(quick=True)
+    est1, est2 = study.estimate_seconds(quick, 1), study.estimate_seconds(quick, 2)
+    assert est2 == pytest.approx(est1 / 2) and 60 < est2 < 1200
+    fine = study.estimate_seconds([Case("diffuse", 0.5, 8, 16, "uniform", "low")], 1)
+    coarse = study.estimate_seconds([Case("diffuse", 5.0, 1, 1, "uniform", "low")], 1)
+    assert fine > coarse + 10  # thousands of samples cost more than a handful
