@@ -475,6 +475,10 @@ def _main(ap: argparse.ArgumentParser, args: argparse.Namespace) -> int:
         print(f"{PROG}: method {rep['method']}{model}: wrote {', '.join(written)}"
               + (f"; IMPLAUSIBLE, written because of --allow-implausible: check(s) failed: {', '.join(failed)}"
                  if failed else "; checks passed"), file=sys.stderr)
+        if rep.get("colour", {}).get("working_channels") == ["value"]:
+            print(f"{PROG}: note: the samples have one band (a photodiode sees one), so the table is grey; a "
+                  f"spectrometer bench ([detector] type = \"spectrometer\") or R,G,B columns give colour",
+                  file=sys.stderr)
     return 0
 
 

@@ -363,3 +363,15 @@ def test_the_report_keeps_arrays_on_one_line(tmp_path):
     assert n > 50 and text.count("\n") < 400  # the residual arrays are not one number per line
     lines = [ln.strip() for ln in text.splitlines() if ln.strip().startswith('"theta_o_deg": [')]
     assert any(ln[ln.index("["):ln.index("]")].count(",") == n - 1 for ln in lines)
+
+
+def test_a_grey_table_says_how_to_get_colour(tmp_path, capsys):
+    s = synthetic_slice(BLUE_PLASTIC, (30.0,))
+    grey = Slice(s.theta_i_deg, s.theta_o_deg, s.values.mean(axis=1), ["value"])
+    write_slice(tmp_path / "grey.csv", grey)
+    assert cli.main([str(tmp_path / "grey.csv"), "--method", "bivariate", "--out", str(tmp_path / "m.binary")]) == 0
+    err = capsys.readouterr().err
+    assert "one band" in err and "spectrometer" in err
+    assert cli.main([str(slice_file(tmp_path / "rgb.csv", BLUE_PLASTIC)), "--method", "bivariate",
+                     "--out", str(tmp_path / "n.binary")]) == 0
+    assert "one band" not in capsys.readouterr().err
