@@ -96,8 +96,10 @@ class BivariateReconstruction:
         th = np.asarray(theta_h, dtype=np.float64).reshape(-1)
         td = np.asarray(theta_d, dtype=np.float64).reshape(-1)
         out = np.empty((th.size, len(self.channels)))
-        for s in range(0, th.size, _CHUNK):  # chunks of query points, each vectorised
-            out[s:s + _CHUNK] = self._f_hd(th[s:s + _CHUNK], td[s:s + _CHUNK])
+        # chunks of query points, each vectorised over (points x lines x channels): bounded to ~2e7 values
+        chunk = int(max(256, min(_CHUNK, 2e7 // max(1, len(self.lines) * len(self.channels)))))
+        for s in range(0, th.size, chunk):
+            out[s:s + chunk] = self._f_hd(th[s:s + chunk], td[s:s + chunk])
         return out
 
     def _f_hd(self, th: Array, td: Array) -> Array:
@@ -212,12 +214,13 @@ def peak_half_width_deg(slices: Slice) -> float:
     return best[1] if best else 90.0
 
 
-def _held_out_error(slices: Slice, fill: str, cos_power: float) -> float:
-    """Relative RMSE of f cos(theta_i) cos(theta_o) predicting each incidence from the others."""
+def _held_out_error(slices: Slice, fill: str, cos_power: float, max_folds: int = 8) -> float:
+    """Relative RMSE of f cos(theta_i) cos(theta_o) predicting each incidence (or, with more than ``max_folds``,
+    each group of neighbouring incidences) from the others."""
     f, _ = slices.brdf()
     num = den = 0.0
-    for t in np.unique(slices.theta_i_deg):  # one fold per incidence
-        out = slices.theta_i_deg == t
+    for group in np.array_split(np.unique(slices.theta_i_deg), min(max_folds, np.unique(slices.theta_i_deg).size)):
+        out = np.isin(slices.theta_i_deg, group)
         rec = reconstruct_bivariate(slices.take(~out), fill=fill, cos_power=cos_power)
         wi, wo = inplane_to_dirs(np.radians(slices.theta_i_deg[out]), np.radians(slices.theta_o_deg[out]))
         c = (wi[:, 2] * wo[:, 2])[:, None]

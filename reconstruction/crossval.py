@@ -3,7 +3,8 @@
 A method's residual on its own samples says nothing about the table (``bivariate`` interpolates its samples
 exactly and can still be far off elsewhere), so methods are compared on samples they did not see:
 
-* slices at several incidences: **leave-one-incidence-out**, each incidence predicted from the others;
+* slices at several incidences: **leave-one-incidence-out**, each incidence predicted from the others (with more
+  than ``n_blocks`` incidences, ``n_blocks`` groups of neighbouring incidences, each predicted from the rest);
 * one incidence: **held-out contiguous blocks of theta_o**: the whole forward side beyond the specular peak as
   one block (it lies on theta_d = theta_i + theta_h, so predicting it from the rest tests the extrapolation in
   theta_d that the table needs at every other incidence) and the backward side in ``n_blocks`` - 1 blocks of
@@ -42,8 +43,12 @@ N_BLOCKS = 8
 def folds(s: Slice, n_blocks: int = N_BLOCKS) -> tuple[str, list[NDArray[np.bool_]]]:
     """(scheme, held-out masks (N,) bool) for ``s``."""
     inc = np.unique(s.theta_i_deg)
-    if inc.size >= 2:
+    if 2 <= inc.size <= n_blocks:
         return "leave-one-incidence-out", [s.theta_i_deg == t for t in inc]
+    if inc.size > n_blocks:
+        groups = np.array_split(inc, n_blocks)
+        return (f"leave-one-group-out ({n_blocks} groups of neighbouring incidences)",
+                [np.isin(s.theta_i_deg, g) for g in groups])
     to = s.theta_o_deg
     step = float(np.median(np.diff(np.unique(to)))) if np.unique(to).size > 1 else 1.0
     keep = np.abs(to - inc[0]) <= 2.0 * step + 1e-9  # the specular peak stays in every training set

@@ -40,6 +40,8 @@ Array = NDArray[np.float64]
 __all__ = ["METHODS", "Options", "reconstruct", "tabulate", "max_albedo"]
 
 METHODS = ("auto", *REGISTRY)
+CV_MAX_SAMPLES = 3000
+CV_MAX_INCIDENCES = 24
 SINGLE_SLICE_PREFERRED = "bivariate"
 SINGLE_SLICE_MARGIN = 2.0
 
@@ -51,12 +53,32 @@ def max_albedo(rec: Reconstruction) -> tuple[float, float]:
     return float(alb.max()), float(ALBEDO_INCIDENCES_DEG[k])
 
 
+def thin_for_cv(s: Slice, max_samples: int = CV_MAX_SAMPLES, max_incidences: int = CV_MAX_INCIDENCES) -> Slice:
+    """A subsample of a large ``s`` (sorted) to cross-validate on: at most ``max_incidences`` evenly spread
+    incidences and, within each, every k-th outgoing angle so about ``max_samples`` remain (the samples nearest
+    the mirror direction always kept). ``s`` itself when it is small enough."""
+    inc = np.unique(s.theta_i_deg)
+    if len(s) <= max_samples and inc.size <= max_incidences:
+        return s
+    keep_inc = inc[np.unique(np.round(np.linspace(0, inc.size - 1, min(inc.size, max_incidences))).astype(int))]
+    per = max(8, max_samples // keep_inc.size)
+    keep = np.zeros(len(s), dtype=bool)
+    for t in keep_inc:  # at most max_incidences
+        idx = np.nonzero(s.theta_i_deg == t)[0]
+        step = max(1, int(np.ceil(idx.size / per)))
+        keep[idx[::step]] = True
+        keep[idx[np.argsort(np.abs(s.theta_o_deg[idx] - t))[:3]]] = True  # the specular peak
+    return s.take(keep)
+
+
 def _auto(s: Slice, opts: Options, progress: Callable[[str], None] | None) -> tuple[Reconstruction, dict[str, Any]]:
     from .fit import FitReconstruction, reconstruct_fit
 
     fit_rec = get("fit").build(s, opts, progress)
     assert isinstance(fit_rec, FitReconstruction)
     specs = fit_rec.result.specs
+    full = s
+    s = thin_for_cv(full)  # cross-validation of a large input on a subsample; the chosen method uses every sample
     scheme, masks = folds(s)
     builders: dict[str, Callable[[Slice], Reconstruction]] = {}
     for name, m in REGISTRY.items():
@@ -80,7 +102,7 @@ def _auto(s: Slice, opts: Options, progress: Callable[[str], None] | None) -> tu
     for sc in ranked:
         if not np.isfinite(sc.error):
             continue
-        rec = fit_rec if sc.method == "fit" else REGISTRY[sc.method].build(s, opts, progress)
+        rec = fit_rec if sc.method == "fit" else REGISTRY[sc.method].build(full, opts, progress)
         alb, at = max_albedo(rec)
         if alb > 1.0 + ALBEDO_TOLERANCE:
             rejected.append(f"{sc.method} (held-out {sc.error:.2%}) reflects more than it receives: directional "
@@ -101,6 +123,8 @@ def _auto(s: Slice, opts: Options, progress: Callable[[str], None] | None) -> tu
                    f"{SINGLE_SLICE_MARGIN:g} times better (one slice cannot show a model's extrapolation in theta_d)")
     if rejected:
         reason += "; not used: " + "; ".join(rejected)
+    if s is not full:
+        scheme += f", on {len(s)} of the {len(full)} samples"
     cv = {"scheme": scheme, "folds": len(masks), "metric": "relative RMSE of f cos(theta_i) cos(theta_o) over the "
           "held-out samples" + (" inside the scene's ranges" if inside is not None else ""),
           "scores": [c.as_dict() for c in sorted(scores, key=lambda c: c.error)], "chosen": chosen.method,
@@ -108,7 +132,8 @@ def _auto(s: Slice, opts: Options, progress: Callable[[str], None] | None) -> tu
           "single_incidence_preference": ({"method": SINGLE_SLICE_PREFERRED, "margin": SINGLE_SLICE_MARGIN}
                                           if single else None)}
     return chosen, {"requested": "auto", "used": chosen.method, "reason": reason, "cross_validation": cv,
-                    "held_out_predictions": {c.method: c.predictions for c in scores if c.predictions is not None}}
+                    "held_out_predictions": ({} if s is not full else  # per sample of the input (none when thinned)
+                                             {c.method: c.predictions for c in scores if c.predictions is not None})}
 
 
 def reconstruct(s: Slice, method: str = "auto", opts: Options | None = None,

@@ -72,3 +72,18 @@ def test_a_failing_method_scores_infinity_with_the_reason():
     sc = cross_validate(s, "boom", boom, masks)
     assert math.isinf(sc.error) and "too few samples" in sc.failure
     assert sc.as_dict()["held_out_relative_rmse_cos"] is None
+
+
+def test_a_large_input_is_cross_validated_on_a_bounded_subsample():
+    from reconstruction.pipeline import CV_MAX_INCIDENCES, CV_MAX_SAMPLES, thin_for_cv
+
+    s = synthetic_slice(MAT, tuple(np.arange(0.0, 85.0, 1.0)), step_deg=0.5).sorted()
+    assert len(s) > 10 * CV_MAX_SAMPLES
+    t = thin_for_cv(s)
+    assert len(t) <= 1.2 * CV_MAX_SAMPLES and np.unique(t.theta_i_deg).size <= CV_MAX_INCIDENCES
+    for inc in np.unique(t.theta_i_deg):  # every kept incidence keeps its mirror direction
+        assert np.any(np.abs(t.theta_o_deg[t.theta_i_deg == inc] - inc) < 0.26)
+    scheme, masks = folds(t)
+    assert scheme.startswith("leave-one-group-out") and len(masks) == 8
+    small = synthetic_slice(MAT, (20.0, 40.0))
+    assert thin_for_cv(small) is small
