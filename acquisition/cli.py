@@ -149,9 +149,11 @@ def _run(args: argparse.Namespace) -> int:
         grows = " (before adaptive refinement, which may add up to " \
                 f"{plan.size() - len(chk.measurable) - len(chk.unmeasurable):.0f})" if plan.adaptive else ""
         print(f"plan size: {len(chk.measurable) + len(chk.unmeasurable)} points{grows}, limit {MAX_PLAN_POINTS}")
-        print(f"estimated motion time {est['motion_s']:.2f} s in plan order, {est['naive_motion_s']:.2f} s in "
-              f"naive order; total with settling and detector {est['total_s']:.2f} s"
-              + (f" ({_duration(est['total_s'])})" if est["total_s"] >= 120 else ""))
+        print(f"estimated bench time: {est['total_s']:.2f} s in all"
+              + (f" ({_duration(est['total_s'])})" if est["total_s"] >= 120 else "")
+              + f" = motion {est['motion_s']:.2f} s (arm travel in plan order; {est['naive_motion_s']:.2f} s in "
+                f"naive order) + settling, darks, white reference and detector integration "
+                f"{est['total_s'] - est['motion_s']:.2f} s")
         return 0
     if not args.out:
         print("gonio-capture: --out DIR is required to capture (or use --check)", file=sys.stderr)
@@ -186,9 +188,10 @@ def _run(args: argparse.Namespace) -> int:
                 ranged = (f"\n  auto-ranged {result.auto_ranged} point(s) to shorter integration times ({settings});"
                           f" {result.auto_range_overhead_s:.2f} s of extra integration in this run")
             print(f"gonio-capture: {result.message}{extra}\n"
-                  f"  {clock}capture time {result.bench_time_s:.2f} s (motion {result.motion_s:.2f} s; plan "
-                  f"estimate {result.plan_motion_estimate_s:.2f} s vs {result.naive_motion_estimate_s:.2f} s in "
-                  f"naive order), wall {result.wall_s:.2f} s{ranged}", file=sys.stderr)
+                  f"  {clock}capture time {result.bench_time_s:.2f} s of bench time, of which moving "
+                  f"{result.motion_s:.2f} s (the plan's estimate of the motion was "
+                  f"{result.plan_motion_estimate_s:.2f} s in plan order, {result.naive_motion_estimate_s:.2f} s in "
+                  f"naive order); wall clock {result.wall_s:.2f} s{ranged}", file=sys.stderr)
         return 0
     print(f"gonio-capture: {result.message}", file=sys.stderr)
     return result.exit_code or 1

@@ -67,6 +67,7 @@ LOG_AMP_MIN, LOG_AMP_MAX = math.log(1e-12), 0.0
 ENERGY_INCIDENCES = np.radians(np.arange(0.0, 89.0, 4.0))
 FLOOR = 1e-4  # of each channel's peak |f|
 SELECTION_MAX_VALUES = 2400  # residuals (samples x channels) beyond which candidates are compared on a subset
+REFIT_MAX_VALUES = 60_000  # the chosen model is refitted to at most this many residuals (an evenly strided subset)
 
 
 # --- scenes ----------------------------------------------------------------------------------------------
@@ -722,9 +723,12 @@ def reconstruct_fit(
     notes: list[str] = []
     if stride > 1:
         target = full.take(fit_mask) if fit_mask is not None else full
+        thin = max(1, math.ceil(target.n / REFIT_MAX_VALUES))
+        if thin > 1:  # millions of samples add nothing to a handful of parameters but memory and time
+            target = target.take(np.arange(target.f.shape[0]) % thin == 0)
         chosen = fit_model(chosen.specs, target, loss=loss, f_scale=f_scale)
         notes.append(f"candidates compared on 1 in {stride} of the {len(slices)} samples; {chosen.name} refitted "
-                     f"to {target.f.shape[0]} samples")
+                     f"to {target.f.shape[0]} samples" + (f" (1 in {thin})" if thin > 1 else ""))
     material = chosen.material(name=f"fit {chosen.name}")
     model = material.eval(wi, wo)
     resid = (model - f) / full.sigma_of(model)  # every sample, whatever subset the model was fitted to
