@@ -67,6 +67,7 @@ LOG_AMP_MIN, LOG_AMP_MAX = math.log(1e-12), 0.0
 ENERGY_INCIDENCES = np.radians(np.arange(0.0, 89.0, 4.0))
 FLOOR = 1e-4  # of each channel's peak |f|
 SELECTION_MAX_VALUES = 2400  # residuals (samples x channels) beyond which candidates are compared on a subset
+REPORT_MAX_SAMPLES = 5000  # per-sample residuals listed in the report (an evenly strided subset beyond)
 REFIT_MAX_VALUES = 60_000  # the chosen model is refitted to at most this many residuals (an evenly strided subset)
 
 
@@ -735,6 +736,7 @@ def reconstruct_fit(
     # the summary figures judge the model on the samples it is for (a scene's subset, when it was fitted to one)
     used = fit_mask if fit_mask is not None else np.ones(len(slices), dtype=bool)
     ru = resid[used]
+    every = max(1, math.ceil(len(slices) / REPORT_MAX_SAMPLES))  # the report lists at most this many residuals
     info: dict[str, Any] = {
         "selection": {"criterion": "BIC = robust chi^2 + k ln(n)", "chosen": chosen.name, "reason": why,
                       "candidates": [r.summary() for r in ranked], "skipped": skipped},
@@ -747,8 +749,10 @@ def reconstruct_fit(
             "relative_rmse_cos": round(relative_rmse_cos_dirs(model[used], f[used], wi[used], wo[used]), 6),
             "relative_rmse_cos_all_samples": round(relative_rmse_cos_dirs(model, f, wi, wo), 6),
             "samples_used": int(used.sum()),
-            "samples": {"theta_i_deg": slices.theta_i_deg.tolist(), "theta_o_deg": slices.theta_o_deg.tolist(),
-                        "normalised": np.round(resid, 5).tolist()},
+            "samples": {"theta_i_deg": slices.theta_i_deg[::every].tolist(),
+                        "theta_o_deg": slices.theta_o_deg[::every].tolist(),
+                        "normalised": np.round(resid[::every], 5).tolist(),
+                        **({"every": every, "note": f"1 sample in {every} is listed"} if every > 1 else {})},
         },
         "weights": {"sigma": f"sqrt(std^2 + ({rel:g} f_model)^2 + ({FLOOR:g} peak)^2)", "loss": loss,
                     "f_scale_sigma": f_scale},
