@@ -16,7 +16,6 @@ SPLITTING: dict[str, int] = {
     "acquisition/engine.py": 925,
     "reconstruction/fit.py": 767,
     "reconstruction/models.py": 601,
-    "reconstruction/revolve.py": 1331,
     "simulator/dxl_device.py": 728,
 }
 
