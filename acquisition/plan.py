@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from reconstruction.scene import Scene, SceneError
+from reconstruction.scene import CAPTURE_DEFAULT_RANGE_DEG, Scene, SceneError
 from reconstruction.scene import load_scene as _load_scene
 
 from .config import (
@@ -261,9 +261,9 @@ def order_points(points: Sequence[Point], geom: Geometry, start: Point | None = 
 
 # --- scenes ----------------------------------------------------------------------------------------------------
 
-#: theta_i and theta_o range (degrees) of a scene whose file gives none: the whole hemisphere (the fit's default
-#: differs, see reconstruction.fit.SCENE_DEFAULT_RANGE_DEG).
-SCENE_DEFAULT_RANGE_DEG = (0.0, 89.999)
+#: theta_i and theta_o range (degrees) of a scene whose file gives none, for a capture: the whole hemisphere (one
+#: definition beside the reconstruction's, which differs on purpose: reconstruction.scene).
+SCENE_DEFAULT_RANGE_DEG = CAPTURE_DEFAULT_RANGE_DEG
 
 
 def load_scene(path: str | Path) -> Scene:

@@ -46,7 +46,8 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-__all__ = ["Scene", "SceneError", "LOBE_KINDS", "load_scene", "scene_from_dict"]
+__all__ = ["Scene", "SceneError", "LOBE_KINDS", "RECONSTRUCTION_DEFAULT_RANGE_DEG", "CAPTURE_DEFAULT_RANGE_DEG",
+           "load_scene", "scene_from_dict"]
 
 #: Lobe kinds a scene may allow (the fit's vocabulary; ``fresnel`` allows Schlick Fresnel on microfacet lobes).
 LOBE_KINDS = ("lambert", "ggx", "beckmann", "retro", "fresnel")
@@ -60,6 +61,14 @@ Range = tuple[float, float]
 class SceneError(ReconstructionError):
     """A scene file is invalid; the message names the file and the key. (A :class:`ValueError`, through
     :class:`~reconstruction.base.ReconstructionError`.)"""
+
+
+#: theta_i and theta_o range (degrees) that the reconstruction assumes for a range a scene file does not give:
+#: what a fit is judged over (reconstruction.fit, reconstruction.crossval).
+RECONSTRUCTION_DEFAULT_RANGE_DEG = (0.0, 85.0)
+#: ... and that a capture plan assumes: the whole hemisphere (acquisition.plan.Plan.restrict). The two differ on
+#: purpose: a capture measures what it can reach; a fit is not asked to be judged at grazing angles.
+CAPTURE_DEFAULT_RANGE_DEG = (0.0, 89.999)
 
 
 @dataclass(frozen=True)
