@@ -16,7 +16,6 @@ import argparse
 import errno
 import os
 import sys
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -28,7 +27,12 @@ from .atomic import is_no_space
 from .base import ReconstructionError
 from .merl import FILE_SIZE, MerlError
 from .models import MaterialError
+from .pipeline import ImplausibleError, Job, implausible_message
+from .pipeline import run as pipeline_run
 from .slicefile import QUANTITIES, SliceError
+
+__all__ = ["main", "build_parser", "run", "run_batch", "batch_files", "job_from_args", "ImplausibleError",
+           "implausible_message", "EXIT_IMPLAUSIBLE"]
 
 PROG = "gonio-reconstruct"
 DESCRIPTION = """\
@@ -50,10 +54,6 @@ non-reciprocal BRDF) is not written: the command exits with status 3 and says wh
 --allow-implausible is given."""
 
 EXIT_IMPLAUSIBLE = 3
-
-
-class ImplausibleError(ReconstructionError):
-    """The reconstruction fails a plausibility check; nothing was written."""
 
 
 def _supersample(text: str) -> tuple[int, int, int] | str:
@@ -103,11 +103,14 @@ _nonneg_float = _number(float, lambda v: v >= 0, "a number >= 0")
 
 def build_parser() -> argparse.ArgumentParser:
     from .cliutil import OneLineParser
+    from .methods import REGISTRY
     from .pipeline import METHODS
 
     ap = OneLineParser(prog=PROG, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("inputs", nargs="*", metavar="INPUT", help="slice files or generic CSV tables")
-    ap.add_argument("--method", choices=METHODS, default="auto", help="reconstruction method (default: auto)")
+    ap.add_argument("--method", choices=METHODS, default="auto",
+                    help="reconstruction method (default: auto, the one that best predicts held-out samples): "
+                         + "; ".join(f"{m.name}: {m.summary}" for m in REGISTRY.values()))
     ap.add_argument("--out", metavar="MATERIAL.binary", help="MERL table to write (required unless --batch)")
     ap.add_argument("--preview", metavar="MATERIAL.exr",
                     help="render a sphere under a point light: linear float OpenEXR, plus a PNG next to it")
@@ -166,166 +169,46 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
-def _check_output(path: Path, suffix: str | None, flag: str) -> None:
-    """An output path must name a file (``suffix``) in an existing, writable folder; checked before any work."""
-    if suffix is not None and path.suffix.lower() != suffix:
-        raise ReconstructionError(f"{flag} {path}: expected a file name ending in {suffix}")
-    if path.is_dir():
-        raise ReconstructionError(f"{flag} {path}: is a folder; give a file name"
-                                  + (f" ending in {suffix}" if suffix else ""))
-    parent = path.parent if str(path.parent) else Path(".")
-    if not parent.is_dir():
-        raise ReconstructionError(f"{flag} {path}: the folder {parent} does not exist")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise ReconstructionError(f"{flag} {path}: the folder {parent} is not writable")
-    if path.exists() and not path.is_file():
-        raise ReconstructionError(f"{flag} {path}: exists and is not a regular file")
+def job_from_args(args: argparse.Namespace, **overrides: Any) -> Job:
+    """The :class:`~reconstruction.pipeline.Job` of a parsed command line (``overrides``: fields to replace)."""
+    lobes = tuple(x.strip() for x in args.lobes.split(",") if x.strip()) if args.lobes else None
+    fields: dict[str, Any] = dict(
+        inputs=tuple(str(x) for x in (args.inputs or ())), out=str(args.out) if args.out else "",
+        method=args.method, preview=args.preview, report=args.report, supersample=args.supersample,
+        quantity=args.quantity, columns=args.columns, blind_spot_deg=args.blind_spot_deg, illuminant=args.illuminant,
+        scene=args.scene, lobes=lobes, fill=args.fill, axis=args.axis, smoothing=args.smoothing,
+        allow_implausible=bool(getattr(args, "allow_implausible", False)),
+        html=args.html if isinstance(getattr(args, "html", None), str) else None)
+    fields.update(overrides)
+    return Job(**fields)
+
+
+class _Bar:
+    """The progress bar of one command line: a step of :attr:`Job.steps` per tick, the current step beside it."""
+
+    def __init__(self, job: Job, quiet: bool) -> None:
+        self.bar = tqdm(total=len(job.steps), desc=PROG, unit="step", disable=True if quiet else None,
+                        file=sys.stderr, leave=False)
+
+    def begin(self, label: str) -> None:
+        self.bar.set_postfix_str(label)
+
+    def done(self, step: str) -> None:
+        self.bar.update(1)
+
+    def close(self) -> None:
+        self.bar.close()
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
-    """Do the work of one command line; returns the report (also written with --report)."""
-    from . import colour, inputs, pipeline, preview, report
-    from .scene import LOBE_KINDS, load_scene
-
-    out = Path(args.out)
-    _check_output(out, ".binary", "--out")
-    if args.preview:
-        _check_output(Path(args.preview), ".exr", "--preview")
-        png = Path(args.preview).with_suffix(".png")
-        if png.is_dir():
-            raise ReconstructionError(f"--preview {args.preview}: {png} (the PNG beside it) is a folder")
-    if args.report:
-        _check_output(Path(args.report), None, "--report")
-    html_path = getattr(args, "html", None)
-    if html_path is True:
-        raise ReconstructionError("--html: give the page to write, e.g. --html m.html (a bare --html is for --batch)")
-    if html_path:
-        _check_output(Path(html_path), ".html", "--html")
-    lobes = None
-    if args.lobes:
-        lobes = [x.strip() for x in args.lobes.split(",") if x.strip()]
-        unknown = [x for x in lobes if x not in LOBE_KINDS]
-        if unknown:
-            raise ReconstructionError(f"--lobes: unknown kind(s) {unknown}; expected {', '.join(LOBE_KINDS)}")
-    timings: dict[str, float] = {}
-    steps = (["read", "colour", "reconstruct", "tabulate", "write", "checks"] + (["preview"] if args.preview else [])
-             + (["html"] if html_path else []))
-    bar = tqdm(total=len(steps), desc=PROG, unit="step", disable=True if args.quiet else None, file=sys.stderr,
-               leave=False)
-
-    def step(name: str) -> float:
-        bar.set_postfix_str(name)
-        return time.perf_counter()
-
-    def done(name: str, t0: float) -> None:
-        timings[name] = time.perf_counter() - t0
-        bar.update(1)
-
+    """Do the work of one command line (:func:`reconstruction.pipeline.run`); returns the report (also written
+    with --report)."""
+    job = job_from_args(args)
+    bar = _Bar(job, args.quiet)
     try:
-        t0 = step("reading inputs")
-        loaded = inputs.load_inputs(args.inputs, quantity=args.quantity, columns=inputs.parse_columns(args.columns),
-                                    blind_spot_deg=args.blind_spot_deg)
-        scene = None
-        if args.scene:
-            sp = Path(args.scene)
-            if sp.exists() and not sp.is_file():
-                raise ReconstructionError(f"--scene {sp}: not a regular file, expected a scene file (TOML)")
-            try:
-                scene = load_scene(sp)
-            except RecursionError:
-                raise ReconstructionError(f"--scene {sp}: invalid TOML: nested too deeply") from None
-        done("read", t0)
-        t0 = step("colour")
-        try:
-            working, colour_info = colour.to_working_channels(loaded.slice, args.illuminant)
-        except ReconstructionError as e:  # e.g. spectral channels outside the observer: say which input
-            raise ReconstructionError(f"{', '.join(loaded.files)}: {e}") from None
-        done("colour", t0)
-        t0 = step("reconstructing")
-        opts = pipeline.Options(scene=scene, fill=args.fill, lobes=lobes, revolve_axis=args.axis,
-                                revolve_smoothing=args.smoothing)
-        rec, choice = pipeline.reconstruct(working, args.method, opts,
-                                           progress=lambda name: bar.set_postfix_str(f"fitting {name}"))
-        done("reconstruct", t0)
-        t0 = step("tabulating" + (f" (supersample {args.supersample})" if args.supersample else ""))
-        table = pipeline.tabulate(rec, args.supersample)
-        done("tabulate", t0)
-        t0 = step("plausibility checks")
-        checks = report.plausibility(rec, table)
-        done("checks", t0)
-        if not checks["all_pass"] and not getattr(args, "allow_implausible", False):
-            raise ImplausibleError(implausible_message(rec.method, checks))
-        t0 = step("writing table")
-        from . import merl
-
-        merl.write(out, table, require_above_horizon=True)
-        done("write", t0)
-        outputs: dict[str, Any] = {"table": str(out), "table_bytes": out.stat().st_size}
-        if args.preview:
-            t0 = step("preview")
-            outputs["preview"] = preview.write_preview(args.preview, table)
-            done("preview", t0)
+        return pipeline_run(job, progress=bar)
     finally:
         bar.close()
-    rep = report.build_report(
-        rec=rec, choice=choice, working=working, table=table, checks=checks,
-        inputs={"files": loaded.files, "quantities": loaded.quantities, "notes": loaded.notes,
-                "columns": args.columns, "scene": args.scene},
-        colour=colour_info,
-        table_info={"cells": 3 * merl.N_CELLS, "values": "cell averages" if args.supersample else "bin centres",
-                    "supersample": (list(args.supersample) if isinstance(args.supersample, tuple)
-                                    else args.supersample),
-                    "bin_centres": "theta_h = ((i + 0.5) / 90)^2 * 90 deg, theta_d = j + 0.5 deg, "
-                                   "phi_d = k + 0.5 deg"},
-        outputs=outputs, timings=timings, dropped_blind_spot=loaded.dropped_blind_spot)
-    if not checks["all_pass"]:
-        rep["implausible_table_written"] = "written with --allow-implausible: " + implausible_message(rec.method,
-                                                                                                      checks)
-    if html_path:
-        outputs["html"] = str(html_path)
-        rep["outputs"]["html"] = str(html_path)
-    if args.report:
-        outputs["report"] = str(args.report)
-        rep["outputs"]["report"] = str(args.report)
-        report.write_json(args.report, rep)
-    if html_path:
-        from . import htmlreport
-        from .methods import REGISTRY
-
-        t0 = time.perf_counter()
-        ordered = working.sorted()
-        others = {}
-        for name, m in REGISTRY.items():  # every other method on the same samples, for the comparison plot
-            if name != rec.method:
-                try:
-                    others[name] = m.build(ordered, opts, None)
-                except (ReconstructionError, ValueError):
-                    pass
-        held = choice.get("held_out_predictions", {}).get(rec.method)
-        title = str(working.meta.get("material") or Path(args.out).stem)
-        htmlreport.write_html(html_path, report=rep, working=ordered, rec=rec, table=table, alternatives=others,
-                              held_out=held, title=title)
-        rep["timings_s"]["html"] = round(time.perf_counter() - t0, 4)
-    return rep
-
-
-def implausible_message(method: str, checks: dict[str, Any]) -> str:
-    """One line: which plausibility checks of ``checks`` failed, with figures, and what to try."""
-    why = []
-    if not checks["non_negative"]["pass"]:
-        c = checks["non_negative"]
-        why.append(f"non_negative: {c['missing_cells']} cell(s) without a value, minimum {c['min_1_per_sr']:.3g} 1/sr")
-    if not checks["albedo"]["pass"]:
-        c = checks["albedo"]
-        alb = np.asarray(c["albedo"], dtype=np.float64)
-        k = int(np.argmax(alb.max(axis=1)))
-        why.append(f"albedo: the table reflects more light than it receives (directional albedo {alb.max():.3g} > "
-                   f"1 + {c['tolerance']:g} at theta_i = {c['theta_i_deg'][k]:g} deg)")
-    if not checks["reciprocity"]["pass"]:
-        why.append(f"reciprocity: relative error {checks['reciprocity']['relative_error']:.3g}")
-    return (f"method {method}: the table fails the plausibility check(s) " + "; ".join(why)
-            + "; nothing written. Try --method fit or microfacet (energy-conserving by construction), slices at "
-              "more incidences, or --allow-implausible to write it anyway")
 
 
 def batch_files(folder: Path) -> list[tuple[str, Path]]:
@@ -335,21 +218,14 @@ def batch_files(folder: Path) -> list[tuple[str, Path]]:
     return sorted(found)
 
 
-def _batch_one(job: tuple[dict[str, Any], str, Path, Path]) -> dict[str, Any]:
-    """Worker: reconstruct one file of a batch with the shared options; never raises (the result says)."""
-    options, name, path, out_dir = job
-    ns = argparse.Namespace(**options)
-    ns.inputs = [str(path)]
-    ns.out = str(out_dir / f"{name}.binary")
-    ns.report = str(out_dir / f"{name}.json")
-    ns.html = str(out_dir / f"{name}.html") if options.get("html") else None
-    ns.preview = str(out_dir / f"{name}.exr") if options.get("previews") else None
-    ns.quiet = True
+def _batch_one(job: tuple[Job, str, Path]) -> dict[str, Any]:
+    """Worker: reconstruct one file of a batch (its :class:`Job`); never raises (the result says)."""
+    one, name, path = job
     from .cliutil import plain_warnings
 
     try:
         with plain_warnings(PROG), np_quiet():
-            rep = run(ns)
+            rep = pipeline_run(one)
     except ImplausibleError as e:
         return {"name": name, "input": str(path), "ok": False, "error": str(e), "implausible": True}
     except (ReconstructionError, SliceError, MerlError, MaterialError) as e:
@@ -359,7 +235,7 @@ def _batch_one(job: tuple[dict[str, Any], str, Path, Path]) -> dict[str, Any]:
     except Exception as e:  # noqa: BLE001 - one file must never abort the batch
         return {"name": name, "input": str(path), "ok": False, "error": f"unexpected error: {type(e).__name__}: "
                                                                         f"{str(e)[:300]}"}
-    return {"name": name, "input": str(path), "ok": True, "method": rep["method"], "table": ns.out, "html": ns.html}
+    return {"name": name, "input": str(path), "ok": True, "method": rep["method"], "table": one.out, "html": one.html}
 
 
 def run_batch(args: argparse.Namespace) -> int:
@@ -383,7 +259,10 @@ def run_batch(args: argparse.Namespace) -> int:
     if not os.access(out_dir, os.W_OK | os.X_OK):
         print(f"{PROG}: error: --out-dir {out_dir}: the folder is not writable", file=sys.stderr)
         return 2
-    options = {k: v for k, v in vars(args).items() if k not in ("inputs", "out", "preview", "report", "batch")}
+    jobs = [(job_from_args(args, inputs=(str(p),), out=str(out_dir / f"{n}.binary"),
+                           report=str(out_dir / f"{n}.json"),
+                           preview=str(out_dir / f"{n}.exr") if args.previews else None,
+                           html=str(out_dir / f"{n}.html") if args.html else None), n, p) for n, p in files]
     results: list[dict[str, Any]] = []
     with tqdm(total=len(files), desc=PROG, unit="file", disable=True if args.quiet else None,
               file=sys.stderr) as bar:
@@ -393,7 +272,7 @@ def run_batch(args: argparse.Namespace) -> int:
 
         try:
             with make_executor(args.scheduler, args.workers) as ex:
-                run_all(ex, _batch_one, [(options, n, p, out_dir) for n, p in files], on_done=done)
+                run_all(ex, _batch_one, jobs, on_done=done)
         except RuntimeError as e:
             print(f"{PROG}: error: {e}", file=sys.stderr)
             return 2
@@ -415,7 +294,6 @@ def run_batch(args: argparse.Namespace) -> int:
 
 def np_quiet() -> Any:
     """numpy floating-point warnings off: the checks report bad input; warnings must never reach a user."""
-    import numpy as np
 
     return np.errstate(all="ignore")
 
@@ -452,6 +330,10 @@ def _main(ap: argparse.ArgumentParser, args: argparse.Namespace) -> int:
         return run_batch(args)
     if not args.inputs or not args.out:
         ap.error("give INPUT... and --out MATERIAL.binary (or --batch FOLDER)")
+    if args.html is True:
+        print(f"{PROG}: error: --html: give the page to write, e.g. --html m.html (a bare --html is for --batch)",
+              file=sys.stderr)
+        return 2
     try:
         rep = run(args)
     except ImplausibleError as e:

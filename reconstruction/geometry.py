@@ -38,19 +38,41 @@ __all__ = [
 
 
 def safe_acos(x: ArrayLike) -> Array:
-    """arccos clipped to [-1, 1], so 1 + eps from rounding gives 0, not NaN."""
+    """arccos clipped to [-1, 1], so 1 + eps from rounding gives 0, not NaN.
+
+    Examples
+    --------
+    >>> float(safe_acos(1.0 + 1e-12))  # rounding above 1 gives 0, not NaN
+    0.0
+    """
     return np.arccos(np.clip(np.asarray(x, dtype=np.float64), -1.0, 1.0))
 
 
 def normalize(v: ArrayLike) -> Array:
-    """Unit vectors along ``v`` (..., 3); zero vectors stay zero instead of becoming NaN."""
+    """Unit vectors along ``v`` (..., 3); zero vectors stay zero instead of becoming NaN.
+
+    Examples
+    --------
+    >>> normalize([3.0, 0.0, 4.0]).tolist()
+    [0.6, 0.0, 0.8]
+    >>> normalize([0.0, 0.0, 0.0]).tolist()
+    [0.0, 0.0, 0.0]
+    """
     v = np.asarray(v, dtype=np.float64)
     n = np.linalg.norm(v, axis=-1, keepdims=True)
     return np.divide(v, n, out=np.zeros_like(v), where=n > 0)
 
 
 def sph_to_vec(theta: ArrayLike, phi: ArrayLike) -> Array:
-    """Unit vector(s) (..., 3) from polar angle ``theta`` and azimuth ``phi`` (radians)."""
+    """Unit vector(s) (..., 3) from polar angle ``theta`` and azimuth ``phi`` (radians).
+
+    Examples
+    --------
+    >>> sph_to_vec(np.pi / 2, 0.0).round(12).tolist()  # on the horizon towards +x
+    [1.0, 0.0, 0.0]
+    >>> sph_to_vec([0.0, np.pi / 2], [0.0, np.pi / 2]).round(12).tolist()
+    [[0.0, 0.0, 1.0], [0.0, 1.0, 0.0]]
+    """
     theta = np.asarray(theta, dtype=np.float64)
     phi = np.asarray(phi, dtype=np.float64)
     st = np.sin(theta)
@@ -61,6 +83,12 @@ def vec_to_sph(v: ArrayLike) -> tuple[Array, Array]:
     """(theta, phi) in radians of direction(s) ``v`` (..., 3); phi in (-pi, pi], 0 at the pole.
 
     Uses atan2 of the in-plane radius and z, which is accurate near the pole (unlike acos).
+
+    Examples
+    --------
+    >>> theta, phi = vec_to_sph([0.0, 1.0, 1.0])
+    >>> round(float(np.degrees(theta)), 6), round(float(np.degrees(phi)), 6)
+    (45.0, 90.0)
     """
     v = np.asarray(v, dtype=np.float64)
     x, y, z = v[..., 0], v[..., 1], v[..., 2]
@@ -73,6 +101,12 @@ def inplane_to_dirs(theta_i: ArrayLike, theta_o: ArrayLike) -> tuple[Array, Arra
     """(wi, wo) unit vectors for in-plane samples; radians, signed theta_o (+ = specular side).
 
     wi = (-sin theta_i, 0, cos theta_i) points to the light; wo = (sin theta_o, 0, cos theta_o).
+
+    Examples
+    --------
+    >>> wi, wo = inplane_to_dirs(np.radians(30.0), np.radians(30.0))  # the mirror direction
+    >>> wi.round(4).tolist(), wo.round(4).tolist()
+    ([-0.5, 0.0, 0.866], [0.5, 0.0, 0.866])
     """
     ti = np.asarray(theta_i, dtype=np.float64)
     to = np.asarray(theta_o, dtype=np.float64)
@@ -84,21 +118,40 @@ def inplane_to_dirs(theta_i: ArrayLike, theta_o: ArrayLike) -> tuple[Array, Arra
 
 
 def dirs_to_inplane(wi: ArrayLike, wo: ArrayLike) -> tuple[Array, Array]:
-    """Inverse of :func:`inplane_to_dirs` for directions in the x-z plane: (theta_i, signed theta_o)."""
+    """Inverse of :func:`inplane_to_dirs` for directions in the x-z plane: (theta_i, signed theta_o).
+
+    Examples
+    --------
+    >>> wi, wo = inplane_to_dirs(np.radians(30.0), np.radians(-10.0))
+    >>> np.degrees(dirs_to_inplane(wi, wo)).round(9).tolist()
+    [30.0, -10.0]
+    """
     wi = np.asarray(wi, dtype=np.float64)
     wo = np.asarray(wo, dtype=np.float64)
     return np.arctan2(-wi[..., 0], wi[..., 2]), np.arctan2(wo[..., 0], wo[..., 2])
 
 
 def rotate_z(v: Array, angle: ArrayLike) -> Array:
-    """Rotate vectors (..., 3) by ``angle`` (radians) about +z (counter-clockwise seen from +z)."""
+    """Rotate vectors (..., 3) by ``angle`` (radians) about +z (counter-clockwise seen from +z).
+
+    Examples
+    --------
+    >>> rotate_z(np.array([1.0, 0.0, 0.0]), np.pi / 2).round(12).tolist()
+    [0.0, 1.0, 0.0]
+    """
     c, s = np.cos(angle), np.sin(angle)
     x, y, z = v[..., 0], v[..., 1], v[..., 2]
     return np.stack(np.broadcast_arrays(c * x - s * y, s * x + c * y, z), axis=-1)
 
 
 def rotate_y(v: Array, angle: ArrayLike) -> Array:
-    """Rotate vectors (..., 3) by ``angle`` (radians) about +y (right-handed)."""
+    """Rotate vectors (..., 3) by ``angle`` (radians) about +y (right-handed).
+
+    Examples
+    --------
+    >>> rotate_y(np.array([0.0, 0.0, 1.0]), np.pi / 2).round(12).tolist()
+    [1.0, 0.0, 0.0]
+    """
     c, s = np.cos(angle), np.sin(angle)
     x, y, z = v[..., 0], v[..., 1], v[..., 2]
     return np.stack(np.broadcast_arrays(c * x + s * z, y, -s * x + c * z), axis=-1)
@@ -108,6 +161,11 @@ def rodrigues(v: ArrayLike, k: ArrayLike, angle: ArrayLike) -> Array:
     """Rotate vectors ``v`` (..., 3) about unit axis ``k`` (..., 3) by ``angle`` (radians), counter-clockwise.
 
     v_rot = v cos a + (k x v) sin a + k (k . v)(1 - cos a)   (Rodrigues 1840).
+
+    Examples
+    --------
+    >>> rodrigues([1.0, 0.0, 0.0], [0.0, 0.0, 1.0], np.pi / 2).round(12).tolist()
+    [0.0, 1.0, 0.0]
     """
     v = np.asarray(v, dtype=np.float64)
     k = normalize(k)
@@ -122,6 +180,13 @@ def half_diff_from_dirs(wi: ArrayLike, wo: ArrayLike) -> tuple[Array, Array, Arr
 
     h = normalize(wi + wo); d = wi rotated by -phi_h about z, then by -theta_h about y.
     Finite for normal incidence and theta_h = 0; for wi = -wo (h undefined) h is taken as the normal.
+
+    Examples
+    --------
+    >>> wi, wo = inplane_to_dirs(np.radians(30.0), np.radians(30.0))
+    >>> theta_h, phi_h, theta_d, phi_d = half_diff_from_dirs(wi, wo)
+    >>> [round(float(np.degrees(a)), 6) for a in (theta_h, theta_d)]  # at the mirror direction theta_h = 0
+    [0.0, 30.0]
     """
     wi = normalize(wi)
     wo = normalize(wo)
@@ -139,7 +204,14 @@ def half_diff_from_dirs(wi: ArrayLike, wo: ArrayLike) -> tuple[Array, Array, Arr
 def dirs_from_half_diff(
     theta_h: ArrayLike, phi_h: ArrayLike, theta_d: ArrayLike, phi_d: ArrayLike
 ) -> tuple[Array, Array]:
-    """Inverse of :func:`half_diff_from_dirs`: (wi, wo) unit vectors (..., 3) from radians."""
+    """Inverse of :func:`half_diff_from_dirs`: (wi, wo) unit vectors (..., 3) from radians.
+
+    Examples
+    --------
+    >>> wi, wo = dirs_from_half_diff(0.0, 0.0, np.radians(30.0), np.pi)
+    >>> wi.round(4).tolist(), (wo.round(4) + 0.0).tolist()
+    ([-0.5, 0.0, 0.866], [0.5, 0.0, 0.866])
+    """
     h = sph_to_vec(theta_h, phi_h)
     d = sph_to_vec(theta_d, phi_d)
     wi = rotate_z(rotate_y(d, theta_h), phi_h)
@@ -155,13 +227,24 @@ def thesis_to_vec(elevation: ArrayLike, azimuth: ArrayLike, intensity: ArrayLike
     """Thesis point (elevation "phi" above the surface, azimuth "theta", intensity) -> vector (..., 3).
 
     Angles in radians; the result has length ``intensity``. Elevation = pi/2 - our theta.
+
+    Examples
+    --------
+    >>> thesis_to_vec(np.pi / 2, 0.0, 2.0).round(12).tolist()  # elevation 90 deg: the normal, length 2
+    [0.0, 0.0, 2.0]
     """
     v = sph_to_vec(np.pi / 2 - np.asarray(elevation, dtype=np.float64), azimuth)
     return v * np.asarray(intensity, dtype=np.float64)[..., None]
 
 
 def vec_to_thesis(p: ArrayLike) -> tuple[Array, Array, Array]:
-    """Vector(s) (..., 3) -> thesis (elevation, azimuth, intensity); angles in radians."""
+    """Vector(s) (..., 3) -> thesis (elevation, azimuth, intensity); angles in radians.
+
+    Examples
+    --------
+    >>> [round(float(x), 6) for x in vec_to_thesis([0.0, 0.0, 2.0])]
+    [1.570796, 0.0, 2.0]
+    """
     p = np.asarray(p, dtype=np.float64)
     r = np.linalg.norm(p, axis=-1)
     theta, phi = vec_to_sph(p)
@@ -172,6 +255,11 @@ def thesis_points_from_slice(theta_o: ArrayLike, value: ArrayLike) -> Array:
     """In-plane slice -> the thesis's ordered 2D polar curve, points (N, 2) as (x, z).
 
     Each point is ``value`` times the outgoing direction in the plane of incidence (x to the specular side).
+
+    Examples
+    --------
+    >>> thesis_points_from_slice(np.radians([-30.0, 0.0, 30.0]), [1.0, 2.0, 1.0]).round(4).tolist()
+    [[-0.5, 0.866], [0.0, 2.0], [0.5, 0.866]]
     """
     to = np.asarray(theta_o, dtype=np.float64)
     val = np.asarray(value, dtype=np.float64)
@@ -179,6 +267,13 @@ def thesis_points_from_slice(theta_o: ArrayLike, value: ArrayLike) -> Array:
 
 
 def slice_from_thesis_points(points: ArrayLike) -> tuple[Array, Array]:
-    """Inverse of :func:`thesis_points_from_slice`: (signed theta_o in radians, value) of 2D points (N, 2)."""
+    """Inverse of :func:`thesis_points_from_slice`: (signed theta_o in radians, value) of 2D points (N, 2).
+
+    Examples
+    --------
+    >>> theta_o, value = slice_from_thesis_points([[-0.5, 0.8660254], [0.0, 2.0]])
+    >>> np.degrees(theta_o).round(4).tolist(), value.round(6).tolist()
+    ([-30.0, 0.0], [1.0, 2.0])
+    """
     p = np.asarray(points, dtype=np.float64)
     return np.arctan2(p[..., 0], p[..., 1]), np.hypot(p[..., 0], p[..., 1])

@@ -428,18 +428,32 @@ def drop_blind_spot_zeros(s: Slice, half_width_deg: float = DEFAULT_BLIND_SPOT_D
     """
     if len(s) == 0:
         return s, 0
-    order = np.lexsort((s.theta_o_deg, s.theta_i_deg))
-    zero = np.all(s.values[order] == 0.0, axis=1)
-    ti = s.theta_i_deg[order]
-    near = np.abs(ti + s.theta_o_deg[order]) <= half_width_deg
+    missing = blind_spot_missing(s.theta_i_deg, s.theta_o_deg, s.values, half_width_deg)
+    n = int(missing.sum())
+    return (s.take(~missing) if n else s), n
+
+
+def blind_spot_missing(theta_i_deg: NDArray[np.float64], theta_o_deg: NDArray[np.float64],
+                       values: NDArray[np.float64], half_width_deg: float = DEFAULT_BLIND_SPOT_DEG
+                       ) -> NDArray[np.bool_]:
+    """The blind-spot rule of the whole reconstruction: True for the rows (N,) of ``values`` (N, C) that are
+    missing data, not measured zeros: rows that are all exactly zero where |theta_i + theta_o| <=
+    ``half_width_deg`` (degrees), and the zero rows contiguous with them in theta_o order at the same incidence
+    (a shadow wider than assumed). Used by :func:`drop_blind_spot_zeros` and by revolve's incidence preparation.
+    """
+    n = len(theta_i_deg)
+    if n == 0:
+        return np.zeros(0, dtype=bool)
+    order = np.lexsort((theta_o_deg, theta_i_deg))
+    zero = np.all(np.asarray(values)[order] == 0.0, axis=1)
+    ti = np.asarray(theta_i_deg)[order]
+    near = np.abs(ti + np.asarray(theta_o_deg)[order]) <= half_width_deg
     change = np.r_[True, (zero[1:] != zero[:-1]) | (ti[1:] != ti[:-1])]
     run = np.cumsum(change) - 1
     run_near = np.bincount(run, weights=(near & zero).astype(float)) > 0
-    missing_sorted = zero & run_near[run]
-    missing = np.zeros(len(s), dtype=bool)
-    missing[order] = missing_sorted
-    n = int(missing.sum())
-    return (s.take(~missing) if n else s), n
+    missing = np.zeros(n, dtype=bool)
+    missing[order] = zero & run_near[run]
+    return missing
 
 
 def _merge(slices: Sequence[Slice]) -> Slice:

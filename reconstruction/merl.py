@@ -62,20 +62,38 @@ class MerlError(ValueError):
 
 
 def theta_h_index(theta_h: ArrayLike) -> NDArray[np.intp]:
-    """Cell index of theta_h (radians): int(sqrt(theta_h / (pi/2)) * 90), 0 for theta_h <= 0, in [0, 89]."""
+    """Cell index of theta_h (radians): int(sqrt(theta_h / (pi/2)) * 90), 0 for theta_h <= 0, in [0, 89].
+
+    Examples
+    --------
+    >>> theta_h_index(np.radians([0.0, 1.0, 45.0, 89.9])).tolist()
+    [0, 9, 63, 89]
+    """
     th = np.asarray(theta_h, dtype=np.float64)
     u = np.sqrt(np.maximum(th, 0.0) / (np.pi / 2)) * N_TH
     return np.clip(np.floor(u), 0, N_TH - 1).astype(np.intp)
 
 
 def theta_d_index(theta_d: ArrayLike) -> NDArray[np.intp]:
-    """Cell index of theta_d (radians): int(theta_d / (pi/2) * 90) in [0, 89]."""
+    """Cell index of theta_d (radians): int(theta_d / (pi/2) * 90) in [0, 89].
+
+    Examples
+    --------
+    >>> theta_d_index(np.radians([0.0, 30.5, 89.9])).tolist()
+    [0, 30, 89]
+    """
     td = np.asarray(theta_d, dtype=np.float64)
     return np.clip(np.floor(td / (np.pi / 2) * N_TD), 0, N_TD - 1).astype(np.intp)
 
 
 def phi_d_index(phi_d: ArrayLike) -> NDArray[np.intp]:
-    """Cell index of phi_d (radians): fold phi_d < 0 by +pi, then int(phi_d / pi * 180) in [0, 179]."""
+    """Cell index of phi_d (radians): fold phi_d < 0 by +pi, then int(phi_d / pi * 180) in [0, 179].
+
+    Examples
+    --------
+    >>> phi_d_index(np.radians([0.0, 90.0, -90.0, 179.9])).tolist()  # phi_d < 0 folds by +180 deg
+    [0, 90, 90, 179]
+    """
     pd = np.asarray(phi_d, dtype=np.float64)
     pd = np.where(pd < 0, pd + np.pi, pd)
     return np.clip(np.floor(pd / np.pi * N_PD), 0, N_PD - 1).astype(np.intp)
@@ -92,7 +110,16 @@ def _continuous_index(theta_h: Array, theta_d: Array, phi_d: Array) -> tuple[Arr
 
 @lru_cache(maxsize=1)
 def cell_angles() -> tuple[Array, Array, Array]:
-    """Bin-centre angles (theta_h, theta_d, phi_d) in radians, each broadcastable to (90, 90, 180)."""
+    """Bin-centre angles (theta_h, theta_d, phi_d) in radians, each broadcastable to (90, 90, 180).
+
+    Examples
+    --------
+    >>> th, td, pd = cell_angles()
+    >>> th.shape, td.shape, pd.shape
+    ((90, 1, 1), (1, 90, 1), (1, 1, 180))
+    >>> round(float(np.degrees(td[0, 0, 0])), 6), round(float(np.degrees(pd[0, 0, 1])), 6)
+    (0.5, 1.5)
+    """
     i = np.arange(N_TH, dtype=np.float64)
     th = ((i + 0.5) / N_TH) ** 2 * (np.pi / 2)
     td = (np.arange(N_TD) + 0.5) / N_TD * (np.pi / 2)
@@ -101,7 +128,14 @@ def cell_angles() -> tuple[Array, Array, Array]:
 
 
 def cell_to_dirs(i: ArrayLike, j: ArrayLike, k: ArrayLike) -> tuple[Array, Array]:
-    """Direction pairs (wi, wo), (..., 3), standing for cells (i, j, k): their bin centres with phi_h = 0."""
+    """Direction pairs (wi, wo), (..., 3), standing for cells (i, j, k): their bin centres with phi_h = 0.
+
+    Examples
+    --------
+    >>> wi, wo = cell_to_dirs(0, 30, 90)
+    >>> wi.shape, bool(wi[2] > 0 and wo[2] > 0)
+    ((3,), True)
+    """
     i = np.asarray(i, dtype=np.float64)
     j = np.asarray(j, dtype=np.float64)
     k = np.asarray(k, dtype=np.float64)
@@ -112,7 +146,14 @@ def cell_to_dirs(i: ArrayLike, j: ArrayLike, k: ArrayLike) -> tuple[Array, Array
 
 
 def dirs_to_cell(wi: ArrayLike, wo: ArrayLike) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp]]:
-    """Cell indices (i, j, k) of direction pairs (..., 3), with the reference reader's index functions."""
+    """Cell indices (i, j, k) of direction pairs (..., 3), with the reference reader's index functions.
+
+    Examples
+    --------
+    >>> wi, wo = cell_to_dirs(10, 30, 90)
+    >>> [int(x) for x in dirs_to_cell(wi, wo)]
+    [10, 30, 90]
+    """
     th, _, td, pd = half_diff_from_dirs(wi, wo)
     return theta_h_index(th), theta_d_index(td), phi_d_index(pd)
 
@@ -150,7 +191,14 @@ def _cell_dirs() -> tuple[Array, Array]:
 
 
 def valid_mask() -> NDArray[np.bool_]:
-    """(90, 90, 180) bool: cells whose bin-centre directions both lie above the horizon."""
+    """(90, 90, 180) bool: cells whose bin-centre directions both lie above the horizon.
+
+    Examples
+    --------
+    >>> m = valid_mask()
+    >>> m.shape, bool(m[0, 0, 0]), bool(m[89, 89, 0])
+    ((90, 90, 180), True, False)
+    """
     wi, wo = _cell_dirs()
     return (wi[..., 2] > 0) & (wo[..., 2] > 0)
 
@@ -164,6 +212,14 @@ def lookup(table: ArrayLike, wi: ArrayLike, wo: ArrayLike, interpolate: bool = F
     ``interpolate=False``: the nearest cell, as the reference reader does. ``interpolate=True``: trilinear
     between bin centres (phi_d wraps with period pi; theta_h and theta_d clamp at the ends), ignoring NaN
     neighbours; NaN only where every neighbour is NaN. Directions below the horizon give NaN.
+
+    Examples
+    --------
+    >>> t = np.full(SHAPE, 1.0 / np.pi)  # a white Lambertian table
+    >>> from reconstruction.geometry import inplane_to_dirs
+    >>> wi, wo = inplane_to_dirs(np.radians([30.0, 60.0]), np.radians([10.0, -20.0]))
+    >>> (lookup(t, wi, wo) * np.pi).round(12).tolist()
+    [[1.0, 1.0, 1.0], [1.0, 1.0, 1.0]]
     """
     t = np.asarray(table, dtype=np.float64)
     if t.shape != SHAPE:
@@ -205,6 +261,14 @@ def brdf_of(table: ArrayLike, interpolate: bool = True) -> Callable[[Array, Arra
     """The table as a vectorised BRDF ``f(wi, wo) -> (N, 3)`` (1/sr), 0 where it has no value.
 
     ``interpolate=False`` reads the nearest cell, as renderers that load MERL files do.
+
+    Examples
+    --------
+    >>> f = brdf_of(np.full(SHAPE, 0.25))
+    >>> from reconstruction.geometry import inplane_to_dirs
+    >>> wi, wo = inplane_to_dirs(np.radians([30.0]), np.radians([-70.0]))
+    >>> f(wi, wo).round(12).tolist()
+    [[0.25, 0.25, 0.25]]
     """
     t = np.asarray(table, dtype=np.float64)
 
@@ -305,6 +369,12 @@ def tabulate(
     narrower than a few cells), and keeps its centre value elsewhere: cell averages where they matter
     (sharp lobes) at a fraction of the cost.
     Cells whose bin-centre directions lie below the horizon are NaN.
+
+    Examples
+    --------
+    >>> t = tabulate(lambda wi, wo: np.full((len(wi), 3), 0.5 / np.pi))
+    >>> t.shape, float(np.nanmax(t) * np.pi), int(np.isnan(t).sum() // 3)  # NaN below the horizon
+    ((3, 90, 90, 180), 0.5, 361784)
     """
     valid = valid_mask()
     wi, wo = _cell_dirs()
@@ -357,6 +427,14 @@ def write(path: str | Path, f: ArrayLike, require_above_horizon: bool = False) -
     NaN cells are written as -1 (invalid). Infinite or negative values raise :class:`MerlError`; with
     ``require_above_horizon`` so does a NaN in any cell above the horizon. The file is written to a temporary
     name in the same folder, fsynced, then renamed, so a failure never leaves a half-written file.
+
+    Examples
+    --------
+    >>> import tempfile, os
+    >>> path = os.path.join(tempfile.mkdtemp(), "grey.binary")
+    >>> write(path, np.full(SHAPE, 0.1))
+    >>> os.path.getsize(path) == FILE_SIZE
+    True
     """
     path = Path(path)
     t = np.asarray(f)
@@ -395,6 +473,15 @@ def read(path: str | Path, max_value: float | None = MAX_CELL_VALUE) -> Array:
     Cells stored as -1 are the format's invalid marker; other negative cells are also read as NaN, with a
     :class:`MerlWarning` saying how many. A cell above ``max_value`` (1/sr; default :data:`MAX_CELL_VALUE`) is a
     :class:`MerlError` (the file is not a BRDF table); ``max_value=None`` accepts any finite value.
+
+    Examples
+    --------
+    >>> import tempfile, os
+    >>> path = os.path.join(tempfile.mkdtemp(), "grey.binary")
+    >>> write(path, np.where(valid_mask(), 0.1, np.nan)[None].repeat(3, axis=0))
+    >>> t = read(path)
+    >>> t.shape, round(float(np.nanmax(t)), 12), bool(np.isnan(t[0, 89, 89, 0]))
+    ((3, 90, 90, 180), 0.1, True)
     """
     path = Path(path)
     try:

@@ -1,21 +1,28 @@
 """The registry of reconstruction methods: one entry per method, used by the CLI, batch, the study and ``auto``.
 
-A method is a :class:`Method`: a name, a one-line summary and a ``build(slice, options)`` function that returns a
-:class:`~reconstruction.base.Reconstruction`. Adding a method is one module and one :func:`register` call here;
-``gonio-reconstruct --method`` and ``auto``'s cross-validation pick it up from :data:`REGISTRY`.
+A method is a :class:`Method`: a name, a one-line summary, a ``build(slice, options, progress)`` function that
+returns a :class:`~reconstruction.base.Reconstruction`, and its own options schema (a :mod:`msgspec` struct:
+:class:`FitOptions`, :class:`RevolveOptions`, ...; ``docs/schema/method-options.json``). ``build`` receives the
+common :class:`Options` of a command line and reads its own options from them (:meth:`Method.options_from`).
+Adding a method is one module and one :func:`register` call here; ``gonio-reconstruct --method``, ``--batch``, the
+study and ``auto``'s cross-validation pick it up from :data:`REGISTRY`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
-from typing import Any
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Annotated, Any, Literal
+
+import msgspec
+from msgspec import Meta
 
 from .base import Reconstruction, ReconstructionError
 from .scene import Scene
 from .slicefile import Slice
 
-__all__ = ["Method", "Options", "REGISTRY", "register", "get", "names"]
+__all__ = ["Method", "Options", "REGISTRY", "register", "get", "names", "NoOptions", "FitOptions", "RevolveOptions",
+           "BivariateOptions", "options_schema"]
 
 
 @dataclass
@@ -30,13 +37,78 @@ class Options:
     cos_power: float | None = None  # bivariate: None = chosen from the data
 
 
+class NoOptions(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """A method without options of its own."""
+
+
+Fill = Annotated[Literal["interpolate", "zero"], Meta(
+    description="holes (blind spot, missing samples): interpolated, or left at 0 as the thesis does (--fill)")]
+LobeKind = Literal["lambert", "ggx", "beckmann", "retro", "fresnel"]
+
+
+class FitOptions(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Options of ``fit`` (the scene, common to every method, is passed beside them)."""
+
+    lobes: Annotated[list[LobeKind] | None, Meta(
+        description="lobe kinds the fit may use (--lobes); default all, or the scene's list")] = None
+
+
+class RevolveOptions(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Options of ``revolve``."""
+
+    axis: Annotated[Literal["auto", "vertical", "pca"], Meta(
+        description="axis of each sub-curve: vertical through its top, first principal component, or chosen per "
+                    "sub-curve (--axis)")] = "auto"
+    smoothing: Annotated[float, Meta(ge=0.0, description="Gaussian sigma (deg of theta_o) before the sub-curve "
+                                                         "split (--smoothing); default 5")] | None = None
+    fill: Fill = "interpolate"
+
+
+class BivariateOptions(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Options of ``bivariate``."""
+
+    fill: Fill = "interpolate"
+    cos_power: Annotated[float, Meta(gt=0.0, description="power P of the cos^P(theta_d) weight of the excess; "
+                                                         "default: chosen from the data")] | None = None
+
+
 @dataclass(frozen=True)
 class Method:
-    """One reconstruction method: ``build(slice, options, progress)`` -> Reconstruction."""
+    """One reconstruction method: ``build(slice, options, progress)`` -> Reconstruction.
+
+    ``options``: the method's own options schema (a msgspec struct); ``common``: which of them come from which
+    field of the common :class:`Options` (the command line's flags). ``build`` takes its options from the common
+    ones itself; the method's function checks their values with its own messages.
+    """
 
     name: str
     summary: str
     build: Callable[[Slice, Options, Callable[[str], None] | None], Reconstruction]
+    options: type[msgspec.Struct] = NoOptions
+    common: Mapping[str, str] = field(default_factory=dict)
+
+    def options_from(self, opts: Options) -> Any:
+        """This method's options, taken from the common ``opts`` and validated against its schema."""
+        return self.parse_options({k: getattr(opts, v) for k, v in self.common.items()})
+
+    def parse_options(self, raw: Mapping[str, Any]) -> Any:
+        """Validate ``raw`` (e.g. a table of a study or a script) against the method's schema;
+        :class:`ReconstructionError` naming the method and the option otherwise."""
+        try:
+            return msgspec.convert(dict(raw), self.options)
+        except msgspec.ValidationError as e:
+            raise ReconstructionError(f"method {self.name}: options: {e}") from None
+
+
+def options_schema() -> dict[str, Any]:
+    """JSON Schema of every registered method's options (``docs/schema/method-options.json``)."""
+    _, defs = msgspec.json.schema_components([m.options for m in REGISTRY.values()],
+                                             ref_template="#/$defs/{name}")
+    return {"$schema": "https://json-schema.org/draft/2020-12/schema", "title": "gonio-brdf method options",
+            "description": "The options of each reconstruction method (reconstruction.methods), by method name.",
+            "type": "object", "additionalProperties": False,
+            "properties": {m.name: {"$ref": f"#/$defs/{m.options.__name__}", "description": m.summary}
+                           for m in REGISTRY.values()}, "$defs": defs}
 
 
 REGISTRY: dict[str, Method] = {}
@@ -66,7 +138,8 @@ def names() -> tuple[str, ...]:
 def _fit(s: Slice, o: Options, progress: Callable[[str], None] | None) -> Reconstruction:
     from .fit import reconstruct_fit
 
-    return reconstruct_fit(s, scene=o.scene, lobes=o.lobes, progress=progress)
+    opt = FitOptions(lobes=o.lobes)  # type: ignore[arg-type] # checked by reconstruct_fit, with its own message
+    return reconstruct_fit(s, scene=o.scene, lobes=opt.lobes, progress=progress)
 
 
 def _microfacet(s: Slice, o: Options, progress: Callable[[str], None] | None) -> Reconstruction:
@@ -78,22 +151,26 @@ def _microfacet(s: Slice, o: Options, progress: Callable[[str], None] | None) ->
 def _revolve(s: Slice, o: Options, progress: Callable[[str], None] | None) -> Reconstruction:
     from .revolve import reconstruct_revolve
 
+    opt = RevolveOptions(axis=o.revolve_axis, smoothing=o.revolve_smoothing, fill=o.fill)  # type: ignore[arg-type]
     # reciprocal: f(wi, wo) and f(wo, wi) averaged, so the BRDF passes the reciprocity check
-    kw: dict[str, Any] = {"axis": o.revolve_axis, "fill": o.fill, "reciprocal": True}
-    if o.revolve_smoothing is not None:
-        kw["smoothing"] = o.revolve_smoothing
+    kw: dict[str, Any] = {"axis": opt.axis, "fill": opt.fill, "reciprocal": True}
+    if opt.smoothing is not None:
+        kw["smoothing"] = opt.smoothing
     return reconstruct_revolve(s, **kw)
 
 
 def _bivariate(s: Slice, o: Options, progress: Callable[[str], None] | None) -> Reconstruction:
     from .bivariate import reconstruct_bivariate
 
-    return reconstruct_bivariate(s, fill=o.fill, cos_power=o.cos_power)
+    opt = BivariateOptions(fill=o.fill, cos_power=o.cos_power)  # type: ignore[arg-type]
+    return reconstruct_bivariate(s, fill=opt.fill, cos_power=opt.cos_power)
 
 
 register(Method("fit", "analytic lobes (lambert, ggx/beckmann with Fresnel, retro) chosen by BIC, energy-constrained",
-                _fit))
+                _fit, FitOptions, {"lobes": "lobes"}))
 register(Method("microfacet", "non-parametric microfacet: tabulated NDF, Smith G from it, physical Fresnel",
                 _microfacet))
-register(Method("revolve", "the thesis's solids of revolution, extended to every incidence", _revolve))
-register(Method("bivariate", "f(theta_h, theta_d) interpolated between the measured lines", _bivariate))
+register(Method("revolve", "the thesis's solids of revolution, extended to every incidence", _revolve,
+                RevolveOptions, {"axis": "revolve_axis", "smoothing": "revolve_smoothing", "fill": "fill"}))
+register(Method("bivariate", "f(theta_h, theta_d) interpolated between the measured lines", _bivariate,
+                BivariateOptions, {"fill": "fill", "cos_power": "cos_power"}))

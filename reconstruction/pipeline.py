@@ -1,4 +1,6 @@
-"""Method dispatch (through :mod:`reconstruction.methods`), ``auto``, and tabulation of the result.
+"""The reconstruction pipeline: method dispatch (through :mod:`reconstruction.methods`), ``auto``, tabulation of the
+result, and :func:`run`, the whole way from input files to a table, a preview and a report (a typed :class:`Job`;
+``gonio-reconstruct`` and its ``--batch`` call it).
 
 ``auto`` chooses by prediction, never by a method's residual on its own samples:
 
@@ -20,8 +22,12 @@ The report's ``cross_validation`` section holds the scheme, every method's held-
 
 from __future__ import annotations
 
+import os
+import time
 from collections.abc import Callable
-from typing import Any
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -37,7 +43,8 @@ from .slicefile import Slice
 
 Array = NDArray[np.float64]
 
-__all__ = ["METHODS", "Options", "reconstruct", "tabulate", "max_albedo"]
+__all__ = ["METHODS", "Options", "reconstruct", "tabulate", "max_albedo", "Job", "Progress", "run", "ImplausibleError",
+           "check_output", "implausible_message"]
 
 METHODS = ("auto", *REGISTRY)
 CV_MAX_SAMPLES = 3000
@@ -169,3 +176,218 @@ def tabulate(rec: Reconstruction, supersample: tuple[int, int, int] | str | None
         raise ReconstructionError(f"method {rec.method}: {int(neg.sum())} table cell(s) are negative (min "
                                   f"{float(t[neg].min()):.3g})")
     return t
+
+
+# --- the end-to-end pipeline: input files -> table, preview, report ---------------------------------------------
+
+
+class ImplausibleError(ReconstructionError):
+    """The reconstruction fails a plausibility check; nothing was written."""
+
+
+@dataclass(frozen=True)
+class Job:
+    """One reconstruction, from input files to outputs: what one ``gonio-reconstruct`` command line asks.
+
+    ``inputs``: slice files or generic tables (merged); ``out``: the MERL table (``.binary``); ``preview``: an
+    ``.exr`` (and the PNG beside it); ``report``: the JSON report. The other fields are the command's flags of the
+    same names (angles in degrees): ``columns`` as ``"theta_i=NAME,theta_o=NAME"``, ``lobes`` as kinds,
+    ``axis`` / ``smoothing`` for revolve, ``supersample`` as (nh, nd, np) or ``"adaptive"``.
+    """
+
+    inputs: tuple[str, ...]
+    out: str
+    method: str = "auto"
+    preview: str | None = None
+    report: str | None = None
+    supersample: tuple[int, int, int] | str | None = None
+    quantity: str | None = None
+    columns: str | None = None
+    blind_spot_deg: float | None = None
+    illuminant: str = "D65"
+    scene: str | None = None
+    lobes: tuple[str, ...] | None = None
+    fill: str = "interpolate"
+    axis: str = "auto"
+    smoothing: float | None = None
+    allow_implausible: bool = False
+    html: str | None = None
+
+    @property
+    def steps(self) -> list[str]:
+        """The steps :func:`run` reports to its ``progress`` (for a progress bar's total)."""
+        return (["read", "colour", "reconstruct", "tabulate", "write", "checks"] + (["preview"] if self.preview else [])
+                + (["html"] if self.html else []))
+
+
+class Progress(Protocol):
+    """What :func:`run` tells about its progress: a step (or a sub-step, a method being fitted) begins; one of
+    :attr:`Job.steps` is done."""
+
+    def begin(self, label: str) -> None: ...
+
+    def done(self, step: str) -> None: ...
+
+
+def check_output(path: Path, suffix: str | None, flag: str) -> None:
+    """An output path must name a file (``suffix``) in an existing, writable folder; checked before any work."""
+    if suffix is not None and path.suffix.lower() != suffix:
+        raise ReconstructionError(f"{flag} {path}: expected a file name ending in {suffix}")
+    if path.is_dir():
+        raise ReconstructionError(f"{flag} {path}: is a folder; give a file name"
+                                  + (f" ending in {suffix}" if suffix else ""))
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise ReconstructionError(f"{flag} {path}: the folder {parent} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise ReconstructionError(f"{flag} {path}: the folder {parent} is not writable")
+    if path.exists() and not path.is_file():
+        raise ReconstructionError(f"{flag} {path}: exists and is not a regular file")
+
+
+def implausible_message(method: str, checks: dict[str, Any]) -> str:
+    """One line: which plausibility checks of ``checks`` failed, with figures, and what to try."""
+    why = []
+    if not checks["non_negative"]["pass"]:
+        c = checks["non_negative"]
+        why.append(f"non_negative: {c['missing_cells']} cell(s) without a value, minimum {c['min_1_per_sr']:.3g} 1/sr")
+    if not checks["albedo"]["pass"]:
+        c = checks["albedo"]
+        alb = np.asarray(c["albedo"], dtype=np.float64)
+        k = int(np.argmax(alb.max(axis=1)))
+        why.append(f"albedo: the table reflects more light than it receives (directional albedo {alb.max():.3g} > "
+                   f"1 + {c['tolerance']:g} at theta_i = {c['theta_i_deg'][k]:g} deg)")
+    if not checks["reciprocity"]["pass"]:
+        why.append(f"reciprocity: relative error {checks['reciprocity']['relative_error']:.3g}")
+    return (f"method {method}: the table fails the plausibility check(s) " + "; ".join(why)
+            + "; nothing written. Try --method fit or microfacet (energy-conserving by construction), slices at "
+              "more incidences, or --allow-implausible to write it anyway")
+
+
+def _check_outputs(job: Job) -> None:
+    check_output(Path(job.out), ".binary", "--out")
+    if job.preview:
+        check_output(Path(job.preview), ".exr", "--preview")
+        png = Path(job.preview).with_suffix(".png")
+        if png.is_dir():
+            raise ReconstructionError(f"--preview {job.preview}: {png} (the PNG beside it) is a folder")
+    if job.report:
+        check_output(Path(job.report), None, "--report")
+    if job.html:
+        check_output(Path(job.html), ".html", "--html")
+
+
+def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
+    """Reconstruct ``job``: read and merge the inputs, convert colour, reconstruct with the job's method (through
+    the registry), tabulate, check plausibility, write the table (atomically), the preview and the report.
+    Returns the report. Raises :class:`ImplausibleError` (nothing written) for a table that fails a plausibility
+    check unless ``job.allow_implausible``; bad input is a :class:`ReconstructionError` (or a reader's error)
+    naming the file, checked output paths before any work."""
+    from . import colour, inputs, merl, preview, report
+    from .scene import LOBE_KINDS, load_scene
+
+    _check_outputs(job)
+    out = Path(job.out)
+    lobes = list(job.lobes) if job.lobes else None
+    if lobes:
+        unknown = [x for x in lobes if x not in LOBE_KINDS]
+        if unknown:
+            raise ReconstructionError(f"--lobes: unknown kind(s) {unknown}; expected {', '.join(LOBE_KINDS)}")
+    timings: dict[str, float] = {}
+
+    def begin(label: str) -> float:
+        if progress is not None:
+            progress.begin(label)
+        return time.perf_counter()
+
+    def done(step: str, t0: float) -> None:
+        timings[step] = time.perf_counter() - t0
+        if progress is not None:
+            progress.done(step)
+
+    t0 = begin("reading inputs")
+    loaded = inputs.load_inputs(list(job.inputs), quantity=job.quantity, columns=inputs.parse_columns(job.columns),
+                                blind_spot_deg=job.blind_spot_deg)
+    scene = None
+    if job.scene:
+        sp = Path(job.scene)
+        if sp.exists() and not sp.is_file():
+            raise ReconstructionError(f"--scene {sp}: not a regular file, expected a scene file (TOML)")
+        try:
+            scene = load_scene(sp)
+        except RecursionError:
+            raise ReconstructionError(f"--scene {sp}: invalid TOML: nested too deeply") from None
+    done("read", t0)
+    t0 = begin("colour")
+    try:
+        working, colour_info = colour.to_working_channels(loaded.slice, job.illuminant)
+    except ReconstructionError as e:  # e.g. spectral channels outside the observer: say which input
+        raise ReconstructionError(f"{', '.join(loaded.files)}: {e}") from None
+    done("colour", t0)
+    t0 = begin("reconstructing")
+    opts = Options(scene=scene, fill=job.fill, lobes=lobes, revolve_axis=job.axis, revolve_smoothing=job.smoothing)
+    rec, choice = reconstruct(working, job.method, opts,
+                              progress=(lambda name: progress.begin(f"fitting {name}")) if progress else None)
+    done("reconstruct", t0)
+    t0 = begin("tabulating" + (f" (supersample {job.supersample})" if job.supersample else ""))
+    table = tabulate(rec, job.supersample)
+    done("tabulate", t0)
+    t0 = begin("plausibility checks")
+    checks = report.plausibility(rec, table)
+    done("checks", t0)
+    if not checks["all_pass"] and not job.allow_implausible:
+        raise ImplausibleError(implausible_message(rec.method, checks))
+    t0 = begin("writing table")
+    merl.write(out, table, require_above_horizon=True)
+    done("write", t0)
+    outputs: dict[str, Any] = {"table": str(out), "table_bytes": out.stat().st_size}
+    if job.preview:
+        t0 = begin("preview")
+        outputs["preview"] = preview.write_preview(job.preview, table)
+        done("preview", t0)
+    rep = report.build_report(
+        rec=rec, choice=choice, working=working, table=table, checks=checks,
+        inputs={"files": loaded.files, "quantities": loaded.quantities, "notes": loaded.notes,
+                "columns": job.columns, "scene": job.scene},
+        colour=colour_info,
+        table_info={"cells": 3 * merl.N_CELLS, "values": "cell averages" if job.supersample else "bin centres",
+                    "supersample": (list(job.supersample) if isinstance(job.supersample, tuple)
+                                    else job.supersample),
+                    "bin_centres": "theta_h = ((i + 0.5) / 90)^2 * 90 deg, theta_d = j + 0.5 deg, "
+                                   "phi_d = k + 0.5 deg"},
+        outputs=outputs, timings=timings, dropped_blind_spot=loaded.dropped_blind_spot)
+    if not checks["all_pass"]:
+        rep["implausible_table_written"] = "written with --allow-implausible: " + implausible_message(rec.method,
+                                                                                                      checks)
+    if job.html:
+        outputs["html"] = str(job.html)
+        rep["outputs"]["html"] = str(job.html)
+    if job.report:
+        outputs["report"] = str(job.report)
+        rep["outputs"]["report"] = str(job.report)
+        report.write_json(job.report, rep)
+    if job.html:
+        t0 = begin("html report")
+        _write_html(job, rep, working, rec, table, choice, opts)
+        rep["timings_s"]["html"] = round(time.perf_counter() - t0, 4)
+        done("html", t0)
+    return rep
+
+
+def _write_html(job: Job, rep: dict[str, Any], working: Slice, rec: Reconstruction, table: Array,
+                choice: dict[str, Any], opts: Options) -> None:
+    """The HTML report of ``job``: every other registered method is built on the same samples for comparison."""
+    from . import htmlreport
+
+    ordered = working.sorted()
+    others: dict[str, Reconstruction] = {}
+    for name, m in REGISTRY.items():
+        if name != rec.method:
+            try:
+                others[name] = m.build(ordered, opts, None)
+            except (ReconstructionError, ValueError):
+                pass
+    held = choice.get("held_out_predictions", {}).get(rec.method)
+    title = str(working.meta.get("material") or Path(job.out).stem)
+    htmlreport.write_html(job.html, report=rep, working=ordered, rec=rec, table=table, alternatives=others,
+                          held_out=held, title=title)

@@ -40,19 +40,19 @@ from pathlib import Path
 from typing import Any
 
 from .base import ReconstructionError
+from .schema.scene import LOBE_KINDS, ErrorBudget, SceneTable, keys
 
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover
     import tomli as tomllib
 
-__all__ = ["Scene", "SceneError", "LOBE_KINDS", "load_scene", "scene_from_dict"]
+__all__ = ["Scene", "SceneError", "LOBE_KINDS", "RECONSTRUCTION_DEFAULT_RANGE_DEG", "CAPTURE_DEFAULT_RANGE_DEG",
+           "load_scene", "scene_from_dict"]
 
-#: Lobe kinds a scene may allow (the fit's vocabulary; ``fresnel`` allows Schlick Fresnel on microfacet lobes).
-LOBE_KINDS = ("lambert", "ggx", "beckmann", "retro", "fresnel")
-
-_SCENE_KEYS = ("name", "theta_i_deg", "theta_o_deg", "angular_resolution_deg", "lobes", "error_budget")
-_BUDGET_KEYS = ("relative_rmse", "relative_sigma")
+#: The keys of [scene] and [scene.error_budget]: the scene file's schema (reconstruction.schema.scene).
+_SCENE_KEYS = keys(SceneTable)
+_BUDGET_KEYS = keys(ErrorBudget)
 
 Range = tuple[float, float]
 
@@ -60,6 +60,14 @@ Range = tuple[float, float]
 class SceneError(ReconstructionError):
     """A scene file is invalid; the message names the file and the key. (A :class:`ValueError`, through
     :class:`~reconstruction.base.ReconstructionError`.)"""
+
+
+#: theta_i and theta_o range (degrees) that the reconstruction assumes for a range a scene file does not give:
+#: what a fit is judged over (reconstruction.fit, reconstruction.crossval).
+RECONSTRUCTION_DEFAULT_RANGE_DEG = (0.0, 85.0)
+#: ... and that a capture plan assumes: the whole hemisphere (acquisition.plan.Plan.restrict). The two differ on
+#: purpose: a capture measures what it can reach; a fit is not asked to be judged at grazing angles.
+CAPTURE_DEFAULT_RANGE_DEG = (0.0, 89.999)
 
 
 @dataclass(frozen=True)

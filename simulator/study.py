@@ -70,7 +70,19 @@ NOISE: dict[str, dict[str, float]] = {
     "high": {"source_power": 2.0e5, "read_noise": 20.0},
 }
 
-METHODS: tuple[str, ...] = ("fit", "microfacet", "bivariate", "revolve", "auto")
+#: The order in which the study lists the methods of the registry (a method registered later comes after them).
+_METHOD_ORDER = ("fit", "microfacet", "bivariate", "revolve")
+
+
+def _study_methods() -> tuple[str, ...]:
+    """Every method of the reconstruction's registry, then ``auto``."""
+    from reconstruction.methods import names
+
+    known = [m for m in _METHOD_ORDER if m in names()] + [m for m in names() if m not in _METHOD_ORDER]
+    return (*known, "auto")
+
+
+METHODS: tuple[str, ...] = _study_methods()
 BUDGETS: tuple[float, ...] = (0.02, 0.05, 0.10)
 FIELDS = ["material", "step_deg", "n_slices", "repeats", "plan", "noise", "method", "method_used", "status",
           "samples", "capture_time_s", "capture_wall_s", "recon_time_s", "rel_rmse_cos", "rmse80", "log_rmse",

@@ -1,61 +1,30 @@
-"""The ``fit`` method: analytic lobes fitted to in-plane slices, the number and kind of lobes chosen by BIC.
-
-Model: a sum of lobes from :mod:`reconstruction.models` (so the result is a :class:`~reconstruction.models.Material`):
-``lambert`` (albedo), ``ggx`` / ``beckmann`` (alpha, specular, optional Schlick Fresnel f0) and ``retro``
-(exponent, amount). Geometry parameters (alpha, f0, exponent) are shared by all channels; every lobe has one
-amplitude per channel.
-
-Fit (scipy.optimize.least_squares, method "trf"):
-
-* parametrisation: log alpha, logit f0, log exponent, log amplitudes. With Fresnel, the amplitude is the
-  normal-incidence reflectance specular * f0 (well determined) and the report gives specular = amplitude / f0;
-* residuals (f_model - f) / sigma with sigma = sqrt(std^2 + (relative_sigma f_model)^2 + floor^2): ``std`` from
-  the samples, a relative term for calibration and model error (1 % by default) and a floor of 1e-4 of the
-  channel's peak that keeps weights finite for noise-free data. The relative term is taken from the model's value
-  (a first pass uses the measured value, a warm-started second pass the model's), so an outlying sample does not
-  widen its own error bar;
-* robust loss ``soft_l1`` with ``f_scale`` = 2 sigma (outliers beyond ~2 sigma weigh linearly, not quadratically);
-* start: a grid over the geometry parameters with non-negative linear least squares for the amplitudes
-  (variable projection), then the joint non-linear refinement;
-* uncertainties: covariance (J^T J)^-1 * max(1, reduced chi^2) from the Jacobian at the solution, carried to the
-  reported parameters (alpha, f0, albedo, specular, ...) by the delta method.
-
-Model selection: candidates are fitted stepwise (lambert, ggx, beckmann, lambert + ggx, lambert + beckmann; then the
-best of these for each distribution with Fresnel, with a retro lobe, with both, and with a lambert lobe added) and
-the one with the lowest BIC = robust chi^2 + k ln(n) is kept, so a lobe stays only when the data require it.
-
-Scene files (``--scene configs/scenes/NAME.toml``, :mod:`reconstruction.scene`) say what the reconstruction is
-for: the lobe kinds allowed, the angular resolution (lobes narrower than it are not resolved: alpha >=
-radians(resolution) / 2.6), the relative_sigma used in the weights and an error budget (relative_rmse: the simplest
-candidate within it of the BIC choice over the scene's directions is used). A range the scene file does not give
-is taken as 0-85 deg here (:data:`SCENE_DEFAULT_RANGE_DEG`).
+"""The fit's model and its least-squares fit: candidate lobe structures (:class:`LobeSpec`), the fitting problem,
+:func:`fit_model` (one structure fitted, energy-constrained) and :class:`FitResult` (parameters with uncertainties).
+See :mod:`reconstruction.fit` for the method as a whole.
 """
+
 
 from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares, nnls
-from threadpoolctl import threadpool_limits
 
-from .base import ReconstructionError
-from .energy import microfacet_albedo, retro_albedo
-from .geometry import inplane_to_dirs, sph_to_vec
-from .metrics import relative_rmse_cos_dirs
-from .models import Colour, Lambert, Lobe, Material, Microfacet, Retro
-from .scene import LOBE_KINDS, Scene
-from .slicefile import Slice
+from ..base import ReconstructionError
+from ..energy import microfacet_albedo, retro_albedo
+from ..geometry import inplane_to_dirs
+from ..models import Colour, Lambert, Lobe, Material, Microfacet, Retro
+from ..slicefile import Slice
 
 Array = NDArray[np.float64]
 
-__all__ = ["LobeSpec", "FitResult", "FitReconstruction", "fit_model", "reconstruct_fit", "scene_alpha_min",
-           "scene_directions", "LOBE_KINDS", "SCENE_DEFAULT_RANGE_DEG"]
+__all__ = ["LobeSpec", "FitResult", "fit_model", "gap_bounds", "f0_of_ior", "ior_of_f0", "model_name"]
 
 ALPHA_MIN, ALPHA_MAX = 0.005, 1.5
 F0_MIN, F0_MAX = 0.002, 0.998
@@ -67,47 +36,7 @@ LOG_AMP_MIN, LOG_AMP_MAX = math.log(1e-12), 0.0
 ENERGY_INCIDENCES = np.radians(np.arange(0.0, 89.0, 4.0))
 FLOOR = 1e-4  # of each channel's peak |f|
 SELECTION_MAX_VALUES = 2400  # residuals (samples x channels) beyond which candidates are compared on a subset
-REPORT_MAX_SAMPLES = 5000  # per-sample residuals listed in the report (an evenly strided subset beyond)
 REFIT_MAX_VALUES = 60_000  # the chosen model is refitted to at most this many residuals (an evenly strided subset)
-
-
-# --- scenes ----------------------------------------------------------------------------------------------
-
-#: theta_i and theta_o range (degrees) of a scene whose file gives none (the capture's default differs: it is the
-#: whole hemisphere, see acquisition.plan).
-SCENE_DEFAULT_RANGE_DEG = (0.0, 85.0)
-
-
-def scene_alpha_min(scene: Scene | None) -> float:
-    """Smallest microfacet alpha worth resolving in ``scene`` (dimensionless)."""
-    if scene is None or scene.angular_resolution_deg is None:
-        return ALPHA_MIN
-    return max(ALPHA_MIN, math.radians(scene.angular_resolution_deg) / 2.6)
-
-
-def scene_directions(scene: Scene, max_pairs: int = 200_000) -> tuple[Array, Array]:
-    """Direction pairs (M, 3) spanning ``scene``: theta_i, theta_o in its ranges, relative azimuth 0-180 deg."""
-    (ti_lo, ti_hi), (to_lo, to_hi) = scene.ranges(SCENE_DEFAULT_RANGE_DEG)
-    step = max(1.0, scene.angular_resolution_deg or 2.0)
-    while True:
-        ti = np.radians(np.arange(ti_lo, ti_hi + 1e-9, step))
-        to = np.radians(np.arange(to_lo, to_hi + 1e-9, step))
-        ph = np.radians(np.arange(0.0, 180.0 + 1e-9, step))
-        if ti.size * to.size * ph.size <= max_pairs:
-            break
-        step *= 1.5
-    a, b, p = np.meshgrid(ti, to, ph, indexing="ij")
-    wi = sph_to_vec(a.ravel(), np.pi)
-    wo = sph_to_vec(b.ravel(), np.pi + p.ravel())
-    return wi, wo
-
-
-def _scene_report(scene: Scene) -> dict[str, Any]:
-    ti, to = scene.ranges(SCENE_DEFAULT_RANGE_DEG)
-    return {"name": scene.name, "source": scene.source, "theta_i_deg": list(ti), "theta_o_deg": list(to),
-            "angular_resolution_deg": scene.angular_resolution_deg,
-            "lobes": list(scene.lobes) if scene.lobes else None, "relative_rmse": scene.relative_rmse,
-            "relative_sigma": scene.relative_sigma}
 
 
 # --- models ----------------------------------------------------------------------------------------------
@@ -545,231 +474,3 @@ def fit_model(specs: Sequence[LobeSpec], prob: _Problem, *, loss: str = "soft_l1
     r = res.fun.reshape(prob.f.shape)
     return FitResult(specs, res.x, n_nl, n_c, float(res.cost), float(np.sum(r * r)), prob.n, res.jac, r,
                      bool(res.success), str(res.message), int(nfev + res.nfev))
-
-
-# --- the reconstruction ----------------------------------------------------------------------------------
-
-
-@dataclass
-class FitReconstruction:
-    """Result of :func:`reconstruct_fit`: a fitted :class:`Material` and the fit's report."""
-
-    material: Material
-    channels: list[str]
-    result: FitResult
-    info: dict[str, Any] = field(default_factory=dict)
-    method: str = "fit"
-
-    def eval(self, wi: Array, wo: Array) -> Array:
-        """f_r (N, C) in 1/sr at unit direction pairs (N, 3); 0 below the horizon."""
-        return self.material.eval(wi, wo)
-
-    def report(self) -> dict[str, Any]:
-        return {"method": self.method, "model": self.result.name, "material": self.material.to_dict(),
-                "parameters": self.result.parameters(), **self.info}
-
-
-def _candidates_stage1(allowed: set[str]) -> list[tuple[LobeSpec, ...]]:
-    out: list[tuple[LobeSpec, ...]] = []
-    if "lambert" in allowed:
-        out.append((LobeSpec("lambert"),))
-    for d in ("ggx", "beckmann"):
-        if d in allowed:
-            out.append((LobeSpec(d),))
-            if "lambert" in allowed:
-                out.append((LobeSpec("lambert"), LobeSpec(d)))
-    return out
-
-
-def _extensions(best: tuple[LobeSpec, ...], allowed: set[str]) -> list[tuple[LobeSpec, ...]]:
-    """Richer variants of ``best``: Fresnel on its microfacet lobe, a retro lobe, both, a lambert lobe."""
-    out: list[tuple[LobeSpec, ...]] = []
-    has_mf = any(s.kind in ("ggx", "beckmann") for s in best)
-    with_f = tuple(LobeSpec(s.kind, True) if s.kind in ("ggx", "beckmann") else s for s in best)
-    if has_mf and "fresnel" in allowed:
-        out.append(with_f)
-    if "retro" in allowed:
-        out.append(best + (LobeSpec("retro"),))
-        if has_mf and "fresnel" in allowed:
-            out.append(with_f + (LobeSpec("retro"),))
-    if "lambert" in allowed and not any(s.kind == "lambert" for s in best):
-        out.append((LobeSpec("lambert"),) + best)
-    return out
-
-
-@threadpool_limits.wrap(limits=1, user_api="blas")  # tiny matrices: BLAS threads only cost time
-def reconstruct_fit(
-    slices: Slice,
-    *,
-    scene: Scene | None = None,
-    lobes: Sequence[str] | None = None,
-    loss: str = "soft_l1",
-    f_scale: float = 2.0,
-    relative_sigma: float | None = None,
-    progress: Callable[[str], None] | None = None,
-    specs: Sequence[LobeSpec] | None = None,
-) -> FitReconstruction:
-    """Fit analytic lobes to ``slices`` (f_r, 1 or 3 channels) and choose the model by BIC (and the scene).
-
-    ``specs``: fit this model structure only (no search), e.g. to refit a chosen model to a subset of samples.
-
-    ``lobes``: the lobe kinds allowed (subset of :data:`LOBE_KINDS`; default all, or the scene's list).
-    ``relative_sigma``: relative uncertainty added to the samples' std (default the scene's, else 0.01).
-    ``progress`` is called with each candidate's name before it is fitted.
-    """
-    if slices.quantity != "brdf":
-        f_, std_ = slices.brdf()
-        slices = Slice(slices.theta_i_deg, slices.theta_o_deg, f_, list(slices.channels), std_, slices.repeats,
-                       slices.unix_time_s, meta={"quantity": "brdf"}, source=slices.source)
-    n_c = len(slices.channels)
-    if slices.kind == "spectral" or n_c not in (1, 3):
-        raise ReconstructionError(f"{slices.source}: fit works on 1 (grey) or 3 (RGB) channels, got {n_c}; "
-                                  f"convert spectra with reconstruction.colour first")
-    if len(slices) < 3:
-        raise ReconstructionError(f"{slices.source}: {len(slices)} sample(s); fit needs at least 3")
-    allowed = set(lobes if lobes is not None else (scene.lobes if scene and scene.lobes else LOBE_KINDS))
-    unknown = allowed - set(LOBE_KINDS)
-    if unknown:
-        raise ReconstructionError(f"unknown lobe kind(s) {sorted(unknown)}; expected {', '.join(LOBE_KINDS)}")
-    if not allowed & {"lambert", "ggx", "beckmann"}:
-        raise ReconstructionError("fit needs at least one of the lobes lambert, ggx, beckmann")
-    rel = relative_sigma if relative_sigma is not None else (scene.relative_sigma if scene and scene.relative_sigma
-                                                             else 0.01)
-    gaps = gap_bounds(slices)
-    full = _problem(slices, rel, max(scene_alpha_min(scene), gaps["alpha_min"]))
-    full.exponent_max = gaps["retro_exponent_max"]
-    wi, wo, f = full.wi, full.wo, full.f
-    # many samples: candidates are compared on an evenly strided subset (every stride-th sample in
-    # (theta_i, theta_o) order), then the chosen model is refitted to all samples
-    stride = max(1, math.ceil(full.n / SELECTION_MAX_VALUES))
-    order = np.lexsort((slices.theta_o_deg, slices.theta_i_deg))
-    pick = np.zeros(len(slices), dtype=bool)
-    pick[order[::stride]] = True
-    prob = full.take(pick) if stride > 1 else full
-
-    fitted: dict[str, FitResult] = {}
-    skipped: list[str] = []
-
-    def run(specs: tuple[LobeSpec, ...]) -> None:
-        name = model_name(specs)
-        if name in fitted:
-            return
-        k = sum(len(s.nonlinear) for s in specs) + len(specs) * n_c
-        if k >= prob.n:
-            skipped.append(f"{name}: {k} parameters for {prob.n} values")
-            return
-        if progress:
-            progress(name)
-        fitted[name] = fit_model(specs, prob, loss=loss, f_scale=f_scale)
-
-    fixed = tuple(specs) if specs is not None else None
-    for cand in [fixed] if fixed else _candidates_stage1(allowed):
-        run(cand)
-    if not fitted:
-        raise ReconstructionError(f"{slices.source}: too few samples ({len(slices)}) for any candidate model")
-    # stage 2: the best stage-1 model of each distribution (and the best overall), made richer
-    bases = [] if fixed else [min(fitted.values(), key=lambda r: r.bic)]
-    for d in ("ggx", "beckmann") if not fixed else ():
-        of_d = [r for r in fitted.values() if any(s.kind == d for s in r.specs)]
-        if of_d:
-            bases.append(min(of_d, key=lambda r: r.bic))
-    for base in bases:
-        for cand in _extensions(base.specs, allowed):
-            run(cand)
-    ranked = sorted(fitted.values(), key=lambda r: r.bic)
-    chosen = ranked[0]
-    why = (f"lowest BIC ({chosen.bic:.1f}) of {len(ranked)} candidates; the next, {ranked[1].name}, has "
-           f"{ranked[1].bic:.1f}" if len(ranked) > 1 else "the only candidate")
-    scene_info: dict[str, Any] | None = None
-    fit_mask: NDArray[np.bool_] | None = None  # the samples the chosen model is fitted to, if not all
-    if scene is not None and not fixed:
-        scene_info = {"scene": _scene_report(scene)}
-        (ti_lo, ti_hi), (to_lo, to_hi) = scene.ranges(SCENE_DEFAULT_RANGE_DEG)
-        if scene.relative_rmse is not None:
-            # simpler candidates, refitted to the samples inside the scene's ranges (the rest does not matter to
-            # the scene), are compared with the BIC choice over the scene's directions; the simplest within the
-            # budget is used
-            ti_d, to_d = slices.theta_i_deg, np.abs(slices.theta_o_deg)
-            inside = ((ti_d >= ti_lo - 1e-9) & (ti_d <= ti_hi + 1e-9)
-                      & (to_d >= to_lo - 1e-9) & (to_d <= to_hi + 1e-9))
-            in_prob = inside[pick] if stride > 1 else inside
-            sub = prob.take(in_prob) if 0 < in_prob.sum() < prob.f.shape[0] else prob
-            swi, swo = scene_directions(scene)
-            ref = chosen.material().eval(swi, swo)
-            diffs = []
-            for k in sorted({r.k for r in fitted.values() if r.k < min(chosen.k, sub.n)}):  # simplest first
-                best: tuple[float, FitResult] | None = None
-                for r in (r for r in fitted.values() if r.k == k):
-                    rr = fit_model(r.specs, sub, loss=loss, f_scale=f_scale) if sub is not prob else r
-                    e = relative_rmse_cos_dirs(rr.material().eval(swi, swo), ref, swi, swo)
-                    diffs.append({"model": r.name, "k": k, "relative_rmse_vs_bic_choice": round(e, 5)})
-                    if e <= scene.relative_rmse and (best is None or e < best[0]):
-                        best = (e, rr)
-                if best is not None:
-                    why = (f"simplest candidate within the scene's error budget: {best[1].name}, fitted to the "
-                           f"{sub.f.shape[0]} samples inside the scene's ranges, differs from the BIC choice "
-                           f"{chosen.name} by {best[0]:.4f} relative RMSE of f cos cos over the scene's directions "
-                           f"(budget {scene.relative_rmse})")
-                    chosen = best[1]
-                    if sub is not prob:
-                        fit_mask = inside
-                    break
-            scene_info["budget_comparison"] = diffs
-            scene_info["samples_inside_scene"] = int(sub.f.shape[0])
-        lo_i, hi_i = float(np.min(slices.theta_i_deg)), float(np.max(slices.theta_i_deg))
-        if ti_hi > hi_i + 1e-9 or ti_lo < lo_i - 1e-9:
-            scene_info["warning"] = (f"the scene uses theta_i {ti_lo:g}-{ti_hi:g} deg "
-                                     f"but the data cover {lo_i:g}-{hi_i:g} deg; outside that the fit extrapolates")
-
-    notes: list[str] = []
-    if stride > 1:
-        target = full.take(fit_mask) if fit_mask is not None else full
-        thin = max(1, math.ceil(target.n / REFIT_MAX_VALUES))
-        if thin > 1:  # millions of samples add nothing to a handful of parameters but memory and time
-            target = target.take(np.arange(target.f.shape[0]) % thin == 0)
-        chosen = fit_model(chosen.specs, target, loss=loss, f_scale=f_scale)
-        notes.append(f"candidates compared on 1 in {stride} of the {len(slices)} samples; {chosen.name} refitted "
-                     f"to {target.f.shape[0]} samples" + (f" (1 in {thin})" if thin > 1 else ""))
-    material = chosen.material(name=f"fit {chosen.name}")
-    model = material.eval(wi, wo)
-    resid = (model - f) / full.sigma_of(model)  # every sample, whatever subset the model was fitted to
-    # the summary figures judge the model on the samples it is for (a scene's subset, when it was fitted to one)
-    used = fit_mask if fit_mask is not None else np.ones(len(slices), dtype=bool)
-    ru = resid[used]
-    every = max(1, math.ceil(len(slices) / REPORT_MAX_SAMPLES))  # the report lists at most this many residuals
-    info: dict[str, Any] = {
-        "selection": {"criterion": "BIC = robust chi^2 + k ln(n)", "chosen": chosen.name, "reason": why,
-                      "candidates": [r.summary() for r in ranked], "skipped": skipped},
-        "residuals": {
-            "n_values": int(ru.size),
-            "fitted_to_values": chosen.n,
-            "chi2_reduced": round(float(np.sum(ru ** 2)) / max(ru.size - chosen.k, 1), 6),
-            "rms_normalised": round(float(np.sqrt(np.mean(ru ** 2))), 6),
-            "max_abs_normalised": round(float(np.max(np.abs(ru))), 6),
-            "relative_rmse_cos": round(relative_rmse_cos_dirs(model[used], f[used], wi[used], wo[used]), 6),
-            "relative_rmse_cos_all_samples": round(relative_rmse_cos_dirs(model, f, wi, wo), 6),
-            "samples_used": int(used.sum()),
-            "samples": {"theta_i_deg": slices.theta_i_deg[::every].tolist(),
-                        "theta_o_deg": slices.theta_o_deg[::every].tolist(),
-                        "normalised": np.round(resid[::every], 5).tolist(),
-                        **({"every": every, "note": f"1 sample in {every} is listed"} if every > 1 else {})},
-        },
-        "weights": {"sigma": f"sqrt(std^2 + ({rel:g} f_model)^2 + ({FLOOR:g} peak)^2)", "loss": loss,
-                    "f_scale_sigma": f_scale},
-        "fit": {"converged": chosen.success, "message": chosen.message, "evaluations": chosen.nfev},
-        "holes": "the blind spot and missing samples are covered by the fitted model",
-        "constraints": {
-            "amplitudes": "lambert albedo, microfacet specular and retro amount each in (0, 1]",
-            "fresnel": "Schlick's approximation of a dielectric interface: f0 = ((ior - 1) / (ior + 1))^2, "
-                       f"ior in [{IOR_MIN:.3f}, {IOR_MAX:.0f}]",
-            "energy": "each channel's directional albedo held <= 1 at theta_i = 0-88 deg during the fit",
-            "max_directional_albedo": [round(float(v), 5) for v in chosen.albedo().max(axis=0)],
-            **{k: round(v, 6) for k, v in gaps.items()},
-        },
-    }
-    if scene_info is not None:
-        info["scene"] = scene_info
-    if notes:
-        info["notes"] = notes
-    channels = ["value"] if n_c == 1 else ["R", "G", "B"]
-    return FitReconstruction(material, channels, chosen, info)
