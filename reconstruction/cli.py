@@ -138,6 +138,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--allow-implausible", action="store_true",
                     help="write the table even if it fails a plausibility check (the report and the console say so)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar and no summary line")
+    from .exports import add_arguments as add_format_arguments
+
+    add_format_arguments(ap)
     b = ap.add_argument_group("batch reconstruction of a folder of slices")
     b.add_argument("--batch", metavar="FOLDER",
                    help="reconstruct every FOLDER/*.csv and FOLDER/*/slice.csv (capture folders) separately, in "
@@ -167,11 +170,13 @@ def _check_output(path: Path, suffix: str, flag: str) -> None:
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
     """Do the work of one command line; returns the report (also written with --report)."""
-    from . import colour, inputs, pipeline, preview, report
+    from . import colour, exports, inputs, pipeline, preview, report, zemax
     from .scene import LOBE_KINDS, load_scene
 
-    out = Path(args.out)
-    _check_output(out, ".binary", "--out")
+    out = Path(args.out) if args.out else None
+    if out is not None:
+        _check_output(out, ".binary", "--out")
+    exports.check_arguments(args)
     if args.preview:
         _check_output(Path(args.preview), ".exr", "--preview")
     if args.report:
@@ -199,8 +204,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
     try:
         t0 = step("reading inputs")
-        loaded = inputs.load_inputs(args.inputs, quantity=args.quantity, columns=inputs.parse_columns(args.columns),
-                                    blind_spot_deg=args.blind_spot_deg)
+        loaded = zemax.load_inputs(args.inputs, args.quantity, args.columns) or inputs.load_inputs(
+            args.inputs, quantity=args.quantity, columns=inputs.parse_columns(args.columns),
+            blind_spot_deg=args.blind_spot_deg)
         scene = load_scene(args.scene) if args.scene else None
         done("read", t0)
         t0 = step("colour")
@@ -223,12 +229,16 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         t0 = step("writing table")
         from . import merl
 
-        merl.write(out, table, require_above_horizon=True)
+        outputs: dict[str, Any] = {}
+        if out is not None:
+            merl.write(out, table, require_above_horizon=True)
+            outputs.update({"table": str(out), "table_bytes": out.stat().st_size})
+        outputs.update(exports.write_outputs(args, rec, timings))
         done("write", t0)
-        outputs: dict[str, Any] = {"table": str(out), "table_bytes": out.stat().st_size}
         if args.preview:
             t0 = step("preview")
-            outputs["preview"] = preview.write_preview(args.preview, table)
+            outputs["preview"] = (exports.mitsuba_preview(args, rec, outputs) if args.preview_renderer == "mitsuba"
+                                  else preview.write_preview(args.preview, table))
             done("preview", t0)
     finally:
         bar.close()
@@ -340,11 +350,17 @@ def main(argv: list[str] | None = None) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
     if args.batch:
-        if args.inputs or args.out or args.preview or args.report:
-            ap.error("--batch takes no INPUT, --out, --preview or --report (outputs are named after the inputs)")
+        from .exports import wants_outputs
+
+        if args.inputs or args.out or args.preview or args.report or wants_outputs(args):
+            ap.error("--batch takes no INPUT, --out, --preview, --report, --rgl, --zemax, --export-mitsuba or "
+                     "--export-json (outputs are named after the inputs)")
         return run_batch(args)
-    if not args.inputs or not args.out:
-        ap.error("give INPUT... and --out MATERIAL.binary (or --batch FOLDER)")
+    from .exports import wants_outputs
+
+    if not args.inputs or not (args.out or wants_outputs(args)):
+        ap.error("give INPUT... and --out MATERIAL.binary (or --rgl, --zemax, --export-mitsuba, --export-json; or "
+                 "--batch FOLDER)")
     try:
         rep = run(args)
     except ImplausibleError as e:
@@ -361,7 +377,11 @@ def main(argv: list[str] | None = None) -> int:
         checks = rep["checks"]
         failed = [k for k in ("non_negative", "albedo", "reciprocity") if not checks[k]["pass"]]
         model = f" ({rep['details']['model']})" if "model" in rep.get("details", {}) else ""
-        print(f"{PROG}: method {rep['method']}{model}: wrote {rep['outputs']['table']} ({FILE_SIZE:,} bytes)"
+        written = [f"{rep['outputs']['table']} ({FILE_SIZE:,} bytes)"] if "table" in rep["outputs"] else []
+        written += [rep["outputs"][k][f] for k, f in (("rgl", "rgl"), ("zemax", "zemax"), ("mitsuba", "xml"))
+                    if k in rep["outputs"]]
+        written += [rep["outputs"]["parameters_json"]] if "parameters_json" in rep["outputs"] else []
+        print(f"{PROG}: method {rep['method']}{model}: wrote {', '.join(written)}"
               + (f"; IMPLAUSIBLE, written because of --allow-implausible: check(s) failed: {', '.join(failed)}"
                  if failed else "; checks passed"), file=sys.stderr)
     return 0
