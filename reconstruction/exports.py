@@ -8,6 +8,10 @@ Mitsuba 3 fragment (``--export-mitsuba MATERIAL.xml``): a ``<bsdf version="3.0.0
 * a microfacet lobe without Fresnel (``fit`` lobes ``ggx`` / ``beckmann``) -> ``roughconductor`` with
   ``material="none"`` (F = 1), the same ``distribution`` and ``alpha``, ``specular_reflectance`` = the lobe's
   specular colour (Mitsuba's separable Smith G1 is ours, Walter's rational approximation for Beckmann included);
+* a GGX lobe with Schlick's Fresnel (``fit``'s ``ggx(F)``) and a grey specular colour ks -> ``principled`` with
+  ``metallic`` 1 (its Fresnel is then Schlick's with F0 = ``base_color`` = f0, its D and G are GGX with separable
+  Smith G1, alpha = ``roughness``^2; diffuse, sheen, clearcoat and transmission off), blended with a black
+  ``diffuse`` for the scale ks (a principled lobe has no colour scale, so a coloured ks does not map);
 * the ``microfacet`` method: every GGX term of its NDF mixture -> a ``roughconductor`` of its alpha with the
   fitted Fresnel (``none``; a dielectric of index eta as a conductor with k = 0, whose Fresnel equations are the
   dielectric's; a conductor eta + i kappa), ``specular_reflectance`` = ks w_j;
@@ -16,9 +20,9 @@ Mitsuba 3 fragment (``--export-mitsuba MATERIAL.xml``): a ``<bsdf version="3.0.0
   ``srgb`` spectrum with ``unbounded`` set.
 
 ``roughplastic`` is not used: its diffuse term is Fresnel-transmitted and internally reflected, which none of
-our lobes is. A lobe with Schlick's Fresnel (``fit``'s ``ggx(F)``), a retro lobe or a data-driven method does
-not map: the fragment is then a ``measured`` BSDF referring to the RGL file (written beside it if ``--rgl`` is not
-given).
+our lobes is. A Beckmann lobe with Schlick's Fresnel, a Schlick lobe with a coloured specular, amplitudes adding
+to more than 1 with a Schlick lobe, a retro lobe or a data-driven method does not map: the fragment is then a
+``measured`` BSDF referring to the RGL file (written beside it if ``--rgl`` is not given).
 
 Parameters (``--export-json PARAMS.json``), schema ``gonio-brdf/parameters/1`` (docs/parameters.schema.json)::
 
@@ -270,10 +274,27 @@ def _maps(rec: Reconstruction) -> tuple[bool, list[str], str]:
         if lb["type"] == "retro":
             return False, ["measured"], "a retro lobe has no Mitsuba 3 counterpart"
         if lb.get("fresnel", {}).get("kind") == "schlick":
-            return False, ["measured"], ("Schlick's Fresnel has no Mitsuba 3 counterpart among diffuse, "
-                                         "roughconductor, roughplastic (they use the exact Fresnel equations)")
-    plugins = sorted({"diffuse" if lb["type"] == "lambert" else "roughconductor" for lb in lobes})
-    return True, (["blendbsdf"] if len(_leaves(lobes)) > 1 else []) + plugins, "the model maps exactly"
+            col = _rgb(lb["specular"])
+            if lb["type"] != "ggx":
+                return False, ["measured"], ("Schlick's Fresnel on a Beckmann lobe has no Mitsuba 3 counterpart "
+                                             "(principled is GGX only)")
+            if float(np.ptp(col)) > 1e-6 * max(float(np.max(col)), 1e-300):
+                return False, ["measured"], ("Schlick's Fresnel maps to principled (metallic 1) only with a grey "
+                                             "specular colour; this lobe's is coloured")
+    leaves = _leaves(lobes)
+    schlick = [c for p, c, _ in leaves if p == "principled"]
+    if len(schlick) > 1:
+        return False, ["measured"], "two Schlick lobes cannot both take a blend weight as their scale"
+    if schlick and len(leaves) > 1 and float(np.max(schlick[0])) >= 1.0 - 1e-12:
+        return False, ["measured"], ("a Schlick lobe of specular 1 leaves no blend weight for the other lobes "
+                                     "(principled has no colour scale)")
+    plugins = {p for p, _, _ in leaves}
+    if len(leaves) > 1 or (schlick and float(np.max(schlick[0])) < 1.0 - 1e-12):
+        plugins.add("blendbsdf")
+    if schlick and len(leaves) == 1 and float(np.max(schlick[0])) < 1.0 - 1e-12:
+        plugins.add("diffuse")  # the scale of a lone principled lobe: a blend with a black diffuse
+    plugins = sorted(plugins)
+    return True, plugins, "the model maps exactly"
 
 
 def _leaves(lobes: list[dict[str, Any]]) -> list[tuple[str, Array, dict[str, Any]]]:
@@ -282,6 +303,8 @@ def _leaves(lobes: list[dict[str, Any]]) -> list[tuple[str, Array, dict[str, Any
     for lb in lobes:
         if lb["type"] == "lambert":
             out.append(("diffuse", _rgb(lb["albedo"]), {}))
+        elif lb["type"] in ("ggx", "beckmann") and lb["fresnel"]["kind"] == "schlick":
+            out.append(("principled", _rgb(lb["specular"]), {"alpha": lb["alpha"], "f0": lb["fresnel"]["f0"]}))
         elif lb["type"] in ("ggx", "beckmann"):
             out.append(("roughconductor", _rgb(lb["specular"]),
                         {"distribution": lb["type"], "alpha": lb["alpha"], "fresnel": {"kind": "none"}}))
@@ -306,6 +329,19 @@ def _colour_xml(name: str, c: Array, pad: str) -> str:
 
 
 def _leaf_xml(plugin: str, colour: Array, props: dict[str, Any], pad: str) -> list[str]:
+    if plugin == "principled":  # grey colour: its value is the lobe's scale, applied by a blend with black
+        scale = float(np.max(colour))
+        f0 = props["f0"]
+        lobe = [f'{pad}<bsdf type="principled">',
+                f'{pad}    <rgb name="base_color" value="{f0:.9g}, {f0:.9g}, {f0:.9g}"/>',
+                f'{pad}    <float name="metallic" value="1"/>',
+                f'{pad}    <float name="roughness" value="{math.sqrt(props["alpha"]):.9g}"/>', f"{pad}</bsdf>"]
+        if scale >= 1.0 - 1e-12:
+            return lobe
+        inner = ["    " + x for x in lobe]
+        return [f'{pad}<bsdf type="blendbsdf">', f'{pad}    <float name="weight" value="{scale:.12g}"/>',
+                f'{pad}    <bsdf type="diffuse"><rgb name="reflectance" value="0, 0, 0"/></bsdf>', *inner,
+                f"{pad}</bsdf>"]
     if plugin == "diffuse":
         return [f'{pad}<bsdf type="diffuse">', _colour_xml("reflectance", colour, pad + "    "), f"{pad}</bsdf>"]
     lines = [f'{pad}<bsdf type="roughconductor">',
@@ -353,10 +389,23 @@ def mitsuba_fragment(rec: Reconstruction, name: str, rgl_file: str | None) -> tu
         lobes = _lobes(rec)
         assert lobes is not None
         leaves = _leaves(lobes)
-        total = sum(float(np.max(c)) for _, c, _ in leaves)
-        body = (_tree(leaves, total, "", attrs) if leaves else  # a black surface: every amplitude is zero
-                [f'<bsdf type="diffuse" {attrs}>', '    <rgb name="reflectance" value="0, 0, 0"/>', "</bsdf>"])
-        info = {"maps": True, "plugins": plugins, "leaves": len(leaves), "unbounded_colours": bool(total > 1.0)}
+        others = [lf for lf in leaves if lf[0] != "principled"]
+        schlick = [lf for lf in leaves if lf[0] == "principled"]
+        amp = sum(float(np.max(c)) for _, c, _ in others)
+        if not leaves:  # a black surface: every amplitude is zero
+            body = [f'<bsdf type="diffuse" {attrs}>', '    <rgb name="reflectance" value="0, 0, 0"/>', "</bsdf>"]
+        elif not schlick:
+            body = _tree(others, amp, "", attrs)
+        elif not others:
+            body = _leaf_xml(*schlick[0], "")
+            body[0] = body[0].replace("<bsdf ", f"<bsdf {attrs} ", 1)
+        else:  # the Schlick lobe's scale ks is the blend weight; the rest is amplified by 1 / (1 - ks)
+            ks = float(np.max(schlick[0][1]))
+            body = ([f'<bsdf type="blendbsdf" {attrs}>', f'    <float name="weight" value="{ks:.12g}"/>']
+                    + _tree(others, amp / (1.0 - ks), "    ")
+                    + _leaf_xml("principled", np.ones(3), schlick[0][2], "    ") + ["</bsdf>"])
+        unbounded = 'name="unbounded" value="true"' in "\n".join(body)
+        info = {"maps": True, "plugins": plugins, "leaves": len(leaves), "unbounded_colours": unbounded}
     else:
         if rgl_file is None:
             raise ReconstructionError("the model does not map to a Mitsuba BSDF and no RGL file was written for the "

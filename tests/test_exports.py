@@ -89,21 +89,35 @@ def test_amplitudes_above_one_use_unbounded_colours_and_still_add_exactly(mi, tm
     assert np.max(compare(mi, path, rec, 400)) < 2e-4
 
 
-def test_a_schlick_model_falls_back_to_the_measured_rgl_file(mi, tmp_path):
+def test_a_schlick_lobe_with_grey_specular_maps_to_principled_exactly(mi, tmp_path):
+    """The demo material: lambert + GGX with Schlick's Fresnel (f0 0.04) and a grey specular 0.9."""
     mat = Material.from_toml("configs/simulated.toml")
+    rec, _ = pipeline.reconstruct(synthetic_slice(mat, (20.0, 40.0, 60.0)), "fit")
+    assert rec.result.name == "lambert+ggx(F)"
+    xml, info = exports.mitsuba_fragment(rec, "demo", None)
+    assert info["maps"] and info["plugins"] == ["blendbsdf", "diffuse", "principled"]
+    assert '<float name="metallic" value="1"/>' in xml and '<float name="weight" value="0.9' in xml
+    path = tmp_path / "demo.xml"
+    path.write_text(xml)
+    assert np.max(compare(mi, path, rec)) < 2e-4
+
+
+def test_a_coloured_schlick_lobe_falls_back_to_the_measured_rgl_file(mi, tmp_path):
+    mat = Material("coloured", [Lambert(colour=Colour(np.array([0.1, 0.1, 0.1]))),
+                                Microfacet(colour=Colour(np.array([0.9, 0.6, 0.3])), alpha=0.15, f0=0.04)])
     s = tmp_path / "slice.csv"
     write_slice(s, synthetic_slice(mat, (20.0, 40.0, 60.0)))
-    xml_path = tmp_path / "demo.xml"
+    xml_path = tmp_path / "coloured.xml"
     assert cli.main([str(s), "--method", "fit", "--export-mitsuba", str(xml_path), "--export-json",
                      str(tmp_path / "p.json"), "--quiet"]) == 0
     xml = xml_path.read_text()
-    assert '<bsdf type="measured"' in xml and 'value="demo.bsdf"' in xml  # written beside it, relative path
-    assert (tmp_path / "demo.bsdf").stat().st_size > 0
+    assert '<bsdf type="measured"' in xml and 'value="coloured.bsdf"' in xml  # written beside it, relative path
+    assert (tmp_path / "coloured.bsdf").stat().st_size > 0
     rec, _ = pipeline.reconstruct(synthetic_slice(mat, (20.0, 40.0, 60.0)), "fit")
     rel = compare(mi, xml_path, rec)
     assert np.median(rel) < 0.05
     p = json.loads((tmp_path / "p.json").read_text())
-    assert p["mitsuba"]["maps"] is False and "Schlick" in p["mitsuba"]["reason"]
+    assert p["mitsuba"]["maps"] is False and "grey specular" in p["mitsuba"]["reason"]
 
 
 def test_parameters_json_follows_the_schema():

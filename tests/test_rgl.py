@@ -132,6 +132,11 @@ def test_the_continuous_warp_and_its_inverse_agree():
     np.testing.assert_allclose(back, s, atol=1e-9)
     # the mapped points follow the density: none land where it is zero
     assert np.all(u[1, :, 0] >= 2 / 6 - 1e-12)
+    # the grid version (what the writer uses) is the same mapping at the nodes of the unit square
+    ss = np.linspace(0.0, 1.0, 11)
+    nodes = np.stack(np.meshgrid(ss, ss, indexing="xy"), axis=-1).reshape(1, -1, 2)
+    np.testing.assert_allclose(rgl.warp_grid(dens, 11).reshape(3, -1, 2),
+                               rgl.warp_sample(dens, np.repeat(nodes, 3, axis=0)), atol=1e-12)
 
 
 def test_projected_area_of_the_uniform_ndf_is_one_plus_cos_over_two():
