@@ -101,7 +101,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     ap = argparse.ArgumentParser(prog=PROG, description=DESCRIPTION,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("inputs", nargs="*", metavar="INPUT", help="slice files or generic CSV tables")
+    ap.add_argument("inputs", nargs="*", metavar="INPUT",
+                    help="slice files or generic CSV tables, or one Zemax tabular BSDF file (.bsdf)")
     ap.add_argument("--method", choices=METHODS, default="auto", help="reconstruction method (default: auto)")
     ap.add_argument("--out", metavar="MATERIAL.binary", help="MERL table to write (required unless --batch)")
     ap.add_argument("--preview", metavar="MATERIAL.exr",

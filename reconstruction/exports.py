@@ -104,8 +104,9 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
                    help="Zemax output radial angles from the specular direction, from 0 (default: 0.25 deg steps "
                         "near 0, 5 deg beyond 20, to 180)")
     g.add_argument("--export-mitsuba", metavar="MATERIAL.xml",
-                   help="a Mitsuba 3 <bsdf> fragment: diffuse/roughconductor/blendbsdf with the fitted parameters "
-                        "where the model maps, else a measured BSDF referring to the RGL file")
+                   help="a Mitsuba 3 <bsdf> fragment: diffuse / roughconductor / principled in a blendbsdf with the "
+                        "fitted parameters where the model maps exactly, else a measured BSDF referring to the RGL "
+                        "file (written beside the XML if --rgl is not given)")
     g.add_argument("--export-json", metavar="PARAMS.json",
                    help="the model's parameters in the documented schema gonio-brdf/parameters/1")
     g.add_argument("--preview-renderer", choices=("builtin", "mitsuba"), default="builtin",
@@ -168,7 +169,10 @@ def write_outputs(args: argparse.Namespace, rec: Reconstruction, timings: dict[s
     channels = list(rec.channels)
     rgl_path = getattr(args, "rgl", None)
     if getattr(args, "export_mitsuba", None) and not rgl_path and not _maps(rec)[0]:
-        rgl_path = str(Path(args.export_mitsuba).with_suffix(".bsdf"))  # the measured fallback needs one
+        beside = Path(args.export_mitsuba).with_suffix(".bsdf")  # the measured fallback needs one
+        if getattr(args, "zemax", None) and Path(args.zemax).resolve() == beside.resolve():
+            beside = beside.with_name(beside.stem + "-rgl.bsdf")
+        rgl_path = str(beside)
     if rgl_path:
         t0 = time.perf_counter()
         out["rgl"] = rgl.write(rgl_path, rec.eval, description=f"gonio-brdf {rec.method}")

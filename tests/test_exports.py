@@ -10,7 +10,7 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from reconstruction import cli, exports, pipeline
+from reconstruction import cli, exports, pipeline, zemax
 from reconstruction.fit import reconstruct_fit
 from reconstruction.microfacet import MicrofacetReconstruction
 from reconstruction.models import Colour, Lambert, Material, Microfacet
@@ -109,10 +109,12 @@ def test_a_coloured_schlick_lobe_falls_back_to_the_measured_rgl_file(mi, tmp_pat
     write_slice(s, synthetic_slice(mat, (20.0, 40.0, 60.0)))
     xml_path = tmp_path / "coloured.xml"
     assert cli.main([str(s), "--method", "fit", "--export-mitsuba", str(xml_path), "--export-json",
-                     str(tmp_path / "p.json"), "--quiet"]) == 0
+                     str(tmp_path / "p.json"), "--zemax", str(tmp_path / "coloured.bsdf"), "--quiet"]) == 0
     xml = xml_path.read_text()
-    assert '<bsdf type="measured"' in xml and 'value="coloured.bsdf"' in xml  # written beside it, relative path
-    assert (tmp_path / "coloured.bsdf").stat().st_size > 0
+    # the RGL file is written beside the XML (relative path), not over the Zemax file of the same stem
+    assert '<bsdf type="measured"' in xml and 'value="coloured-rgl.bsdf"' in xml
+    assert (tmp_path / "coloured-rgl.bsdf").read_bytes()[:12] == b"tensor_file\x00"
+    assert zemax.is_zemax(tmp_path / "coloured.bsdf")
     rec, _ = pipeline.reconstruct(synthetic_slice(mat, (20.0, 40.0, 60.0)), "fit")
     rel = compare(mi, xml_path, rec)
     assert np.median(rel) < 0.05
