@@ -107,7 +107,8 @@ def build_parser() -> argparse.ArgumentParser:
     from .pipeline import METHODS
 
     ap = OneLineParser(prog=PROG, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("inputs", nargs="*", metavar="INPUT", help="slice files or generic CSV tables")
+    ap.add_argument("inputs", nargs="*", metavar="INPUT",
+                    help="slice files or generic CSV tables, or one Zemax tabular BSDF file (.bsdf)")
     ap.add_argument("--method", choices=METHODS, default="auto",
                     help="reconstruction method (default: auto, the one that best predicts held-out samples): "
                          + "; ".join(f"{m.name}: {m.summary}" for m in REGISTRY.values()))
@@ -150,6 +151,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--allow-implausible", action="store_true",
                     help="write the table even if it fails a plausibility check (the report and the console say so)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar and no summary line")
+    from .exports import add_arguments as add_format_arguments
+
+    add_format_arguments(ap)
     b = ap.add_argument_group("batch reconstruction of a folder of slices")
     b.add_argument("--batch", metavar="FOLDER",
                    help="reconstruct every FOLDER/*.csv and FOLDER/*/slice.csv (capture folders) separately, in "
@@ -178,7 +182,10 @@ def job_from_args(args: argparse.Namespace, **overrides: Any) -> Job:
         quantity=args.quantity, columns=args.columns, blind_spot_deg=args.blind_spot_deg, illuminant=args.illuminant,
         scene=args.scene, lobes=lobes, fill=args.fill, axis=args.axis, smoothing=args.smoothing,
         allow_implausible=bool(getattr(args, "allow_implausible", False)),
-        html=args.html if isinstance(getattr(args, "html", None), str) else None)
+        html=args.html if isinstance(getattr(args, "html", None), str) else None,
+        **{k: getattr(args, k, None) for k in ("rgl", "zemax", "zemax_incidences", "zemax_azimuths", "zemax_radials",
+                                              "export_mitsuba", "export_json")},
+        preview_renderer=getattr(args, "preview_renderer", None) or "builtin")
     fields.update(overrides)
     return Job(**fields)
 
@@ -324,12 +331,16 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(ap: argparse.ArgumentParser, args: argparse.Namespace) -> int:
+    from .exports import wants_outputs
+
     if args.batch:
-        if args.inputs or args.out or args.preview or args.report:
-            ap.error("--batch takes no INPUT, --out, --preview or --report (outputs are named after the inputs)")
+        if args.inputs or args.out or args.preview or args.report or wants_outputs(args):
+            ap.error("--batch takes no INPUT, --out, --preview, --report, --rgl, --zemax, --export-mitsuba or "
+                     "--export-json (outputs are named after the inputs)")
         return run_batch(args)
-    if not args.inputs or not args.out:
-        ap.error("give INPUT... and --out MATERIAL.binary (or --batch FOLDER)")
+    if not args.inputs or not (args.out or wants_outputs(args)):
+        ap.error("give INPUT... and --out MATERIAL.binary (or --rgl, --zemax, --export-mitsuba, --export-json; or "
+                 "--batch FOLDER)")
     if args.html is True:
         print(f"{PROG}: error: --html: give the page to write, e.g. --html m.html (a bare --html is for --batch)",
               file=sys.stderr)
@@ -350,7 +361,9 @@ def _main(ap: argparse.ArgumentParser, args: argparse.Namespace) -> int:
         failed = [k for k in ("non_negative", "albedo", "reciprocity") if not checks[k]["pass"]]
         model = f" ({rep['details']['model']})" if "model" in rep.get("details", {}) else ""
         o = rep["outputs"]
-        written = [f"{o['table']} ({FILE_SIZE:,} bytes)"]
+        written = [f"{o['table']} ({FILE_SIZE:,} bytes)"] if "table" in o else []
+        written += [o[k][f] for k, f in (("rgl", "rgl"), ("zemax", "zemax"), ("mitsuba", "xml")) if k in o]
+        written += [o["parameters_json"]] if "parameters_json" in o else []
         if "preview" in o:
             written += [o["preview"]["exr"], o["preview"]["png"]]
         written += [o[k] for k in ("report", "html") if k in o]

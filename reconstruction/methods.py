@@ -137,15 +137,17 @@ def names() -> tuple[str, ...]:
 
 def _fit(s: Slice, o: Options, progress: Callable[[str], None] | None) -> Reconstruction:
     from .fit import reconstruct_fit
+    from .samples import everywhere
 
     opt = FitOptions(lobes=o.lobes)  # type: ignore[arg-type] # checked by reconstruct_fit, with its own message
-    return reconstruct_fit(s, scene=o.scene, lobes=opt.lobes, progress=progress)
+    return reconstruct_fit(everywhere(s), scene=o.scene, lobes=opt.lobes, progress=progress)
 
 
 def _microfacet(s: Slice, o: Options, progress: Callable[[str], None] | None) -> Reconstruction:
     from .microfacet import reconstruct_microfacet
+    from .samples import everywhere
 
-    return reconstruct_microfacet(s)
+    return reconstruct_microfacet(everywhere(s))
 
 
 def _revolve(s: Slice, o: Options, progress: Callable[[str], None] | None) -> Reconstruction:

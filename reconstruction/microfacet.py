@@ -38,8 +38,9 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import minimize, minimize_scalar, nnls
 
 from .base import ReconstructionError
-from .geometry import inplane_to_dirs, normalize
+from .geometry import normalize
 from .models import ggx_d, ggx_g1_over_cos
+from .samples import sample_directions
 from .slicefile import Slice
 
 Array = NDArray[np.float64]
@@ -221,7 +222,7 @@ def reconstruct_microfacet(slices: Slice, *, fresnel_kinds: tuple[str, ...] = FR
     unknown = set(fresnel_kinds) - set(FRESNEL_KINDS)
     if unknown or not fresnel_kinds:
         raise ReconstructionError(f"fresnel kinds must be some of {', '.join(FRESNEL_KINDS)}, got {fresnel_kinds}")
-    wi, wo = inplane_to_dirs(np.radians(slices.theta_i_deg), np.radians(slices.theta_o_deg))
+    wi, wo = sample_directions(slices)  # in-plane, or anywhere for a DirectionalSlice (reconstruction.samples)
     ch, cd, ci, co, up = _geometry(wi, wo)
     a_min, a_why = _alpha_min(slices)
     alphas = np.geomspace(a_min, ALPHA_CEIL, n_alphas)

@@ -212,6 +212,15 @@ class Job:
     smoothing: float | None = None
     allow_implausible: bool = False
     html: str | None = None
+    # other formats (reconstruction.exports; README: Formats); ``out`` may be "" when one of them is asked for
+    rgl: str | None = None
+    zemax: str | None = None
+    zemax_incidences: str | None = None
+    zemax_azimuths: str | None = None
+    zemax_radials: str | None = None
+    export_mitsuba: str | None = None
+    export_json: str | None = None
+    preview_renderer: str = "builtin"
 
     @property
     def steps(self) -> list[str]:
@@ -265,7 +274,13 @@ def implausible_message(method: str, checks: dict[str, Any]) -> str:
 
 
 def _check_outputs(job: Job) -> None:
-    check_output(Path(job.out), ".binary", "--out")
+    from . import exports
+
+    if job.out:
+        check_output(Path(job.out), ".binary", "--out")
+    elif not exports.wants_outputs(job):
+        raise ReconstructionError("give --out MATERIAL.binary (or --rgl, --zemax, --export-mitsuba, --export-json)")
+    exports.check_arguments(job)
     if job.preview:
         check_output(Path(job.preview), ".exr", "--preview")
         png = Path(job.preview).with_suffix(".png")
@@ -283,11 +298,11 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
     Returns the report. Raises :class:`ImplausibleError` (nothing written) for a table that fails a plausibility
     check unless ``job.allow_implausible``; bad input is a :class:`ReconstructionError` (or a reader's error)
     naming the file, checked output paths before any work."""
-    from . import colour, inputs, merl, preview, report
+    from . import colour, exports, inputs, merl, preview, report, zemax
     from .scene import LOBE_KINDS, load_scene
 
     _check_outputs(job)
-    out = Path(job.out)
+    out = Path(job.out) if job.out else None
     lobes = list(job.lobes) if job.lobes else None
     if lobes:
         unknown = [x for x in lobes if x not in LOBE_KINDS]
@@ -306,8 +321,9 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
             progress.done(step)
 
     t0 = begin("reading inputs")
-    loaded = inputs.load_inputs(list(job.inputs), quantity=job.quantity, columns=inputs.parse_columns(job.columns),
-                                blind_spot_deg=job.blind_spot_deg)
+    loaded = zemax.load_inputs(list(job.inputs), job.quantity, job.columns) or inputs.load_inputs(
+        list(job.inputs), quantity=job.quantity, columns=inputs.parse_columns(job.columns),
+        blind_spot_deg=job.blind_spot_deg)
     scene = None
     if job.scene:
         sp = Path(job.scene)
@@ -338,12 +354,16 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
     if not checks["all_pass"] and not job.allow_implausible:
         raise ImplausibleError(implausible_message(rec.method, checks))
     t0 = begin("writing table")
-    merl.write(out, table, require_above_horizon=True)
+    outputs: dict[str, Any] = {}
+    if out is not None:
+        merl.write(out, table, require_above_horizon=True)
+        outputs.update({"table": str(out), "table_bytes": out.stat().st_size})
+    outputs.update(exports.write_outputs(job, rec, timings))
     done("write", t0)
-    outputs: dict[str, Any] = {"table": str(out), "table_bytes": out.stat().st_size}
     if job.preview:
         t0 = begin("preview")
-        outputs["preview"] = preview.write_preview(job.preview, table)
+        outputs["preview"] = (exports.mitsuba_preview(job, rec, outputs) if job.preview_renderer == "mitsuba"
+                              else preview.write_preview(job.preview, table))
         done("preview", t0)
     rep = report.build_report(
         rec=rec, choice=choice, working=working, table=table, checks=checks,
@@ -388,6 +408,6 @@ def _write_html(job: Job, rep: dict[str, Any], working: Slice, rec: Reconstructi
             except (ReconstructionError, ValueError):
                 pass
     held = choice.get("held_out_predictions", {}).get(rec.method)
-    title = str(working.meta.get("material") or Path(job.out).stem)
+    title = str(working.meta.get("material") or Path(job.out or job.html or "material").stem)
     htmlreport.write_html(job.html, report=rep, working=ordered, rec=rec, table=table, alternatives=others,
                           held_out=held, title=title)

@@ -18,8 +18,8 @@ from scipy.optimize import least_squares, nnls
 
 from ..base import ReconstructionError
 from ..energy import microfacet_albedo, retro_albedo
-from ..geometry import inplane_to_dirs
 from ..models import Colour, Lambert, Lobe, Material, Microfacet, Retro
+from ..samples import sample_directions
 from ..slicefile import Slice
 
 Array = NDArray[np.float64]
@@ -387,7 +387,7 @@ def _problem(s: Slice, relative_sigma: float, alpha_min: float) -> _Problem:
     assert std is not None
     floor = FLOOR * np.maximum(np.max(np.abs(f), axis=0, keepdims=True), 1e-300)
     sigma = np.sqrt(np.square(std) + np.square(relative_sigma * f) + np.square(floor))
-    wi, wo = inplane_to_dirs(np.radians(s.theta_i_deg), np.radians(s.theta_o_deg))
+    wi, wo = sample_directions(s)  # in-plane, or anywhere for a DirectionalSlice (reconstruction.samples)
     return _Problem(wi, wo, f, sigma, alpha_min, std, relative_sigma, floor)
 
 
