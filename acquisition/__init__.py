@@ -11,8 +11,9 @@ pseudo-terminals it prints. This package never imports ``simulator``.
 
 from .bench import Bench, SimulatorProcess
 from .calibration import Calibration, Reading
+from .capture import RunEngine
 from .config import BenchConfig, config_from_dict, load_config
-from .engine import CaptureResult, RunEngine
+from .engine import Engine
 from .errors import (
     AcquisitionError,
     CaptureInterrupted,
@@ -22,7 +23,8 @@ from .errors import (
     HardwareError,
     PlanError,
 )
-from .plan import Geometry, Plan, PlanCheck, Scene, load_scene, order_points, path_time
+from .plan import Geometry, Plan, PlanCheck, Reason, Scene, load_scene, order_points, path_time
+from .record import CaptureResult, Stop
 
 __all__ = [
     "AcquisitionError",
@@ -34,15 +36,18 @@ __all__ = [
     "CommError",
     "ConfigError",
     "DeviceError",
+    "Engine",
     "Geometry",
     "HardwareError",
     "Plan",
     "PlanCheck",
     "PlanError",
     "Reading",
+    "Reason",
     "RunEngine",
     "Scene",
     "SimulatorProcess",
+    "Stop",
     "config_from_dict",
     "load_config",
     "load_scene",

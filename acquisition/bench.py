@@ -36,7 +36,8 @@ from .calibration import Reading
 from .config import BenchConfig, load_config
 from .dynamixel import DynamixelAxes
 from .errors import CommError, ConfigError, DeviceError
-from .plan import Geometry, Plan, PlanCheck, Point, load_scene
+from .plan import Geometry, Plan, PlanCheck, Point, Reason, load_scene
+from .protocols import Devices, MoveStatus
 from .serial_link import SerialAxes, SerialDetector, SerialLink
 
 log = logging.getLogger("acquisition.bench")
@@ -346,7 +347,7 @@ class Bench:
         outside the soft limits or in the collision zone."""
         motion, _ = self._need()
         why = self.geometry.reason(theta_i_deg, theta_o_deg)
-        if why is not None and not why.startswith("blind spot"):
+        if why is not None and why.reason is not Reason.BLIND_SPOT:
             raise DeviceError(f"refusing to move to ({theta_i_deg:g}, {theta_o_deg:g}): {why}")
         motion.move({"light": theta_i_deg, "detector": theta_o_deg}, check_cancel=check_cancel)
 
@@ -390,20 +391,62 @@ class Bench:
     def has_clock(self) -> bool:
         return self.detector is not None and self.detector.has_time
 
-    def capture(self, plan: Plan | None = None, out: str | Path | None = None, resume: bool = False,
-                progress: bool | None = None, handle_signals: bool = True):  # -> CaptureResult
-        """Capture ``plan`` (default: the config's) into ``out``/slice.csv; see :class:`acquisition.engine.RunEngine`.
+    def devices(self) -> Devices:
+        """The bench as the engine sees it (:mod:`acquisition.protocols`): the arms, the detector, the clock."""
+        _, det = self._need()
+        return Devices(_BenchAxes(self), det, _BenchClock(self))
 
-        Opens the bench if needed (and then closes it again). Returns a :class:`~acquisition.engine.CaptureResult`
-        (``result.ok``; ``result.raise_for_status()``).
+    def capture(self, plan: Plan | None = None, out: str | Path | None = None, resume: bool = False,
+                progress: bool | None = None, handle_signals: bool = True,
+                points_plan: Any = None):  # -> CaptureResult
+        """Capture ``plan`` (default: the config's) into ``out``/slice.csv; see :class:`acquisition.capture.RunEngine`.
+
+        Opens the bench if needed (and then closes it again). Returns a :class:`~acquisition.record.CaptureResult`
+        (``result.ok``; ``result.raise_for_status()``). ``points_plan``: the plan that measures the points
+        (default :func:`acquisition.plans.measure_points`; e.g. ``examples/reference_every_n.py``).
         """
-        from .engine import RunEngine
+        from .capture import RunEngine
 
         if out is None:
             out = Path("out") / time.strftime("capture-%Y%m%d-%H%M%S")
         eng = RunEngine(self, plan if plan is not None else self.plan(), out, resume=resume, progress=progress,
-                        handle_signals=handle_signals)
+                        handle_signals=handle_signals, points_plan=points_plan)
         return eng.run()
+
+
+class _BenchAxes:
+    """:class:`~acquisition.protocols.Axes` of a bench: both arms at once, refusing unreachable goals."""
+
+    def __init__(self, bench: Bench) -> None:
+        self.bench = bench
+
+    def set(self, theta_i_deg: float, theta_o_deg: float) -> MoveStatus:
+        self.bench.move(theta_i_deg, theta_o_deg)  # returns once both arms are in position and not moving
+        return MoveStatus(True, True, (theta_i_deg, theta_o_deg))
+
+    def check_value(self, theta_i_deg: float, theta_o_deg: float) -> str | None:
+        return self.bench.geometry.reason(theta_i_deg, theta_o_deg)
+
+    def stop(self) -> None:
+        if self.bench.motion is not None:
+            self.bench.motion.stop()
+
+    def positions(self) -> Point:
+        return self.bench.positions()
+
+
+class _BenchClock:
+    """:class:`~acquisition.protocols.Clock` of a bench: its own clock, waiting on the controller."""
+
+    def __init__(self, bench: Bench) -> None:
+        self.bench = bench
+
+    def now(self) -> float:
+        return self.bench.now()
+
+    def dwell(self, seconds: float) -> None:
+        _, det = self.bench._need()
+        det.dwell(seconds)
 
 
 def _prompt_swap(which: str) -> None:  # pragma: no cover - interactive

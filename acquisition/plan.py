@@ -4,8 +4,10 @@ A point is ``(theta_i_deg, theta_o_deg)``: light arm at theta_i, detector arm at
 the specular side). :class:`Geometry` knows what the bench can reach (soft limits), where the arms would
 collide (``|theta_i + theta_o| < min_separation_deg``) and where the source arm shadows the detector (the blind
 spot, ``|theta_i + theta_o| < blind_spot_half_width_deg``), and how long a move takes (trapezoidal profiles of
-both arms moving at once). :meth:`Plan.check` sorts points into measurable and unmeasurable ones, each with its
-reason: nothing is dropped silently. :func:`order_points` orders them to minimise travel time.
+both arms moving at once; :mod:`acquisition.geometry`). :meth:`Plan.check` sorts points into measurable and
+unmeasurable ones, each with its reason (a :class:`Why`: the text and a :class:`Reason`): nothing is dropped
+silently. :func:`order_points` (:mod:`acquisition.ordering`) orders them to minimise travel time. What a capture
+does with a plan is itself a plan, a generator of messages: :mod:`acquisition.plans`.
 
 Scenes (``configs/scenes/*.toml``, :mod:`reconstruction.scene`) restrict a plan to what a scene needs: see
 :meth:`Plan.restrict`.
@@ -29,235 +31,27 @@ from reconstruction.scene import load_scene as _load_scene
 from .config import (
     MAX_PLAN_POINTS,
     AdaptiveConfig,
-    AxisConfig,
-    BenchConfig,
     PlanConfig,
     _count,
     _frange,
     resolution_deg,
 )
 from .errors import ConfigError, PlanError
+from .geometry import (  # noqa: F401 - the names of this module before the geometry moved out
+    DXL_ACC_UNIT_REV_S2,
+    DXL_UNITS_PER_REV,
+    DXL_VEL_UNIT_REV_S,
+    Geometry,
+    Point,
+    Reason,
+    Why,
+    _trapezoid_time,
+    point_key,
+)
+from .ordering import TWO_OPT_MAX_EVALUATIONS, order_points, path_time
 
-__all__ = ["Point", "Geometry", "Plan", "PlanCheck", "Scene", "load_scene", "order_points", "path_time",
-           "refine_points", "point_key"]
-
-Point = tuple[float, float]
-
-#: Dynamixel X-series profile units: Profile Velocity 0.229 rev/min, Profile Acceleration 214.577 rev/min^2.
-DXL_VEL_UNIT_REV_S = 0.229 / 60.0
-DXL_ACC_UNIT_REV_S2 = 214.577 / 3600.0
-DXL_UNITS_PER_REV = 4096.0
-
-
-def point_key(p: Point) -> tuple[float, float]:
-    """Hashable identity of a point: angles rounded to 1e-6 deg."""
-    return (round(float(p[0]), 6) + 0.0, round(float(p[1]), 6) + 0.0)
-
-
-def _trapezoid_time(d: np.ndarray | float, v: float, a: float) -> np.ndarray:
-    """Duration (s) of a rest-to-rest move over distance ``d`` (deg) at max speed ``v``, acceleration ``a``."""
-    d = np.abs(np.asarray(d, dtype=float))
-    if math.isinf(v) and math.isinf(a):
-        return np.zeros_like(d)
-    if math.isinf(a):
-        return d / v
-    if math.isinf(v):
-        return 2.0 * np.sqrt(d / a)
-    d_ramp = v * v / a
-    return np.where(d < d_ramp, 2.0 * np.sqrt(d / a), d / v + v / a)
-
-
-@dataclass(frozen=True)
-class Geometry:
-    """What the bench can reach and how fast; angles in degrees, speeds in deg/s, accelerations in deg/s^2."""
-
-    light: AxisConfig
-    detector: AxisConfig
-    min_separation_deg: float
-    blind_spot_half_width_deg: float
-    light_speed: tuple[float, float] = (math.inf, math.inf)
-    detector_speed: tuple[float, float] = (math.inf, math.inf)
-    settle_s: float = 0.0
-
-    @classmethod
-    def from_config(cls, cfg: BenchConfig) -> Geometry:
-        speeds = []
-        for ax in (cfg.light, cfg.det_axis):
-            if cfg.bench.motion == "dynamixel":
-                pv, pa = cfg.motion.profile_velocity, cfg.motion.profile_acceleration
-                v = math.inf if pv <= 0 else pv * DXL_VEL_UNIT_REV_S * DXL_UNITS_PER_REV / ax.units_per_deg
-                a = math.inf if pa <= 0 else pa * DXL_ACC_UNIT_REV_S2 * DXL_UNITS_PER_REV / ax.units_per_deg
-            else:
-                v, a = cfg.motion.velocity_deg_s, cfg.motion.acceleration_deg_s2
-            speeds.append((v, a))
-        return cls(cfg.light, cfg.det_axis, cfg.bench.min_separation_deg, cfg.bench.blind_spot_half_width_deg,
-                   speeds[0], speeds[1], cfg.motion.settle_s)
-
-    @property
-    def park(self) -> Point:
-        return (self.light.park_deg, self.detector.park_deg)
-
-    def reason(self, ti: float, to: float) -> str | None:
-        """Why (ti, to) cannot be measured, or None if it can."""
-        if not -90.0 < ti < 90.0 or not -90.0 < to < 90.0:
-            return "outside (-90, 90) degrees"
-        if not self.light.within(ti):
-            return (f"theta_i {ti:g} outside the light arm soft limits "
-                    f"[{self.light.min_deg:g}, {self.light.max_deg:g}] ([axes.light].min_deg, max_deg)")
-        if not self.detector.within(to):
-            return (f"theta_o {to:g} outside the detector arm soft limits "
-                    f"[{self.detector.min_deg:g}, {self.detector.max_deg:g}] ([axes.detector].min_deg, max_deg)")
-        sep = abs(self.quantise(self.light, ti) + self.quantise(self.detector, to))  # at the goals as sent
-        if sep < self.min_separation_deg:
-            return (f"collision: arms {sep:.3f} deg apart, closer than min_separation_deg "
-                    f"{self.min_separation_deg:g}")
-        if sep < self.blind_spot_half_width_deg:
-            return (f"blind spot: the source arm shadows the detector (|theta_i + theta_o| = {sep:.3f} < "
-                    f"{self.blind_spot_half_width_deg:g})")
-        return None
-
-    def reasons(self, points: np.ndarray) -> list[str | None]:
-        """:meth:`reason` for many points (N, 2) at once (vectorised; strings only for the unmeasurable ones)."""
-        pts = np.asarray(points, dtype=float).reshape(-1, 2)
-        ti, to = pts[:, 0], pts[:, 1]
-        lt, dt = self.light, self.detector
-        outside = ~((np.abs(ti) < 90.0) & (np.abs(to) < 90.0))
-        off_light = ~((ti >= lt.min_deg - 1e-9) & (ti <= lt.max_deg + 1e-9))
-        off_det = ~((to >= dt.min_deg - 1e-9) & (to <= dt.max_deg + 1e-9))
-        with np.errstate(all="ignore"):
-            q_ti = (np.round(lt.zero_offset + lt.direction * lt.units_per_deg * ti) - lt.zero_offset) / (
-                lt.direction * lt.units_per_deg)
-            q_to = (np.round(dt.zero_offset + dt.direction * dt.units_per_deg * to) - dt.zero_offset) / (
-                dt.direction * dt.units_per_deg)
-            sep = np.abs(q_ti + q_to)
-        bad = outside | off_light | off_det | (sep < self.min_separation_deg) | (
-            sep < self.blind_spot_half_width_deg)
-        out: list[str | None] = [None] * len(pts)
-        for k in np.flatnonzero(bad):
-            out[k] = self.reason(float(ti[k]), float(to[k]))
-        return out
-
-    @staticmethod
-    def quantise(ax: AxisConfig, deg: float) -> float:
-        """The angle the axis is actually sent to: ``deg`` rounded to whole controller units."""
-        return ax.units_to_deg(round(ax.deg_to_units(deg)))
-
-    @staticmethod
-    def is_limit_reason(reason: str) -> bool:
-        """True for reasons that make a point unreachable (limits), False for collision / blind spot."""
-        return reason.startswith(("theta_i", "theta_o", "outside"))
-
-    def move_times(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """Move time (s) between points ``a`` and ``b`` (..., 2), both arms moving at once; no settle."""
-        a = np.asarray(a, dtype=float)
-        b = np.asarray(b, dtype=float)
-        tl = _trapezoid_time(b[..., 0] - a[..., 0], *self.light_speed)
-        td = _trapezoid_time(b[..., 1] - a[..., 1], *self.detector_speed)
-        return np.maximum(tl, td)
-
-    def move_time(self, a: Point, b: Point) -> float:
-        return float(self.move_times(np.asarray(a), np.asarray(b)))
-
-
-def path_time(points: Sequence[Point], geom: Geometry, start: Point | None = None, end: Point | None = None
-              ) -> float:
-    """Total move time (s) visiting ``points`` in order, from ``start`` and back to ``end`` (default: park)."""
-    start = geom.park if start is None else start
-    end = geom.park if end is None else end
-    seq = np.array([start, *points, end], dtype=float)
-    if len(seq) < 2:
-        return 0.0
-    return float(geom.move_times(seq[:-1], seq[1:]).sum())
-
-
-def _serpentine(points: Sequence[Point], geom: Geometry, start: Point, reverse_ti: bool) -> list[Point]:
-    groups: dict[float, list[Point]] = {}
-    for p in points:
-        groups.setdefault(p[0], []).append(p)
-    out: list[Point] = []
-    cur = start
-    for ti in sorted(groups, reverse=reverse_ti):
-        g = sorted(groups[ti], key=lambda p: p[1])
-        if geom.move_time(cur, g[-1]) < geom.move_time(cur, g[0]):
-            g.reverse()
-        out += g
-        cur = g[-1]
-    return out
-
-
-def _nearest_neighbour(pts: np.ndarray, geom: Geometry, start: Point) -> list[int]:
-    n = len(pts)
-    left = np.ones(n, dtype=bool)
-    cur = np.asarray(start, dtype=float)
-    order = []
-    for _ in range(n):
-        t = geom.move_times(cur[None, :], pts)
-        t[~left] = np.inf
-        k = int(np.argmin(t))
-        order.append(k)
-        left[k] = False
-        cur = pts[k]
-    return order
-
-
-#: Work budget of the 2-opt improvement in :func:`order_points`: candidate segment reversals evaluated (about
-#: 0.5 s of computing on a 2-core machine). A count, not a clock, so the order does not depend on machine load.
-TWO_OPT_MAX_EVALUATIONS = 4_000_000
-
-
-def _two_opt(seq: np.ndarray, geom: Geometry, max_evaluations: int) -> np.ndarray:
-    """2-opt on a path with fixed first and last nodes (``seq`` (N, 2)); stops when no reversal gains or after
-    ``max_evaluations`` candidate reversals were evaluated (deterministic: the same input gives the same path)."""
-    n = len(seq)
-    if n < 5:
-        return seq
-    seq = seq.copy()
-    evaluations = 0
-    improved = True
-    while improved and evaluations < max_evaluations:
-        improved = False
-        for i in range(0, n - 3):
-            a, b = seq[i], seq[i + 1]
-            c = seq[i + 2:n - 1]
-            d = seq[i + 3:n]
-            gain = (geom.move_time(a, b) + geom.move_times(c, d)
-                    - geom.move_times(a[None, :], c) - geom.move_times(b[None, :], d))
-            evaluations += len(c)
-            k = int(np.argmax(gain))
-            if gain[k] > 1e-9:
-                j = i + 2 + k
-                seq[i + 1:j + 1] = seq[i + 1:j + 1][::-1].copy()
-                improved = True
-            if evaluations >= max_evaluations:
-                break
-    return seq
-
-
-def order_points(points: Sequence[Point], geom: Geometry, start: Point | None = None,
-                 end: Point | None = None, max_evaluations: int = TWO_OPT_MAX_EVALUATIONS) -> list[Point]:
-    """Order ``points`` to minimise the total move time from ``start`` to ``end`` (default: park).
-
-    Tries serpentine orders (incidence by incidence, alternating the outgoing sweep) and a nearest-neighbour
-    tour, improves the best with 2-opt (at most ``max_evaluations`` candidate reversals), and returns the
-    fastest. Deterministic: the same points give the same order on any machine and under any load.
-    """
-    start = geom.park if start is None else tuple(start)
-    end = geom.park if end is None else tuple(end)
-    pts = [tuple(map(float, p)) for p in points]
-    if len(pts) <= 1:
-        return list(pts)  # type: ignore[arg-type]
-    cands = [_serpentine(pts, geom, start, False), _serpentine(pts, geom, start, True)]
-    arr = np.array(pts)
-    if len(pts) <= 3000:
-        cands.append([pts[k] for k in _nearest_neighbour(arr, geom, start)])
-    best = min(cands, key=lambda s: path_time(s, geom, start, end))
-    full = np.array([start, *best, end], dtype=float)
-    improved = _two_opt(full, geom, max_evaluations)[1:-1]
-    improved_list = [(float(x), float(y)) for x, y in improved]
-    if path_time(improved_list, geom, start, end) < path_time(best, geom, start, end):
-        best = improved_list
-    return best
-
+__all__ = ["Point", "Geometry", "Plan", "PlanCheck", "Reason", "Why", "Scene", "load_scene", "order_points",
+           "path_time", "refine_points", "point_key", "TWO_OPT_MAX_EVALUATIONS"]
 
 # --- scenes ----------------------------------------------------------------------------------------------------
 
@@ -426,10 +220,12 @@ class Plan:
             pts = [p for s in self.sweeps for p in s.points(self.adaptive.coarse_step_deg)]
         else:
             pts = [p for s in self.sweeps for p in s.points()]
-        seen: dict[tuple[float, float], Point] = {}
-        for p in pts:
-            seen.setdefault(point_key(p), (float(p[0]), float(p[1])))
-        return list(seen.values())
+        if not pts:
+            return []
+        arr = np.asarray(pts, dtype=float).reshape(-1, 2)
+        keys = np.round(arr, 6) + 0.0  # point_key of every point at once
+        _, first = np.unique(keys, axis=0, return_index=True)
+        return [(float(a), float(b)) for a, b in arr[np.sort(first)]]
 
     initial_points = requested_points
 
@@ -513,16 +309,13 @@ class Plan:
     def estimate(self, geom: Geometry, integration_time_s: float, points: Sequence[Point] | None = None,
                  max_evaluations: int = TWO_OPT_MAX_EVALUATIONS) -> dict[str, float]:
         """Estimated times (s): ``motion_s`` in this plan's order, ``naive_motion_s`` in naive order, and
-        ``total_s`` with settle and detector time. ``max_evaluations``: the 2-opt budget of the ordering (a
-        smaller one gives the same order for plans of up to about a thousand points, and a slightly longer
-        estimate for bigger ones, faster)."""
-        pts = self.check(geom).measurable if points is None else list(points)
-        ordered = order_points(pts, geom, max_evaluations=max_evaluations) if self.order == "optimized" else pts
-        motion = path_time(ordered, geom)
-        naive = path_time(pts, geom)
-        per_point = geom.settle_s + self.repeats * integration_time_s
-        return {"points": float(len(pts)), "motion_s": motion, "naive_motion_s": naive,
-                "total_s": motion + len(pts) * per_point}
+        ``total_s`` with settle and detector time: the capture's own plan of the points run on a dry-run bench
+        (:func:`acquisition.dryrun.estimate`). ``max_evaluations``: the 2-opt budget of the ordering (a smaller one
+        gives the same order for plans of up to about a thousand points, and a slightly longer estimate for bigger
+        ones, faster)."""
+        from .dryrun import estimate
+
+        return estimate(self, geom, integration_time_s, points, max_evaluations)
 
 
 # --- adaptive refinement ---------------------------------------------------------------------------------------

@@ -16,6 +16,7 @@ import re
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import serial
@@ -348,6 +349,11 @@ class SerialDetector:
     def dark(self, n: int) -> Reading:
         """``n`` repeats with the source off / shutter closed."""
         return self._read("DARK", n)
+
+    def describe(self) -> dict[str, Any]:
+        """Type, channels, integration time (s) and saturation (counts) of the detector."""
+        return {"type": self.type, "channels": len(self.channels), "integration_time_s": self.integration_time_s,
+                "saturation": self.saturation}
 
     def set_sample(self, which: str) -> None:
         """Sample changer: "REF" (white reference) or "TARGET". Without a changer, ask the operator."""

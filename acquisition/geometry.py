@@ -1,0 +1,170 @@
+"""What an in-plane bench can reach and how fast: :class:`Geometry` (soft limits, the collision zone, the blind
+spot, trapezoidal move times of both arms at once), why a point cannot be measured (:class:`Reason`,
+:class:`Why`) and the identity of a point (:func:`point_key`). Angles in degrees, times in seconds.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import Enum
+
+import numpy as np
+
+from .config import AxisConfig, BenchConfig
+
+__all__ = ["Point", "Reason", "Why", "point_key", "Geometry", "DXL_VEL_UNIT_REV_S", "DXL_ACC_UNIT_REV_S2",
+           "DXL_UNITS_PER_REV"]
+
+Point = tuple[float, float]
+
+#: Dynamixel X-series profile units: Profile Velocity 0.229 rev/min, Profile Acceleration 214.577 rev/min^2.
+DXL_VEL_UNIT_REV_S = 0.229 / 60.0
+DXL_ACC_UNIT_REV_S2 = 214.577 / 3600.0
+DXL_UNITS_PER_REV = 4096.0
+
+
+class Reason(Enum):
+    """Why a point cannot be measured."""
+
+    OUTSIDE = "outside"                  # not within (-90, 90) degrees
+    LIGHT_LIMIT = "light arm limits"     # beyond the light arm's soft limits
+    DETECTOR_LIMIT = "detector arm limits"
+    COLLISION = "collision"              # the arms would collide
+    BLIND_SPOT = "blind spot"            # the source arm shadows the detector
+
+    @property
+    def unreachable(self) -> bool:
+        """True for reasons that make a point unreachable (limits), False for collision / blind spot."""
+        return self in (Reason.OUTSIDE, Reason.LIGHT_LIMIT, Reason.DETECTOR_LIMIT)
+
+
+class Why(str):
+    """The one-line explanation of an unmeasurable point (a ``str``, as it is logged and stored) with its
+    :class:`Reason` as ``reason``."""
+
+    reason: Reason
+
+    def __new__(cls, text: str, reason: Reason) -> Why:
+        w = super().__new__(cls, text)
+        w.reason = reason
+        return w
+
+    def __getnewargs__(self) -> tuple[str, Reason]:  # type: ignore[override] # copies and pickles keep the reason
+        return (str(self), self.reason)
+
+
+def point_key(p: Point) -> tuple[float, float]:
+    """Hashable identity of a point: angles rounded to 1e-6 deg."""
+    return (round(float(p[0]), 6) + 0.0, round(float(p[1]), 6) + 0.0)
+
+
+def _trapezoid_time(d: np.ndarray | float, v: float, a: float) -> np.ndarray:
+    """Duration (s) of a rest-to-rest move over distance ``d`` (deg) at max speed ``v``, acceleration ``a``."""
+    d = np.abs(np.asarray(d, dtype=float))
+    if math.isinf(v) and math.isinf(a):
+        return np.zeros_like(d)
+    if math.isinf(a):
+        return d / v
+    if math.isinf(v):
+        return 2.0 * np.sqrt(d / a)
+    d_ramp = v * v / a
+    return np.where(d < d_ramp, 2.0 * np.sqrt(d / a), d / v + v / a)
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """What the bench can reach and how fast; angles in degrees, speeds in deg/s, accelerations in deg/s^2."""
+
+    light: AxisConfig
+    detector: AxisConfig
+    min_separation_deg: float
+    blind_spot_half_width_deg: float
+    light_speed: tuple[float, float] = (math.inf, math.inf)
+    detector_speed: tuple[float, float] = (math.inf, math.inf)
+    settle_s: float = 0.0
+
+    @classmethod
+    def from_config(cls, cfg: BenchConfig) -> Geometry:
+        speeds = []
+        for ax in (cfg.light, cfg.det_axis):
+            if cfg.bench.motion == "dynamixel":
+                pv, pa = cfg.motion.profile_velocity, cfg.motion.profile_acceleration
+                v = math.inf if pv <= 0 else pv * DXL_VEL_UNIT_REV_S * DXL_UNITS_PER_REV / ax.units_per_deg
+                a = math.inf if pa <= 0 else pa * DXL_ACC_UNIT_REV_S2 * DXL_UNITS_PER_REV / ax.units_per_deg
+            else:
+                v, a = cfg.motion.velocity_deg_s, cfg.motion.acceleration_deg_s2
+            speeds.append((v, a))
+        return cls(cfg.light, cfg.det_axis, cfg.bench.min_separation_deg, cfg.bench.blind_spot_half_width_deg,
+                   speeds[0], speeds[1], cfg.motion.settle_s)
+
+    @property
+    def park(self) -> Point:
+        return (self.light.park_deg, self.detector.park_deg)
+
+    def reason(self, ti: float, to: float) -> Why | None:
+        """Why (ti, to) cannot be measured (a :class:`Why`: text and :class:`Reason`), or None if it can."""
+        if not -90.0 < ti < 90.0 or not -90.0 < to < 90.0:
+            return Why("outside (-90, 90) degrees", Reason.OUTSIDE)
+        if not self.light.within(ti):
+            return Why(f"theta_i {ti:g} outside the light arm soft limits "
+                       f"[{self.light.min_deg:g}, {self.light.max_deg:g}] ([axes.light].min_deg, max_deg)",
+                       Reason.LIGHT_LIMIT)
+        if not self.detector.within(to):
+            return Why(f"theta_o {to:g} outside the detector arm soft limits "
+                       f"[{self.detector.min_deg:g}, {self.detector.max_deg:g}] ([axes.detector].min_deg, max_deg)",
+                       Reason.DETECTOR_LIMIT)
+        sep = abs(self.quantise(self.light, ti) + self.quantise(self.detector, to))  # at the goals as sent
+        if sep < self.min_separation_deg:
+            return Why(f"collision: arms {sep:.3f} deg apart, closer than min_separation_deg "
+                       f"{self.min_separation_deg:g}", Reason.COLLISION)
+        if sep < self.blind_spot_half_width_deg:
+            return Why(f"blind spot: the source arm shadows the detector (|theta_i + theta_o| = {sep:.3f} < "
+                       f"{self.blind_spot_half_width_deg:g})", Reason.BLIND_SPOT)
+        return None
+
+    def reasons(self, points: np.ndarray) -> list[Why | None]:
+        """:meth:`reason` for many points (N, 2) at once (vectorised; strings only for the unmeasurable ones)."""
+        pts = np.asarray(points, dtype=float).reshape(-1, 2)
+        ti, to = pts[:, 0], pts[:, 1]
+        lt, dt = self.light, self.detector
+        outside = ~((np.abs(ti) < 90.0) & (np.abs(to) < 90.0))
+        off_light = ~((ti >= lt.min_deg - 1e-9) & (ti <= lt.max_deg + 1e-9))
+        off_det = ~((to >= dt.min_deg - 1e-9) & (to <= dt.max_deg + 1e-9))
+        with np.errstate(all="ignore"):
+            q_ti = (np.round(lt.zero_offset + lt.direction * lt.units_per_deg * ti) - lt.zero_offset) / (
+                lt.direction * lt.units_per_deg)
+            q_to = (np.round(dt.zero_offset + dt.direction * dt.units_per_deg * to) - dt.zero_offset) / (
+                dt.direction * dt.units_per_deg)
+            sep = np.abs(q_ti + q_to)
+        bad = outside | off_light | off_det | (sep < self.min_separation_deg) | (
+            sep < self.blind_spot_half_width_deg)
+        out: list[Why | None] = [None] * len(pts)
+        for k in np.flatnonzero(bad):
+            out[k] = self.reason(float(ti[k]), float(to[k]))
+        return out
+
+    @staticmethod
+    def quantise(ax: AxisConfig, deg: float) -> float:
+        """The angle the axis is actually sent to: ``deg`` rounded to whole controller units."""
+        return ax.units_to_deg(round(ax.deg_to_units(deg)))
+
+    @staticmethod
+    def is_limit_reason(reason: str) -> bool:
+        """True for reasons that make a point unreachable (limits), False for collision / blind spot."""
+        if isinstance(reason, Why):
+            return reason.reason.unreachable
+        return reason.startswith(("theta_i", "theta_o", "outside"))  # a reason read back from a file
+
+    def move_times(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Move time (s) between points ``a`` and ``b`` (..., 2), both arms moving at once; no settle."""
+        a = np.asarray(a, dtype=float)
+        b = np.asarray(b, dtype=float)
+        tl = _trapezoid_time(b[..., 0] - a[..., 0], *self.light_speed)
+        td = _trapezoid_time(b[..., 1] - a[..., 1], *self.detector_speed)
+        return np.maximum(tl, td)
+
+    def move_time(self, a: Point, b: Point) -> float:
+        return float(self.move_times(np.asarray(a), np.asarray(b)))
+
+

@@ -1,0 +1,223 @@
+"""Capture plans: generators of :mod:`acquisition.messages` that the engine runs.
+
+A capture is :func:`capture`: the calibration (:func:`calibrate`: the dark level and the white reference, or
+the calibration of the slice being resumed), the points (:func:`measure`, point by point with :func:`point`),
+adaptive refinement (:func:`adaptive`, a plan that is sent the readings it asked for and asks for more where
+the slice changes fast) and the final dark reading (:func:`final_dark`). Each is a few lines, and a new
+procedure is a new plan, not a change to the engine: see ``examples/reference_every_n.py`` (re-read the white
+reference every N points).
+
+``gonio-capture --check`` runs :func:`measure`, the very plan of the capture's points, against a dry-run bench
+(:mod:`acquisition.dryrun`).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Generator, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .calibration import Calibration, Reading
+from .config import BenchConfig
+from .errors import DeviceError
+from .messages import (
+    Announce,
+    Calibrate,
+    Checkpoint,
+    Dark,
+    Move,
+    Msg,
+    Now,
+    Read,
+    RestoreSetting,
+    Save,
+    SelectSample,
+    Settle,
+    Tally,
+    UseReference,
+    Where,
+)
+from .plan import TWO_OPT_MAX_EVALUATIONS, Geometry, Plan, Point, order_points, path_time, point_key, refine_points
+
+log = logging.getLogger("acquisition.plans")
+
+__all__ = ["PlanGen", "PointsPlan", "Sample", "point", "measure", "measure_points", "white_reference", "rereference",
+           "calibrate", "adaptive", "final_dark", "CaptureContext", "capture"]
+
+#: A plan: yields messages, is sent their replies, returns its result.
+PlanGen = Generator[Msg, Any, Any]
+#: A measured sample as plans see it: (theta_i, theta_o, mean f_r over channels, mean std), degrees and 1/sr.
+Sample = tuple[float, float, float, float]
+
+
+def point(theta_i_deg: float, theta_o_deg: float, repeats: int) -> PlanGen:
+    """Measure one point: move (a move is also a safe place to stop), settle, read, save. Returns the saved
+    :data:`Sample`."""
+    yield Move(theta_i_deg, theta_o_deg)
+    yield Settle()
+    reading, ranged = yield Read(repeats, point=(theta_i_deg, theta_o_deg))
+    return (yield Save(theta_i_deg, theta_o_deg, reading, ranged, repeats))
+
+
+def measure(points: Sequence[Point], geometry: Geometry, repeats: int, done: dict[tuple[float, float], Sample],
+            order: str = "optimized", max_evaluations: int = TWO_OPT_MAX_EVALUATIONS) -> PlanGen:
+    """Measure the points not yet in ``done`` (keys :func:`~acquisition.plan.point_key`), ordered for short arm
+    travel from where the arms are (``order = "optimized"``); every sample is added to ``done``."""
+    todo = [p for p in points if point_key(p) not in done] if done else list(points)
+    yield Announce(len(done) + len(todo), len(done))
+    if not todo:
+        return
+    start = yield Where()
+    if order == "optimized":
+        todo = order_points(todo, geometry, start=start, max_evaluations=max_evaluations)
+    log.info("%d point(s) to measure; estimated motion %.2f s", len(todo), path_time(todo, geometry, start))
+    settle = Settle()
+    for ti, to in todo:  # point(ti, to, repeats), inlined: a dry run of 20,000 points stays well under a second
+        yield Move(ti, to)
+        yield settle
+        reading, ranged = yield Read(repeats, point=(ti, to))
+        done[point_key((ti, to))] = yield Save(ti, to, reading, ranged, repeats)
+
+
+def white_reference(cfg: BenchConfig) -> PlanGen:
+    """Read the white reference at the reference geometry (the reference in front of the detector meanwhile).
+    Returns (reading, its Ranged record or None)."""
+    c = cfg.calibration
+    log.info("measuring the white reference at (%g, %g) (%d repeats)", c.reference_theta_i_deg,
+             c.reference_theta_o_deg, c.reference_repeats)
+    yield SelectSample("REF")
+    try:
+        yield Move(c.reference_theta_i_deg, c.reference_theta_o_deg, checkpoint=False)
+        yield Settle()
+        ref, ranged = yield Read(c.reference_repeats, "white reference", rung=0)
+    finally:
+        yield SelectSample("TARGET")
+    return ref, ranged
+
+
+def rereference(cfg: BenchConfig) -> PlanGen:
+    """Read the white reference again and convert with it from now on (relative calibration; the dark level and
+    the slice's metadata keep the first reading, the log records each new one)."""
+    ref, _ = yield from white_reference(cfg)
+    yield UseReference(ref)
+
+
+def calibrate(cfg: BenchConfig, rho_ref: np.ndarray) -> PlanGen:
+    """The dark level, then (relative calibration) the white reference; tells the engine to convert with the
+    result. Returns the :class:`Calibration`."""
+    c = cfg.calibration
+    log.info("measuring the dark level (%d repeats, source off)", cfg.detector.dark_repeats)
+    dark = yield Dark(cfg.detector.dark_repeats, "dark reading", calibration=True)
+    t_ref_read = cfg.detector.integration_time_s
+    if c.mode == "relative":
+        ref, ranged = yield from white_reference(cfg)
+        if ranged is not None:
+            t_ref_read = ranged.integration_time_s
+            if ranged.ranged:
+                log.info("white reference: auto-ranged to t_int = %g s", t_ref_read)
+        cal = Calibration("relative", dark, ref, rho_ref, c.reference_theta_o_deg)
+        try:
+            cal.scale(c.reference_theta_o_deg)  # raises if the reference reads no signal
+        except ValueError as e:
+            raise DeviceError(f"white reference at ({c.reference_theta_i_deg:g}, {c.reference_theta_o_deg:g}): "
+                              f"{e} (reference {ref.mean.tolist()[:4]}, dark {dark.mean.tolist()[:4]} counts)"
+                              ) from None
+    else:
+        assert c.source_power is not None and c.detector_solid_angle_sr is not None
+        cal = Calibration("absolute", dark, k_counts=c.source_power * c.detector_solid_angle_sr)
+    log.info("dark %s counts; %s", np.round(dark.mean, 3).tolist()[:8],
+             f"reference {np.round(cal.reference.mean, 3).tolist()[:8]} counts" if cal.reference else
+             f"K = {cal.k_counts:g} counts")
+    yield Calibrate(cal, t_ref_read if c.mode == "relative" else None)
+    return cal
+
+
+def adaptive(ctx: CaptureContext, t_start: float) -> PlanGen:
+    """Adaptive refinement: rounds of midpoints where the measured slice changes fast
+    (:func:`~acquisition.plan.refine_points`), measured by the context's points plan and sent back through
+    ``ctx.done``, until it converges, the point limit or the time budget (bench seconds since ``t_start``) is
+    reached."""
+    a, geometry, done = ctx.plan.adaptive, ctx.geometry, ctx.done
+    assert a is not None
+    known = {point_key(p) for p in ctx.measurable}
+    for rnd in range(1, a.max_rounds + 1):
+        samples: dict[float, list[tuple[float, float, float]]] = {}
+        for k in known:
+            ti, to, v, s = done[k]
+            samples.setdefault(ti, []).append((to, v, s))
+        new = refine_points(samples, geometry, a.tolerance, a.min_step_deg, known)
+        if a.max_points and len(known) + len(new) > a.max_points:
+            new = new[: max(a.max_points - len(known), 0)]
+            log.info("adaptive: point limit %d reached", a.max_points)
+        if not new:
+            log.info("adaptive: converged after %d round(s) (tolerance %g)", rnd - 1, a.tolerance)
+            break
+        if a.time_budget_s and (yield Now()) - t_start > a.time_budget_s:
+            log.info("adaptive: time budget %g s used up before round %d", a.time_budget_s, rnd)
+            break
+        log.info("adaptive round %d: %d new point(s)", rnd, len(new))
+        yield from ctx.points_plan(ctx, new)
+        known |= {point_key(p) for p in new}
+        yield Tally("adaptive_rounds", rnd)
+        if a.max_points and len(known) >= a.max_points:
+            break
+
+
+def final_dark(cfg: BenchConfig, calibration: Calibration) -> PlanGen:
+    """The dark level again at the end: its drift since the calibration is logged and recorded."""
+    yield Checkpoint()
+    d_end: Reading = yield Dark(cfg.detector.dark_repeats, "dark reading")
+    yield Checkpoint()  # a signal during the final dark: stopped; a resume measures it again
+    drift = d_end.mean - calibration.dark.mean
+    yield Tally("dark_drift", [float(x) for x in drift])
+    noise = calibration.dark.std_of_mean + d_end.std_of_mean
+    lvl = "warning" if np.any(np.abs(drift) > 3 * np.maximum(noise, 1e-9)) else "info"
+    getattr(log, lvl)("dark level drift over the capture: %s counts (start %s)", np.round(drift, 3).tolist(),
+                      np.round(calibration.dark.mean, 3).tolist())
+
+
+def measure_points(ctx: CaptureContext, points: Sequence[Point]) -> PlanGen:
+    """The default points plan of a capture: :func:`measure` with the capture's plan settings."""
+    yield from measure(points, ctx.geometry, ctx.plan.repeats, ctx.done, ctx.plan.order)
+
+
+#: A points plan: measures ``points`` within a capture (the samples go to ``ctx.done``).
+PointsPlan = Callable[["CaptureContext", Sequence[Point]], PlanGen]
+
+
+@dataclass
+class CaptureContext:
+    """What :func:`capture` needs: the bench file, the plan, the geometry, the measurable points, the samples
+    already in the slice (a resume) and its calibration (None: measure one), the white reference's rho per
+    channel, the bench time of this capture's earlier runs (s), and the plan that measures points
+    (:func:`measure_points`, or a procedure of one's own, e.g. ``examples/reference_every_n.py``)."""
+
+    cfg: BenchConfig
+    plan: Plan
+    geometry: Geometry
+    measurable: list[Point]
+    done: dict[tuple[float, float], Sample] = field(default_factory=dict)
+    calibration: Calibration | None = None
+    rho_ref: Any = None
+    previous_bench_time_s: float = 0.0
+    points_plan: PointsPlan = measure_points
+
+
+def capture(ctx: CaptureContext) -> PlanGen:
+    """The whole capture: calibration, the points, adaptive refinement, the final dark reading."""
+    t0 = yield Now()
+    if ctx.calibration is not None:  # a resume: the slice's own calibration
+        yield SelectSample("TARGET")
+        yield Calibrate(ctx.calibration)
+        cal = ctx.calibration
+    else:
+        cal = yield from calibrate(ctx.cfg, ctx.rho_ref)
+    yield from ctx.points_plan(ctx, ctx.measurable)
+    if ctx.plan.adaptive is not None:
+        yield from adaptive(ctx, t0 - ctx.previous_bench_time_s)  # the budget counts every run of this capture
+    yield RestoreSetting()
+    if ctx.plan.dark_at_end:
+        yield from final_dark(ctx.cfg, cal)
