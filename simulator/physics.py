@@ -21,7 +21,6 @@ converts back to the same RGB under D65; a grey material is flat.
 
 from __future__ import annotations
 
-import csv
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -88,29 +87,14 @@ def white_reference(cfg: BenchConfig) -> BRDF:
         path = Path(cfg.reference_spectrum)
         if not path.is_absolute():
             path = cfg.base_dir / path
-        wl, val = _read_spectrum_csv(path)
-        albedo: Any = {"wavelengths_nm": wl, "values": val}
+        from reconstruction.schema.files import read_spectrum_csv  # the one reader, as gonio-capture's
+
+        wl, val = read_spectrum_csv(path, "[calibration].reference_spectrum")
+        albedo: Any = {"wavelengths_nm": list(wl), "values": list(val)}
     else:
         albedo = float(cfg.reference_reflectance)
     return Material.from_dict({"name": "white-reference", "lobes": [{"type": "lambert", "albedo": albedo}]},
                               cfg.base_dir)
-
-
-def _read_spectrum_csv(path: Path) -> tuple[list[float], list[float]]:
-    wl, val = [], []
-    with open(path, newline="") as fh:
-        for row in csv.reader(fh):
-            if not row or row[0].strip().startswith("#"):
-                continue
-            try:
-                w, v = float(row[0]), float(row[1])
-            except (ValueError, IndexError):
-                continue  # header line
-            wl.append(w)
-            val.append(v)
-    if len(wl) < 2:
-        raise ValueError(f"{path}: need at least two wavelength_nm,reflectance rows")
-    return wl, val
 
 
 @dataclass

@@ -1,0 +1,189 @@
+"""The bench file (``configs/*.toml``), declared once: every section, key, type, default, bound and choice that
+``gonio-capture`` (:mod:`acquisition.config`) and ``gonio-sim`` (:mod:`simulator.config`) read. Checks that need
+several keys (a port for the transport, the soft limits against the servo's range, the reference geometry
+against the collision zone...) live with the readers. Angles in degrees, times in seconds.
+"""
+
+
+import math
+from typing import Annotated, Any, Literal
+
+import msgspec
+from msgspec import Meta
+
+from .simulator import SimulatorSection
+
+__all__ = ["DXL_MODELS", "DXL_BAUDRATES", "AXIS_LETTERS", "MIN_INTEGRATION_TIME_S", "MAX_INTEGRATION_TIME_S",
+           "BenchTable", "AxisTable", "MotionTable", "DetectorTable", "CalibrationTable", "AdaptiveTable",
+           "PlanTable", "AxesTables", "BenchFile"]
+
+#: Dynamixel model names accepted in ``[axes.*].model`` -> model number answered to a ping.
+DXL_MODELS = {"XM430-W350": 1020, "XL430-W250": 1060}
+#: Baud rates the Dynamixel SDK's PortHandler accepts.
+DXL_BAUDRATES = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 500000, 576000, 921600, 1000000, 1152000,
+                 2000000, 2500000, 3000000, 3500000, 4000000)
+#: Default axis letters on the serial text protocol, by axis name.
+AXIS_LETTERS = {"light": "L", "detector": "D", "stage": "S"}
+#: Integration times the detector protocol accepts (``INT <s>``, docs/serial-protocol.md), seconds.
+MIN_INTEGRATION_TIME_S, MAX_INTEGRATION_TIME_S = 1e-5, 10.0
+
+
+def _pos_within(lo: float, hi: float, unit: str = "") -> Any:
+    """The check "> 0, then within [lo, hi]" (two messages, as a person reads them)."""
+    def check(v: float) -> str | None:
+        if not v > 0:
+            return f"must be > 0, got {v:g}"
+        return None if lo <= v <= hi else f"must lie in [{lo:g}, {hi:g}]{unit}, got {v:g}"
+    return check
+
+
+def _num(lo: float | None = None, hi: float | None = None, *, gt: float | None = None, description: str = "",
+         check: Any = None) -> Meta:
+    extra = {"check": check} if check is not None else {}
+    return Meta(ge=lo, le=hi, gt=gt, description=description, extra=extra)
+
+
+Angle = Annotated[float, _num(-180.0, 180.0, description="degrees")]
+Positive = Annotated[float, _num(gt=0.0)]
+
+
+class BenchTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
+    """``[bench]``: transport, ports and the geometry constraints of the arms."""
+
+    name: Annotated[str, Meta(description="name of the bench (logs, slice metadata)")] = "bench"
+    transport: Annotated[Literal["dynamixel", "serial", "simulated"], Meta(
+        description="dynamixel: servos on a Dynamixel bus + serial detector; serial: a stepper controller that "
+                    "also reads the detector; simulated: gonio-sim in a child process")]
+    motion: Annotated[Literal["dynamixel", "serial"] | None, Meta(
+        description="motion hardware of a simulated bench (real benches: equal to transport, or left out)")] = None
+    dynamixel_port: Annotated[str, Meta(description='servo bus port, e.g. "/dev/ttyUSB0"')] = ""
+    dynamixel_baudrate: Annotated[Literal[DXL_BAUDRATES], Meta(description="servo bus baud rate")] = 1000000  # type: ignore[valid-type]
+    serial_port: Annotated[str, Meta(description='controller / detector port, e.g. "/dev/ttyACM0"')] = ""
+    serial_baudrate: Annotated[int, _num(50, 100_000_000, check=_pos_within(50, 1e8))] = 115200
+    serial_timeout_s: Annotated[float, _num(1e-3, 60, check=_pos_within(1e-3, 60))] = 1.0
+    min_separation_deg: Annotated[float, _num(0.0, 90.0, description="arms closer than this in |theta_i + theta_o| "
+                                                                     "collide (degrees)")]
+    blind_spot_half_width_deg: Annotated[float, _num(0.0, 90.0, description="the source arm shadows the detector "
+                                                                            "within this of the retro direction")]
+    simulator_command: Annotated[str, Meta(description="the simulator program (simulated benches)")] = "gonio-sim"
+
+
+def _units_per_deg(v: float) -> str | None:
+    if not v > 0:
+        return f"must be > 0, got {v:g}"
+    return None if 1e-2 <= v <= 1e6 else f"must lie in [0.01, 1e+06] units per degree, got {v:g}"
+
+
+class AxisTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
+    """``[axes.light]``, ``[axes.detector]``, ``[axes.stage]``: controller units = zero_offset + direction *
+    units_per_deg * degrees."""
+
+    id: Annotated[int | str, Meta(description="Dynamixel ID (0-252) or the axis letter on the serial controller",
+                                  extra={"expected": "an integer ID or an axis letter"})]
+    model: Annotated[str | None, Meta(description=f"Dynamixel model: {', '.join(DXL_MODELS)}")] = None
+    units_per_deg: Annotated[float, _num(1e-2, 1e6, check=_units_per_deg, description="controller units per degree")]
+    zero_offset: Annotated[float, _num(-1e9, 1e9, description="controller position of 0 degrees")]
+    direction: Annotated[Literal[1, -1], Meta(description="+1 or -1")]
+    min_deg: Annotated[float, _num(-180.0, 180.0, description="soft limit (degrees)")]
+    max_deg: Annotated[float, _num(-180.0, 180.0, description="soft limit (degrees)")]
+    park_deg: Annotated[float, _num(-180.0, 180.0, description="park position (degrees)")]
+
+
+class MotionTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
+    """``[motion]``: profiles (Dynamixel units), stepper speeds, tolerance, settling, timeouts, retries."""
+
+    profile_velocity: Annotated[int, _num(0, 32767, description="Dynamixel Profile Velocity (0.229 rev/min "
+                                                                       "units, 0 = unlimited)")] | None = None
+    profile_acceleration: Annotated[int, _num(0, 32767, description="Dynamixel Profile Acceleration "
+                                                                           "(214.577 rev/min^2 units)")] | None = None
+    velocity_deg_s: Annotated[float, _num(1e-3, 1e5, check=_pos_within(1e-3, 1e5), description="stepper speed")] = 60.0
+    acceleration_deg_s2: Annotated[float, _num(1e-3, 1e7, check=_pos_within(1e-3, 1e7))] = 240.0
+    tolerance_deg: Annotated[float, _num(gt=0.0, description="in position within this (degrees, at most 5)")]
+    settle_s: Annotated[float, _num(0.0, 60.0, description="wait after a move before reading (s)")]
+    timeout_s: Annotated[float, _num(1e-3, 3600, check=_pos_within(1e-3, 3600))] = 20.0
+    retries: Annotated[int, _num(0, 100, description="retries of a failed transaction")] = 3
+    poll_interval_s: Annotated[float, _num(0.0, 10.0)] = 0.01
+
+
+class DetectorTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
+    """``[detector]``: type, integration time per repeat, repeats, saturation, dark repeats, auto-ranging."""
+
+    type: Literal["photodiode", "spectrometer"]
+    integration_time_s: Annotated[float, _num(MIN_INTEGRATION_TIME_S, MAX_INTEGRATION_TIME_S)]
+    repeats: Annotated[int, _num(1, 1000)]
+    saturation: Annotated[float, _num(1, 2.0**32, check=_pos_within(1, 2.0**32), description="raw counts")]
+    dark_repeats: Annotated[int, _num(1, 1000)] = 32
+    auto_range: Annotated[bool, Meta(description="read saturated points again at shorter integration times")] = True
+    min_integration_time_s: Annotated[float, _num(MIN_INTEGRATION_TIME_S, MAX_INTEGRATION_TIME_S)] = \
+        MIN_INTEGRATION_TIME_S
+
+
+class CalibrationTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
+    """``[calibration]``: relative (a white reference) or absolute (source power x detector solid angle)."""
+
+    mode: Literal["relative", "absolute"]
+    reference_reflectance: Annotated[float, Meta(gt=0.0, le=1.5)] | None = None
+    reference_spectrum: Annotated[str | None, Meta(description="wavelength_nm,reflectance CSV of the reference, "
+                                                               "relative to the bench file")] = None
+    reference_theta_i_deg: Annotated[float, _num(-89.9, 89.9)] | None = None
+    reference_theta_o_deg: Annotated[float, _num(-89.9, 89.9)] | None = None
+    reference_repeats: Annotated[int, _num(1, 1000)] = 32
+    source_power: Annotated[float, _num(1e-6, 1e18, check=_pos_within(1e-6, 1e18))] | None = None
+    detector_solid_angle_sr: Annotated[float, _num(1e-12, 2 * math.pi,
+                                                          check=_pos_within(1e-12, 2 * math.pi))] | None = None
+
+
+class AdaptiveTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
+    """``[plan.adaptive]``: a coarse pass, then midpoints where the slice changes fast."""
+
+    enabled: bool = True
+    coarse_step_deg: Annotated[float, _num(gt=0.0, description="default: 4 x theta_o_step_deg")] | None = None
+    min_step_deg: Annotated[float, _num(gt=0.0)] = 0.5
+    tolerance: Annotated[float, _num(gt=0.0, description="relative interpolation error that splits a gap")] = 0.05
+    time_budget_s: Annotated[float, _num(0.0)] = 0.0
+    max_points: Annotated[int, _num(0)] = 0
+    max_rounds: Annotated[int, _num(1, 50)] = 6
+
+
+class PlanTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
+    """``[plan]``: incidences, the outgoing range and step (or explicit points), repeats, options."""
+
+    theta_i_deg: Annotated[list[float] | None, Meta(description="incidence angles (degrees)")] = None
+    theta_i_min_deg: float | None = None
+    theta_i_max_deg: float | None = None
+    theta_i_step_deg: Annotated[float, _num(gt=0.0)] | None = None
+    theta_o_min_deg: Annotated[float, _num(-90.0, 90.0)] | None = None
+    theta_o_max_deg: Annotated[float, _num(-90.0, 90.0)] | None = None
+    theta_o_step_deg: Annotated[float, _num(gt=0.0)] | None = None
+    points: Annotated[list[tuple[float, float]] | None, Meta(description="explicit [theta_i_deg, theta_o_deg] "
+                                                                         "pairs instead of a grid")] = None
+    repeats: Annotated[int, _num(1, 1000, description="default: [detector].repeats")] | None = None
+    dark_at_end: bool = True
+    order: Literal["optimized", "naive"] = "optimized"
+    strict: Annotated[bool, Meta(description="refuse collision / blind-spot points instead of skipping them")] = False
+    scene: Annotated[str | None, Meta(description="scene file restricting the plan")] = None
+    sample_name: str | None = None
+    adaptive: AdaptiveTable | None = None
+
+
+class AxesTables(msgspec.Struct, forbid_unknown_fields=True):
+    """``[axes]``: the light and detector arms and an optional sample stage."""
+
+    light: AxisTable
+    detector: AxisTable
+    stage: AxisTable | None = None
+
+
+class BenchFile(msgspec.Struct, forbid_unknown_fields=True):
+    """A bench file: ``gonio-capture --config`` and ``gonio-sim serve --config`` read it."""
+
+    bench: BenchTable
+    axes: AxesTables
+    motion: MotionTable
+    detector: DetectorTable
+    calibration: CalibrationTable
+    plan: PlanTable
+    material: Annotated[dict[str, Any] | None, Meta(
+        description="the simulated sample (a simulated bench needs it): see docs/schema/material.json")] = None
+    simulator: SimulatorSection | None = None
+
