@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .geometry import normalize
+from .schema.material import lobe_keys
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -460,17 +461,9 @@ LOBE_TYPES: dict[str, type[Lobe]] = {
     "nbrdf": Nbrdf,
 }
 
-# key -> (required, kind) for each lobe type; kind is "colour", "float", "path" or "prefix" (of a file set)
-_LOBE_KEYS: dict[str, dict[str, tuple[bool, str]]] = {
-    "lambert": {"albedo": (True, "colour")},
-    "oren_nayar": {"albedo": (True, "colour"), "sigma_deg": (True, "float")},
-    "ggx": {"alpha": (True, "float"), "specular": (True, "colour"), "f0": (False, "float")},
-    "beckmann": {"alpha": (True, "float"), "specular": (True, "colour"), "f0": (False, "float")},
-    "phong": {"exponent": (True, "float"), "specular": (True, "colour")},
-    "retro": {"exponent": (True, "float"), "amount": (True, "colour")},
-    "tabulated": {"path": (True, "path"), "scale": (False, "colour")},
-    "nbrdf": {"path": (True, "prefix"), "scale": (False, "colour")},
-}
+#: key -> (required, kind) for each lobe type, from the material's schema (reconstruction.schema.material); kind
+#: is "colour", "float", "path" or "prefix" (of a file set)
+_LOBE_KEYS: dict[str, dict[str, tuple[bool, str]]] = lobe_keys()
 
 
 def _lobe_from_dict(d: Mapping[str, Any], where: str, base_dir: Path) -> Lobe:

@@ -40,6 +40,7 @@ from pathlib import Path
 from typing import Any
 
 from .base import ReconstructionError
+from .schema.scene import LOBE_KINDS, ErrorBudget, SceneTable, keys
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -49,11 +50,9 @@ else:  # pragma: no cover
 __all__ = ["Scene", "SceneError", "LOBE_KINDS", "RECONSTRUCTION_DEFAULT_RANGE_DEG", "CAPTURE_DEFAULT_RANGE_DEG",
            "load_scene", "scene_from_dict"]
 
-#: Lobe kinds a scene may allow (the fit's vocabulary; ``fresnel`` allows Schlick Fresnel on microfacet lobes).
-LOBE_KINDS = ("lambert", "ggx", "beckmann", "retro", "fresnel")
-
-_SCENE_KEYS = ("name", "theta_i_deg", "theta_o_deg", "angular_resolution_deg", "lobes", "error_budget")
-_BUDGET_KEYS = ("relative_rmse", "relative_sigma")
+#: The keys of [scene] and [scene.error_budget]: the scene file's schema (reconstruction.schema.scene).
+_SCENE_KEYS = keys(SceneTable)
+_BUDGET_KEYS = keys(ErrorBudget)
 
 Range = tuple[float, float]
 

@@ -32,13 +32,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .atomic import atomic_open
+from .schema.slice_meta import FORMAT_VERSION, QUANTITIES  # the metadata's schema
 
 Array = NDArray[np.float64]
 
-FORMAT_VERSION = 1
 MAGIC = "# gonio-brdf slice"
 META_PREFIX = "# meta: "
-QUANTITIES = ("brdf", "reflectance_factor", "brdf_cos")
 _WAVELENGTH = re.compile(r"^(\d+(?:\.\d+)?)nm$")
 #: Largest input file (slice file or generic table) the readers accept, in bytes; a larger one is refused with a
 #: message (read in memory: a 100 MB table takes a few seconds and about 0.5 GB).

@@ -232,9 +232,27 @@ def read_table(source: str, section: str, raw: Any, cls: type, **kw: Any) -> Tab
     return Table(source, section, raw, cls, **kw)
 
 
+def _no_null(node: Any) -> Any:
+    """TOML has no null: an absent key is what None means, so the schema offers no ``null``."""
+    if isinstance(node, dict):
+        out = {k: _no_null(v) for k, v in node.items() if not (k == "default" and v is None)}
+        alts = out.get("anyOf")
+        if isinstance(alts, list):
+            rest = [a for a in alts if a != {"type": "null"}]
+            if len(rest) == 1:
+                del out["anyOf"]
+                out = {**rest[0], **out}
+            else:
+                out["anyOf"] = rest
+        return out
+    if isinstance(node, list):
+        return [_no_null(x) for x in node]
+    return node
+
+
 def json_schema(cls: type, title: str, description: str) -> dict[str, Any]:
     """The JSON Schema (draft 2020-12) of the struct ``cls``, for editors."""
-    schema = msgspec.json.schema(cls)
+    schema = _no_null(msgspec.json.schema(cls))
     ref = schema.pop("$ref", None)
     defs = schema.pop("$defs", {})
     root = defs.pop(ref.rsplit("/", 1)[-1]) if ref else schema
