@@ -121,7 +121,7 @@ def estimate(plan: Plan, geometry: Geometry, integration_time_s: float, points: 
     pts = plan.check(geometry).measurable if points is None else list(points)
 
     def points_then_park() -> Any:
-        yield from measure(pts, geometry, plan.repeats, {}, plan.order, max_evaluations)
+        yield from measure(pts, geometry, plan.repeats, None, plan.order, max_evaluations)
         yield Move(*geometry.park, checkpoint=False)  # back to park, as a capture ends
 
     bench = dry_run(points_then_park(), geometry, integration_time_s)
