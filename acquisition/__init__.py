@@ -11,9 +11,7 @@ pseudo-terminals it prints. This package never imports ``simulator``.
 
 from .bench import Bench, SimulatorProcess
 from .calibration import Calibration, Reading
-from .capture import RunEngine
 from .config import BenchConfig, config_from_dict, load_config
-from .engine import Engine
 from .errors import (
     AcquisitionError,
     CaptureInterrupted,
@@ -24,7 +22,6 @@ from .errors import (
     PlanError,
 )
 from .plan import Geometry, Plan, PlanCheck, Reason, Scene, load_scene, order_points, path_time
-from .record import CaptureResult, Stop
 
 __all__ = [
     "AcquisitionError",
@@ -54,3 +51,16 @@ __all__ = [
     "order_points",
     "path_time",
 ]
+
+
+#: Names imported when first used: a capture's machinery is not loaded by ``gonio-capture --check`` (which
+#: returns in well under a second for the largest plan).
+_LAZY = {"RunEngine": "capture", "Engine": "engine", "CaptureResult": "record", "Stop": "record"}
+
+
+def __getattr__(name: str) -> object:
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

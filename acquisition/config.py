@@ -280,9 +280,7 @@ def _read_bench(src: str, raw: Any) -> BenchSection:
             raise t.error("serial_port", "missing: the serial controller (detector"
                                          + (" and stepper axes" if transport == "serial" else "")
                                          + ') needs a port, e.g. "/dev/ttyACM0"')
-    return BenchSection(t["name"], transport, motion, t["dynamixel_port"], t["dynamixel_baudrate"],
-                        t["serial_port"], t["serial_baudrate"], t["serial_timeout_s"], t["min_separation_deg"],
-                        t["blind_spot_half_width_deg"], t["simulator_command"])
+    return BenchSection(**{**t.values, "transport": transport, "motion": motion})
 
 
 def _read_axis(src: str, name: str, raw: Any, motion: str) -> AxisConfig:
@@ -311,8 +309,7 @@ def _read_axis(src: str, name: str, raw: Any, motion: str) -> AxisConfig:
         raise t.error(key, f"the {name} arm must stay within [-90, 90] degrees of the normal, got {t[key]:g}")
     if not lo <= t["park_deg"] <= hi:
         raise t.error("park_deg", f"{t['park_deg']:g} is outside the soft limits [{lo:g}, {hi:g}] (min_deg, max_deg)")
-    ax = AxisConfig(name, ax_id, t["model"], t["units_per_deg"], t["zero_offset"], t["direction"], lo, hi,
-                    t["park_deg"])
+    ax = AxisConfig(name=name, **t.values)
     u = sorted((ax.deg_to_units(lo), ax.deg_to_units(hi)))
     if motion == "dynamixel":
         if u[0] < DXL_POSITION_RANGE[0] - 0.5 or u[1] > DXL_POSITION_RANGE[1] + 0.5:
@@ -336,9 +333,8 @@ def _read_motion(src: str, raw: Any, motion: str) -> MotionConfig:
                 raise t.error(k, "missing key: a Dynamixel bench needs the profile (0 = unlimited)")
     if t["tolerance_deg"] > 5:
         raise t.error("tolerance_deg", f"{t['tolerance_deg']:g} deg is not a position tolerance (max 5)")
-    return MotionConfig(t["profile_velocity"] or 0, t["profile_acceleration"] or 0, t["velocity_deg_s"],
-                        t["acceleration_deg_s2"], t["tolerance_deg"], t["settle_s"], t["timeout_s"], t["retries"],
-                        t["poll_interval_s"])
+    return MotionConfig(**{**t.values, "profile_velocity": t["profile_velocity"] or 0,
+                           "profile_acceleration": t["profile_acceleration"] or 0})
 
 
 def _read_detector(src: str, raw: Any) -> DetectorConfig:
@@ -346,8 +342,7 @@ def _read_detector(src: str, raw: Any) -> DetectorConfig:
     if t["min_integration_time_s"] > t["integration_time_s"]:
         raise t.error("min_integration_time_s", f"{t['min_integration_time_s']:g} s is longer than "
                                                 f"integration_time_s = {t['integration_time_s']:g} s")
-    return DetectorConfig(t["type"], t["integration_time_s"], t["repeats"], t["saturation"], t["dark_repeats"],
-                          t["auto_range"], t["min_integration_time_s"])
+    return DetectorConfig(**t.values)
 
 
 def read_spectrum_csv(path: Path, where: str) -> tuple[tuple[float, ...], tuple[float, ...]]:

@@ -16,11 +16,12 @@ import numpy as np
 from .calibration import Reading
 from .engine import Engine
 from .errors import PlanError
+from .messages import Move
 from .plan import TWO_OPT_MAX_EVALUATIONS, Geometry, Plan, Point, path_time
 from .plans import measure
 from .protocols import Devices, MoveStatus
 
-__all__ = ["DryRunBench", "estimate"]
+__all__ = ["DryRunBench", "dry_run", "estimate"]
 
 
 class DryRunBench:
@@ -100,6 +101,17 @@ class DryRunBench:
         return Devices(self, self, self)  # type: ignore[arg-type]
 
 
+def dry_run(plan_gen: Any, geometry: Geometry, integration_time_s: float, start: Point | None = None
+            ) -> DryRunBench:
+    """Run any plan (a generator of :mod:`acquisition.messages`) on a :class:`DryRunBench` from ``start``
+    (default: park): a :class:`PlanError` for a move beyond the soft limits; the bench returned holds the moves and
+    the modelled times (``motion_s``, ``settle_s``, ``read_s``, ``now()``)."""
+    bench = DryRunBench(geometry, integration_time_s, start)
+    Engine(bench.devices(), settle_s=geometry.settle_s, retries=0, account=False).run(plan_gen)
+    bench.check()
+    return bench
+
+
 def estimate(plan: Plan, geometry: Geometry, integration_time_s: float, points: Sequence[Point] | None = None,
              max_evaluations: int = TWO_OPT_MAX_EVALUATIONS) -> dict[str, float]:
     """Estimated times (s) of measuring ``points`` (default: the plan's measurable ones) as the capture does,
@@ -107,10 +119,11 @@ def estimate(plan: Plan, geometry: Geometry, integration_time_s: float, points: 
     ``total_s`` with settling and the detector, and ``points``. The plan's own points plan
     (:func:`~acquisition.plans.measure`) runs on a :class:`DryRunBench`, which refuses moves beyond the limits."""
     pts = plan.check(geometry).measurable if points is None else list(points)
-    bench = DryRunBench(geometry, integration_time_s)
-    engine = Engine(bench.devices(), settle_s=geometry.settle_s, retries=0, account=False)
-    engine.run(measure(pts, geometry, plan.repeats, {}, plan.order, max_evaluations))
-    bench.set(*geometry.park)  # back to park, as a capture ends
-    bench.check()
+
+    def points_then_park() -> Any:
+        yield from measure(pts, geometry, plan.repeats, None, plan.order, max_evaluations)
+        yield Move(*geometry.park, checkpoint=False)  # back to park, as a capture ends
+
+    bench = dry_run(points_then_park(), geometry, integration_time_s)
     return {"points": float(len(pts)), "motion_s": bench.motion_s, "naive_motion_s": path_time(pts, geometry),
             "total_s": bench.now()}

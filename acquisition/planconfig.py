@@ -98,8 +98,7 @@ def _read_adaptive(src: str, raw: Any, step: float | None) -> AdaptiveConfig:
         raise t.error("coarse_step_deg", "missing key (no theta_o_step_deg to derive it from)")
     if t["min_step_deg"] > coarse:
         raise t.error("min_step_deg", f"{t['min_step_deg']:g} is larger than coarse_step_deg {coarse:g}")
-    return AdaptiveConfig(t["enabled"], coarse, t["min_step_deg"], t["tolerance"], t["time_budget_s"],
-                          t["max_points"], t["max_rounds"])
+    return AdaptiveConfig(**{**t.values, "coarse_step_deg": coarse})
 
 
 def read_plan(src: str, raw: Any, det: DetectorConfig, axes: Mapping[str, AxisConfig]) -> PlanConfig:

@@ -62,12 +62,15 @@ def point(theta_i_deg: float, theta_o_deg: float, repeats: int) -> PlanGen:
     return (yield Save(theta_i_deg, theta_o_deg, reading, ranged, repeats))
 
 
-def measure(points: Sequence[Point], geometry: Geometry, repeats: int, done: dict[tuple[float, float], Sample],
-            order: str = "optimized", max_evaluations: int = TWO_OPT_MAX_EVALUATIONS) -> PlanGen:
+def measure(points: Sequence[Point], geometry: Geometry, repeats: int,
+            done: dict[tuple[float, float], Sample] | None, order: str = "optimized",
+            max_evaluations: int = TWO_OPT_MAX_EVALUATIONS) -> PlanGen:
     """Measure the points not yet in ``done`` (keys :func:`~acquisition.plan.point_key`), ordered for short arm
-    travel from where the arms are (``order = "optimized"``); every sample is added to ``done``."""
+    travel from where the arms are (``order = "optimized"``); every sample is added to ``done`` (None: nothing
+    was measured before and nothing needs the samples, as in an estimate)."""
     todo = [p for p in points if point_key(p) not in done] if done else list(points)
-    yield Announce(len(done) + len(todo), len(done))
+    n_done = len(done) if done else 0
+    yield Announce(n_done + len(todo), n_done)
     if not todo:
         return
     start = yield Where()
@@ -79,7 +82,9 @@ def measure(points: Sequence[Point], geometry: Geometry, repeats: int, done: dic
         yield Move(ti, to)
         yield settle
         reading, ranged = yield Read(repeats, point=(ti, to))
-        done[point_key((ti, to))] = yield Save(ti, to, reading, ranged, repeats)
+        sample = yield Save(ti, to, reading, ranged, repeats)
+        if done is not None:
+            done[point_key((ti, to))] = sample
 
 
 def white_reference(cfg: BenchConfig) -> PlanGen:

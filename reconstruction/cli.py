@@ -191,20 +191,26 @@ def job_from_args(args: argparse.Namespace, **overrides: Any) -> Job:
 
 
 class _Bar:
-    """The progress bar of one command line: a step of :attr:`Job.steps` per tick, the current step beside it."""
+    """The progress bar of one command line: a step of :attr:`Job.steps` per tick, the current step beside it
+    (shown from the first step on, after the outputs were checked)."""
 
     def __init__(self, job: Job, quiet: bool) -> None:
-        self.bar = tqdm(total=len(job.steps), desc=PROG, unit="step", disable=True if quiet else None,
-                        file=sys.stderr, leave=False)
+        self.total, self.quiet = len(job.steps), quiet
+        self.bar: Any = None
 
     def begin(self, label: str) -> None:
+        if self.bar is None:
+            self.bar = tqdm(total=self.total, desc=PROG, unit="step", disable=True if self.quiet else None,
+                            file=sys.stderr, leave=False)
         self.bar.set_postfix_str(label)
 
     def done(self, step: str) -> None:
-        self.bar.update(1)
+        if self.bar is not None:
+            self.bar.update(1)
 
     def close(self) -> None:
-        self.bar.close()
+        if self.bar is not None:
+            self.bar.close()
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:

@@ -559,6 +559,6 @@ def reconstruct_revolve(slices: Slice, *, axis: str = "auto", smoothing: float =
 
 def revolve_table(slices: Slice, **kwargs: Any) -> Array:
     """Slice -> :func:`reconstruct_revolve` -> MERL table (3, 90, 90, 180) at the bin centres (benchmarks)."""
-    from . import merl
+    from .. import merl
 
     return merl.tabulate(reconstruct_revolve(slices, **kwargs).eval)
