@@ -65,9 +65,9 @@ def slices_of(mat: Material, incidences: tuple[float, ...]) -> Slice:
     return Slice(a, b, f, ["R", "G", "B"], np.zeros_like(f), source=f"{mat.name} ({len(incidences)} slice(s))")
 
 
-def run_material(job: tuple[str, str, list[str], str | None]) -> list[dict[str, Any]]:
+def run_material(job: tuple[str, str, list[str], str | None, list[str], str | None]) -> list[dict[str, Any]]:
     """Worker: the truth table of one material, then every method and mode; one record per (mode, method)."""
-    name, folder, methods, cache, modes = job
+    name, folder, methods, cache, modes, prior = job
     warnings.simplefilter("ignore")
     from threadpoolctl import threadpool_limits
 
@@ -90,7 +90,9 @@ def run_material(job: tuple[str, str, list[str], str | None]) -> list[dict[str, 
                 t0 = time.perf_counter()
                 rec_out: dict[str, Any] = {"material": name, "slices": mode, "method": m}
                 try:
-                    rec, choice = pipeline.reconstruct(s, m)
+                    # the prior, when given, is the other materials of the folder (leave-one-out)
+                    opts = pipeline.Options(prior=prior, prior_exclude=(name,) if prior else ())
+                    rec, choice = pipeline.reconstruct(s, m, opts)
                     table = pipeline.tabulate(rec)
                     rec_out["seconds"] = time.perf_counter() - t0
                     checks = report.plausibility(rec, table)
@@ -191,7 +193,9 @@ a bench measures them: theta_o from -80 to 80 deg every 2 deg, the blind spot |t
 material's own table. Figures: **rmse80** (relative RMSE of f cos theta_i cos theta_o over every cell with both
 angles <= 80 deg) / **medrel** (median relative error of f where f is above 1 % of its maximum, same cells),
 in %. `[method]` is the method `auto` chose by cross-validation; "(implausible)" marks a table that fails the
-plausibility checks (gonio-reconstruct refuses to write it without `--allow-implausible`).
+plausibility checks (gonio-reconstruct refuses to write it without `--allow-implausible`). `prior` (and `auto`,
+which tries it) completes each material from a basis of the **other** 47 materials (leave-one-out: a material never
+sees itself); the other half of the MERL database is kept apart for independent judging.
 
 ## Summary
 
@@ -219,6 +223,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1), help="worker processes")
     ap.add_argument("--cache", default=str(ROOT / "out" / "real-materials-cache"),
                     help="folder for the materials' own tables (computed once); '' for none")
+    ap.add_argument("--prior", default=None, metavar="DIR",
+                    help="prior materials for --method prior and auto (default: the nbrdf-merl folder itself, each "
+                         "material judged with a prior of the others: leave-one-out); '' for no prior")
     ap.add_argument("--docs", metavar="DIR", help="write DIR/real-materials.md and DIR/real-materials.png")
     ap.add_argument("--jsonl", default=str(ROOT / "out" / "real-materials.jsonl"), help="every record, one per line")
     args = ap.parse_args(argv)
@@ -234,7 +241,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"bench_real_materials: unknown material(s) {missing}", file=sys.stderr)
             return 2
         names = want
-    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    prior = str(folder) if args.prior is None else (args.prior or None)
+    methods = [m.strip() for m in args.methods.split(",") if m.strip() and (prior or m.strip() != "prior")]
     bad = [m for m in methods if m not in pipeline.METHODS]
     if bad:
         print(f"bench_real_materials: unknown method(s) {bad}; expected {', '.join(pipeline.METHODS)}", file=sys.stderr)
@@ -244,7 +252,11 @@ def main(argv: list[str] | None = None) -> int:
     records: list[dict[str, Any]] = []
     t0 = time.perf_counter()
     modes = [m.strip() for m in args.slices.split(",") if m.strip() in MODES]
-    jobs = [(n, str(folder), methods, args.cache or None, modes) for n in names]
+    if prior:
+        from reconstruction.prior import load_prior
+
+        load_prior(prior)  # tabulated once (and cached) before the workers start
+    jobs = [(n, str(folder), methods, args.cache or None, modes, prior) for n in names]
     with ProcessPoolExecutor(max_workers=max(1, args.workers)) as ex:
         for recs in tqdm(ex.map(run_material, jobs), total=len(jobs), desc="materials", file=sys.stderr):
             records.extend(recs)

@@ -148,6 +148,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="revolve: axis of each sub-curve, vertical through its highest point or its first principal "
                          "component (auto: chosen per sub-curve)")
     ap.add_argument("--smoothing", type=_nonneg_float, default=None, help="revolve: smoothing (passed through)")
+    ap.add_argument("--prior", metavar="DIR", default=None,
+                    help="folder of measured materials (NBRDF npy sets, MERL .binary tables or material TOML files): "
+                         "--method prior completes the slices from their structure; auto also tries it")
     ap.add_argument("--allow-implausible", action="store_true",
                     help="write the table even if it fails a plausibility check (the report and the console say so)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar and no summary line")
@@ -185,7 +188,7 @@ def job_from_args(args: argparse.Namespace, **overrides: Any) -> Job:
         html=args.html if isinstance(getattr(args, "html", None), str) else None,
         **{k: getattr(args, k, None) for k in ("rgl", "zemax", "zemax_incidences", "zemax_azimuths", "zemax_radials",
                                               "export_mitsuba", "export_json")},
-        preview_renderer=getattr(args, "preview_renderer", None) or "builtin")
+        preview_renderer=getattr(args, "preview_renderer", None) or "builtin", prior=getattr(args, "prior", None))
     fields.update(overrides)
     return Job(**fields)
 

@@ -22,7 +22,7 @@ from .scene import Scene
 from .slicefile import Slice
 
 __all__ = ["Method", "Options", "REGISTRY", "register", "get", "names", "NoOptions", "FitOptions", "RevolveOptions",
-           "BivariateOptions", "options_schema"]
+           "BivariateOptions", "PriorOptions", "options_schema"]
 
 
 @dataclass
@@ -35,6 +35,8 @@ class Options:
     revolve_axis: str = "auto"
     revolve_smoothing: float | None = None
     cos_power: float | None = None  # bivariate: None = chosen from the data
+    prior: str | None = None  # prior: the folder of prior materials (--prior)
+    prior_exclude: tuple[str, ...] = ()  # prior: materials of the folder left out (a benchmark's leave-one-out)
 
 
 class NoOptions(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -64,6 +66,13 @@ class RevolveOptions(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     fill: Fill = "interpolate"
 
 
+class PriorOptions(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Options of ``prior``."""
+
+    prior: Annotated[str, Meta(description="folder of prior materials: NBRDF npy sets, MERL .binary tables or "
+                                           "material TOML files (--prior)")] | None = None
+
+
 class BivariateOptions(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Options of ``bivariate``."""
 
@@ -86,6 +95,11 @@ class Method:
     build: Callable[[Slice, Options, Callable[[str], None] | None], Reconstruction]
     options: type[msgspec.Struct] = NoOptions
     common: Mapping[str, str] = field(default_factory=dict)
+    available: Callable[[Options], bool] | None = None  # None: always; else whether ``auto`` may try it
+
+    def usable(self, opts: Options) -> bool:
+        """Whether this method can run with ``opts`` (``auto`` skips the others, e.g. ``prior`` without --prior)."""
+        return self.available is None or self.available(opts)
 
     def options_from(self, opts: Options) -> Any:
         """This method's options, taken from the common ``opts`` and validated against its schema."""
@@ -168,6 +182,17 @@ def _bivariate(s: Slice, o: Options, progress: Callable[[str], None] | None) -> 
     return reconstruct_bivariate(s, fill=opt.fill, cos_power=opt.cos_power)
 
 
+def _prior(s: Slice, o: Options, progress: Callable[[str], None] | None) -> Reconstruction:
+    from .prior import reconstruct_prior
+
+    opt = PriorOptions(prior=o.prior)
+    if not opt.prior:
+        raise ReconstructionError("method prior needs --prior DIR: a folder of measured materials (NBRDF npy sets, "
+                                  "MERL .binary tables or material TOML files) whose structure the slice is "
+                                  "completed with")
+    return reconstruct_prior(s, opt.prior, exclude=tuple(o.prior_exclude))
+
+
 register(Method("fit", "analytic lobes (lambert, ggx/beckmann with Fresnel, retro) chosen by BIC, energy-constrained",
                 _fit, FitOptions, {"lobes": "lobes"}))
 register(Method("microfacet", "non-parametric microfacet: tabulated NDF, Smith G from it, physical Fresnel",
@@ -176,3 +201,5 @@ register(Method("revolve", "the thesis's solids of revolution, extended to every
                 RevolveOptions, {"axis": "revolve_axis", "smoothing": "revolve_smoothing", "fill": "fill"}))
 register(Method("bivariate", "f(theta_h, theta_d) interpolated between the measured lines", _bivariate,
                 BivariateOptions, {"fill": "fill", "cos_power": "cos_power"}))
+register(Method("prior", "completed from a basis of measured materials (--prior DIR), fitted to the slices",
+                _prior, PriorOptions, {"prior": "prior"}, available=lambda o: bool(o.prior)))

@@ -49,7 +49,7 @@ __all__ = ["METHODS", "Options", "reconstruct", "tabulate", "max_albedo", "Job",
 METHODS = ("auto", *REGISTRY)
 CV_MAX_SAMPLES = 3000
 CV_MAX_INCIDENCES = 24
-SINGLE_SLICE_PREFERRED = "bivariate"
+SINGLE_SLICE_PREFERRED = ("bivariate", "prior")
 SINGLE_SLICE_MARGIN = 2.0
 
 
@@ -89,6 +89,8 @@ def _auto(s: Slice, opts: Options, progress: Callable[[str], None] | None) -> tu
     scheme, masks = folds(s)
     builders: dict[str, Callable[[Slice], Reconstruction]] = {}
     for name, m in REGISTRY.items():
+        if not m.usable(opts):
+            continue
         if name == "fit":
             builders[name] = lambda tr: reconstruct_fit(tr, scene=opts.scene, lobes=opts.lobes, specs=specs)
         else:
@@ -102,7 +104,8 @@ def _auto(s: Slice, opts: Options, progress: Callable[[str], None] | None) -> tu
             progress(f"cross-validating {name}")
         scores.append(cross_validate(s, name, build, masks, inside))
     single = np.unique(s.theta_i_deg).size == 1
-    handicap = {m: (SINGLE_SLICE_MARGIN if single and m != SINGLE_SLICE_PREFERRED else 1.0) for m in REGISTRY}
+    preferred = [m for m in SINGLE_SLICE_PREFERRED if m in builders]
+    handicap = {m: (SINGLE_SLICE_MARGIN if single and m not in SINGLE_SLICE_PREFERRED else 1.0) for m in REGISTRY}
     ranked = sorted(scores, key=lambda c: c.error * handicap[c.method])
     rejected: list[str] = []
     chosen: Reconstruction | None = None
@@ -126,7 +129,7 @@ def _auto(s: Slice, opts: Options, progress: Callable[[str], None] | None) -> tu
     reason = (f"lowest held-out error ({scheme}): {chosen.method}{model} predicts the samples it did not see to "
               f"{best.error:.2%} relative RMSE of f cos cos" + (f" (then {others})" if others else ""))
     if single:
-        reason += (f"; with one incidence {SINGLE_SLICE_PREFERRED} is preferred unless another method predicts "
+        reason += (f"; with one incidence {' or '.join(preferred)} is preferred unless another method predicts "
                    f"{SINGLE_SLICE_MARGIN:g} times better (one slice cannot show a model's extrapolation in theta_d)")
     if rejected:
         reason += "; not used: " + "; ".join(rejected)
@@ -136,7 +139,7 @@ def _auto(s: Slice, opts: Options, progress: Callable[[str], None] | None) -> tu
           "held-out samples" + (" inside the scene's ranges" if inside is not None else ""),
           "scores": [c.as_dict() for c in sorted(scores, key=lambda c: c.error)], "chosen": chosen.method,
           "fit_model": fit_rec.result.name, "rejected": rejected,
-          "single_incidence_preference": ({"method": SINGLE_SLICE_PREFERRED, "margin": SINGLE_SLICE_MARGIN}
+          "single_incidence_preference": ({"method": preferred[0], "methods": preferred, "margin": SINGLE_SLICE_MARGIN}
                                           if single else None)}
     return chosen, {"requested": "auto", "used": chosen.method, "reason": reason, "cross_validation": cv,
                     "held_out_predictions": ({} if s is not full else  # per sample of the input (none when thinned)
@@ -221,6 +224,7 @@ class Job:
     export_mitsuba: str | None = None
     export_json: str | None = None
     preview_renderer: str = "builtin"
+    prior: str | None = None  # --prior DIR: the folder of prior materials (method prior; auto tries it when given)
 
     @property
     def steps(self) -> list[str]:
@@ -341,7 +345,8 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
         raise ReconstructionError(f"{', '.join(loaded.files)}: {e}") from None
     done("colour", t0)
     t0 = begin("reconstructing")
-    opts = Options(scene=scene, fill=job.fill, lobes=lobes, revolve_axis=job.axis, revolve_smoothing=job.smoothing)
+    opts = Options(scene=scene, fill=job.fill, lobes=lobes, revolve_axis=job.axis, revolve_smoothing=job.smoothing,
+                   prior=job.prior)
     rec, choice = reconstruct(working, job.method, opts,
                               progress=(lambda name: progress.begin(f"fitting {name}")) if progress else None)
     done("reconstruct", t0)

@@ -53,7 +53,7 @@ def test_end_to_end_on_a_slice_file(tmp_path):
     assert "lowest held-out error" in rep["method_reason"]
     cv = rep["cross_validation"]
     assert cv["chosen"] == "fit" and "held-out contiguous blocks" in cv["scheme"]
-    assert {c["method"] for c in cv["scores"]} == set(pipeline.METHODS) - {"auto"}
+    assert {c["method"] for c in cv["scores"]} == set(pipeline.METHODS) - {"auto", "prior"}  # prior: with --prior
     errs = [c["held_out_relative_rmse_cos"] for c in cv["scores"]]
     assert errs == sorted(errs) and cv["scores"][0]["method"] == "fit"
     assert rep["details"]["model"] == "lambert+ggx(F)"
@@ -170,7 +170,7 @@ def test_auto_chooses_by_held_out_prediction_on_a_material_outside_every_family(
     # and the choice is good for the table, not only for the samples: within 25 % of the best method's error
     truth = merl.tabulate(PHONG.eval)
     errs = {m: relative_rmse_cos(pipeline.tabulate(pipeline.reconstruct(s, m)[0]), truth)
-            for m in pipeline.METHODS if m != "auto"}
+            for m in pipeline.METHODS if m not in ("auto", "prior")}
     assert errs[rec.method] <= 1.25 * min(errs.values()), (rec.method, errs)
     assert errs[rec.method] < 0.5 * errs["fit"]  # the residual-based choice of old (fit) was far worse
 

@@ -1,0 +1,150 @@
+"""--method prior: a full BRDF completed from a basis of measured materials (synthetic prior folders here; the
+real materials are judged by benchmarks/bench_real_materials.py)."""
+
+import itertools
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from reconstruction import merl, pipeline, prior
+from reconstruction.base import ReconstructionError
+from reconstruction.metrics import relative_rmse_cos
+from reconstruction.models import Material
+from reconstruction.slicefile import Slice, write_slice
+from reconstruction.synthetic import synthetic_slice
+
+TARGET = Material.from_dict({"name": "target", "lobes": [
+    {"type": "lambert", "albedo": [0.4, 0.25, 0.1]}, {"type": "ggx", "alpha": 0.18, "specular": 0.9, "f0": 0.04}]})
+
+
+def write_family(folder, n_alpha=(0.06, 0.12, 0.25, 0.5)):
+    """A prior folder of material TOML files: lambert + ggx over albedo, colour and roughness."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for k, (a, al, col) in enumerate(itertools.product((0.1, 0.3, 0.6), n_alpha, ((1, 1, 1), (1, 0.5, 0.2)))):
+        alb = [round(a * c, 3) for c in col]
+        (folder / f"m{k:02d}.toml").write_text(
+            f'[material]\nname = "m{k}"\n[[material.lobes]]\ntype = "lambert"\nalbedo = {alb}\n'
+            f'[[material.lobes]]\ntype = "ggx"\nalpha = {al}\nspecular = 0.9\nf0 = 0.04\n', encoding="utf-8")
+    return folder
+
+
+@pytest.fixture(scope="module")
+def family(tmp_path_factory):
+    cache = tmp_path_factory.mktemp("cache")
+    mp = pytest.MonkeyPatch()
+    mp.setenv("XDG_CACHE_HOME", str(cache))
+    prior._load_cached.cache_clear()
+    folder = write_family(tmp_path_factory.mktemp("prior") / "materials")
+    yield folder, cache
+    mp.undo()
+
+
+@pytest.fixture(scope="module")
+def truth():
+    return merl.tabulate(TARGET.eval)
+
+
+def test_a_material_of_the_family_comes_back_from_one_and_from_three_slices(family, truth):
+    folder, _ = family
+    errs = {}
+    for inc in ((40.0,), (20.0, 40.0, 60.0)):
+        s = synthetic_slice(TARGET, inc)
+        rec = prior.reconstruct_prior(s, folder)
+        errs[inc] = relative_rmse_cos(rec.table(), truth, 80)
+        biv = relative_rmse_cos(pipeline.tabulate(pipeline.reconstruct(s, "bivariate")[0]), truth, 80)
+        assert errs[inc] < 0.5 * biv, (inc, errs[inc], biv)  # the family's structure completes the slice
+        rep = rec.report()
+        assert rep["method"] == "prior" and rep["prior"]["materials"] == 24
+        assert rep["parameters"]["components"] == list(prior.K_CHOICES)
+        assert rep["residuals"]["relative_rmse_cos_own_samples"] < 0.1
+    assert errs[(40.0,)] < 0.2 and errs[(20.0, 40.0, 60.0)] < 0.1, errs
+    # eval agrees with the table it writes (the same interpolation), and is zero below the horizon
+    wi = np.array([[-0.5, 0.0, np.sqrt(0.75)], [0.0, 0.0, 1.0], [0.3, 0.1, -0.9]])
+    wo = np.array([[0.5, 0.0, np.sqrt(0.75)], [0.2, 0.3, 0.93], [0.0, 0.0, 1.0]])
+    v = rec.eval(wi, wo)
+    assert v.shape == (3, 3) and np.all(v[:2] > 0) and np.all(v[2] == 0)
+    np.testing.assert_allclose(v[:2], merl.lookup(rec.table(), wi[:2], wo[:2], interpolate=True), rtol=0.1)
+
+
+def test_a_grey_slice_gives_a_grey_table(family):
+    s = synthetic_slice(TARGET, (40.0,))
+    g = Slice(s.theta_i_deg, s.theta_o_deg, s.values.mean(axis=1, keepdims=True), ["value"])
+    rec = prior.reconstruct_prior(g, family[0])
+    t = rec.table()
+    assert rec.channels == ["value"] and t.shape == merl.SHAPE
+    np.testing.assert_array_equal(t[0], t[2])
+
+
+def test_the_prior_is_cached_and_a_changed_folder_is_tabulated_again(tmp_path, monkeypatch):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    folder = write_family(tmp_path / "p", n_alpha=(0.1, 0.3))
+    prior._load_cached.cache_clear()
+    a = prior.load_prior(folder)
+    files = list((tmp_path / "cache" / "gonio-brdf").glob("prior-*.npz"))
+    assert len(files) == 1 and a.tables.shape == (12, 3, int(np.prod(prior.GRID)))
+    prior._load_cached.cache_clear()
+    b = prior.load_prior(folder)  # read from the cache: the same values
+    np.testing.assert_array_equal(a.tables, b.tables)
+    (folder / "m00.toml").write_text('[material]\nname = "x"\n[[material.lobes]]\ntype = "lambert"\nalbedo = 0.9\n'
+                                     '\n', encoding="utf-8")
+    prior._load_cached.cache_clear()
+    c = prior.load_prior(folder)
+    assert len(list((tmp_path / "cache" / "gonio-brdf").glob("prior-*.npz"))) == 2
+    assert not np.array_equal(a.tables[0], c.tables[0]) and np.array_equal(a.tables[1], c.tables[1])
+
+
+def test_leave_one_out_and_too_small_priors(family):
+    folder, _ = family
+    s = synthetic_slice(TARGET, (40.0,))
+    rec = prior.reconstruct_prior(s, folder, exclude=("m00", "m01", "nope"))
+    assert rec.report()["prior"]["excluded"] == ["m00", "m01"] and rec.report()["prior"]["materials"] == 22
+    names = prior.load_prior(folder).names
+    with pytest.raises(ReconstructionError, match="at least 2 materials"):
+        prior.reconstruct_prior(s, folder, exclude=tuple(names[1:]))
+
+
+def test_bad_prior_folders_are_one_clear_line(tmp_path):
+    s = synthetic_slice(TARGET, (40.0,))
+    with pytest.raises(ReconstructionError, match="not a folder"):
+        prior.reconstruct_prior(s, tmp_path / "missing")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ReconstructionError, match="0 material"):
+        prior.reconstruct_prior(s, tmp_path / "empty")
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    for k in range(2):
+        (bad / f"b{k}.toml").write_text('[material]\nname = "b"\n[[material.lobes]]\ntype = "nosuch"\n', "utf-8")
+    with pytest.raises(ReconstructionError, match="material b0"):
+        prior.reconstruct_prior(s, bad)
+
+
+def _cli(*args, env=None):
+    return subprocess.run([sys.executable, "-m", "reconstruction.cli", *map(str, args)], capture_output=True,
+                          text=True, timeout=300, env=env)
+
+
+def test_gonio_reconstruct_with_a_prior_and_auto_trying_it(family, tmp_path):
+    import os
+
+    folder, cache = family
+    env = {**os.environ, "XDG_CACHE_HOME": str(cache)}
+    s = synthetic_slice(TARGET, (40.0,))
+    src = tmp_path / "slice.csv"
+    write_slice(src, Slice(s.theta_i_deg, s.theta_o_deg, s.values, s.channels, 0.002 * s.values + 1e-6,
+                           np.full(len(s), 4), 1.795e9 + np.arange(len(s)), meta={"material": "t"}))
+    r = _cli(src, "--method", "prior", "--out", tmp_path / "m.binary", env=env)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and "--prior DIR" in r.stderr
+    r = _cli(src, "--method", "prior", "--prior", folder, "--out", tmp_path / "m.binary", "--report",
+             tmp_path / "m.json", env=env)
+    assert r.returncode == 0, r.stderr
+    rep = json.loads((tmp_path / "m.json").read_text())
+    assert rep["method"] == "prior" and rep["details"]["prior"]["materials"] == 24
+    r = _cli(src, "--prior", folder, "--out", tmp_path / "a.binary", "--report", tmp_path / "a.json", env=env)
+    assert r.returncode == 0, r.stderr
+    cv = json.loads((tmp_path / "a.json").read_text())["cross_validation"]
+    assert "prior" in {c["method"] for c in cv["scores"]}
+    assert "prior" in cv["single_incidence_preference"]["methods"]
