@@ -75,10 +75,12 @@ _METHOD_ORDER = ("fit", "microfacet", "bivariate", "revolve")
 
 
 def _study_methods() -> tuple[str, ...]:
-    """Every method of the reconstruction's registry, then ``auto``."""
-    from reconstruction.methods import names
+    """Every method of the reconstruction's registry that needs nothing beyond the slices (not ``prior``, which
+    needs a folder of prior materials), then ``auto``."""
+    from reconstruction.methods import REGISTRY, Options
 
-    known = [m for m in _METHOD_ORDER if m in names()] + [m for m in names() if m not in _METHOD_ORDER]
+    usable = [m for m, spec in REGISTRY.items() if spec.usable(Options())]
+    known = [m for m in _METHOD_ORDER if m in usable] + [m for m in usable if m not in _METHOD_ORDER]
     return (*known, "auto")
 
 
