@@ -287,6 +287,7 @@ class RunEngine:
             res.log_checks(self.slice_path)
             if existing is not None and self.record.status == "complete" and self._all_done(existing, chk.measurable):
                 self.result.samples_total = len(existing)
+                self.result.estimate_s, self.result.estimate = 0.0, {}  # nothing to do, nothing was done
                 self.result.end(Stop.COMPLETE, f"{self.slice_path} is already complete ({len(existing)} samples)")
                 log.info(self.result.message)
                 return

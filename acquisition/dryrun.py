@@ -11,8 +11,10 @@ moved. Auto-ranging cannot be foreseen (it depends on the sample): a saturated p
 
 from __future__ import annotations
 
+import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
@@ -117,6 +119,18 @@ def dry_run(plan_gen: Any, geometry: Geometry, integration_time_s: float, start:
     return bench
 
 
+@contextmanager
+def _quiet() -> Iterator[None]:
+    """The plans' log lines are not written while a dry run plays them (the capture's log holds what happened)."""
+    lg = logging.getLogger("acquisition.plans")
+    was = lg.disabled
+    lg.disabled = True
+    try:
+        yield
+    finally:
+        lg.disabled = was
+
+
 def _dry_calibration(cfg: BenchConfig) -> Calibration:
     one, zero = Reading(np.ones(1), np.zeros(1), 1), Reading(np.zeros(1), np.zeros(1), 1)
     return Calibration("relative", zero, one, np.ones(1), cfg.calibration.reference_theta_o_deg or 0.0)
@@ -148,14 +162,16 @@ def estimate(plan: Plan, geometry: Geometry, integration_time_s: float, points: 
             yield from measure(pts, geometry, plan.repeats, None, plan.order, max_evaluations)
             yield from _park(geometry)
 
-        bench = dry_run(points_then_park(), geometry, integration_time_s, result=res)
+        with _quiet():
+            bench = dry_run(points_then_park(), geometry, integration_time_s, result=res)
         return {"points": float(len(pts)), "motion_s": bench.motion_s, "naive_motion_s": path_time(pts, geometry),
                 "total_s": bench.now()}
     ctx = CaptureContext(cfg, plan, geometry, pts, {point_key(p): (p[0], p[1], 0.0, 0.0) for p in done},
                          _dry_calibration(cfg) if calibrated else None, np.ones(1), 0.0, points_plan or own_points)
     bench = DryRunBench(geometry, integration_time_s)
-    Engine(bench.devices(), settle_s=geometry.settle_s, retries=0, result=res, account=True,
-           convert=False).run(capture(ctx))
+    with _quiet():
+        Engine(bench.devices(), settle_s=geometry.settle_s, retries=0, result=res, account=True,
+               convert=False).run(capture(ctx))
     total = bench.now()
     end = bench.positions()
     park = geometry.move_time(end, geometry.park)
@@ -191,6 +207,7 @@ def estimate_points(ctx: CaptureContext, points: Sequence[Point], start: Point, 
 
     dry_ctx = replace(ctx, done=dict(ctx.done))
     bench = DryRunBench(ctx.geometry, integration_time_s, start)
-    Engine(bench.devices(), settle_s=ctx.geometry.settle_s, retries=0, account=False, convert=False).run(
-        ctx.points_plan(dry_ctx, points))
+    with _quiet():
+        Engine(bench.devices(), settle_s=ctx.geometry.settle_s, retries=0, account=False, convert=False).run(
+            ctx.points_plan(dry_ctx, points))
     return bench.now()
