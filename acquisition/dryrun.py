@@ -78,11 +78,11 @@ class DryRunBench:
 
     # -- Detector ------------------------------------------------------------------------------------------------
     def read(self, n: int) -> Reading:
-        self.read_s += n * self.integration_time_s
+        self.read_s += n * self.integration_time_s + self.geometry.host_s
         return self._one
 
     def dark(self, n: int) -> Reading:
-        self.read_s += n * self.integration_time_s
+        self.read_s += n * self.integration_time_s + self.geometry.host_s
         return self._zero
 
     def set_integration_time(self, seconds: float) -> float:

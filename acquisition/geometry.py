@@ -62,6 +62,13 @@ class Why(str):
         return (str(self), self.reason)
 
 
+#: Wall time (s) of one status query of the drivers' polling loop, and the capture software's own time per reading
+#: (the commands around it, the sample converted, written and synced): what ``benchmarks/bench_time_model.py
+#: --time-scale 1`` measures on the 2-core development machine. They count as bench time in real time (a real
+#: bench, or a simulator with time_scale > 0), not when simulated time jumps.
+QUERY_S = 0.0005
+HOST_S_PER_READING = 0.004
+
 #: The trapezoid of the shared time model (kept under its old name).
 _trapezoid_time = trapezoid_duration
 
@@ -77,8 +84,10 @@ class Geometry:
 
     Move times are the shared time model (:mod:`reconstruction.benchtime`, the one the simulator's axes move by):
     trapezoidal profiles of both arms at once between whole controller units, plus ``arrive_s`` during which the
-    arms still report moving, plus ``poll_s``, the mean delay of the drivers' in-position polling (bench time).
-    ``settle_s`` is ``[motion].settle_s``, the wait before each reading."""
+    arms still report moving; the drivers poll for that every ``poll_s`` (bench time: ``[motion].poll_interval_s``
+    plus a query, times the simulator's time scale; 0 when simulated time jumps), so a move is over at the first
+    poll after it. ``settle_s`` is ``[motion].settle_s``, the wait before each reading; ``host_s`` the software's
+    own bench time per reading (its queries, the slice written and synced; 0 when simulated time jumps)."""
 
     light: AxisConfig
     detector: AxisConfig
@@ -89,6 +98,7 @@ class Geometry:
     settle_s: float = 0.0
     arrive_s: float = 0.0
     poll_s: float = 0.0
+    host_s: float = 0.0
 
     @classmethod
     def from_config(cls, cfg: BenchConfig) -> Geometry:
@@ -111,7 +121,8 @@ class Geometry:
         scale = 1.0 if sim is None else sim["time_scale"]
         arrive = 0.0 if sim is None else sim["settle_time_s"]
         return cls(cfg.light, cfg.det_axis, cfg.bench.min_separation_deg, cfg.bench.blind_spot_half_width_deg,
-                   speeds[0], speeds[1], cfg.motion.settle_s, arrive, 0.5 * cfg.motion.poll_interval_s * scale)
+                   speeds[0], speeds[1], cfg.motion.settle_s, arrive, (cfg.motion.poll_interval_s + QUERY_S) * scale,
+                   HOST_S_PER_READING * scale)
 
     @cached_property
     def timing(self) -> MoveTiming:
@@ -185,12 +196,12 @@ class Geometry:
         """Move time (s) between points ``a`` and ``b`` (..., 2), both arms moving at once, until they report in
         position (the shared model, plus the polling delay); without ``settle_s``."""
         t = self.timing.move_times(a, b)
-        return np.where(t > 0.0, t + self.poll_s, 0.0) if self.poll_s else t
+        return np.ceil(t / self.poll_s - 1e-9) * self.poll_s if self.poll_s else t
 
     def move_time(self, a: Point, b: Point) -> float:
         """:meth:`move_times` of one move (plain floats)."""
         t = self.timing.move_time((float(a[0]), float(a[1])), (float(b[0]), float(b[1])))
-        return t + self.poll_s if t > 0.0 else 0.0
+        return math.ceil(t / self.poll_s - 1e-9) * self.poll_s if self.poll_s else t
 
 
 

@@ -56,8 +56,8 @@ def _config(tmp: Path, name: str, over: dict) -> Path:
         raw["bench"].update(transport="simulated", motion="serial" if raw["bench"]["transport"] == "serial"
                             else "dynamixel", dynamixel_port="", serial_port="")
         raw["material"] = tomllib.loads((REPO / "configs" / "simulated.toml").read_text())["material"]
-        raw["simulator"] = {"stepper_velocity_deg_s": raw["motion"]["velocity_deg_s"],
-                            "stepper_acceleration_deg_s2": raw["motion"]["acceleration_deg_s2"],
+        raw["simulator"] = {"stepper_velocity_deg_s": raw["motion"].get("velocity_deg_s", 60.0),
+                            "stepper_acceleration_deg_s2": raw["motion"].get("acceleration_deg_s2", 240.0),
                             "settle_time_s": 0.2}
     raw = deep_merge(raw, {"simulator": {"time_scale": 0.0}, **over})
     p = tmp / f"{Path(name).stem}.toml"
@@ -99,6 +99,22 @@ def test_the_estimate_is_the_simulated_bench_time(tmp_path, name, over, adaptive
         assert rec["estimate"]["refinement_s"] == 0.0 and check["total_s"] == pytest.approx(actual, rel=0.05)
         assert rec["estimate"]["motion_s"] == pytest.approx(run["motion_s"], rel=0.05)
     assert f"capture time {actual:.2f} s of bench time, estimated {est:.2f} s" in err  # side by side
+
+
+def test_in_real_time_the_polling_and_the_software_are_in_the_estimate_too(tmp_path):
+    """time_scale = 1: the drivers' polling interval and the software's own time are bench time, as on a real
+    bench (the Dynamixel bench's own settings: 0.05 s integration, 0.3 s settling, 0.02 s polling; three
+    points, about 6 s)."""
+    cfg = _config(tmp_path, "dynamixel-bench.toml", {
+        "simulator": {"time_scale": 1.0}, "detector": {"dark_repeats": 8},
+        "calibration": {"reference_repeats": 8},
+        "plan": {"theta_i_deg": [30.0], "theta_o_min_deg": -40.0, "theta_o_max_deg": 40.0, "theta_o_step_deg": 40.0,
+                 "repeats": 4}})
+    bench = Bench.from_config(cfg)
+    assert bench.geometry.poll_s > 0.02  # 0.02 s polling interval (+ a query) at time scale 1
+    r = bench.capture(out=tmp_path / "out", progress=False, handle_signals=False)
+    r.raise_for_status()
+    assert r.bench_time_s > 3.0 and r.estimate_s == pytest.approx(r.bench_time_s, rel=0.05), (r.estimate, r.bench_time_s)
 
 
 def test_the_capture_orders_its_points_once_from_where_it_starts_them(tmp_path, monkeypatch):
