@@ -8,7 +8,9 @@ at the file's ``[motion]`` speed and acceleration, the material of ``configs/sim
 the real drivers against ``gonio-sim serve`` through pseudo-terminals; ``--time-scale 0`` (the default) lets
 simulated time jump, so the figures are exact and a capture takes a second or two of wall time; ``--time-scale
 K`` runs simulated time at K x wall time, where the drivers' polling and the software's own time become bench
-time too (the model includes the polling delay, not the software's time: see the deviation grow with K).
+time too, as on a real bench (K = 1). The model counts the polling (a move is over at the first poll after it) and
+a constant software time per reading measured at K = 1 (``acquisition.geometry.HOST_S_PER_READING``); at K > 1
+the software's real time is magnified K times while the arms move K times faster, and the estimate falls short.
 
     .venv/bin/python benchmarks/bench_time_model.py [--time-scale 0] [--quick]
 """
