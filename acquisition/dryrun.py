@@ -42,7 +42,11 @@ class DryRunBench:
     def __init__(self, geometry: Geometry, integration_time_s: float, start: Point | None = None) -> None:
         self.geometry = geometry
         self.integration_time_s = integration_time_s
-        self.start: Point = geometry.park if start is None else start
+        # the arms at park as a bench reads them back (whole controller units), so that a capture that asks where
+        # they are before its first move orders its points from the same place as its estimate
+        park = (geometry.quantise(geometry.light, geometry.park[0]), geometry.quantise(geometry.detector,
+                                                                                      geometry.park[1]))
+        self.start: Point = park if start is None else start
         self.moves: list[Point] = []
         self.motion_s = self.settle_s = self.read_s = 0.0
         self._pos = self.start
@@ -195,7 +199,7 @@ def _start_of_points(cfg: BenchConfig, geometry: Geometry, calibrated: bool) -> 
     capture), else at park."""
     c = cfg.calibration
     if calibrated or c.mode != "relative" or c.reference_theta_i_deg is None or c.reference_theta_o_deg is None:
-        return geometry.park
+        return DryRunBench(geometry, 0.0).start
     return (c.reference_theta_i_deg, c.reference_theta_o_deg)
 
 

@@ -118,18 +118,26 @@ def test_in_real_time_the_polling_and_the_software_are_in_the_estimate_too(tmp_p
     assert r.estimate_s == pytest.approx(r.bench_time_s, rel=0.05), (r.estimate, r.bench_time_s)
 
 
-def test_the_capture_orders_its_points_once_from_where_it_starts_them(tmp_path, monkeypatch):
-    """The estimate runs the capture's own plan from the white reference, so the capture reuses its order."""
+@pytest.mark.parametrize("mode", ["relative", "absolute"])
+def test_the_capture_orders_its_points_once_from_where_it_starts_them(tmp_path, monkeypatch, mode):
+    """The estimate runs the capture's own plan from where the capture starts the points (the white reference, or
+    park as the bench reads it back), so the capture reuses its order instead of ordering again."""
     from acquisition import ordering
 
     calls = []
     real = ordering._order
     monkeypatch.setattr(ordering, "_order", lambda *a, **k: calls.append(a[2]) or real(*a, **k))
     ordering._ORDERED.clear()
-    cfg = _config(tmp_path, "simulated.toml", {"plan": {"theta_i_deg": [30.0, 60.0], "theta_o_step_deg": 10.0}})
+    over = {"plan": {"theta_i_deg": [30.0, 60.0], "theta_o_step_deg": 10.0},
+            "axes": {"detector": {"park_deg": 44.97}}}  # not a whole number of units
+    if mode == "absolute":
+        over["calibration"] = {"mode": "absolute", "source_power": 1e6, "detector_solid_angle_sr": 1e-3}
+    cfg = _config(tmp_path, "simulated.toml", over)
     with Bench.from_config(cfg) as bench:
         r = bench.capture(out=tmp_path / "out", progress=False, handle_signals=False)
     r.raise_for_status()
-    c = bench.cfg.calibration
-    assert calls == [(c.reference_theta_i_deg, c.reference_theta_o_deg)]  # once, from the white reference
+    c, g = bench.cfg.calibration, bench.geometry
+    start = (c.reference_theta_i_deg, c.reference_theta_o_deg) if mode == "relative" else (
+        g.quantise(g.light, g.park[0]), g.quantise(g.detector, g.park[1]))
+    assert calls == [start]  # once, from there
     assert r.estimate_s == pytest.approx(r.bench_time_s, rel=0.05)
