@@ -38,8 +38,8 @@ sys.path.insert(0, str(REPO))
 from acquisition import Bench  # noqa: E402
 
 
-def simulated(name: str, time_scale: float, motion: str | None = None, plan: dict[str, Any] | None = None
-              ) -> dict[str, Any]:
+def simulated(name: str, time_scale: float, motion: str | None = None, plan: dict[str, Any] | None = None,
+              material: dict[str, Any] | None = None, simulator: dict[str, Any] | None = None) -> dict[str, Any]:
     """The bench file ``configs/NAME`` as a simulated bench of the same mechanics (see the module docstring)."""
     raw = tomllib.loads((REPO / "configs" / name).read_text())
     base = tomllib.loads((REPO / "configs" / "simulated.toml").read_text())
@@ -56,6 +56,9 @@ def simulated(name: str, time_scale: float, motion: str | None = None, plan: dic
     raw.setdefault("simulator", {})["time_scale"] = time_scale
     if plan is not None:
         raw["plan"] = {**raw["plan"], **plan}
+    if material is not None:
+        raw["material"] = material
+    raw["simulator"].update(simulator or {})
     return raw
 
 
@@ -75,7 +78,8 @@ def run(label: str, raw: dict[str, Any], tmp: Path) -> dict[str, Any]:
     est, actual = rec["estimate"]["total_s"], rec["totals"]["bench_time_s"]
     return {"label": label, "points": r.samples_new, "check_s": check["total_s"], "estimate_s": est,
             "refinement_s": rec["estimate"]["refinement_s"], "bench_s": actual, "dev": (est - actual) / actual,
-            "motion_est": rec["estimate"]["motion_s"], "motion": r.motion_s, "wall_s": wall}
+            "motion_est": rec["estimate"]["motion_s"], "motion": r.motion_s, "wall_s": wall,
+            "ranged": r.auto_ranged}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -96,19 +100,24 @@ def main(argv: list[str] | None = None) -> int:
                 "theta_o_step_deg": 8.0, "adaptive": {"coarse_step_deg": 8.0, "min_step_deg": 1.0,
                                                       "tolerance": 0.05}})),
             ("dynamixel-bench.toml (Dynamixel, 1 deg steps)", simulated("dynamixel-bench.toml", ts)),
+            ("simulated.toml, sharp ggx (alpha 0.005), 1 deg steps", simulated(
+                "simulated.toml", ts, plan={"theta_o_step_deg": 1.0}, material={"name": "sharp", "lobes": [
+                    {"type": "lambert", "albedo": 0.1}, {"type": "ggx", "alpha": 0.005, "specular": 0.9}]})),
+            ("simulated.toml, theta_i 40, source_power 1e9 (every point above the range)", simulated(
+                "simulated.toml", ts, plan={"theta_i_deg": [40.0]}, simulator={"source_power": 1e9})),
         ]
     print(f"time scale {ts:g} ({'simulated time jumps' if ts == 0 else f'{ts:g} x wall time'})")
-    print("| bench and plan | points | --check (s) | estimate (s) | of it refinement (s) | simulated bench time (s) "
-          "| estimate - bench | motion estimate / simulated (s) | wall (s) |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("| bench and plan | points | auto-ranged | --check (s) | estimate (s) | of it refinement (s) | simulated "
+          "bench time (s) | estimate - bench | motion estimate / simulated (s) | wall (s) |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     worst = 0.0
     with tempfile.TemporaryDirectory() as d:
         for k, (label, raw) in enumerate(cases):
             r = run(f"case{k}", raw, Path(d))
             worst = max(worst, abs(r["dev"]))
-            print(f"| {label} | {r['points']} | {r['check_s']:.2f} | {r['estimate_s']:.2f} | {r['refinement_s']:.2f} "
-                  f"| {r['bench_s']:.2f} | {100 * r['dev']:+.2f} % | {r['motion_est']:.2f} / {r['motion']:.2f} | "
-                  f"{r['wall_s']:.1f} |", flush=True)
+            print(f"| {label} | {r['points']} | {r['ranged']} | {r['check_s']:.2f} | {r['estimate_s']:.2f} | "
+                  f"{r['refinement_s']:.2f} | {r['bench_s']:.2f} | {100 * r['dev']:+.2f} % | "
+                  f"{r['motion_est']:.2f} / {r['motion']:.2f} | {r['wall_s']:.1f} |", flush=True)
     print(f"largest deviation {100 * worst:.2f} %")
     return 0
 
