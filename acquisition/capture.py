@@ -348,14 +348,19 @@ class RunEngine:
             self.bench.sim_args = ("--attempt", str(attempt))
 
     def _estimate_fields(self) -> dict[str, float]:
-        """``estimate`` of capture.json: the time model's figures of this run (s); ``total_s`` includes the
-        refinement rounds estimated so far (``refinement_s``), to compare with ``totals.bench_time_s``."""
+        """``estimate`` of capture.json: the time model's figures of this run (s): its parts, ``before_refinement_s``
+        (what ``--check`` says), ``refinement_s`` (the rounds, estimated as they were planned), ``this_run_s`` (their
+        sum), and ``total_s`` = ``previous_runs_s`` (the bench time of this capture's earlier runs) +
+        ``this_run_s``, to compare with ``totals.bench_time_s``."""
         r = self.result
         keys = ("motion_s", "naive_motion_s", "settle_s", "read_s", "calibration_s", "park_s")
         d = {k: float(r.estimate[k]) for k in keys if k in r.estimate}
         d["before_refinement_s"] = float(r.estimate.get("total_s", 0.0))
         d["refinement_s"] = float(r.estimate_refinement_s)
-        d["total_s"] = d["before_refinement_s"] + d["refinement_s"]
+        d["this_run_s"] = d["before_refinement_s"] + d["refinement_s"]
+        d["previous_runs_s"] = float(sum(run.get("bench_time_s", 0.0) for run in self.record.runs
+                                         if "ended_unix" in run))  # the runs before this one
+        d["total_s"] = d["previous_runs_s"] + d["this_run_s"]
         return d
 
     def _auto_range_record(self, existing: Slice | None) -> None:

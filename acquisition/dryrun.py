@@ -170,6 +170,8 @@ def estimate(plan: Plan, geometry: Geometry, integration_time_s: float, points: 
             bench = dry_run(points_then_park(), geometry, integration_time_s, result=res)
         return {"points": float(len(pts)), "motion_s": bench.motion_s, "naive_motion_s": path_time(pts, geometry),
                 "total_s": bench.now()}
+    have = {point_key(p) for p in done}
+    todo = [p for p in pts if point_key(p) not in have]
     ctx = CaptureContext(cfg, plan, geometry, pts, {point_key(p): (p[0], p[1], 0.0, 0.0) for p in done},
                          _dry_calibration(cfg) if calibrated else None, np.ones(1), 0.0, points_plan or own_points)
     bench = DryRunBench(geometry, integration_time_s)
@@ -180,7 +182,6 @@ def estimate(plan: Plan, geometry: Geometry, integration_time_s: float, points: 
     end = bench.positions()
     park = geometry.move_time(end, geometry.park)
     bench.check()
-    todo = [p for p in pts if point_key(p) not in ctx.done] if done else pts
     start = _start_of_points(cfg, geometry, calibrated)
     return {"points": float(len(todo)), "motion_s": res.motion_s,
             "naive_motion_s": path_time(todo, geometry, start, todo[-1] if todo else start),

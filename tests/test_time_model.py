@@ -141,3 +141,23 @@ def test_the_capture_orders_its_points_once_from_where_it_starts_them(tmp_path, 
         g.quantise(g.light, g.park[0]), g.quantise(g.detector, g.park[1]))
     assert calls == [start]  # once, from there
     assert r.estimate_s == pytest.approx(r.bench_time_s, rel=0.05)
+
+
+def test_a_resumed_capture_estimates_what_is_left_and_counts_the_runs_before(tmp_path):
+    """A run stopped by a vanishing port, then resumed: the resume's estimate is of the points left (from the
+    slice's own calibration), and estimate.total_s adds the earlier run's bench time, beside totals.bench_time_s."""
+    from acquisition.cli import main
+
+    over = {"plan": {"theta_i_deg": [30.0], "theta_o_step_deg": 4.0}}
+    cfg = _config(tmp_path, "simulated.toml", {**over, "simulator": {"faults": {"port_vanish_after_s": 6.0}}})
+    out = tmp_path / "out"
+    assert main(["--config", str(cfg), "--out", str(out), "--no-progress"]) == 1
+    cfg = _config(tmp_path, "simulated.toml", over)
+    assert main(["--config", str(cfg), "--out", str(out), "--resume", "--no-progress"]) == 0
+    rec = json.loads((out / "capture.json").read_text())
+    first, second = rec["runs"]
+    assert first["status"] == "failed" and 0 < first["samples_new"] and second["samples_before"] > 0
+    assert rec["estimate"]["previous_runs_s"] == pytest.approx(first["bench_time_s"])
+    assert rec["estimate"]["this_run_s"] == pytest.approx(second["bench_time_s"], rel=0.05)
+    assert rec["estimate"]["total_s"] == pytest.approx(rec["totals"]["bench_time_s"], rel=0.05)
+    assert rec["estimate"]["calibration_s"] < 0.5 * first["calibration_s"]  # no new white reference, one dark
