@@ -31,7 +31,6 @@ __all__ = ["Point", "Reason", "Why", "point_key", "Geometry", "DXL_VEL_UNIT_REV_
 Point = tuple[float, float]
 
 
-
 class Reason(Enum):
     """Why a point cannot be measured."""
 
