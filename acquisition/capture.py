@@ -236,16 +236,12 @@ class RunEngine:
         before any motion (:class:`~acquisition.lock.OutDirLocked` when another capture holds the folder); every
         later failure is returned as a result with ``status``, ``stop`` and ``exit_code`` after the arms were
         made safe."""
-        from .dryrun import estimate
 
         t_wall0 = time.monotonic()
         geom = self.bench.geometry
         chk = self.plan.validate(geom)  # before anything moves or opens
         self.result.points_planned = len(chk.measurable)
         self.result.unmeasurable = [[ti, to, why] for ti, to, why in chk.unmeasurable]
-        est = estimate(self.plan, geom, self.cfg.detector.integration_time_s, chk.measurable)
-        self.result.plan_motion_estimate_s = est["motion_s"]
-        self.result.naive_motion_estimate_s = est["naive_motion_s"]
         self.fingerprint = fingerprint(self.cfg, self.plan.fingerprint())
         self.settings = settings(self.cfg)
         with _SignalGuard(self.handle_signals) as guard:  # from here on no signal ends in a traceback
@@ -258,10 +254,26 @@ class RunEngine:
                 self.record = RunRecord.load(self.sidecar_path)
                 res = check_resume(self.cfg, self.plan, self.out, self.resume, self.record, self.fingerprint,
                                    self.settings)
+                est = self._estimate(chk, res.existing)
                 self._run_locked(chk, est, res, stale_pid=stale, t_wall0=t_wall0)
             finally:
                 lock.release()
         return self.result
+
+    def _estimate(self, chk: Any, existing: Slice | None) -> dict[str, float]:
+        """The time model's estimate of this run (:func:`acquisition.dryrun.estimate`): the whole capture plan on a
+        dry-run bench, from the calibration (or the resumed slice's) to the final dark."""
+        from .dryrun import estimate
+
+        done = [] if existing is None else list(zip(existing.theta_i_deg, existing.theta_o_deg, strict=True))
+        est = estimate(self.plan, self.bench.geometry, self.cfg.detector.integration_time_s, chk.measurable,
+                       cfg=self.cfg, points_plan=self.points_plan, done=done, calibrated=existing is not None)
+        r = self.result
+        r.plan_motion_estimate_s = est["motion_s"]
+        r.naive_motion_estimate_s = est["naive_motion_s"]
+        r.estimate_s = est["total_s"]
+        r.estimate = est
+        return est
 
     def _run_locked(self, chk: Any, est: dict[str, float], res: Any, stale_pid: int | None, t_wall0: float) -> None:
         existing: Slice | None = res.existing
@@ -275,6 +287,7 @@ class RunEngine:
             res.log_checks(self.slice_path)
             if existing is not None and self.record.status == "complete" and self._all_done(existing, chk.measurable):
                 self.result.samples_total = len(existing)
+                self.result.estimate_s, self.result.estimate = 0.0, {}  # nothing to do, nothing was done
                 self.result.end(Stop.COMPLETE, f"{self.slice_path} is already complete ({len(existing)} samples)")
                 log.info(self.result.message)
                 return
@@ -290,6 +303,7 @@ class RunEngine:
             if self.result.samples_new:
                 self.result.wall_per_sample_s = self.result.wall_s / self.result.samples_new
             if self._run_started:
+                self.record.plan_fields["estimate"] = self._estimate_fields()  # with the refinement rounds
                 self.record.finish_run(self.result)
             self._report()
             logging.getLogger("acquisition").removeHandler(handler)
@@ -312,8 +326,9 @@ class RunEngine:
                  f"{len(chk.measurable)} measurable points")
         for ti, to, why in chk.unmeasurable:
             log.info("not measurable: (%g, %g): %s", ti, to, why)
-        log.info("estimated motion time %.2f s in plan order vs %.2f s in naive order; total %.2f s",
-                 est["motion_s"], est["naive_motion_s"], est["total_s"])
+        log.info("estimated bench time %.2f s: motion %.2f s in plan order (%.2f s in naive order), settle %.2f s, "
+                 "detector %.2f s, darks and white reference %.2f s", est["total_s"], est["motion_s"],
+                 est["naive_motion_s"], est["settle_s"], est["read_s"], est["calibration_s"])
 
     @staticmethod
     def _all_done(existing: Slice, pts: list[Any]) -> bool:
@@ -325,12 +340,28 @@ class RunEngine:
         self.record.start_run({
             "config": str(self.cfg.path), "plan": self.plan.to_meta(), "plan_fingerprint": self.plan.fingerprint(),
             "points_planned": r.points_planned, "unmeasurable": r.unmeasurable,
-            "estimate": {"motion_s": r.plan_motion_estimate_s, "naive_motion_s": r.naive_motion_estimate_s},
+            "estimate": self._estimate_fields(),
         }, resume=existing is not None, samples_before=0 if existing is None else len(existing))
         self._run_started = True
         attempt = len(self.record.runs) - 1
         if attempt and hasattr(self.bench, "sim_args"):  # the simulator's random streams continue, not replay
             self.bench.sim_args = ("--attempt", str(attempt))
+
+    def _estimate_fields(self) -> dict[str, float]:
+        """``estimate`` of capture.json: the time model's figures of this run (s): its parts, ``before_refinement_s``
+        (what ``--check`` says), ``refinement_s`` (the rounds, estimated as they were planned), ``this_run_s`` (their
+        sum), and ``total_s`` = ``previous_runs_s`` (the bench time of this capture's earlier runs) +
+        ``this_run_s``, to compare with ``totals.bench_time_s``."""
+        r = self.result
+        keys = ("motion_s", "naive_motion_s", "settle_s", "read_s", "calibration_s", "park_s")
+        d = {k: float(r.estimate[k]) for k in keys if k in r.estimate}
+        d["before_refinement_s"] = float(r.estimate.get("total_s", 0.0))
+        d["refinement_s"] = float(r.estimate_refinement_s)
+        d["this_run_s"] = d["before_refinement_s"] + d["refinement_s"]
+        d["previous_runs_s"] = float(sum(run.get("bench_time_s", 0.0) for run in self.record.runs
+                                         if "ended_unix" in run))  # the runs before this one
+        d["total_s"] = d["previous_runs_s"] + d["this_run_s"]
+        return d
 
     def _auto_range_record(self, existing: Slice | None) -> None:
         """The run record's auto-ranging part: kept from earlier runs of the capture (same reference setting),

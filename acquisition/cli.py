@@ -122,6 +122,22 @@ def _duration(seconds: float) -> str:
     return f"{seconds / 86400:.1f} days"
 
 
+def _time_summary(r: Any) -> str:
+    """Estimate and bench time of a capture side by side (two lines, indented)."""
+    clock = "simulated " if r.bench_clock == "controller" else ""
+    est = r.estimate_s + r.estimate_refinement_s
+    dev = f" ({100.0 * (est - r.bench_time_s) / r.bench_time_s:+.1f} %)" if r.bench_time_s > 0 else ""
+    refine = f", of which refinement rounds {r.estimate_refinement_s:.2f} s" if r.estimate_refinement_s else ""
+    other = max(r.bench_time_s - r.motion_s - r.settle_s - r.read_s, 0.0)
+    e = r.estimate
+    return (f"  {clock}capture time {r.bench_time_s:.2f} s of bench time, estimated {est:.2f} s{dev}{refine}; "
+            f"wall clock {r.wall_s:.2f} s\n"
+            f"  actual (estimate): moving {r.motion_s:.2f} s ({e.get('motion_s', r.plan_motion_estimate_s):.2f} s; "
+            f"{r.naive_motion_estimate_s:.2f} s in naive order), settling {r.settle_s:.2f} s "
+            f"({e.get('settle_s', 0.0):.2f} s), detector {r.read_s:.2f} s ({e.get('read_s', 0.0):.2f} s), darks "
+            f"and white reference {other:.2f} s ({e.get('calibration_s', 0.0):.2f} s)")
+
+
 def _run(args: argparse.Namespace) -> int:
     from .bench import Bench, SimulatorCheck
     from .config import MAX_PLAN_POINTS
@@ -153,7 +169,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.check:
         # a quicker 2-opt than the capture's own: the same order up to ~1000 points, and --check stays < 1 s
         est = plan.estimate(bench.geometry, bench.cfg.detector.integration_time_s, chk.measurable,
-                            max_evaluations=CHECK_TWO_OPT_EVALUATIONS)
+                            max_evaluations=CHECK_TWO_OPT_EVALUATIONS, cfg=bench.cfg)
         if sim_check is not None:
             try:
                 sim_check.result()
@@ -167,11 +183,12 @@ def _run(args: argparse.Namespace) -> int:
         grows = " (before adaptive refinement, which may add up to " \
                 f"{plan.size() - len(chk.measurable) - len(chk.unmeasurable):.0f})" if plan.adaptive else ""
         print(f"plan size: {len(chk.measurable) + len(chk.unmeasurable)} points{grows}, limit {MAX_PLAN_POINTS}")
-        print(f"estimated bench time: {est['total_s']:.2f} s in all"
+        refine = " before adaptive refinement (its rounds are estimated as they are planned)" if plan.adaptive else ""
+        print(f"estimated bench time: {est['total_s']:.2f} s in all{refine}"
               + (f" ({_duration(est['total_s'])})" if est["total_s"] >= 120 else "")
               + f" = motion {est['motion_s']:.2f} s (arm travel in plan order; {est['naive_motion_s']:.2f} s in "
-                f"naive order) + settling, darks, white reference and detector integration "
-                f"{est['total_s'] - est['motion_s']:.2f} s")
+                f"naive order) + settling {est['settle_s']:.2f} s + detector integration {est['read_s']:.2f} s + "
+                f"darks and white reference {est['calibration_s']:.2f} s; then parking {est['park_s']:.2f} s")
         return 0
     if not args.out:
         print("gonio-capture: --out DIR is required to capture (or use --check)", file=sys.stderr)
@@ -199,17 +216,12 @@ def _run(args: argparse.Namespace) -> int:
             if result.unmeasurable:
                 extra = (f"; {len(result.unmeasurable)} plan point(s) not measurable (collision / blind spot), "
                          f"listed in {Path(args.out) / 'capture.log'}")
-            clock = "simulated " if result.bench_clock == "controller" else ""
             ranged = ""
             if result.auto_ranged:
                 settings = ", ".join(f"{k} s: {v}" for k, v in result.auto_range_settings.items())
                 ranged = (f"\n  auto-ranged {result.auto_ranged} point(s) to shorter integration times ({settings});"
                           f" {result.auto_range_overhead_s:.2f} s of extra integration in this run")
-            print(f"gonio-capture: {result.message}{extra}\n"
-                  f"  {clock}capture time {result.bench_time_s:.2f} s of bench time, of which moving "
-                  f"{result.motion_s:.2f} s (the plan's estimate of the motion was "
-                  f"{result.plan_motion_estimate_s:.2f} s in plan order, {result.naive_motion_estimate_s:.2f} s in "
-                  f"naive order); wall clock {result.wall_s:.2f} s{ranged}", file=sys.stderr)
+            print(f"gonio-capture: {result.message}{extra}\n{_time_summary(result)}{ranged}", file=sys.stderr)
         return 0
     print(f"gonio-capture: {result.message}", file=sys.stderr)
     return result.exit_code or 1

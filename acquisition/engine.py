@@ -78,13 +78,15 @@ class Engine:
     figures go (times, samples, auto-ranging); ``sink``: the slice; ``record``: the run record (its
     ``auto_range`` is kept up to date); ``auto_range``: (t_ref, t_min, dark_repeats) to auto-range the detector
     (None: it is not); ``guard``: its ``check()`` raises at a checkpoint when a signal asked to stop;
-    ``account``: measure motion, settle and read times on the bench clock (off in a dry run).
+    ``account``: measure motion, settle and read times on the bench clock (a dry run's is its time model);
+    ``convert``: convert readings to f_r and save them (off in a dry run, whose samples are zeros).
     """
 
     def __init__(self, devices: Devices, *, settle_s: float, retries: int, result: CaptureResult | None = None,
                  sink: Sink | None = None, record: RunRecord | None = None,
                  auto_range: tuple[float, float, int] | None = None, guard: Any = None, bar: Bar | None = None,
-                 account: bool = True, auto_range_hint: bool = True, samples_total: int = 0) -> None:
+                 account: bool = True, auto_range_hint: bool = True, samples_total: int = 0,
+                 convert: bool = True) -> None:
         self.dev = devices
         self.settle_s = settle_s
         self.retries = retries
@@ -94,6 +96,8 @@ class Engine:
         self.guard = guard if guard is not None else _NoGuard()
         self.bar = bar
         self.account = account
+        self.convert = convert
+        self.goal: tuple[float, float] | None = None  # the last goal the arms reached in this run
         self.auto_range_hint = auto_range_hint
         self.calibration: Calibration | None = None
         self.ranger: AutoRanger | None = None
@@ -137,19 +141,25 @@ class Engine:
     def _move(self, m: Move) -> Any:
         if m.checkpoint:
             self.guard.check()
+        self.goal = None
         if not self.account:
-            return self.dev.axes.set(m.theta_i_deg, m.theta_o_deg)
-        clock = self.dev.clock
-        t0 = self.t_last if self.t_last is not None else clock.now()
-        status = self.dev.axes.set(m.theta_i_deg, m.theta_o_deg)
-        self._t_move = (t0, clock.now())
+            status = self.dev.axes.set(m.theta_i_deg, m.theta_o_deg)
+        else:
+            clock = self.dev.clock
+            t0 = self.t_last if self.t_last is not None else clock.now()
+            status = self.dev.axes.set(m.theta_i_deg, m.theta_o_deg)
+            self._t_move = (t0, clock.now())
+        if status.done and status.success:
+            self.goal = (m.theta_i_deg, m.theta_o_deg)
         return status
 
     def _settle(self, m: Settle) -> None:
         self.dev.clock.dwell(self.settle_s)
 
     def _where(self, m: Where) -> tuple[float, float]:
-        return self.dev.axes.positions()
+        """The goal the arms last reached in this run (what the plan ordered them to, so a dry run and the capture
+        order the points from the same place), else their present positions."""
+        return self.goal if self.goal is not None else self.dev.axes.positions()
 
     def _now(self, m: Now) -> float:
         return self.dev.clock.now()
@@ -235,6 +245,8 @@ class Engine:
     # -- calibration and samples ------------------------------------------------------------------------------
     def _calibrate(self, m: Calibrate) -> None:
         self.calibration = m.calibration
+        if self.account:  # the calibration's readings and moves are not the first point's motion
+            self.t_last = self.dev.clock.now()
         if self.ranger is not None:
             self.ranger.ref_dark = m.calibration.dark
             rec = self.record.auto_range if self.record is not None else None
@@ -255,7 +267,9 @@ class Engine:
     def _save(self, m: Save) -> tuple[float, float, float, float]:
         ti, to = m.theta_i_deg, m.theta_o_deg
         r = self.result
-        if self.calibration is None:  # a dry run: nothing to convert, nothing to write
+        if self.calibration is None or not self.convert:  # a dry run: nothing to convert, nothing to write
+            if self.account:
+                self._account()
             r.samples_new += 1
             if self.bar is not None:
                 self.bar.advance()
@@ -274,17 +288,22 @@ class Engine:
         if self.sink is not None:
             self.sink.append(ti, to, f.tolist(), fs.tolist(), m.reading.n if m.repeats <= 0 else m.repeats)
         if self.account:
-            t2 = self.dev.clock.now()
-            self.t_last = t2
-            t0, t1 = self._t_move
-            r.motion_s += t1 - t0
-            r.settle_s += self.settle_s
-            r.read_s += max(t2 - t1 - self.settle_s, 0.0)
+            self._account()
         r.samples_new += 1
         r.samples_total += 1
         if self.bar is not None:
             self.bar.advance()
         return (ti, to, float(np.mean(f)), float(np.mean(fs)))
+
+    def _account(self) -> None:
+        """A point saved: its move (since the last point or the calibration), settle and reading times."""
+        r = self.result
+        t2 = self.dev.clock.now()
+        self.t_last = t2
+        t0, t1 = self._t_move
+        r.motion_s += t1 - t0
+        r.settle_s += self.settle_s
+        r.read_s += max(t2 - t1 - self.settle_s, 0.0)
 
     # -- bookkeeping --------------------------------------------------------------------------------------------
     def _announce(self, m: Announce) -> None:

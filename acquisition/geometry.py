@@ -8,8 +8,20 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from enum import Enum
+from functools import cached_property
+from typing import Any
 
 import numpy as np
+
+from reconstruction.benchtime import (
+    DXL_ACC_UNIT_REV_S2,
+    DXL_UNITS_PER_REV,
+    DXL_VEL_UNIT_REV_S,
+    AxisTiming,
+    MoveTiming,
+    trapezoid_duration,
+)
+from reconstruction.schema.simulator import SimulatorSection
 
 from .config import AxisConfig, BenchConfig
 
@@ -17,11 +29,6 @@ __all__ = ["Point", "Reason", "Why", "point_key", "Geometry", "DXL_VEL_UNIT_REV_
            "DXL_UNITS_PER_REV"]
 
 Point = tuple[float, float]
-
-#: Dynamixel X-series profile units: Profile Velocity 0.229 rev/min, Profile Acceleration 214.577 rev/min^2.
-DXL_VEL_UNIT_REV_S = 0.229 / 60.0
-DXL_ACC_UNIT_REV_S2 = 214.577 / 3600.0
-DXL_UNITS_PER_REV = 4096.0
 
 
 class Reason(Enum):
@@ -54,27 +61,32 @@ class Why(str):
         return (str(self), self.reason)
 
 
+#: Wall time (s) of one status query of the drivers' polling loop, and the capture software's own time per reading
+#: (the commands around it, the sample converted, written and synced): what ``benchmarks/bench_time_model.py
+#: --time-scale 1`` measures on the 2-core development machine. They count as bench time in real time (a real
+#: bench, or a simulator with time_scale > 0), not when simulated time jumps.
+QUERY_S = 0.0005
+HOST_S_PER_READING = 0.004
+
+#: The trapezoid of the shared time model (kept under its old name).
+_trapezoid_time = trapezoid_duration
+
+
 def point_key(p: Point) -> tuple[float, float]:
     """Hashable identity of a point: angles rounded to 1e-6 deg."""
     return (round(float(p[0]), 6) + 0.0, round(float(p[1]), 6) + 0.0)
 
 
-def _trapezoid_time(d: np.ndarray | float, v: float, a: float) -> np.ndarray:
-    """Duration (s) of a rest-to-rest move over distance ``d`` (deg) at max speed ``v``, acceleration ``a``."""
-    d = np.abs(np.asarray(d, dtype=float))
-    if math.isinf(v) and math.isinf(a):
-        return np.zeros_like(d)
-    if math.isinf(a):
-        return d / v
-    if math.isinf(v):
-        return 2.0 * np.sqrt(d / a)
-    d_ramp = v * v / a
-    return np.where(d < d_ramp, 2.0 * np.sqrt(d / a), d / v + v / a)
-
-
 @dataclass(frozen=True)
 class Geometry:
-    """What the bench can reach and how fast; angles in degrees, speeds in deg/s, accelerations in deg/s^2."""
+    """What the bench can reach and how fast; angles in degrees, speeds in deg/s, accelerations in deg/s^2.
+
+    Move times are the shared time model (:mod:`reconstruction.benchtime`, the one the simulator's axes move by):
+    trapezoidal profiles of both arms at once between whole controller units, plus ``arrive_s`` during which the
+    arms still report moving; the drivers poll for that every ``poll_s`` (bench time: ``[motion].poll_interval_s``
+    plus a query, times the simulator's time scale; 0 when simulated time jumps), so a move is over at the first
+    poll after it. ``settle_s`` is ``[motion].settle_s``, the wait before each reading; ``host_s`` the software's
+    own bench time per reading (its queries, the slice written and synced; 0 when simulated time jumps)."""
 
     light: AxisConfig
     detector: AxisConfig
@@ -83,20 +95,43 @@ class Geometry:
     light_speed: tuple[float, float] = (math.inf, math.inf)
     detector_speed: tuple[float, float] = (math.inf, math.inf)
     settle_s: float = 0.0
+    arrive_s: float = 0.0
+    poll_s: float = 0.0
+    host_s: float = 0.0
 
     @classmethod
     def from_config(cls, cfg: BenchConfig) -> Geometry:
+        """The geometry and time model of a bench file. On a simulated bench the simulated mechanics are the
+        bench's: the time the arms report moving after a profile (``[simulator].settle_time_s``), the stepper
+        profile (``[simulator].stepper_velocity_deg_s``, ``stepper_acceleration_deg_s2``) and the time scale
+        (which turns the wall-clock polling interval into bench time)."""
+        sim = _simulator_timing(cfg)
         speeds = []
         for ax in (cfg.light, cfg.det_axis):
             if cfg.bench.motion == "dynamixel":
                 pv, pa = cfg.motion.profile_velocity, cfg.motion.profile_acceleration
                 v = math.inf if pv <= 0 else pv * DXL_VEL_UNIT_REV_S * DXL_UNITS_PER_REV / ax.units_per_deg
                 a = math.inf if pa <= 0 else pa * DXL_ACC_UNIT_REV_S2 * DXL_UNITS_PER_REV / ax.units_per_deg
+            elif sim is not None:
+                v, a = sim["stepper_velocity_deg_s"], sim["stepper_acceleration_deg_s2"]
             else:
                 v, a = cfg.motion.velocity_deg_s, cfg.motion.acceleration_deg_s2
             speeds.append((v, a))
+        scale = 1.0 if sim is None else sim["time_scale"]
+        arrive = 0.0 if sim is None else sim["settle_time_s"]
         return cls(cfg.light, cfg.det_axis, cfg.bench.min_separation_deg, cfg.bench.blind_spot_half_width_deg,
-                   speeds[0], speeds[1], cfg.motion.settle_s)
+                   speeds[0], speeds[1], cfg.motion.settle_s, arrive, (cfg.motion.poll_interval_s + QUERY_S) * scale,
+                   HOST_S_PER_READING * scale)
+
+    @cached_property
+    def timing(self) -> MoveTiming:
+        """The shared move-time model of the two arms (:class:`reconstruction.benchtime.MoveTiming`)."""
+        def axis(ax: AxisConfig, speed: tuple[float, float]) -> AxisTiming:
+            upd = abs(ax.units_per_deg)
+            return AxisTiming(ax.units_per_deg, ax.zero_offset, ax.direction, speed[0] * upd, speed[1] * upd)
+
+        return MoveTiming(axis(self.light, self.light_speed), axis(self.detector, self.detector_speed),
+                          self.arrive_s)
 
     @property
     def park(self) -> Point:
@@ -157,14 +192,30 @@ class Geometry:
         return reason.startswith(("theta_i", "theta_o", "outside"))  # a reason read back from a file
 
     def move_times(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """Move time (s) between points ``a`` and ``b`` (..., 2), both arms moving at once; no settle."""
-        a = np.asarray(a, dtype=float)
-        b = np.asarray(b, dtype=float)
-        tl = _trapezoid_time(b[..., 0] - a[..., 0], *self.light_speed)
-        td = _trapezoid_time(b[..., 1] - a[..., 1], *self.detector_speed)
-        return np.maximum(tl, td)
+        """Move time (s) between points ``a`` and ``b`` (..., 2), both arms moving at once, until they report in
+        position (the shared model, plus the polling delay); without ``settle_s``."""
+        t = self.timing.move_times(a, b)
+        return np.ceil(t / self.poll_s - 1e-9) * self.poll_s if self.poll_s else t
 
     def move_time(self, a: Point, b: Point) -> float:
-        return float(self.move_times(np.asarray(a), np.asarray(b)))
+        """:meth:`move_times` of one move (plain floats)."""
+        t = self.timing.move_time((float(a[0]), float(a[1])), (float(b[0]), float(b[1])))
+        return math.ceil(t / self.poll_s - 1e-9) * self.poll_s if self.poll_s else t
 
 
+
+
+def _simulator_timing(cfg: BenchConfig) -> dict[str, Any] | None:
+    """The simulated mechanics of a simulated bench (``[simulator]`` keys with the schema's defaults; the
+    simulator itself checks the section strictly), or None for a real bench."""
+    if cfg.bench.transport != "simulated":
+        return None
+    raw = cfg.raw.get("simulator")
+    raw = raw if isinstance(raw, dict) else {}
+    defaults = SimulatorSection()
+    out: dict[str, Any] = {}
+    for key in ("settle_time_s", "stepper_velocity_deg_s", "stepper_acceleration_deg_s2", "time_scale"):
+        v = raw.get(key)
+        ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0
+        out[key] = float(v) if ok else float(getattr(defaults, key))
+    return out

@@ -307,15 +307,16 @@ class Plan:
         return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
 
     def estimate(self, geom: Geometry, integration_time_s: float, points: Sequence[Point] | None = None,
-                 max_evaluations: int = TWO_OPT_MAX_EVALUATIONS) -> dict[str, float]:
+                 max_evaluations: int = TWO_OPT_MAX_EVALUATIONS, cfg: Any = None) -> dict[str, float]:
         """Estimated times (s): ``motion_s`` in this plan's order, ``naive_motion_s`` in naive order, and
         ``total_s`` with settle and detector time: the capture's own plan of the points run on a dry-run bench
         (:func:`acquisition.dryrun.estimate`). ``max_evaluations``: the 2-opt budget of the ordering (a smaller one
         gives the same order for plans of up to about a thousand points, and a slightly longer estimate for bigger
-        ones, faster)."""
+        ones, faster). With the bench file ``cfg``: the whole capture (calibration, points, final dark) and its
+        parts."""
         from .dryrun import estimate
 
-        return estimate(self, geom, integration_time_s, points, max_evaluations)
+        return estimate(self, geom, integration_time_s, points, max_evaluations, cfg=cfg)
 
 
 # --- adaptive refinement ---------------------------------------------------------------------------------------

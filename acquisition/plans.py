@@ -148,6 +148,7 @@ def adaptive(ctx: CaptureContext, t_start: float) -> PlanGen:
     a, geometry, done = ctx.plan.adaptive, ctx.geometry, ctx.done
     assert a is not None
     known = {point_key(p) for p in ctx.measurable}
+    t_est = 0.0
     for rnd in range(1, a.max_rounds + 1):
         samples: dict[float, list[tuple[float, float, float]]] = {}
         for k in known:
@@ -163,7 +164,12 @@ def adaptive(ctx: CaptureContext, t_start: float) -> PlanGen:
         if a.time_budget_s and (yield Now()) - t_start > a.time_budget_s:
             log.info("adaptive: time budget %g s used up before round %d", a.time_budget_s, rnd)
             break
-        log.info("adaptive round %d: %d new point(s)", rnd, len(new))
+        from .dryrun import estimate_points  # the round's time, estimated as it is planned
+
+        t_round = estimate_points(ctx, new, (yield Where()), ctx.cfg.detector.integration_time_s)
+        t_est += t_round
+        yield Tally("estimate_refinement_s", t_est)
+        log.info("adaptive round %d: %d new point(s), estimated %.2f s", rnd, len(new), t_round)
         yield from ctx.points_plan(ctx, new)
         known |= {point_key(p) for p in new}
         yield Tally("adaptive_rounds", rnd)

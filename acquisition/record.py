@@ -75,6 +75,9 @@ class CaptureResult:
     wall_per_sample_s: float = 0.0
     plan_motion_estimate_s: float = 0.0
     naive_motion_estimate_s: float = 0.0
+    estimate_s: float = 0.0               # the time model's estimate of this run before refinement (bench s)
+    estimate_refinement_s: float = 0.0    # its estimates of the refinement rounds, as they were planned
+    estimate: dict[str, float] = field(default_factory=dict)  # its parts (acquisition.dryrun.estimate)
     dark_drift: list[float] | None = None
     adaptive_rounds: int = 0
     auto_ranged: int = 0                  # points of the capture (all runs) read at a shorter integration time
@@ -239,7 +242,9 @@ class RunRecord:
         run.update({"ended_unix": time.time(), "status": r.status, "message": r.message,
                     "samples_new": r.samples_new, "samples_total": r.samples_total, "bench_time_s": r.bench_time_s,
                     "bench_clock": r.bench_clock, "motion_s": r.motion_s, "settle_s": r.settle_s,
-                    "read_s": r.read_s, "wall_s": r.wall_s, "wall_per_sample_s": r.wall_per_sample_s})
+                    "read_s": r.read_s, "wall_s": r.wall_s, "wall_per_sample_s": r.wall_per_sample_s,
+                    "calibration_s": max(r.bench_time_s - r.motion_s - r.settle_s - r.read_s, 0.0),
+                    "estimate_s": r.estimate_s + r.estimate_refinement_s})
         self.status = r.status
         if self.auto_range is not None:
             run["auto_range"] = {"readings_discarded": r.auto_range_readings, "overhead_s": r.auto_range_overhead_s}
@@ -262,7 +267,7 @@ class RunRecord:
             d["dark_drift"] = self.dark_drift
         if any("ended_unix" in r for r in self.runs):
             d["totals"] = {k: float(sum(x.get(k, 0.0) for x in self.runs))
-                           for k in ("bench_time_s", "motion_s", "settle_s", "read_s", "wall_s")}
+                           for k in ("bench_time_s", "motion_s", "settle_s", "read_s", "calibration_s", "wall_s")}
         return d
 
     def save(self) -> None:

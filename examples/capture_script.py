@@ -26,8 +26,9 @@ def main() -> int:
     #     plan = Plan.grid(theta_i, theta_o_min, theta_o_max, step, repeats=...)
     check = bench.check(plan)
     print(check.describe())
-    est = plan.estimate(bench.geometry, bench.cfg.detector.integration_time_s)
-    print(f"estimated motion {est['motion_s']:.1f} s (naive order {est['naive_motion_s']:.1f} s)")
+    est = plan.estimate(bench.geometry, bench.cfg.detector.integration_time_s, cfg=bench.cfg)  # the whole capture
+    print(f"estimated bench time {est['total_s']:.1f} s, of which motion {est['motion_s']:.1f} s (naive order "
+          f"{est['naive_motion_s']:.1f} s)")
 
     with bench:                                   # opens the ports (starts the simulator if simulated)
         dark = bench.dark(16)

@@ -1,6 +1,8 @@
 """Motion of one axis in simulated time: trapezoidal profile, stall, settling and backlash.
 
-Units are the axis' controller units (Dynamixel position units or stepper steps) and simulated seconds.
+Units are the axis' controller units (Dynamixel position units or stepper steps) and simulated seconds. A
+profile's duration and the settling after it are the shared time model (:mod:`reconstruction.benchtime`), the
+one the planner's estimate adds up.
 """
 
 from __future__ import annotations
@@ -10,18 +12,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from reconstruction.benchtime import dxl_profile_units, trapezoid_duration
+
 #: Dynamixel X-series unit conversions.
 DXL_DEG_PER_UNIT = 360.0 / 4096.0            # 0.088 deg per position unit
 DXL_RPM_PER_VEL_UNIT = 0.229                 # Profile Velocity unit, rev/min
 DXL_RPM2_PER_ACC_UNIT = 214.577              # Profile Acceleration unit, rev/min^2
 
-
-def dxl_profile_to_units(profile_velocity: int, profile_acceleration: int) -> tuple[float, float]:
-    """Dynamixel Profile Velocity/Acceleration -> (units/s, units/s^2); 0 means unlimited (``inf``)."""
-    units_per_rev = 4096.0
-    v = math.inf if profile_velocity <= 0 else profile_velocity * DXL_RPM_PER_VEL_UNIT * units_per_rev / 60.0
-    a = math.inf if profile_acceleration <= 0 else profile_acceleration * DXL_RPM2_PER_ACC_UNIT * units_per_rev / 3600.0
-    return v, a
+#: Dynamixel Profile Velocity/Acceleration -> (units/s, units/s^2); 0 means unlimited (``inf``): the shared model's.
+dxl_profile_to_units = dxl_profile_units
 
 
 @dataclass
@@ -43,20 +42,18 @@ class TrapezoidProfile:
         self._sign = 1.0 if self.x1 >= self.x0 else -1.0
         self._d = d
         v, a = self.v_max, self.a_max
+        self.duration = float(trapezoid_duration(d, v, a))  # the shared model's (reconstruction.benchtime)
         if d == 0 or (math.isinf(v) and math.isinf(a)):
             self._t_acc, self._t_flat, self._v_peak = 0.0, 0.0, math.inf
             self.duration = 0.0
         elif math.isinf(a):
-            self._t_acc, self._t_flat, self._v_peak = 0.0, d / v, v
-            self.duration = d / v
+            self._t_acc, self._t_flat, self._v_peak = 0.0, self.duration, v
         elif math.isinf(v) or d < v * v / a:
-            t_acc = math.sqrt(d / a)
+            t_acc = 0.5 * self.duration
             self._t_acc, self._t_flat, self._v_peak = t_acc, 0.0, a * t_acc
-            self.duration = 2 * t_acc
         else:
             t_acc = v / a
-            self._t_acc, self._t_flat, self._v_peak = t_acc, (d - v * t_acc) / v, v
-            self.duration = 2 * t_acc + self._t_flat
+            self._t_acc, self._t_flat, self._v_peak = t_acc, self.duration - 2 * t_acc, v
 
     @property
     def t_end(self) -> float:
