@@ -25,15 +25,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from .geometry import inplane_to_dirs, normalize
 from .models import Material, Microfacet
+from .schema.slice_meta import INSTRUMENT_KEYS, check_instrument
 
 Array = NDArray[np.float64]
 BrdfFn = Callable[[Array, Array], Array]
 
 __all__ = ["Instrument", "InstrumentError", "instrument_average", "INSTRUMENT_KEYS"]
 
-#: the keys of the slice metadata's ``instrument`` object (``Instrument.to_meta()``)
-INSTRUMENT_KEYS = ("detector_solid_angle_sr", "source_divergence_deg", "beam_diameter_mm", "sample_diameter_mm",
-                   "band")
 
 # Quadrature sizes: the smooth polar rule (radial Gauss in r^2 x uniform azimuth), the lobe rule (rays x radial
 # nodes) and the source rule (used only when the source diverges).
@@ -44,17 +42,6 @@ _SOURCE_NR, _SOURCE_NPHI = 2, 6
 
 class InstrumentError(ValueError):
     """An instrument description is invalid; the message names the key."""
-
-
-def _number(d: Mapping[str, Any], key: str, where: str, default: float | None, *, lo: float, hi: float,
-            optional: bool = False) -> float | None:
-    v = d.get(key, default)
-    if v is None and optional:
-        return None
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo <= v <= hi:
-        raise InstrumentError(f"{where}.{key}: expected a number in [{lo:g}, {hi:g}]"
-                              f"{' or null' if optional else ''}, got {v!r}")
-    return float(v)
 
 
 @dataclass(frozen=True)
@@ -80,18 +67,10 @@ class Instrument:
 
     @staticmethod
     def _check(d: Mapping[str, Any], where: str) -> dict[str, Any]:
-        out: dict[str, Any] = {
-            "detector_solid_angle_sr": _number(d, "detector_solid_angle_sr", where, 0.0, lo=0.0, hi=2 * math.pi),
-            "source_divergence_deg": _number(d, "source_divergence_deg", where, 0.0, lo=0.0, hi=45.0),
-            "beam_diameter_mm": _number(d, "beam_diameter_mm", where, None, lo=1e-9, hi=1e6, optional=True),
-            "sample_diameter_mm": _number(d, "sample_diameter_mm", where, None, lo=1e-9, hi=1e6, optional=True),
-        }
-        band = d.get("band", "rgb")
-        if not isinstance(band, str) or not band.strip():
-            raise InstrumentError(f"{where}.band: expected a non-empty string (\"rgb\", \"spectral\" or e.g. "
-                                  f"\"silicon x halogen-3000K\"), got {band!r}")
-        out["band"] = band
-        return out
+        try:
+            return check_instrument(d, where)
+        except ValueError as e:
+            raise InstrumentError(str(e)) from None
 
     @property
     def aperture_half_angle_deg(self) -> float:
@@ -116,9 +95,6 @@ class Instrument:
         """
         if d is None:
             return cls()
-        if not isinstance(d, Mapping):
-            raise InstrumentError(f"{where}: expected an object with the keys {', '.join(INSTRUMENT_KEYS)}, "
-                                  f"got {d!r}")
         return cls(**cls._check(d, where))
 
     def to_meta(self) -> dict[str, Any]:
