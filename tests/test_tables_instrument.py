@@ -49,6 +49,19 @@ def test_bivariate_table_of_a_mirror_keeps_its_albedo_within_5_percent(mirror):
     np.testing.assert_allclose(_table_albedo(rec.table()), exact, rtol=0.05)
 
 
+def test_microfacet_table_of_a_mirror_keeps_its_albedo_within_5_percent(mirror):
+    from reconstruction.methods import Options
+    from reconstruction.pipeline import reconstruct, tabulate
+
+    mat, exact = mirror
+    rec, _ = reconstruct(_capture(mat, Instrument.from_half_angle(1.0)), "microfacet", Options())
+    assert rec.report()["instrument"]["cone_averaged_samples"] > 0
+    assert rec.table_values.startswith("cell averages over theta_h")
+    np.testing.assert_allclose(_table_albedo(tabulate(rec)), exact, rtol=0.05)
+    point, _ = reconstruct(_capture(mat, Instrument.from_half_angle(1.0), meta=False), "microfacet", Options())
+    assert np.all(_table_albedo(tabulate(point)) < 0.5 * exact)  # the readings taken as point values
+
+
 def test_without_the_instrument_the_same_readings_lose_the_lobe(mirror):
     mat, exact = mirror
     rec = reconstruct_bivariate(_capture(mat, Instrument.from_half_angle(1.0), meta=False))

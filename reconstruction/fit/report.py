@@ -37,10 +37,10 @@ class FitReconstruction:
 
     @property
     def sharp_theta_h_rad(self) -> float | None:
-        """theta_h (radians) below which the table holds theta_h cell averages: 20 alpha of the narrowest
+        """theta_h (radians) below which the table holds theta_h cell averages: 5 alpha of the narrowest
         microfacet lobe when alpha < :data:`SHARP_ALPHA` (a lobe narrower than the table's cells), else None."""
         alphas = [lb.alpha for lb in self.material.lobes if isinstance(lb, Microfacet)]
-        return 20.0 * min(alphas) if alphas and min(alphas) < SHARP_ALPHA else None
+        return 5.0 * min(alphas) if alphas and min(alphas) < SHARP_ALPHA else None
 
     @property
     def table_values(self) -> str:
