@@ -166,8 +166,15 @@ def _lobe_nodes(wi: Array, wc: Array, u: Array, v: Array, tan_a: float, alpha: f
     py = np.sum(wr * v, axis=-1) / czs
     # the slope's linear map at the peak -> the lobe's width along each ray (GGX slope scale alpha / |J e|)
     eps = 1e-6 * max(tan_a, 1e-6)
-    jx = np.stack(_slope(wi, wc, u, v, (px + eps)[:, None], py[:, None]), axis=-1)[:, 0, :] / eps
-    jy = np.stack(_slope(wi, wc, u, v, px[:, None], (py + eps)[:, None]), axis=-1)[:, 0, :] / eps
+    with np.errstate(over="ignore", invalid="ignore"):
+        jx = np.stack(_slope(wi, wc, u, v, (px + eps)[:, None], py[:, None]), axis=-1)[:, 0, :] / eps
+        jy = np.stack(_slope(wi, wc, u, v, px[:, None], (py + eps)[:, None]), axis=-1)[:, 0, :] / eps
+    # a light at or below the horizon has no microfacet peak to follow: the smooth rule takes it
+    good = (wi[:, 2] > 1e-6) & np.all(np.isfinite(jx) & np.isfinite(jy), axis=1) & (np.abs(jx).max(1) < 1e12) & (
+        np.abs(jy).max(1) < 1e12)
+    ok &= good
+    jx = np.where(good[:, None], jx, np.array([1.0, 0.0]))
+    jy = np.where(good[:, None], jy, np.array([0.0, 1.0]))
     dist = np.hypot(px, py)
     inside = dist < tan_a
     # Rays are spaced uniformly in the slope plane, where the lobe is round (to first order): a ray at slope angle
@@ -331,7 +338,8 @@ def instrument_average_dirs(f: BrdfFn | Material, wi: ArrayLike, wo: ArrayLike, 
     m = len(wi)
     fn: BrdfFn = f.eval if isinstance(f, Material) else f
     if instrument.is_point or m == 0:
-        return np.asarray(fn(wi, wc), dtype=np.float64).reshape(m, -1)
+        out = np.asarray(fn(wi, wc), dtype=np.float64)
+        return out.reshape(m, out.shape[-1] if out.ndim > 1 else 1)
     rest, mf, n_ch, wl = _split(f, lobes)
     half = math.radians(instrument.aperture_half_angle_deg)
     tan_a = math.tan(half)

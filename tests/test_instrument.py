@@ -139,3 +139,13 @@ def test_slice_files_carry_the_instrument_and_refuse_a_malformed_one(tmp_path):
     write_slice(p, Slice([30.0], [30.0], [[0.1]], ["value"], meta={"instrument": {"detector_solid_angle_sr": -1}}))
     with pytest.raises(SliceError, match=r"s\.csv: metadata instrument\.detector_solid_angle_sr: expected a number"):
         read_slice(p)
+
+
+def test_grazing_light_and_empty_input(recwarn):
+    mat = _mat(Lambert(Colour(np.array([0.5]))), Microfacet(Colour(np.array([0.95])), alpha=1e-3))
+    inst = Instrument.from_half_angle(1.0, source_divergence_deg=0.3)  # part of the beam below the horizon
+    r = instrument_average(mat, [89.5, 89.9, 85.0], [89.5, -89.9, 89.7], inst)
+    assert r.shape == (3, 1) and np.all(np.isfinite(r)) and np.all(r >= 0)
+    assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]
+    assert instrument_average(mat, [], [], inst).shape == (0, 1)
+    assert instrument_average(mat, [], [], Instrument()).shape == (0, 1)
