@@ -169,6 +169,9 @@ def tabulate(rec: Reconstruction, supersample: tuple[int, int, int] | str | None
     """
     fast = getattr(rec, "table", None)
     t = fast() if (supersample is None and callable(fast)) else merl.tabulate(rec.eval, supersample=supersample)
+    sharp = getattr(rec, "sharp_theta_h_rad", None)  # a lobe narrower than the cells near theta_h = 0
+    if supersample is None and sharp:
+        t, _ = merl.average_theta_h_cells(rec.eval, t, sharp, n=8)
     valid = merl.valid_mask()[None]
     bad = valid & ~np.isfinite(t)
     if bad.any():
@@ -375,7 +378,8 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
         inputs={"files": loaded.files, "quantities": loaded.quantities, "notes": loaded.notes,
                 "columns": job.columns, "scene": job.scene},
         colour=colour_info,
-        table_info={"cells": 3 * merl.N_CELLS, "values": "cell averages" if job.supersample else "bin centres",
+        table_info={"cells": 3 * merl.N_CELLS,
+                    "values": "cell averages" if job.supersample else getattr(rec, "table_values", "bin centres"),
                     "supersample": (list(job.supersample) if isinstance(job.supersample, tuple)
                                     else job.supersample),
                     "bin_centres": "theta_h = ((i + 0.5) / 90)^2 * 90 deg, theta_d = j + 0.5 deg, "
