@@ -34,6 +34,8 @@ IOR_MIN, IOR_MAX = (1 + math.sqrt(F0_MIN)) / (1 - math.sqrt(F0_MIN)), (1 + math.
 EXP_MIN, EXP_MAX = 0.5, 2000.0
 # amplitudes are physical fractions: lambert albedo, microfacet specular and retro amount each lie in (0, 1]
 LOG_AMP_MIN, LOG_AMP_MAX = math.log(1e-12), 0.0
+#: the largest directional albedo a fit may reach by its tabulated lobe albedos (a margin for their interpolation)
+ENERGY_TARGET = 0.995
 #: incidences (radians) at which every candidate's directional albedo is held <= 1 during the fit
 ENERGY_INCIDENCES = np.radians(np.arange(0.0, 89.0, 4.0))
 FLOOR = 1e-4  # of each channel's peak |f|
@@ -120,10 +122,12 @@ def _unit_albedo(spec: LobeSpec, nl: Sequence[float], theta_i: Array) -> Array:
 
 def _energy_scale(specs: Sequence[LobeSpec], nl: Sequence[Array], amps: Array) -> tuple[Array, Array, Array]:
     """(scale (C,), albedo (n_theta, C) before scaling, unit albedos (L, n_theta)): the factor <= 1 per channel
-    that brings the model's largest directional albedo over :data:`ENERGY_INCIDENCES` down to 1."""
+    that brings the model's largest directional albedo over :data:`ENERGY_INCIDENCES` down to
+    :data:`ENERGY_TARGET` (the unit albedos are interpolated from tables, good to about 0.3 %: the margin keeps the
+    true albedo <= 1)."""
     e = np.stack([_unit_albedo(s, p, ENERGY_INCIDENCES) for s, p in zip(specs, nl, strict=True)])
     alb = e.T @ amps
-    return 1.0 / np.maximum(alb.max(axis=0), 1.0), alb, e
+    return 1.0 / np.maximum(alb.max(axis=0) / ENERGY_TARGET, 1.0), alb, e
 
 
 @dataclass
