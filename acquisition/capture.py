@@ -402,7 +402,8 @@ class RunEngine:
                         bench.devices(), settle_s=cfg.motion.settle_s, retries=cfg.motion.retries, result=r,
                         sink=sink, record=self.record, guard=self._guard, bar=bar,
                         auto_range=(d.integration_time_s, d.min_integration_time_s, d.dark_repeats)
-                        if d.auto_range else None, auto_range_hint=not d.auto_range, samples_total=len(done))
+                        if d.auto_range else None, auto_range_hint=not d.auto_range, samples_total=len(done),
+                        gains=d.gains)
                     engine.t_last = t0
                     if engine.ranger is not None and self.record.auto_range is not None:
                         self.record.auto_range.prune(set(done), point_key)

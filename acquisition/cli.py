@@ -202,8 +202,10 @@ def _run(args: argparse.Namespace) -> int:
             clock = "simulated " if result.bench_clock == "controller" else ""
             ranged = ""
             if result.auto_ranged:
-                settings = ", ".join(f"{k} s: {v}" for k, v in result.auto_range_settings.items())
-                ranged = (f"\n  auto-ranged {result.auto_ranged} point(s) to shorter integration times ({settings});"
+                settings = "; ".join(f"{k}{'' if 'gain' in k else ' s'}: {v}"
+                                     for k, v in result.auto_range_settings.items())
+                what = "other settings" if "gain" in settings else "shorter integration times"
+                ranged = (f"\n  auto-ranged {result.auto_ranged} point(s) to {what} ({settings});"
                           f" {result.auto_range_overhead_s:.2f} s of extra integration in this run")
             print(f"gonio-capture: {result.message}{extra}\n"
                   f"  {clock}capture time {result.bench_time_s:.2f} s of bench time, of which moving "
