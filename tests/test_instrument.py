@@ -1,0 +1,127 @@
+"""The instrument's angular response (reconstruction.instrument): readings against a brute-force cone integral."""
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from reconstruction.geometry import inplane_to_dirs
+from reconstruction.instrument import Instrument, InstrumentError, instrument_average
+from reconstruction.models import Colour, Lambert, Material, Microfacet
+
+
+def _mat(*lobes) -> Material:
+    return Material("m", list(lobes))
+
+
+def _brute(mat: Material, ti: float, to: float, half_deg: float, nr: int = 500, nphi: int = 1024) -> np.ndarray:
+    """Dense midpoint quadrature of f cos over the cone (polar about its centre, on the sphere), / (Omega cos_c)."""
+    a = math.radians(half_deg)
+    wi, wc = inplane_to_dirs(math.radians(ti), math.radians(to))
+    u = np.array([math.cos(math.radians(to)), 0.0, -math.sin(math.radians(to))])
+    v = np.array([0.0, 1.0, 0.0])
+    t = (np.arange(nr) + 0.5) * a / nr
+    p = (np.arange(nphi) + 0.5) * 2 * np.pi / nphi
+    tt, pp = np.meshgrid(t, p, indexing="ij")
+    d = (np.cos(tt)[..., None] * wc
+         + np.sin(tt)[..., None] * (np.cos(pp)[..., None] * u + np.sin(pp)[..., None] * v))
+    w = np.sin(tt) * (a / nr) * (2 * np.pi / nphi)
+    f = mat.eval(np.broadcast_to(wi, d.shape), d)
+    omega = 2 * np.pi * (1 - math.cos(a))
+    return (f * (w * d[..., 2])[..., None]).sum(axis=(0, 1)) / omega / wc[2]
+
+
+# the peak at the centre, inside, just inside the edge, on it, just outside, in the tail, and at grazing incidence
+GEOMETRIES = [(0.0, 0.0), (30.0, 30.6), (30.0, 30.99), (30.0, 31.0), (30.0, 31.3), (80.0, 80.5), (60.0, 62.5)]
+
+
+@pytest.mark.parametrize("alpha", [1e-3, 5e-3])
+def test_sharp_ggx_in_a_1deg_cone_matches_a_brute_force_integral(alpha):
+    mat = _mat(Microfacet(Colour(np.array([0.95])), alpha=alpha))
+    inst = Instrument.from_half_angle(1.0)
+    ti = np.array([g[0] for g in GEOMETRIES])
+    to = np.array([g[1] for g in GEOMETRIES])
+    got = instrument_average(mat.eval, ti, to, inst)[:, 0]
+    ref = np.array([_brute(mat, a, b, 1.0)[0] for a, b in GEOMETRIES])
+    np.testing.assert_allclose(got, ref, rtol=0.01)
+    # and the point sample at the centre is far off wherever the lobe is narrower than the cone
+    centre = mat.eval(*inplane_to_dirs(np.radians(ti), np.radians(to)))[:, 0]
+    assert abs(centre[0] / got[0] - 1) > 0.5
+
+
+def test_smooth_material_equals_f_at_the_centre_and_the_brute_force():
+    mat = _mat(Lambert(Colour(np.array([0.5, 0.4, 0.3]))), Microfacet(Colour(np.array([0.04])), alpha=0.3))
+    inst = Instrument.from_half_angle(1.0)
+    geo = [(0.0, 10.0), (30.0, 30.0), (45.0, -20.0), (70.0, 75.0)]
+    ti, to = np.array(geo).T
+    got = instrument_average(mat.eval, ti, to, inst)
+    centre = mat.eval(*inplane_to_dirs(np.radians(ti), np.radians(to)))
+    np.testing.assert_allclose(got, centre, rtol=0.005)
+    ref = np.array([_brute(mat, a, b, 1.0, nr=60, nphi=90) for a, b in geo])
+    np.testing.assert_allclose(got, ref, rtol=0.01)
+
+
+def test_a_point_instrument_returns_f_at_the_centre():
+    mat = _mat(Lambert(Colour(np.array([0.02]))), Microfacet(Colour(np.array([0.95])), alpha=1e-3))
+    ti = np.array([30.0, 30.0, 45.0])
+    to = np.array([30.0, 30.05, -10.0])
+    want = mat.eval(*inplane_to_dirs(np.radians(ti), np.radians(to)))
+    for inst in (Instrument(), Instrument.from_meta(None), Instrument.from_meta({})):
+        np.testing.assert_array_equal(instrument_average(mat.eval, ti, to, inst), want)
+
+
+def test_vectorised_channels_broadcast_and_the_material_or_lobes_forms():
+    mat = _mat(Lambert(Colour(np.array([0.1, 0.2, 0.3]))), Microfacet(Colour(np.array([0.9, 0.8, 0.7])), alpha=2e-3))
+    inst = Instrument.from_half_angle(0.5)
+    to = np.linspace(25.0, 35.0, 11)
+    many = instrument_average(mat.eval, 30.0, to, inst)
+    assert many.shape == (11, 3)
+    one_by_one = np.vstack([instrument_average(mat.eval, 30.0, t, inst) for t in to])
+    np.testing.assert_allclose(many, one_by_one, rtol=1e-12)
+    np.testing.assert_allclose(instrument_average(mat, 30.0, to, inst), many, rtol=1e-12)
+    # a plain callable that says which microfacet lobes it holds gives the same reading
+    np.testing.assert_allclose(instrument_average(lambda wi, wo: mat.eval(wi, wo), 30.0, to, inst,
+                                                  lobes=[mat.lobes[1]]), many, rtol=1e-9)
+    # the lobe (about 0.2 deg wide) is narrower than the cone: the reading at its peak is well below f there
+    assert many[5, 0] < mat.eval(*inplane_to_dirs(np.radians(30.0), np.radians(30.0)))[0] / 3
+
+
+def test_fast_for_500_samples_of_a_sharp_lobe():
+    mat = _mat(Lambert(Colour(np.array([0.02]))), Microfacet(Colour(np.array([0.97, 0.95, 0.9])), alpha=1e-3))
+    inst = Instrument.from_half_angle(1.0)
+    ti = np.repeat(np.linspace(0.0, 80.0, 10), 50)
+    to = ti + np.tile(np.linspace(-3.0, 3.0, 50), 10)
+    instrument_average(mat.eval, ti[:5], to[:5], inst)  # warm up
+    t0 = time.perf_counter()
+    r = instrument_average(mat.eval, ti, to, inst)
+    assert time.perf_counter() - t0 < 0.5
+    assert r.shape == (500, 3) and np.all(np.isfinite(r)) and np.all(r > 0)
+
+
+def test_source_divergence_averages_over_the_beam():
+    smooth = _mat(Lambert(Colour(np.array([0.5]))), Microfacet(Colour(np.array([0.04])), alpha=0.3))
+    inst = Instrument(0.0, source_divergence_deg=1.0)
+    got = instrument_average(smooth.eval, [20.0, 50.0], [20.0, -30.0], inst)
+    np.testing.assert_allclose(got, smooth.eval(*inplane_to_dirs(np.radians([20.0, 50.0]),
+                                                                np.radians([20.0, -30.0]))), rtol=0.005)
+    sharp = _mat(Microfacet(Colour(np.array([0.95])), alpha=1e-3))
+    narrow = instrument_average(sharp.eval, 30.0, 30.0, Instrument.from_half_angle(0.3))
+    wide = instrument_average(sharp.eval, 30.0, 30.0, Instrument.from_half_angle(0.3, source_divergence_deg=0.5))
+    assert wide[0, 0] < 0.7 * narrow[0, 0]  # a divergent beam spreads the mirror image beyond the small cone
+
+
+def test_meta_round_trip_and_clear_errors():
+    inst = Instrument(1e-3, source_divergence_deg=0.2, beam_diameter_mm=5.0, sample_diameter_mm=25.0,
+                      band="silicon x halogen-3000K")
+    assert Instrument.from_meta(inst.to_meta()) == inst
+    assert math.isclose(Instrument.from_half_angle(1.0).aperture_half_angle_deg, 1.0)
+    assert math.isclose(Instrument(1e-3).aperture_half_angle_deg, 1.02224, rel_tol=1e-5)
+    with pytest.raises(InstrumentError, match=r"instrument\.detector_solid_angle_sr"):
+        Instrument.from_meta({"detector_solid_angle_sr": "big"})
+    with pytest.raises(InstrumentError, match=r"instrument\.beam_diameter_mm"):
+        Instrument.from_meta({"detector_solid_angle_sr": 1e-3, "beam_diameter_mm": -1})
+    with pytest.raises(InstrumentError, match=r"instrument\.band"):
+        Instrument.from_meta({"band": 3})
+    with pytest.raises(InstrumentError, match="expected an object"):
+        Instrument.from_meta([1, 2])
