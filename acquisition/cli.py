@@ -164,6 +164,11 @@ def _run(args: argparse.Namespace) -> int:
                 print(f"gonio-capture: {e}", file=sys.stderr)
                 return 1
         print(chk.describe(limit=1000))
+        from .optics import footprint_warning
+
+        warn = footprint_warning(bench.cfg, [p[0] for p in chk.measurable])
+        if warn:
+            print(f"warning: {warn}")
         grows = " (before adaptive refinement, which may add up to " \
                 f"{plan.size() - len(chk.measurable) - len(chk.unmeasurable):.0f})" if plan.adaptive else ""
         print(f"plan size: {len(chk.measurable) + len(chk.unmeasurable)} points{grows}, limit {MAX_PLAN_POINTS}")

@@ -263,7 +263,7 @@ class Engine:
             if self.bar is not None:
                 self.bar.advance()
             return (ti, to, 0.0, 0.0)
-        f, fs = self.calibration.brdf(m.reading, to)
+        f, fs = self.calibration.brdf(m.reading, to, ti)
         rg = m.ranged
         rec = self.record.auto_range if self.record is not None else None
         if rg is not None and rec is not None:

@@ -110,6 +110,16 @@ def rereference(cfg: BenchConfig) -> PlanGen:
     yield UseReference(ref)
 
 
+def footprint_of(cfg: BenchConfig) -> tuple[float, float, float] | None:
+    """The calibration's footprint: (beam, sample diameter in mm, the smallest fraction corrected), or None."""
+    from .optics import MIN_CORRECTABLE_FRACTION
+
+    b = cfg.bench
+    if b.beam_diameter_mm is None or b.sample_diameter_mm is None:
+        return None
+    return (b.beam_diameter_mm, b.sample_diameter_mm, MIN_CORRECTABLE_FRACTION)
+
+
 def calibrate(cfg: BenchConfig, rho_ref: np.ndarray) -> PlanGen:
     """The dark level, then (relative calibration) the white reference; tells the engine to convert with the
     result. Returns the :class:`Calibration`."""
@@ -123,7 +133,8 @@ def calibrate(cfg: BenchConfig, rho_ref: np.ndarray) -> PlanGen:
             t_ref_read = ranged.integration_time_s
             if ranged.ranged:
                 log.info("white reference: auto-ranged to t_int = %g s", t_ref_read)
-        cal = Calibration("relative", dark, ref, rho_ref, c.reference_theta_o_deg)
+        cal = Calibration("relative", dark, ref, rho_ref, c.reference_theta_o_deg, footprint=footprint_of(cfg),
+                          reference_theta_i_deg=c.reference_theta_i_deg)
         try:
             cal.scale(c.reference_theta_o_deg)  # raises if the reference reads no signal
         except ValueError as e:
@@ -132,7 +143,8 @@ def calibrate(cfg: BenchConfig, rho_ref: np.ndarray) -> PlanGen:
                               ) from None
     else:
         assert c.source_power is not None and c.detector_solid_angle_sr is not None
-        cal = Calibration("absolute", dark, k_counts=c.source_power * c.detector_solid_angle_sr)
+        cal = Calibration("absolute", dark, k_counts=c.source_power * c.detector_solid_angle_sr,
+                          footprint=footprint_of(cfg))
     log.info("dark %s counts; %s", np.round(dark.mean, 3).tolist()[:8],
              f"reference {np.round(cal.reference.mean, 3).tolist()[:8]} counts" if cal.reference else
              f"K = {cal.k_counts:g} counts")
