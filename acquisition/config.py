@@ -388,8 +388,9 @@ def _read_detector(src: str, raw: Any, base_dir: Path, source_spectrum: str, sim
             raise ConfigError(str(e)) from None
     gains = tuple(sorted(t["gains"])) if t["gains"] is not None else None
     if gains is not None and t["type"] != "photodiode":
-        raise t.error("gains", "a spectrometer ranges over integration time only; gains are a photodiode "
-                               "amplifier's (leave the key out)")
+        log.info("%s: [detector].gains: a spectrometer ranges over integration time only; the gains (a photodiode "
+                 "amplifier's) are not used", src)
+        gains = None
     return DetectorConfig(**{**values, "gains": gains, "band_weights": weights})
 
 

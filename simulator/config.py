@@ -205,7 +205,8 @@ def config_from_dict(raw: dict[str, Any], base_dir: Path | None = None, source: 
         axes=axes,
         detector=DetectorConfig(**{k: det[k] for k in ("type", "integration_time_s", "repeats", "saturation",
                                                        "responsivity")}, solid_angle_sr=solid,
-                                gains=tuple(sorted(det["gains"])) if det["gains"] else None, band_weights=weights),
+                                gains=tuple(sorted(det["gains"])) if det["gains"] and det["type"] == "photodiode"
+                                else None, band_weights=weights),
         sim=sim,
         material=dict(_table(src, "material", raw.get("material"))),
         reference_reflectance=float(ref) if isinstance(ref, (int, float)) else 0.99,
