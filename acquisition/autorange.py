@@ -144,6 +144,7 @@ class Ranged:
     readings: int
     overhead_s: float
     gain: float | None = None
+    dark: Reading | None = None  # the dark at the setting read (a ranged reading), converted like the reading
 
     @property
     def ranged(self) -> bool:
@@ -332,4 +333,4 @@ class AutoRanger:
         r = self.sensitivity(0) / self.sensitivity(i)
         conv = Reading(self.ref_dark.mean + (rd.mean - dark.mean) * r, rd.std * r, rd.n, 0)
         self._rung = i
-        return Ranged(conv, rd, t, reads, spent, gain)
+        return Ranged(conv, rd, t, reads, spent, gain, Reading(dark.mean * r, dark.std * r, dark.n, 0))

@@ -132,7 +132,12 @@ def calibrate(cfg: BenchConfig, rho_ref: np.ndarray) -> PlanGen:
         if ranged is not None:
             t_ref_read = ranged.integration_time_s
             if ranged.ranged:
-                log.info("white reference: auto-ranged to t_int = %g s", t_ref_read)
+                log.info("white reference: auto-ranged to t_int = %g s%s", t_ref_read,
+                         "" if ranged.gain is None else f", gain {ranged.gain:g}")
+                if ranged.dark is not None:  # the dark it was converted with: its uncertainty is the reference's
+                    d = ranged.dark
+                    ref = Reading(ref.mean, np.sqrt(ref.std ** 2 + ref.n * d.std_of_mean ** 2), ref.n,
+                                  ref.saturated)
         cal = Calibration("relative", dark, ref, rho_ref, c.reference_theta_o_deg, footprint=footprint_of(cfg),
                           reference_theta_i_deg=c.reference_theta_i_deg)
         try:
@@ -143,7 +148,10 @@ def calibrate(cfg: BenchConfig, rho_ref: np.ndarray) -> PlanGen:
                               ) from None
     else:
         assert c.source_power is not None and c.detector_solid_angle_sr is not None
-        cal = Calibration("absolute", dark, k_counts=c.source_power * c.detector_solid_angle_sr,
+        # source_power is counts at gain 1; readings are converted to the reference setting's gain
+        gains = cfg.detector.gains
+        g_ref = 1.0 if not gains else (max(gains) if cfg.detector.auto_range else min(gains))
+        cal = Calibration("absolute", dark, k_counts=c.source_power * c.detector_solid_angle_sr * g_ref,
                           footprint=footprint_of(cfg))
     log.info("dark %s counts; %s", np.round(dark.mean, 3).tolist()[:8],
              f"reference {np.round(cal.reference.mean, 3).tolist()[:8]} counts" if cal.reference else
