@@ -27,11 +27,6 @@ class SliceMeta(msgspec.Struct, omit_defaults=True):
     calibration: Annotated[dict[str, Any], Meta(description="mode, reference or absolute constants, dark and "
                                                             "reference readings")] | None = None
     detector: dict[str, Any] | None = None
-    instrument: Annotated[dict[str, Any], Meta(description="how the samples were taken: detector_solid_angle_sr, "
-                                                           "source_divergence_deg, beam_diameter_mm, "
-                                                           "sample_diameter_mm, band (reconstruction.instrument."
-                                                           "Instrument.to_meta()); missing: a point instrument"
-                                                           )] | None = None
     plan: dict[str, Any] | None = None
     plan_fingerprint: str | None = None
     config_fingerprint: Annotated[dict[str, Any], Meta(description="every setting that changes what a sample "
