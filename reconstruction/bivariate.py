@@ -42,6 +42,7 @@ from numpy.typing import ArrayLike, NDArray
 from . import merl
 from .base import ReconstructionError
 from .geometry import half_diff_from_dirs, inplane_to_dirs
+from .instrument import Instrument, InstrumentError
 from .slicefile import Slice
 
 Array = NDArray[np.float64]
@@ -84,6 +85,7 @@ class BivariateReconstruction:
     info: dict[str, Any] = field(default_factory=dict)
     method: str = "bivariate"
     delta: Array | None = None  # (C,) offset of the log interpolation along theta_h (1/sr cos^P)
+    cell_average_th: bool = False  # the table holds cell averages over theta_h (a peak narrower than the cells)
 
     def __post_init__(self) -> None:
         if self.delta is None:  # positive and above -min(q), so every sample is reproduced exactly
@@ -147,14 +149,36 @@ class BivariateReconstruction:
         return np.where(up[..., None], v, 0.0)
 
     def table(self) -> Array:
-        """MERL table (3, 90, 90, 180) at bin centres: f(theta_h, theta_d) repeated over phi_d; NaN below horizon."""
+        """MERL table (3, 90, 90, 180) at bin centres: f(theta_h, theta_d) repeated over phi_d; NaN below horizon.
+
+        With ``cell_average_th`` (a plateau from the instrument, see :func:`reconstruct_bivariate`) each cell holds
+        the average over its theta_h extent instead (:data:`CELL_SUBSAMPLES` sub-samples uniform in the index
+        sqrt(theta_h), weighted by sin(theta_h) d theta_h as ``merl.tabulate``'s cell averages), so the plateau's
+        edge keeps its energy whichever cell it falls in."""
         th, td, _ = merl.cell_angles()
-        a, b = np.broadcast_arrays(th[:, :, 0], td[:, :, 0])  # (90, 90)
-        g = self.f_hd(a.ravel(), b.ravel()).reshape(merl.N_TH, merl.N_TD, -1)
+        if self.cell_average_th:
+            o = (np.arange(CELL_SUBSAMPLES) + 0.5) / CELL_SUBSAMPLES
+            u = (np.arange(merl.N_TH)[:, None] + o[None, :]) / merl.N_TH  # (90, n)
+            ths = u * u * (np.pi / 2)
+            w = np.sin(ths) * u
+            w = w / w.sum(axis=1, keepdims=True)
+            a = np.broadcast_to(ths[:, None, :], (merl.N_TH, merl.N_TD, CELL_SUBSAMPLES))
+            b = np.broadcast_to(td[0, :, 0][None, :, None], a.shape)
+            g = self.f_hd(a.ravel(), b.ravel()).reshape(merl.N_TH, merl.N_TD, CELL_SUBSAMPLES, -1)
+            g = np.einsum("hdsc,hs->hdc", g, w)
+        else:
+            a, b = np.broadcast_arrays(th[:, :, 0], td[:, :, 0])  # (90, 90)
+            g = self.f_hd(a.ravel(), b.ravel()).reshape(merl.N_TH, merl.N_TD, -1)
         g = np.broadcast_to(g, (merl.N_TH, merl.N_TD, g.shape[-1] if g.shape[-1] == 3 else 3))
         out = np.broadcast_to(np.moveaxis(g, -1, 0)[..., None], merl.SHAPE).copy()
         out[:, ~merl.valid_mask()] = np.nan
         return out
+
+    @property
+    def table_values(self) -> str:
+        """What :meth:`table` holds, for the report."""
+        return ("cell averages over theta_h (automatic: a specular peak narrower than the instrument's cone)"
+                if self.cell_average_th else "bin centres")
 
     def coverage(self) -> dict[str, float]:
         """Fractions of the table's (theta_h, theta_d) bins interpolated between two lines vs extrapolated."""
@@ -182,6 +206,45 @@ def _gaps(th: Array) -> Array:
     d = np.diff(th)
     wide = d > 1.5 * np.median(d)
     return np.stack([th[:-1][wide], th[1:][wide]], axis=1)
+
+
+#: sub-samples per theta_h cell when the table holds cell averages
+CELL_SUBSAMPLES = 16
+#: a measured peak is narrower than the instrument's cone when its neighbour on the line is this much lower
+PLATEAU_RATIO = 4.0
+
+
+def _plateau(ln: _Line, omega_sr: float) -> dict[str, Any] | None:
+    """Hold the line's mirror-direction sample over the instrument's cone, in place: a reading there is the
+    lobe's energy in the cone / (Omega cos theta_o), and f = that reading over theta_h < r, with
+    4 cos(theta_d) pi r^2 = Omega (the cone's solid angle in half-vector terms), keeps that energy.
+    Beyond r, the line falls to its first sample outside (log-linear back-extrapolation of the next two).
+    None when the line's first sample is not at the mirror direction or the peak is not sharp."""
+    th, q = ln.th, ln.q
+    if th.size < 3 or th[0] > 1e-6:
+        return None
+    lum = q.sum(axis=1)
+    if not lum[0] > PLATEAU_RATIO * max(float(lum[1]), 1e-300):
+        return None
+    r = math.sqrt(omega_sr / (4.0 * math.pi * max(math.cos(ln.theta_i), 1e-3)))
+    keep = th > r * (1.0 + 1e-6)  # samples beyond the plateau (a wide cone at grazing may hide some)
+    nxt = np.nonzero(keep)[0]
+    if nxt.size == 0:
+        return None
+    k = int(nxt[0])
+    if k + 1 < th.size and np.all(q[k] > 0) and np.all(q[k + 1] > 0):
+        slope = (np.log(q[k]) - np.log(q[k + 1])) / (th[k + 1] - th[k])  # the tail's log decay per radian
+        edge = q[k] * np.exp(np.maximum(slope, 0.0) * (th[k] - r))
+    else:
+        edge = q[k]
+    edge = np.clip(edge, np.minimum(q[k], q[0]), q[0])
+    ln.th = np.concatenate([[0.0, r, r * (1.0 + 1e-6)], th[keep]])
+    ln.q = np.concatenate([q[:1], q[:1], edge[None, :], q[keep]])
+    ln.gap_mask_th = _gaps(ln.th)
+    return {"theta_i_deg": round(math.degrees(ln.theta_i), 6), "branch": "forward" if ln.sign > 0 else "backward",
+            "plateau_theta_h_deg": round(math.degrees(r), 6), "peak_over_next": round(float(lum[0] / max(lum[1],
+                                                                                                       1e-300)), 3),
+            "samples_inside": int(np.sum(~keep)) - 1}
 
 
 COS_POWERS = (1.5, 2.0, 2.5)
@@ -287,9 +350,25 @@ def reconstruct_bivariate(slices: Slice, *, fill: str = "interpolate", cos_power
     if f.shape[1] not in (1, 3):
         raise ReconstructionError(f"{slices.source}: bivariate works on 1 (grey) or 3 (RGB) channels, got "
                                   f"{f.shape[1]}; convert spectra with reconstruction.colour first")
+    try:
+        inst = Instrument.from_meta(slices.meta.get("instrument"))
+    except InstrumentError as e:
+        raise ReconstructionError(f"{slices.source}: metadata {e}") from None
+    plateaus = [p for ln in lines if inst.detector_solid_angle_sr > 0
+                and (p := _plateau(ln, inst.detector_solid_angle_sr)) is not None]
     info: dict[str, Any] = {"incidences_deg": np.unique(slices.theta_i_deg).tolist(), "cos_power_reason": why_p,
                             "holes": ("interpolated linearly along each measured line" if fill == "interpolate"
                                       else "gaps wider than 1.5 x the median spacing left at f = 0")}
+    if plateaus:
+        info["instrument"] = {
+            "instrument": inst.to_meta(), "plateaus": plateaus,
+            "note": ("the specular peak is narrower than the detector's cone at the incidences listed: each holds "
+                     "its mirror-direction reading over the cone (theta_h < plateau_theta_h_deg), which keeps the "
+                     "lobe's measured energy; the table holds cell averages over theta_h (automatic "
+                     f"supersampling, {CELL_SUBSAMPLES} sub-samples per cell) so the plateau's edge keeps it too")}
+        notes.append("peak narrower than the instrument's cone at theta_i = "
+                     + ", ".join(f"{p['theta_i_deg']:g}" for p in plateaus if p["branch"] == "forward")
+                     + " deg: table cells hold theta_h averages there")
     if notes:
         info["notes"] = notes
-    return BivariateReconstruction(lines, channels, floor, cos_power, fill, info)
+    return BivariateReconstruction(lines, channels, floor, cos_power, fill, info, cell_average_th=bool(plateaus))

@@ -25,15 +25,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from .geometry import inplane_to_dirs, normalize
 from .models import Material, Microfacet
+from .schema.slice_meta import INSTRUMENT_KEYS, check_instrument
 
 Array = NDArray[np.float64]
 BrdfFn = Callable[[Array, Array], Array]
 
-__all__ = ["Instrument", "InstrumentError", "instrument_average", "INSTRUMENT_KEYS"]
+__all__ = ["Instrument", "InstrumentError", "instrument_average", "instrument_average_dirs", "INSTRUMENT_KEYS"]
 
-#: the keys of the slice metadata's ``instrument`` object (``Instrument.to_meta()``)
-INSTRUMENT_KEYS = ("detector_solid_angle_sr", "source_divergence_deg", "beam_diameter_mm", "sample_diameter_mm",
-                   "band")
 
 # Quadrature sizes: the smooth polar rule (radial Gauss in r^2 x uniform azimuth), the lobe rule (rays x radial
 # nodes) and the source rule (used only when the source diverges).
@@ -44,17 +42,6 @@ _SOURCE_NR, _SOURCE_NPHI = 2, 6
 
 class InstrumentError(ValueError):
     """An instrument description is invalid; the message names the key."""
-
-
-def _number(d: Mapping[str, Any], key: str, where: str, default: float | None, *, lo: float, hi: float,
-            optional: bool = False) -> float | None:
-    v = d.get(key, default)
-    if v is None and optional:
-        return None
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo <= v <= hi:
-        raise InstrumentError(f"{where}.{key}: expected a number in [{lo:g}, {hi:g}]"
-                              f"{' or null' if optional else ''}, got {v!r}")
-    return float(v)
 
 
 @dataclass(frozen=True)
@@ -80,18 +67,10 @@ class Instrument:
 
     @staticmethod
     def _check(d: Mapping[str, Any], where: str) -> dict[str, Any]:
-        out: dict[str, Any] = {
-            "detector_solid_angle_sr": _number(d, "detector_solid_angle_sr", where, 0.0, lo=0.0, hi=2 * math.pi),
-            "source_divergence_deg": _number(d, "source_divergence_deg", where, 0.0, lo=0.0, hi=45.0),
-            "beam_diameter_mm": _number(d, "beam_diameter_mm", where, None, lo=1e-9, hi=1e6, optional=True),
-            "sample_diameter_mm": _number(d, "sample_diameter_mm", where, None, lo=1e-9, hi=1e6, optional=True),
-        }
-        band = d.get("band", "rgb")
-        if not isinstance(band, str) or not band.strip():
-            raise InstrumentError(f"{where}.band: expected a non-empty string (\"rgb\", \"spectral\" or e.g. "
-                                  f"\"silicon x halogen-3000K\"), got {band!r}")
-        out["band"] = band
-        return out
+        try:
+            return check_instrument(d, where)
+        except ValueError as e:
+            raise InstrumentError(str(e)) from None
 
     @property
     def aperture_half_angle_deg(self) -> float:
@@ -116,9 +95,6 @@ class Instrument:
         """
         if d is None:
             return cls()
-        if not isinstance(d, Mapping):
-            raise InstrumentError(f"{where}: expected an object with the keys {', '.join(INSTRUMENT_KEYS)}, "
-                                  f"got {d!r}")
         return cls(**cls._check(d, where))
 
     def to_meta(self) -> dict[str, Any]:
@@ -234,12 +210,12 @@ def _lobe_nodes(wi: Array, wc: Array, u: Array, v: Array, tan_a: float, alpha: f
     s0 = np.where(inside[:, None], 0.0, np.maximum(-b - root, 0.0))
     s1 = np.maximum(-b + root, s0)
     je = np.hypot(jx[:, None, 0] * ex + jy[:, None, 0] * ey, jx[:, None, 1] * ex + jy[:, None, 1] * ey)
-    beta = alpha / np.maximum(je, 1e-300)  # (m, npsi)
+    beta = np.clip(alpha / np.maximum(je, 1e-300), 1e-9, 10.0)  # (m, npsi)
     u0 = s0 * s0 / (beta * beta + s0 * s0)
     u1 = s1 * s1 / (beta * beta + s1 * s1)
     t, wt = _gauss01(_LOBE_NS)
     uu = u0[..., None] + (u1 - u0)[..., None] * t  # (m, npsi, ns)
-    om = np.maximum(1.0 - uu, 1e-300)
+    om = np.maximum(1.0 - uu, 1e-150)
     s = beta[..., None] * np.sqrt(uu / om)
     ws = (u1 - u0)[..., None] * wt * beta[..., None] ** 2 / (2.0 * om * om)  # = s ds
     qx = (px[:, None, None] + s * ex[..., None]).reshape(m, -1)
@@ -340,15 +316,25 @@ def instrument_average(f: BrdfFn | Material, theta_i_deg: ArrayLike, theta_o_deg
     ti = np.radians(np.atleast_1d(np.asarray(theta_i_deg, dtype=np.float64)))
     to = np.radians(np.atleast_1d(np.asarray(theta_o_deg, dtype=np.float64)))
     ti, to = np.broadcast_arrays(ti, to)
-    ti, to = ti.ravel(), to.ravel()
-    wi, wc = inplane_to_dirs(ti, to)
+    wi, wc = inplane_to_dirs(ti.ravel(), to.ravel())
+    return instrument_average_dirs(f, wi, wc, instrument, lobes)
+
+
+def instrument_average_dirs(f: BrdfFn | Material, wi: ArrayLike, wo: ArrayLike, instrument: Instrument,
+                            lobes: Sequence[Microfacet] | None = None) -> Array:
+    """:func:`instrument_average` for any direction pairs: unit vectors ``wi`` (to the light) and ``wo`` (the
+    detector cone's centre), (n, 3) each; returns (n, channels)."""
+    wi = np.atleast_2d(np.asarray(wi, dtype=np.float64))
+    wc = np.atleast_2d(np.asarray(wo, dtype=np.float64))
+    wi, wc = np.broadcast_arrays(wi, wc)
+    wi, wc = wi.reshape(-1, 3), wc.reshape(-1, 3)
+    m = len(wi)
     fn: BrdfFn = f.eval if isinstance(f, Material) else f
-    if instrument.is_point or len(ti) == 0:
-        return np.asarray(fn(wi, wc), dtype=np.float64).reshape(len(ti), -1)
+    if instrument.is_point or m == 0:
+        return np.asarray(fn(wi, wc), dtype=np.float64).reshape(m, -1)
     rest, mf, n_ch, wl = _split(f, lobes)
     half = math.radians(instrument.aperture_half_angle_deg)
     tan_a = math.tan(half)
-    m = len(ti)
     if instrument.source_divergence_deg > 0.0:
         # the beam's directions: a polar Gauss rule over the source cone, uniform in solid angle
         ts = math.tan(math.radians(instrument.source_divergence_deg))

@@ -370,7 +370,8 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
         inputs={"files": loaded.files, "quantities": loaded.quantities, "notes": loaded.notes,
                 "columns": job.columns, "scene": job.scene},
         colour=colour_info,
-        table_info={"cells": 3 * merl.N_CELLS, "values": "cell averages" if job.supersample else "bin centres",
+        table_info={"cells": 3 * merl.N_CELLS,
+                    "values": "cell averages" if job.supersample else getattr(rec, "table_values", "bin centres"),
                     "supersample": (list(job.supersample) if isinstance(job.supersample, tuple)
                                     else job.supersample),
                     "bin_centres": "theta_h = ((i + 0.5) / 90)^2 * 90 deg, theta_d = j + 0.5 deg, "

@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .atomic import atomic_open
-from .schema.slice_meta import FORMAT_VERSION, QUANTITIES  # the metadata's schema
+from .schema.slice_meta import FORMAT_VERSION, QUANTITIES, check_instrument  # the metadata's schema
 
 Array = NDArray[np.float64]
 
@@ -478,6 +478,11 @@ def read_slice(path: str | Path) -> Slice:
     if not isinstance(quantity, str) or quantity not in QUANTITIES:
         raise SliceError(f"{path}: unknown quantity {shorten(repr(quantity))}; expected one of "
                          f"{', '.join(QUANTITIES)}")
+    if meta.get("instrument") is not None:
+        try:
+            check_instrument(meta["instrument"], "instrument")
+        except ValueError as e:
+            raise SliceError(f"{path}: metadata {shorten(str(e), 300)}") from None
     if lineno >= len(lines):
         raise SliceError(f"{path}: no column header line")
     header = [c.strip() for c in lines[lineno].split(",")]

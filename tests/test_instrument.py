@@ -125,3 +125,17 @@ def test_meta_round_trip_and_clear_errors():
         Instrument.from_meta({"band": 3})
     with pytest.raises(InstrumentError, match="expected an object"):
         Instrument.from_meta([1, 2])
+
+
+def test_slice_files_carry_the_instrument_and_refuse_a_malformed_one(tmp_path):
+    from reconstruction.slicefile import Slice, SliceError, read_slice, write_slice
+
+    inst = Instrument(1e-3, band="silicon x halogen-3000K")
+    p = tmp_path / "s.csv"
+    write_slice(p, Slice([30.0], [30.0], [[0.1]], ["value"], meta={"instrument": inst.to_meta()}))
+    assert Instrument.from_meta(read_slice(p).meta.get("instrument")) == inst
+    write_slice(p, Slice([30.0], [30.0], [[0.1]], ["value"]))
+    assert Instrument.from_meta(read_slice(p).meta.get("instrument")).is_point  # earlier files: a point
+    write_slice(p, Slice([30.0], [30.0], [[0.1]], ["value"], meta={"instrument": {"detector_solid_angle_sr": -1}}))
+    with pytest.raises(SliceError, match=r"s\.csv: metadata instrument\.detector_solid_angle_sr: expected a number"):
+        read_slice(p)

@@ -48,6 +48,7 @@ from threadpoolctl import threadpool_limits
 from ..base import ReconstructionError
 from ..scene import LOBE_KINDS, Scene
 from ..slicefile import Slice
+from .aperture import instrument_info
 from .budget import SCENE_DEFAULT_RANGE_DEG, apply_budget, scene_alpha_min, scene_directions
 from .model import (
     REFIT_MAX_VALUES,
@@ -74,7 +75,9 @@ def _as_brdf(slices: Slice) -> Slice:
     if slices.quantity != "brdf":
         f_, std_ = slices.brdf()
         slices = Slice(slices.theta_i_deg, slices.theta_o_deg, f_, list(slices.channels), std_, slices.repeats,
-                       slices.unix_time_s, meta={"quantity": "brdf"}, source=slices.source)
+                       slices.unix_time_s, meta={"quantity": "brdf", **({"instrument": slices.meta["instrument"]}
+                                                 if slices.meta.get("instrument") is not None else {})},
+                       source=slices.source)
     n_c = len(slices.channels)
     if slices.kind == "spectral" or n_c not in (1, 3):
         raise ReconstructionError(f"{slices.source}: fit works on 1 (grey) or 3 (RGB) channels, got {n_c}; "
@@ -120,7 +123,9 @@ def reconstruct_fit(
     rel = relative_sigma if relative_sigma is not None else (scene.relative_sigma if scene and scene.relative_sigma
                                                              else 0.01)
     gaps = gap_bounds(slices)
-    full = _problem(slices, rel, max(scene_alpha_min(scene), gaps["alpha_min"]))
+    # the scene's resolution bounds alpha only when it gives one (the floor is the instrument's, in _problem)
+    scene_min = scene_alpha_min(scene) if scene is not None and scene.angular_resolution_deg is not None else 0.0
+    full = _problem(slices, rel, max(scene_min, gaps["alpha_min"]))
     full.exponent_max = gaps["retro_exponent_max"]
     # many samples: candidates are compared on an evenly strided subset (every stride-th sample in
     # (theta_i, theta_o) order), then the chosen model is refitted to all samples
@@ -152,6 +157,9 @@ def reconstruct_fit(
     info = fit_info(slices, full, chosen, material, sel.ranked, why, sel.skipped, fit_mask, gaps, loss, f_scale)
     if scene_info is not None:
         info["scene"] = scene_info
+    if full.blur is not None:
+        info["instrument"] = instrument_info(full, chosen)
+        notes += [n["note"] for n in info["instrument"]["lobes"] if "note" in n]
     if notes:
         info["notes"] = notes
     channels = ["value"] if n_c == 1 else ["R", "G", "B"]

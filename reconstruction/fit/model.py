@@ -18,9 +18,11 @@ from scipy.optimize import least_squares, nnls
 
 from ..base import ReconstructionError
 from ..energy import microfacet_albedo, retro_albedo
+from ..instrument import Instrument, InstrumentError
 from ..models import Colour, Lambert, Lobe, Material, Microfacet, Retro
 from ..samples import sample_directions
 from ..slicefile import Slice
+from .aperture import ALPHA_FLOOR, Blur
 
 Array = NDArray[np.float64]
 
@@ -96,10 +98,15 @@ def _lobe(spec: LobeSpec, nl: Sequence[float], colour: Array | None = None) -> L
     raise ReconstructionError(f"unknown lobe kind {spec.kind!r}")
 
 
-def _column(spec: LobeSpec, nl: Sequence[float], wi: Array, wo: Array) -> Array:
+def _column(spec: LobeSpec, nl: Sequence[float], wi: Array, wo: Array, blur: Blur | None = None) -> Array:
     """The lobe's shape for unit amplitude (N,), 1/sr (with its Fresnel factor: the amplitude is the specular
-    scale, <= 1)."""
-    return _lobe(spec, nl).shape(wi, wo)
+    scale, <= 1); with ``blur`` (an instrument of finite aperture) a microfacet lobe is averaged over the cone
+    where that matters (:mod:`.aperture`)."""
+    lobe = _lobe(spec, nl)
+    point = lobe.shape(wi, wo)
+    if blur is None or not isinstance(lobe, Microfacet):
+        return point
+    return blur.column(lobe.distribution, lobe.alpha, lobe.f0, point)
 
 
 def _unit_albedo(spec: LobeSpec, nl: Sequence[float], theta_i: Array) -> Array:
@@ -132,11 +139,13 @@ class _Problem:
     relative_sigma: float
     floor: Array  # (1, C)
     exponent_max: float = EXP_MAX  # retro lobes no narrower than the gap around the retro direction
+    blur: Blur | None = None  # the instrument's cone averages (None: a point instrument)
 
     def take(self, mask: NDArray[np.bool_]) -> _Problem:
         """The problem restricted to the samples ``mask`` (N,)."""
         return _Problem(self.wi[mask], self.wo[mask], self.f[mask], self.sigma[mask], self.alpha_min,
-                        self.std[mask], self.relative_sigma, self.floor, self.exponent_max)
+                        self.std[mask], self.relative_sigma, self.floor, self.exponent_max,
+                        self.blur.take(mask) if self.blur is not None else None)
 
     def sigma_of(self, pred: Array) -> Array:
         """sigma with the relative term taken from the model's prediction (not from the noisy, maybe outlying,
@@ -150,7 +159,7 @@ class _Problem:
 
 def _nl_grid(spec: LobeSpec, alpha_min: float, exponent_max: float = EXP_MAX) -> list[tuple[float, ...]]:
     if spec.kind in ("ggx", "beckmann"):
-        alphas = np.log(np.geomspace(max(alpha_min, ALPHA_MIN), 1.0, 16))
+        alphas = np.log(np.geomspace(alpha_min, 1.0, 16))
         if spec.fresnel:
             return [(a, math.log(ior_of_f0(f0) - 1.0)) for a in alphas for f0 in (0.02, 0.08, 0.3)]
         return [(a,) for a in alphas]
@@ -165,7 +174,7 @@ def _nl_bounds(spec: LobeSpec, alpha_min: float, exponent_max: float = EXP_MAX) 
     hi: list[float] = []
     for name in spec.nonlinear:
         if name == "log_alpha":
-            lo.append(math.log(max(alpha_min, ALPHA_MIN)))
+            lo.append(math.log(alpha_min))
             hi.append(math.log(ALPHA_MAX))
         elif name == "log_ior_minus_1":
             lo.append(math.log(IOR_MIN - 1.0))
@@ -193,7 +202,7 @@ def _start(specs: Sequence[LobeSpec], prob: _Problem) -> tuple[list[tuple[float,
     per_lobe = []
     for spec in specs:  # each lobe's columns over its own grid (the product only combines them)
         grid = _nl_grid(spec, prob.alpha_min, prob.exponent_max)
-        per_lobe.append([(g, _column(spec, g, prob.wi, prob.wo)) for g in grid])
+        per_lobe.append([(g, _column(spec, g, prob.wi, prob.wo, prob.blur)) for g in grid])
     best: tuple[float, list[tuple[float, ...]], Array] | None = None
     for combo in itertools.product(*per_lobe):
         cols = np.stack([c for _, c in combo], axis=1)
@@ -388,7 +397,14 @@ def _problem(s: Slice, relative_sigma: float, alpha_min: float) -> _Problem:
     floor = FLOOR * np.maximum(np.max(np.abs(f), axis=0, keepdims=True), 1e-300)
     sigma = np.sqrt(np.square(std) + np.square(relative_sigma * f) + np.square(floor))
     wi, wo = sample_directions(s)  # in-plane, or anywhere for a DirectionalSlice (reconstruction.samples)
-    return _Problem(wi, wo, f, sigma, alpha_min, std, relative_sigma, floor)
+    try:
+        inst = Instrument.from_meta(s.meta.get("instrument"))
+    except InstrumentError as e:
+        raise ReconstructionError(f"{s.source}: metadata {e}") from None
+    # a finite aperture: microfacet columns are cone averages, and a lobe may be narrower than ALPHA_MIN
+    blur = None if inst.detector_solid_angle_sr == 0.0 and inst.source_divergence_deg == 0.0 else Blur(inst, wi, wo)
+    alpha_min = max(alpha_min, ALPHA_MIN if blur is None else ALPHA_FLOOR)
+    return _Problem(wi, wo, f, sigma, alpha_min, std, relative_sigma, floor, blur=blur)
 
 
 def fit_model(specs: Sequence[LobeSpec], prob: _Problem, *, loss: str = "soft_l1", f_scale: float = 2.0,
@@ -424,7 +440,7 @@ def fit_model(specs: Sequence[LobeSpec], prob: _Problem, *, loss: str = "soft_l1
         return nl, np.exp(x[n_nl:].reshape(len(specs), n_c))
 
     def columns(nl: list[Array]) -> Array:
-        return np.stack([_column(s, p, prob.wi, prob.wo) for s, p in zip(specs, nl, strict=True)], axis=1)
+        return np.stack([_column(s, p, prob.wi, prob.wo, prob.blur) for s, p in zip(specs, nl, strict=True)], axis=1)
 
     sigma = prob.sigma
 

@@ -44,7 +44,8 @@ def fit_info(slices: Slice, full: _Problem, chosen: FitResult, material: Materia
     """The report of the fit (without the scene and notes sections): residuals on every sample, the summary
     figures on the samples the model is for (a scene's subset, when it was fitted to one)."""
     wi, wo, f = full.wi, full.wo, full.f
-    model = material.eval(wi, wo)
+    # the model as the instrument reads it (cone averages near the mirror directions) against the data
+    model = full.blur.reading(material) if full.blur is not None else material.eval(wi, wo)
     resid = (model - f) / full.sigma_of(model)  # every sample, whatever subset the model was fitted to
     used = fit_mask if fit_mask is not None else np.ones(len(slices), dtype=bool)
     ru = resid[used]
