@@ -42,9 +42,9 @@ from .engine import Engine
 from .errors import CaptureInterrupted, CommError, ConfigError, DeviceError, HardwareError, PlanError
 from .fingerprint import fingerprint, settings
 from .lock import OutLock
+from .optics import footprint_meta, footprint_warning, instrument_of
 from .outdir import LOG_NAME, SIM_LOG_NAME, SLICE_NAME, check_resume, check_writable, make_out_dir, out_dir_problem
 from .plan import Plan, point_key
-from .optics import footprint_meta, footprint_warning, instrument_of
 from .plans import CaptureContext, PointsPlan, Sample, capture, footprint_of, measure_points
 from .record import SIDECAR_NAME, AutoRangeRecord, CaptureResult, RunRecord, Stop, result_dict
 

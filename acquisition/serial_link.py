@@ -282,7 +282,8 @@ class SerialDetector:
                 have = _floats(d["gains"])
                 missing = [g for g in self.gains if not np.any(np.abs(have - g) <= 1e-6 * g)]
                 if missing:
-                    raise DeviceError(f"{self.link.name}: the amplifier has the gains {', '.join(f'{g:g}' for g in have)}"
+                    listed = ", ".join(f"{g:g}" for g in have)
+                    raise DeviceError(f"{self.link.name}: the amplifier has the gains {listed}"
                                       f"; [detector].gains lists {', '.join(f'{g:g}' for g in missing)}, which it "
                                       "has not")
             self.set_gain(self.start_gain)  # auto-ranging's reference setting (the highest), else the lowest

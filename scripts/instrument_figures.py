@@ -44,12 +44,14 @@ def aperture_figure(out: Path) -> dict[str, float]:
         wi, wo = inplane_to_dirs(np.radians(np.full_like(to, 30.0)), np.radians(to))
         point = mat.eval(wi, wo)[:, 0]
         reading = instrument_average(mat, np.full_like(to, 30.0), to, inst)[:, 0]
-        ax.semilogy(to, np.maximum(point, 1e-3), "--", color=colour, lw=1.0, label=f"f at the centre, alpha {alpha:g}")
+        ax.semilogy(to, np.maximum(point, 1e-3), "--", color=colour, lw=1.0,
+                    label=f"f at the centre, alpha {alpha:g}")
         ax.semilogy(to, np.maximum(reading, 1e-3), "-", color=colour, lw=2.0, label=f"reading, alpha {alpha:g}")
         figures[f"peak_over_reading_alpha_{alpha:g}"] = float(point.max() / reading.max())
         figures[f"energy_in_the_cone_alpha_{alpha:g}"] = float(reading.max() * math.cos(math.radians(30.0)) * 1e-3)
     half = inst.aperture_half_angle_deg
-    ax.axvspan(30.0 - half, 30.0 + half, color="0.9", zorder=0, label=f"cone at the mirror direction (+-{half:.2f} deg)")
+    ax.axvspan(30.0 - half, 30.0 + half, color="0.9", zorder=0,
+               label=f"cone at the mirror direction (+-{half:.2f} deg)")
     ax.set_xlabel("theta_o (deg), theta_i = 30 deg")
     ax.set_ylabel("f_r (1/sr)")
     ax.set_ylim(1e-2, 1e6)

@@ -14,7 +14,6 @@ from typing import Any
 import numpy as np
 import tomli_w
 
-from reconstruction.geometry import inplane_to_dirs
 from reconstruction.models import Material
 from reconstruction.slicefile import Slice, read_slice
 from tests.helpers import deep_merge
@@ -122,7 +121,8 @@ def ground_truth(raw: dict[str, Any], s: Slice) -> np.ndarray:
 
 
 def integration_times(out: Path, s: Slice) -> np.ndarray:
-    """(N, 2) setting (integration time in s, gain; (N,) times when the gain is not switched) each sample of ``out``/slice.csv was read at: the reference
+    """(N, 2) setting (integration time in s, gain; (N,) times when the gain is not switched) each sample of
+    ``out``/slice.csv was read at: the reference
     setting (the configured time; the highest gain, or 0 = no gains), or the auto-ranged one recorded in
     ``out``/capture.json."""
     sidecar = json.loads((out / "capture.json").read_text(encoding="utf-8"))

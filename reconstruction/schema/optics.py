@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
