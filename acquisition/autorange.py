@@ -186,6 +186,11 @@ class AutoRanger:
         g = self._gain.get(i, self.settings[i][0])
         return (1.0 if g is None else g) * self._actual.get(i, self.ladder[i]) / self.t_ref
 
+    def _describe(self, i: int) -> str:
+        """Rung ``i`` for a log line: "t_int = 0.01 s" (and ", gain 100" when the gain is switched)."""
+        g = self._gain.get(i, self.settings[i][0])
+        return f"t_int = {self._actual.get(i, self.ladder[i]):g} s" + ("" if g is None else f", gain {g:g}")
+
     def setting_key_of(self, i: int) -> str:
         return setting_key(self._actual.get(i, self.ladder[i]), self._gain.get(i, self.settings[i][0]))
 
@@ -305,8 +310,8 @@ class AutoRanger:
                 break
             if state == "partial" and i not in retried:
                 retried.add(i)
-                log.warning("%s: %d of %d repeats saturated at t_int = %g s; reading again", what, rd.saturated,
-                            n, t)
+                log.warning("%s: %d of %d repeats saturated at %s; reading again", what, rd.saturated,
+                            n, self._describe(i))
                 continue
             excluded.add(i)
             if i == last:
@@ -316,8 +321,9 @@ class AutoRanger:
                     f"integration time, [detector].min_integration_time_s = {self.t_min:g} s; reduce the gain or "
                     "the source power")
             nxt = min(i + (2 if state == "full" else 1), last)
-            log.info("%s: %s at t_int = %g s (%d of %d repeats clipped); trying %g s", what,
-                     "saturated" if state != "near" else "near saturation", t, rd.saturated, n, self.ladder[nxt])
+            log.info("%s: %s at %s (%d of %d repeats clipped); trying %s", what,
+                     "saturated" if state != "near" else "near saturation", self._describe(i), rd.saturated, n,
+                     self._describe(nxt))
             i = nxt
         i, t, rd = best
         spent -= n * t
