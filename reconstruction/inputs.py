@@ -462,12 +462,19 @@ def _merge(slices: Sequence[Slice]) -> Slice:
         if s.channels != first.channels:
             raise InputError(f"{s.source}: value columns {s.channels} differ from {first.source}'s "
                              f"{first.channels}; all inputs must have the same channels")
+    inst = first.meta.get("instrument")
+    for s in slices[1:]:
+        if s.meta.get("instrument") != inst:
+            raise InputError(f"{s.source}: its metadata's instrument {s.meta.get('instrument')} differs from "
+                             f"{first.source}'s {inst}; reconstruct inputs taken with different instruments "
+                             f"separately")
     cat = np.concatenate
     assert all(s.std is not None and s.repeats is not None and s.unix_time_s is not None for s in slices)
     merged = Slice(cat([s.theta_i_deg for s in slices]), cat([s.theta_o_deg for s in slices]),
                    cat([s.values for s in slices]), list(first.channels), cat([s.std for s in slices]),  # type: ignore[misc]
                    cat([s.repeats for s in slices]), cat([s.unix_time_s for s in slices]),  # type: ignore[misc]
-                   meta={"quantity": "brdf"}, source=", ".join(s.source for s in slices))
+                   meta={"quantity": "brdf", **({"instrument": inst} if inst is not None else {})},
+                   source=", ".join(s.source for s in slices))
     key = np.stack([merged.theta_i_deg, merged.theta_o_deg], axis=1)
     _, first_idx, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
     dup = np.nonzero(np.arange(len(merged)) != first_idx[inverse.reshape(-1)])[0]
@@ -526,8 +533,10 @@ def load_inputs(paths: Sequence[str | Path], *, quantity: str | None = None,
         with np.errstate(all="ignore"):
             f, sd = s.brdf()
         _check_bounds(s, f, sd)
+        inst = s.meta.get("instrument")  # how the samples were taken (docs/slice-format.md): kept for the methods
         out.append(Slice(s.theta_i_deg, s.theta_o_deg, f, list(s.channels), sd, s.repeats, s.unix_time_s,
-                         meta={"quantity": "brdf"}, source=s.source))
+                         meta={"quantity": "brdf", **({"instrument": inst} if inst is not None else {})},
+                         source=s.source))
     merged = _merge(out)
     check_slice(merged)
     return LoadedInput(merged, [str(p) for p in paths], quantities, dropped, notes)

@@ -39,7 +39,8 @@ from scipy.optimize import minimize, minimize_scalar, nnls
 
 from .base import ReconstructionError
 from .geometry import normalize
-from .models import ggx_d, ggx_g1_over_cos
+from .instrument import Instrument, InstrumentError, instrument_average_dirs
+from .models import Colour, Material, Microfacet, ggx_d, ggx_g1_over_cos
 from .samples import sample_directions
 from .slicefile import Slice
 
@@ -54,6 +55,8 @@ ETA_RANGE = (1.05, 3.0)  # dielectric index
 CONDUCTOR_ETA_RANGE, KAPPA_RANGE = (0.05, 6.0), (1.0, 10.0)  # metals absorb: kappa >= 1
 ENERGY_THETA_I = np.radians(np.arange(0.0, 89.0, 4.0))
 _REL, _FLOOR = 0.03, 1e-3
+INSTRUMENT_ALPHA_FLOOR = 1e-4  # the dictionary's sharpest term when the slice's instrument has a finite aperture
+NEAR_CONES = 15.0  # samples within this many cone half angles (or 3 deg) of a mirror direction use cone averages
 
 
 def fresnel(cos_d: ArrayLike, kind: str, eta: float = 1.5, kappa: float = 0.0) -> Array:
@@ -138,6 +141,20 @@ class MicrofacetReconstruction:
         s = self.specular_shape(wi, wo)
         return np.where(up[..., None], self.rho / np.pi + s[..., None] * self.ks, 0.0)
 
+    @property
+    def sharp_theta_h_rad(self) -> float | None:
+        """theta_h (radians) below which the table holds theta_h cell averages (5 alpha of the sharpest term in
+        use when it is under 0.01: a lobe narrower than the table's cells), else None."""
+        used = self.alphas[self.weights > 1e-6]
+        return 5.0 * float(used.min()) if used.size and used.min() < 0.01 else None
+
+    @property
+    def table_values(self) -> str:
+        """What the table holds, for the report."""
+        sharp = self.sharp_theta_h_rad
+        return ("bin centres" if sharp is None else f"cell averages over theta_h below {math.degrees(sharp):.3g} "
+                "deg (automatic: a lobe narrower than the table's cells), bin centres elsewhere")
+
     def ndf(self, theta_h: ArrayLike) -> Array:
         """The fitted normal distribution D(theta_h) (1/sr; normalised: integral of D cos theta_h = 1)."""
         ch = np.cos(np.asarray(theta_h, dtype=np.float64))
@@ -184,6 +201,19 @@ def _alpha_min(s: Slice) -> tuple[float, str]:
     return a, why
 
 
+def _instrument(s: Slice, wi: Array, wo: Array) -> tuple[Instrument, NDArray[np.intp]]:
+    """The slice's instrument and the samples near a mirror direction where it averages a sharp lobe."""
+    try:
+        inst = Instrument.from_meta(s.meta.get("instrument"))
+    except InstrumentError as e:
+        raise ReconstructionError(f"{s.source}: metadata {e}") from None
+    if inst.is_point:
+        return inst, np.zeros(0, dtype=np.intp)
+    a = math.radians(inst.aperture_half_angle_deg) + math.radians(inst.source_divergence_deg)
+    ang = np.arccos(np.clip(np.sum(wi * np.array([-1.0, -1.0, 1.0]) * wo, axis=-1), -1.0, 1.0))
+    return inst, np.nonzero(ang < max(NEAR_CONES * a, math.radians(3.0)))[0]
+
+
 def _weights(y: Array, std: Array) -> Array:
     peak = max(float(np.max(np.abs(y))), 1e-300)
     return 1.0 / np.sqrt(np.square(std) + np.square(_REL * y) + np.square(_FLOOR * peak))
@@ -225,8 +255,20 @@ def reconstruct_microfacet(slices: Slice, *, fresnel_kinds: tuple[str, ...] = FR
     wi, wo = sample_directions(slices)  # in-plane, or anywhere for a DirectionalSlice (reconstruction.samples)
     ch, cd, ci, co, up = _geometry(wi, wo)
     a_min, a_why = _alpha_min(slices)
+    inst, near = _instrument(slices, wi, wo)
+    if near.size:  # the cone measures a narrower lobe's energy wherever its peak falls in it (if it is sampled)
+        from .fit import gap_bounds
+
+        a_gap = gap_bounds(slices)["alpha_min"]
+        a_min = max(INSTRUMENT_ALPHA_FLOOR, a_gap)
+        a_why = (f"{a_min:.4g}: the floor with a finite aperture (the readings are cone averages)"
+                 if a_min > a_gap else f"{a_min:.4g}: the gap around the mirror direction")
     alphas = np.geomspace(a_min, ALPHA_CEIL, n_alphas)
     basis = np.where(up[:, None], _basis(ch, ci, co, alphas), 0.0)  # (N, J), computed once
+    if near.size:  # a finite aperture: the dictionary terms as the cone reads them near the mirror directions
+        for j, a in enumerate(alphas):  # N_ALPHAS cone integrals of the near samples
+            unit = Material("unit", [Microfacet(Colour(np.ones(1)), alpha=float(a))])
+            basis[near, j] = instrument_average_dirs(unit, wi[near], wo[near], inst)[:, 0]
     lam = np.full((len(slices), 1), 1.0 / np.pi)
     y = f.mean(axis=1)
     w = _weights(y, std.mean(axis=1))
@@ -286,6 +328,8 @@ def reconstruct_microfacet(slices: Slice, *, fresnel_kinds: tuple[str, ...] = FR
     model = MicrofacetReconstruction(alphas, weights, kind, eta, kappa, np.zeros(n_c), np.zeros(n_c),
                                      ["value"] if n_c == 1 else ["R", "G", "B"])
     shape = model.specular_shape(wi, wo)
+    if near.size:
+        shape[near] = (basis[near] @ weights) * fresnel(cd[near], kind, eta, kappa)
     e_spec = _specular_albedo(ENERGY_THETA_I, alphas, weights, kind, eta, kappa)
     cols = np.concatenate([lam, shape[:, None]], axis=1)
     for c in range(n_c):  # the colour, channel by channel, energy-constrained
@@ -304,4 +348,10 @@ def reconstruct_microfacet(slices: Slice, *, fresnel_kinds: tuple[str, ...] = FR
                                   "albedo)", "max_directional_albedo": model.albedo().max(axis=0).round(5).tolist()},
         "holes": "the blind spot and missing samples are covered by the fitted model",
     }
+    if near.size:
+        model.info["instrument"] = {
+            "instrument": inst.to_meta(), "cone_averaged_samples": int(near.size),
+            "model": "the dictionary's GGX terms averaged over the detector cone at the samples within "
+                     f"{NEAR_CONES:g} cone half angles (or 3 deg) of their mirror direction (the Fresnel factor at "
+                     "the cone's centre); point values elsewhere"}
     return model

@@ -10,10 +10,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..metrics import relative_rmse_cos_dirs
-from ..models import Material
+from ..models import Material, Microfacet
 from ..slicefile import Slice
 from .model import FLOOR, IOR_MAX, IOR_MIN, Array, FitResult, _Problem
 
+#: a fitted microfacet alpha below this makes the table hold theta_h cell averages near the mirror direction
+SHARP_ALPHA = 0.01
 REPORT_MAX_SAMPLES = 5000  # per-sample residuals listed in the report (an evenly strided subset beyond)
 
 __all__ = ["FitReconstruction", "fit_info"]
@@ -32,6 +34,22 @@ class FitReconstruction:
     def eval(self, wi: Array, wo: Array) -> Array:
         """f_r (N, C) in 1/sr at unit direction pairs (N, 3); 0 below the horizon."""
         return self.material.eval(wi, wo)
+
+    @property
+    def sharp_theta_h_rad(self) -> float | None:
+        """theta_h (radians) below which the table holds theta_h cell averages: 5 alpha of the narrowest
+        microfacet lobe when alpha < :data:`SHARP_ALPHA` (a lobe narrower than the table's cells), else None."""
+        alphas = [lb.alpha for lb in self.material.lobes if isinstance(lb, Microfacet)]
+        return 5.0 * min(alphas) if alphas and min(alphas) < SHARP_ALPHA else None
+
+    @property
+    def table_values(self) -> str:
+        """What the table holds, for the report."""
+        sharp = self.sharp_theta_h_rad
+        if sharp is None:
+            return "bin centres"
+        return (f"cell averages over theta_h below {np.degrees(sharp):.3g} deg (automatic: a lobe narrower than "
+                f"the table's cells), bin centres elsewhere")
 
     def report(self) -> dict[str, Any]:
         return {"method": self.method, "model": self.result.name, "material": self.material.to_dict(),

@@ -14,6 +14,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..base import ReconstructionError
 from ..slicefile import Slice
+from .aperture import hold_peaks_over_cone
 from .incidence import _analyse, _hemisphere_of, _Incidence, _loglin, _prepare, _subcurve_report
 from .thesis import (
     _AXIS_KINDS,
@@ -390,6 +391,18 @@ class RevolveReconstruction:
     """
 
     method = "revolve"
+    #: theta_h (radians) below which the table holds theta_h cell averages (set when a peak is narrower than the
+    #: instrument's cone: 1.5 times the widest plateau's theta_h), else None; and those plateaus
+    sharp_theta_h_rad: float | None = None
+    instrument_plateaus: list[dict[str, Any]] = []  # noqa: RUF012 - replaced per instance, never mutated
+
+    @property
+    def table_values(self) -> str:
+        """What the table holds, for the report."""
+        if self.sharp_theta_h_rad is None:
+            return "bin centres"
+        return (f"cell averages over theta_h below {math.degrees(self.sharp_theta_h_rad):.3g} deg (automatic: a "
+                f"peak narrower than the instrument's cone), bin centres elsewhere")
 
     def __init__(self, incidences: list[_Incidence], models: list[_Model], channels: list[str],
                  params: dict[str, Any], notes: list[str]) -> None:
@@ -500,6 +513,7 @@ class RevolveReconstruction:
             "incidences": incs,
             "coverage": round(float(np.mean([i["hemisphere_map"]["coverage"] for i in incs])), 6),
             "notes": list(self._notes),
+            **({"instrument": {"plateaus": self.instrument_plateaus}} if self.instrument_plateaus else {}),
         }
 
 
@@ -544,7 +558,12 @@ def reconstruct_revolve(slices: Slice, *, axis: str = "auto", smoothing: float =
         raise ReconstructionError(f"smoothing must be a finite number of degrees >= 0, got {smoothing}")
     if not (math.isfinite(min_turn_deg) and min_turn_deg >= 0):
         raise ReconstructionError(f"min_turn_deg must be a finite number of degrees >= 0, got {min_turn_deg}")
+    slices, plateaus = hold_peaks_over_cone(slices)  # a peak narrower than the instrument's cone keeps its energy
     incs, notes = _prepare(slices, sort, blind_spot_deg, bridge=fill == "interpolate")
+    if plateaus:
+        notes.append("peak narrower than the instrument's cone at theta_i = "
+                     + ", ".join(f"{p['theta_i_deg']:g}" for p in plateaus)
+                     + " deg: the mirror reading held over the cone (plateau samples added)")
     models = []
     for inc in incs:  # one model per measured incidence
         _analyse(inc, axis, smoothing, min_turn_deg)
@@ -554,7 +573,11 @@ def reconstruct_revolve(slices: Slice, *, axis: str = "auto", smoothing: float =
     params = {"axis": axis, "smoothing_deg": smoothing, "min_turn_deg": min_turn_deg, "fill": fill,
               "lobe_axis": lobe_axis, "forward_frame": forward_frame, "excess": excess,
               "reciprocal": reciprocal, "blind_spot_deg": blind_spot_deg, "sort": sort}
-    return RevolveReconstruction(incs, models, list(slices.channels), params, notes)
+    rec = RevolveReconstruction(incs, models, list(slices.channels), params, notes)
+    if plateaus:  # the table holds theta_h cell averages around the plateaus (see RevolveReconstruction)
+        rec.instrument_plateaus = plateaus
+        rec.sharp_theta_h_rad = 0.75 * math.radians(max(p["plateau_half_width_deg"] for p in plateaus))
+    return rec
 
 
 def revolve_table(slices: Slice, **kwargs: Any) -> Array:
