@@ -164,11 +164,11 @@ class BenchPhysics:
                                      cfg.sample_diameter_mm)
         self._band_cache: dict[int, np.ndarray] = {}
         self._fc_cache: dict[int, dict[tuple[float, float], np.ndarray]] = {}
-        self.warm_up()
 
     def warm_up(self) -> None:
-        """Do the slow first-time work now, before the ports serve (imports, the band's sRGB basis, the first
-        integration): a first reading must not take longer than a controller's reply deadline."""
+        """Do the slow first-time work now (``gonio-sim serve`` calls it before the ports serve: imports, the
+        band's sRGB basis, the first integration): a first reading must not take longer than a controller's reply
+        deadline."""
         for mat in (self.material, self.reference):
             self.f_cos(30.0, 20.0, mat)
 
