@@ -1,5 +1,12 @@
 """Detector auto-ranging: measure a sample's full dynamic range without the operator tuning the exposure.
 
+With ``[detector].gains`` (a photodiode amplifier's switchable gains) the ladder's rungs are settings (gain,
+integration time) from the most sensitive down: every gain from the highest at ``t_ref``, then the lowest gain
+at the shorter times below (:func:`settings_ladder`); the reference setting (rung 0) is the highest gain at
+``t_ref``, a dark is measured at every setting used, and a reading is converted with the ratio of gain x time.
+A clean reading is taken up the ladder again while the prediction says it fits (each gain's noise is overstated
+by the prediction, so a dim point may climb in two steps). Without gains, the ladder is over integration time:
+
 A glossy sample's specular peak can be 1e4-1e6 times its diffuse floor, more than one detector setting can hold.
 :class:`AutoRanger` reads a point at the configured integration time ``t_ref`` and, when a repeat saturates,
 reads it again at shorter times from a fixed ladder ``t_ref``, ``t_ref / sqrt(10)``, ``t_ref / 10``, ... down to
@@ -45,7 +52,8 @@ from .errors import DeviceError
 
 log = logging.getLogger("acquisition.autorange")
 
-__all__ = ["AutoRanger", "Ranged", "ladder", "setting_key", "read_clean", "HEADROOM", "RUNG_RATIO"]
+__all__ = ["AutoRanger", "Ranged", "ladder", "settings_ladder", "setting_key", "read_clean", "HEADROOM",
+           "RUNG_RATIO"]
 
 #: Ratio between neighbouring integration times of the ladder.
 RUNG_RATIO = math.sqrt(10.0)
@@ -56,7 +64,8 @@ NEAR_SIGMAS = 3.0
 
 
 class RangedDetector(Protocol):
-    """What auto-ranging needs from a detector driver (:class:`~acquisition.serial_link.SerialDetector`)."""
+    """What auto-ranging needs from a detector driver (:class:`~acquisition.serial_link.SerialDetector`); with
+    gains also ``set_gain(g) -> the gain the amplifier reports``."""
 
     integration_time_s: float
     saturation: float
@@ -64,6 +73,16 @@ class RangedDetector(Protocol):
     def read(self, n: int) -> Reading: ...
 
     def set_integration_time(self, seconds: float) -> float: ...
+
+
+def settings_ladder(t_ref: float, t_min: float, gains: tuple[float, ...] | None) -> list[tuple[float | None, float]]:
+    """(gain, integration time) settings from the most sensitive down: every gain, highest first, at ``t_ref``,
+    then the lowest gain at the shorter times of :func:`ladder`. Without gains: (None, t) for every time."""
+    times = ladder(t_ref, t_min)
+    if not gains:
+        return [(None, t) for t in times]
+    g = sorted(gains, reverse=True)
+    return [(x, t_ref) for x in g] + [(g[-1], t) for t in times[1:]]
 
 
 def ladder(t_ref: float, t_min: float) -> list[float]:
@@ -107,9 +126,10 @@ def read_clean(read: Callable[[int], Reading], n: int, retries: int = 3) -> tupl
     return clean(n, True), stats[0], stats[1]
 
 
-def setting_key(t: float) -> str:
-    """The cache key of an integration time (s): 6 significant digits, as the detector reports it."""
-    return f"{t:.6g}"
+def setting_key(t: float, gain: float | None = None) -> str:
+    """The cache key of an integration time (s), 6 significant digits as the detector reports it, and of the gain
+    when the amplifier's is switched (``"0.01 s, gain 100"``)."""
+    return f"{t:.6g}" if gain is None else f"{t:.6g} s, gain {gain:g}"
 
 
 @dataclass(frozen=True)
@@ -123,6 +143,8 @@ class Ranged:
     integration_time_s: float
     readings: int
     overhead_s: float
+    gain: float | None = None
+    dark: Reading | None = None  # the dark at the setting read (a ranged reading), converted like the reading
 
     @property
     def ranged(self) -> bool:
@@ -140,31 +162,62 @@ class AutoRanger:
     """
 
     def __init__(self, detector: RangedDetector, t_ref: float, t_min: float, read_dark: Callable[[], Reading],
-                 on_dark: Callable[[float, Reading], None] | None = None, retries: int = 3) -> None:
+                 on_dark: Callable[..., None] | None = None, retries: int = 3,
+                 gains: tuple[float, ...] | None = None) -> None:
         self.det = detector
         self.retries = retries
         self.t_ref = float(t_ref)
         self.t_min = float(t_min)
-        self.ladder = ladder(self.t_ref, self.t_min)
+        self.settings = settings_ladder(self.t_ref, self.t_min, gains)
+        self.ladder = [t for _, t in self.settings]
+        self.gains = [g for g, _ in self.settings] if gains else None
         self.read_dark = read_dark
         self.on_dark = on_dark
-        self.darks: dict[str, Reading] = {}      # setting_key(actual t) -> dark reading at that setting
-        self.ref_dark: Reading | None = None     # the calibration's dark at t_ref
+        self.darks: dict[str, Reading] = {}      # setting_key(actual t, gain) -> dark reading at that setting
+        self.ref_dark: Reading | None = None     # the calibration's dark at the reference setting (rung 0)
         self._actual: dict[int, float] = {0: float(detector.integration_time_s)}
+        self._gain: dict[int, float | None] = {}
         self._rung = 0                           # where the next point starts (the last rung that worked)
         self._current = 0                        # the rung the detector is set to
+        self._det_gain: float | None = None      # the gain the amplifier reported last
+
+    def sensitivity(self, i: int) -> float:
+        """Counts per unit signal on rung ``i`` relative to gain 1 and ``t_ref`` (gain x time / t_ref)."""
+        g = self._gain.get(i, self.settings[i][0])
+        return (1.0 if g is None else g) * self._actual.get(i, self.ladder[i]) / self.t_ref
+
+    def _describe(self, i: int) -> str:
+        """Rung ``i`` for a log line: "t_int = 0.01 s" (and ", gain 100" when the gain is switched)."""
+        g = self._gain.get(i, self.settings[i][0])
+        return f"t_int = {self._actual.get(i, self.ladder[i]):g} s" + ("" if g is None else f", gain {g:g}")
+
+    def setting_key_of(self, i: int) -> str:
+        return setting_key(self._actual.get(i, self.ladder[i]), self._gain.get(i, self.settings[i][0]))
 
     # -- settings -------------------------------------------------------------------------------------------------
     def _set(self, i: int) -> float:
-        """Put the detector on rung ``i``; returns the integration time it reports (s)."""
+        """Put the detector on rung ``i`` (gain, then integration time); returns the integration time it reports
+        (s)."""
+        g = self.settings[i][0]
+        if g is not None:
+            have = self._gain.get(i)
+            if have is None or self._det_gain != have:
+                self._gain[i] = self._det_gain = float(self.det.set_gain(g))  # type: ignore[attr-defined]
         if i != self._current or self.det.integration_time_s != self._actual.get(i):
-            self._actual[i] = self.det.set_integration_time(self.ladder[i])
+            cur = self._actual.get(self._current)
+            if (self.ladder[i] == self.ladder[self._current] and cur is not None
+                    and self.det.integration_time_s == cur):  # another gain at the same time: no INT
+                self._actual[i] = cur
+            else:
+                self._actual[i] = self.det.set_integration_time(self.ladder[i])
             self._current = i
         return self._actual[i]
 
     def restore(self) -> None:
-        """Back to the reference integration time (next reading, end-of-run dark, the caller's bench)."""
-        if self._current != 0 or self.det.integration_time_s != self._actual[0]:
+        """Back to the reference setting (next reading, end-of-run dark, the caller's bench)."""
+        if self.gains is not None:
+            self._set(0)
+        elif self._current != 0 or self.det.integration_time_s != self._actual[0]:
             self._actual[0] = self.det.set_integration_time(self.t_ref)
             self._current = 0
         self._rung = 0
@@ -176,7 +229,7 @@ class AutoRanger:
             assert self.ref_dark is not None, "set ref_dark first"
             return self.ref_dark
         t = self._set(i)
-        key = setting_key(t)
+        key = self.setting_key_of(i)
         d = self.darks.get(key)
         if d is None:
             d = self.read_dark()
@@ -184,7 +237,10 @@ class AutoRanger:
             log.info("dark level at t_int = %s s: %s counts (%d repeats)", key, np.round(d.mean, 3).tolist()[:8],
                      d.n)
             if self.on_dark is not None:
-                self.on_dark(t, d)
+                if self.gains is None:
+                    self.on_dark(t, d)
+                else:
+                    self.on_dark(t, d, self._gain.get(i))
         return d
 
     # -- reading ----------------------------------------------------------------------------------------------
@@ -203,12 +259,15 @@ class AutoRanger:
         """The longest rung j < i (not in ``excluded``) at which ``rd`` (taken on rung i, time t) is predicted to
         stay below HEADROOM of the saturation; ``i`` if none."""
         base = self.ref_dark.mean if self.ref_dark is not None else np.zeros_like(rd.mean)
+        if self.gains is not None:  # the dark at this rung, if known, is the better base (each gain has its offset)
+            base = self.darks.get(self.setting_key_of(i), Reading(base, base, 1)).mean if i else base
         net = np.max(np.maximum(rd.mean - base, 0.0) + NEAR_SIGMAS * rd.std)
         top = HEADROOM * self.det.saturation - float(np.max(base))
+        s_i = self.sensitivity(i)
         for j in range(i):
             if j in excluded:
                 continue
-            if net * self.ladder[j] / t < top:
+            if net * self.sensitivity(j) / s_i < top:
                 return j
         return i
 
@@ -220,6 +279,7 @@ class AutoRanger:
         excluded: set[int] = set()
         retried: set[int] = set()
         upranged = False
+        upranges = 0
         reads = 0
         spent = 0.0
         last = len(self.ladder) - 1
@@ -235,11 +295,14 @@ class AutoRanger:
             if state == "ok":
                 if best is None or i < best[0]:
                     best = (i, t, rd)
+                # up the ladder once (with gains, whose noise the prediction overstates, until it stops gaining)
                 if i > 0 and not upranged:
                     j = self._longest_fitting(rd, i, t, excluded)
                     if j < i:
-                        upranged = True
-                        log.debug("%s: clean at t_int = %g s; trying %g s", what, t, self.ladder[j])
+                        upranges += 1
+                        upranged = self.gains is None or upranges >= len(self.settings)
+                        log.debug("%s: clean at %s; trying %s", what, self.setting_key_of(i),
+                                  setting_key(self.ladder[j], self.settings[j][0]))
                         i = j
                         continue
                 break
@@ -247,30 +310,33 @@ class AutoRanger:
                 break
             if state == "partial" and i not in retried:
                 retried.add(i)
-                log.warning("%s: %d of %d repeats saturated at t_int = %g s; reading again", what, rd.saturated,
-                            n, t)
+                log.warning("%s: %d of %d repeats saturated at %s; reading again", what, rd.saturated,
+                            n, self._describe(i))
                 continue
             excluded.add(i)
             if i == last:
+                lowest = "" if self.gains is None else f"the lowest gain ({self.settings[-1][0]:g}) and "
                 raise DeviceError(
-                    f"{what}: the detector saturates ({self.det.saturation:g} counts) even at the shortest "
+                    f"{what}: the detector saturates ({self.det.saturation:g} counts) even at {lowest}the shortest "
                     f"integration time, [detector].min_integration_time_s = {self.t_min:g} s; reduce the gain or "
                     "the source power")
             nxt = min(i + (2 if state == "full" else 1), last)
-            log.info("%s: %s at t_int = %g s (%d of %d repeats clipped); trying %g s", what,
-                     "saturated" if state != "near" else "near saturation", t, rd.saturated, n, self.ladder[nxt])
+            log.info("%s: %s at %s (%d of %d repeats clipped); trying %s", what,
+                     "saturated" if state != "near" else "near saturation", self._describe(i), rd.saturated, n,
+                     self._describe(nxt))
             i = nxt
         i, t, rd = best
         spent -= n * t
+        gain = self._gain.get(i)
         if i == 0:
             self._rung = 0
-            return Ranged(rd, rd, t, reads, spent)
+            return Ranged(rd, rd, t, reads, spent, gain)
         n_darks = len(self.darks)
         dark = self.dark_at(i)
         if len(self.darks) > n_darks:
             spent += dark.n * t
         assert self.ref_dark is not None
-        r = self._actual[0] / t
+        r = self.sensitivity(0) / self.sensitivity(i)
         conv = Reading(self.ref_dark.mean + (rd.mean - dark.mean) * r, rd.std * r, rd.n, 0)
         self._rung = i
-        return Ranged(conv, rd, t, reads, spent)
+        return Ranged(conv, rd, t, reads, spent, gain, Reading(dark.mean * r, dark.std * r, dark.n, 0))

@@ -273,7 +273,9 @@ class Bench:
                 dxl_port, ser_port = ports.get("dynamixel") or "", ports.get("serial") or ""
             self.link = SerialLink(ser_port, b.serial_baudrate, b.serial_timeout_s, cfg.motion.retries)
             self.detector = SerialDetector(self.link, cfg.detector.type, cfg.detector.integration_time_s,
-                                           cfg.detector.saturation)
+                                           cfg.detector.saturation, cfg.detector.gains,
+                                           start_gain=max(cfg.detector.gains) if cfg.detector.gains
+                                           and cfg.detector.auto_range else None)
             if sys.stdin is not None and sys.stdin.isatty():
                 self.detector.manual_swap = _prompt_swap
             self.detector.connect()

@@ -10,7 +10,11 @@ reference of reflectance rho_ref measured at the reference geometry (theta_i_ref
 
     f_r = (S - S_dark) / (S_ref - S_dark) * rho_ref / pi * cos(theta_o_ref) / cos(theta_o)
 
-(the cosine correction is 1 when the sample is measured at the reference geometry). The uncertainty kept per
+(the cosine correction is 1 when the sample is measured at the reference geometry). Where the illuminated spot
+overfills the sample (``footprint``: a beam of diameter D lights D / cos theta_i of a sample of diameter d) only
+the fraction frac(theta_i) of the light reaches it (:func:`reconstruction.schema.optics.footprint_fraction`); the
+reading is then divided by frac(theta_i) / frac(theta_i_ref), where frac(theta_i) is at least the footprint's
+smallest correctable fraction (below it, the sample is left uncorrected). The uncertainty kept per
 sample is the standard deviation of the mean of the repeats, propagated through the same factor; the
 reference and dark uncertainties are common to the whole slice and are stored in the metadata instead.
 """
@@ -62,15 +66,20 @@ def pool(a: Reading, b: Reading) -> Reading:
 
 
 def reference_rho(reflectance: float | None, spectrum: tuple[Sequence[float], Sequence[float]] | None,
-                  wavelengths_nm: ArrayLike | None) -> Array:
+                  wavelengths_nm: ArrayLike | None, band_weights: ArrayLike | None = None) -> Array:
     """Reference reflectance per detector channel: the number; or the spectrum interpolated at the
-    spectrometer's wavelengths (clamped at the ends); or, for a photodiode, the mean of the spectrum's values."""
+    spectrometer's wavelengths (clamped at the ends); or, for a photodiode, the spectrum weighted by its band
+    (``band_weights`` on :data:`reconstruction.schema.optics.BAND_NM`; without them the mean of its values)."""
     if spectrum is None:
         assert reflectance is not None
         n = 1 if wavelengths_nm is None else int(np.asarray(wavelengths_nm).size)
         return np.full(n, float(reflectance))
     wl, val = (np.asarray(x, dtype=float) for x in spectrum)
     if wavelengths_nm is None:
+        if band_weights is not None:
+            from reconstruction.schema.optics import BAND_NM
+
+            return np.array([float(np.asarray(band_weights, dtype=float) @ np.interp(BAND_NM, wl, val))])
         return np.array([float(val.mean())])
     return np.interp(np.asarray(wavelengths_nm, dtype=float), wl, val)
 
@@ -90,6 +99,20 @@ class Calibration:
     rho_ref: Array | None = None
     reference_theta_o_deg: float = 0.0
     k_counts: float | None = None
+    footprint: tuple[float, float, float] | None = None  # (beam_diameter_mm, sample_diameter_mm, min fraction)
+    reference_theta_i_deg: float = 0.0
+
+    def footprint_factor(self, theta_i_deg: float | Array | None) -> Array | float:
+        """The footprint correction at ``theta_i_deg``: frac(theta_i_ref) / frac(theta_i) (absolute: 1 /
+        frac(theta_i)) where frac(theta_i) is correctable, else 1."""
+        if self.footprint is None or theta_i_deg is None:
+            return 1.0
+        from reconstruction.schema.optics import footprint_fraction
+
+        beam, sample, lo = self.footprint
+        frac = footprint_fraction(theta_i_deg, beam, sample)
+        ref = float(footprint_fraction(self.reference_theta_i_deg, beam, sample)) if self.mode == "relative" else 1.0
+        return np.where(frac >= lo, ref / np.maximum(frac, 1e-12), 1.0)
 
     def scale(self, theta_o_deg: float | Array) -> Array:
         """Factor turning dark-subtracted counts into f_r at ``theta_o_deg``: (..., C)."""
@@ -106,9 +129,10 @@ class Calibration:
         assert self.k_counts is not None
         return np.broadcast_to(1.0 / (self.k_counts * cos_o), to.shape[:-1] + self.dark.mean.shape)
 
-    def brdf(self, reading: Reading, theta_o_deg: float) -> tuple[Array, Array]:
-        """(f_r, std of the mean of f_r) per channel for a reading at ``theta_o_deg``."""
-        k = self.scale(theta_o_deg)
+    def brdf(self, reading: Reading, theta_o_deg: float, theta_i_deg: float | None = None) -> tuple[Array, Array]:
+        """(f_r, std of the mean of f_r) per channel for a reading at ``theta_o_deg`` (footprint-corrected at
+        ``theta_i_deg`` when given)."""
+        k = self.scale(theta_o_deg) * self.footprint_factor(theta_i_deg)
         f = (reading.mean - self.dark.mean) * k
         return f, reading.std_of_mean * np.abs(k)
 

@@ -42,9 +42,10 @@ from .engine import Engine
 from .errors import CaptureInterrupted, CommError, ConfigError, DeviceError, HardwareError, PlanError
 from .fingerprint import fingerprint, settings
 from .lock import OutLock
+from .optics import footprint_meta, footprint_warning, instrument_of
 from .outdir import LOG_NAME, SIM_LOG_NAME, SLICE_NAME, check_resume, check_writable, make_out_dir, out_dir_problem
 from .plan import Plan, point_key
-from .plans import CaptureContext, PointsPlan, Sample, capture, measure_points
+from .plans import CaptureContext, PointsPlan, Sample, capture, footprint_of, measure_points
 from .record import SIDECAR_NAME, AutoRangeRecord, CaptureResult, RunRecord, Stop, result_dict
 
 log = logging.getLogger("acquisition.engine")
@@ -178,6 +179,7 @@ class _SliceOutput:
             "calibration": {**c.to_meta(), **cal.to_meta()},
             "detector": {"type": det.type, "integration_time_s": cfg.detector.integration_time_s,
                          "saturation": det.saturation, "auto_range": cfg.detector.auto_range},
+            "instrument": instrument_of(cfg).to_meta(),
             "plan": eng.plan.to_meta(),
             "plan_fingerprint": eng.plan.fingerprint(),
             "config_fingerprint": eng.fingerprint,
@@ -185,6 +187,11 @@ class _SliceOutput:
             "unmeasurable": eng.result.unmeasurable,
             "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         }
+        if cfg.detector.gains:
+            meta["detector"]["gains"] = list(cfg.detector.gains)
+        fp = footprint_meta(cfg, [p[0] for p in eng.plan_points()])
+        if fp is not None:
+            meta["calibration"]["footprint"] = fp
         if cfg.detector.auto_range:
             meta["detector"]["min_integration_time_s"] = cfg.detector.min_integration_time_s
             if c.mode == "relative" and reference_integration_time_s is not None:
@@ -229,6 +236,11 @@ class RunEngine:
         self._before_motion = False  # the run stopped before the bench was open: nothing to resume or park
         self._io_fault = False  # an output file could not be written (a full disk)
         self._engine: Engine | None = None
+        self._measurable: list[Any] = []
+
+    def plan_points(self) -> list[Any]:
+        """The plan's measurable points (theta_i, theta_o) in degrees."""
+        return self._measurable
 
     # -- public ---------------------------------------------------------------------------------------------------
     def run(self) -> CaptureResult:
@@ -241,6 +253,7 @@ class RunEngine:
         geom = self.bench.geometry
         chk = self.plan.validate(geom)  # before anything moves or opens
         self.result.points_planned = len(chk.measurable)
+        self._measurable = list(chk.measurable)
         self.result.unmeasurable = [[ti, to, why] for ti, to, why in chk.unmeasurable]
         self.fingerprint = fingerprint(self.cfg, self.plan.fingerprint())
         self.settings = settings(self.cfg)
@@ -329,6 +342,9 @@ class RunEngine:
         log.info("estimated bench time %.2f s: motion %.2f s in plan order (%.2f s in naive order), settle %.2f s, "
                  "detector %.2f s, darks and white reference %.2f s", est["total_s"], est["motion_s"],
                  est["naive_motion_s"], est["settle_s"], est["read_s"], est["calibration_s"])
+        warn = footprint_warning(self.cfg, [p[0] for p in chk.measurable])
+        if warn:
+            log.warning("%s", warn)
 
     @staticmethod
     def _all_done(existing: Slice, pts: list[Any]) -> bool:
@@ -396,7 +412,9 @@ class RunEngine:
         cal = Calibration(c.mode, Reading.from_meta(m["dark"]),
                           Reading.from_meta(m["reference_reading"]) if "reference_reading" in m else None,
                           np.asarray(m["rho_ref"]) if "rho_ref" in m else None,
-                          float(m.get("reference_theta_o_deg", c.reference_theta_o_deg)), m.get("k_counts"))
+                          float(m.get("reference_theta_o_deg", c.reference_theta_o_deg)), m.get("k_counts"),
+                          footprint_of(self.cfg) if "footprint" in m else None,
+                          float(m.get("reference_theta_i_deg", c.reference_theta_i_deg)))
         done: dict[tuple[float, float], Sample] = {}
         for ti, to, v, s in zip(existing.theta_i_deg, existing.theta_o_deg, existing.values.mean(axis=1),
                                 existing.std.mean(axis=1), strict=True):
@@ -433,13 +451,15 @@ class RunEngine:
                         bench.devices(), settle_s=cfg.motion.settle_s, retries=cfg.motion.retries, result=r,
                         sink=sink, record=self.record, guard=self._guard, bar=bar,
                         auto_range=(d.integration_time_s, d.min_integration_time_s, d.dark_repeats)
-                        if d.auto_range else None, auto_range_hint=not d.auto_range, samples_total=len(done))
+                        if d.auto_range else None, auto_range_hint=not d.auto_range, samples_total=len(done),
+                        gains=d.gains)
                     engine.t_last = t0
                     if engine.ranger is not None and self.record.auto_range is not None:
                         self.record.auto_range.prune(set(done), point_key)
                         engine.update_range_counts()
                     c = cfg.calibration
-                    rho = reference_rho(c.reference_reflectance, c.reference_spectrum, bench.detector.wavelengths_nm)
+                    rho = reference_rho(c.reference_reflectance, c.reference_spectrum, bench.detector.wavelengths_nm,
+                                        d.band_weights)
                     engine.run(capture(CaptureContext(cfg, self.plan, bench.geometry, measurable, done, cal, rho,
                                                       self.record.previous_bench_time(), self.points_plan)))
                 finally:

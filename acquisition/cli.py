@@ -180,6 +180,11 @@ def _run(args: argparse.Namespace) -> int:
                 print(f"gonio-capture: {e}", file=sys.stderr)
                 return 1
         print(chk.describe(limit=1000))
+        from .optics import footprint_warning
+
+        warn = footprint_warning(bench.cfg, [p[0] for p in chk.measurable])
+        if warn:
+            print(f"warning: {warn}")
         grows = " (before adaptive refinement, which may add up to " \
                 f"{plan.size() - len(chk.measurable) - len(chk.unmeasurable):.0f})" if plan.adaptive else ""
         print(f"plan size: {len(chk.measurable) + len(chk.unmeasurable)} points{grows}, limit {MAX_PLAN_POINTS}")
@@ -218,8 +223,10 @@ def _run(args: argparse.Namespace) -> int:
                          f"listed in {Path(args.out) / 'capture.log'}")
             ranged = ""
             if result.auto_ranged:
-                settings = ", ".join(f"{k} s: {v}" for k, v in result.auto_range_settings.items())
-                ranged = (f"\n  auto-ranged {result.auto_ranged} point(s) to shorter integration times ({settings});"
+                settings = "; ".join(f"{k}{'' if 'gain' in k else ' s'}: {v}"
+                                     for k, v in result.auto_range_settings.items())
+                what = "other settings" if "gain" in settings else "shorter integration times"
+                ranged = (f"\n  auto-ranged {result.auto_ranged} point(s) to {what} ({settings});"
                           f" {result.auto_range_overhead_s:.2f} s of extra integration in this run")
             print(f"gonio-capture: {result.message}{extra}\n{_time_summary(result)}{ranged}", file=sys.stderr)
         return 0

@@ -162,6 +162,10 @@ class BenchSection:
     min_separation_deg: float
     blind_spot_half_width_deg: float
     simulator_command: str
+    source_divergence_deg: float = 0.0
+    beam_diameter_mm: float | None = None
+    sample_diameter_mm: float | None = None
+    source_spectrum: str = "halogen-3000K"
 
 
 @dataclass(frozen=True)
@@ -192,6 +196,21 @@ class DetectorConfig:
     dark_repeats: int
     auto_range: bool = True
     min_integration_time_s: float = 1e-5
+    solid_angle_sr: float | None = None        # acceptance of the detector cone (sr); None: not given
+    aperture_half_angle_deg: float | None = None
+    responsivity: str = "silicon"
+    gains: tuple[float, ...] | None = None     # the amplifier's gains, ascending; None: the gain is not switched
+    band_weights: Any = field(default=None, repr=False)  # photodiode: weights on reconstruction.schema.optics.BAND_NM
+
+    @property
+    def acceptance_sr(self) -> float:
+        """The detector cone's solid angle (sr): ``solid_angle_sr``, or from ``aperture_half_angle_deg``, or 0 (a
+        point detector: not given)."""
+        if self.solid_angle_sr is not None:
+            return self.solid_angle_sr
+        if self.aperture_half_angle_deg is not None:
+            return 2 * math.pi * (1 - math.cos(math.radians(self.aperture_half_angle_deg)))
+        return 0.0
 
 
 @dataclass(frozen=True)
@@ -280,6 +299,11 @@ def _read_bench(src: str, raw: Any) -> BenchSection:
             raise t.error("serial_port", "missing: the serial controller (detector"
                                          + (" and stepper axes" if transport == "serial" else "")
                                          + ') needs a port, e.g. "/dev/ttyACM0"')
+    b, d = t["beam_diameter_mm"], t["sample_diameter_mm"]
+    if (b is None) != (d is None):
+        given, missing = ("beam_diameter_mm", "sample_diameter_mm") if d is None else ("sample_diameter_mm",
+                                                                                         "beam_diameter_mm")
+        raise t.error(missing, f"missing: {given} is given; the footprint needs both diameters (mm)")
     return BenchSection(**{**t.values, "transport": transport, "motion": motion})
 
 
@@ -337,12 +361,37 @@ def _read_motion(src: str, raw: Any, motion: str) -> MotionConfig:
                            "profile_acceleration": t["profile_acceleration"] or 0})
 
 
-def _read_detector(src: str, raw: Any) -> DetectorConfig:
+def _read_detector(src: str, raw: Any, base_dir: Path, source_spectrum: str, sim_raw: Any) -> DetectorConfig:
+    from reconstruction.schema.optics import band_weights, spectrum_of
+
     t = _Table(src, "detector", raw, DetectorTable)
     if t["min_integration_time_s"] > t["integration_time_s"]:
         raise t.error("min_integration_time_s", f"{t['min_integration_time_s']:g} s is longer than "
                                                 f"integration_time_s = {t['integration_time_s']:g} s")
-    return DetectorConfig(**t.values)
+    if t.given("solid_angle_sr") and t.given("aperture_half_angle_deg"):
+        raise t.error("aperture_half_angle_deg", "give either solid_angle_sr or aperture_half_angle_deg, not both")
+    values = dict(t.values)
+    old = sim_raw.get("detector_solid_angle_sr") if isinstance(sim_raw, Mapping) else None
+    if old is not None:
+        if t.given("solid_angle_sr") or t.given("aperture_half_angle_deg"):
+            raise ConfigError(f"{src}: [simulator].detector_solid_angle_sr: the detector's acceptance is "
+                              "[detector].solid_angle_sr now; remove the old key")
+        if isinstance(old, (int, float)) and not isinstance(old, bool) and 0 <= old <= 0.5:
+            values["solid_angle_sr"] = float(old)  # an older file: the simulator's key keeps working
+    weights = None
+    if t["type"] == "photodiode":
+        try:
+            weights = band_weights(spectrum_of(t["responsivity"], "responsivity", base_dir,
+                                               f"{src}: [detector].responsivity"),
+                                   spectrum_of(source_spectrum, "source", base_dir, f"{src}: [bench].source_spectrum"))
+        except SchemaError as e:
+            raise ConfigError(str(e)) from None
+    gains = tuple(sorted(t["gains"])) if t["gains"] is not None else None
+    if gains is not None and t["type"] != "photodiode":
+        log.info("%s: [detector].gains: a spectrometer ranges over integration time only; the gains (a photodiode "
+                 "amplifier's) are not used", src)
+        gains = None
+    return DetectorConfig(**{**values, "gains": gains, "band_weights": weights})
 
 
 def read_spectrum_csv(path: Path, where: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
@@ -419,7 +468,8 @@ def config_from_dict(raw: Mapping[str, Any], path: str | Path = "<config>") -> B
                               "; every axis needs its own")
         seen[key] = name
     motion = _read_motion(src, raw["motion"], bench.motion)
-    detector = _read_detector(src, raw["detector"])
+    detector = _read_detector(src, raw["detector"], path.resolve().parent, bench.source_spectrum,
+                              raw.get("simulator"))
     calibration = _read_calibration(src, raw["calibration"], path.resolve().parent)
     plan = read_plan(src, raw["plan"], detector, axes)
     material = None

@@ -86,7 +86,7 @@ class Engine:
                  sink: Sink | None = None, record: RunRecord | None = None,
                  auto_range: tuple[float, float, int] | None = None, guard: Any = None, bar: Bar | None = None,
                  account: bool = True, auto_range_hint: bool = True, samples_total: int = 0,
-                 convert: bool = True) -> None:
+                 convert: bool = True, gains: tuple[float, ...] | None = None) -> None:
         self.dev = devices
         self.settle_s = settle_s
         self.retries = retries
@@ -105,7 +105,7 @@ class Engine:
         self._t_move = (0.0, 0.0)
         self.result.samples_total = samples_total
         if auto_range is not None:
-            self._setup_ranger(*auto_range)
+            self._setup_ranger(*auto_range, gains=gains)
         self._handlers: dict[type, Callable[[Any], Any]] = {
             Move: self._move, Settle: self._settle, Read: self._read, Dark: self._dark,
             SelectSample: self._select, Calibrate: self._calibrate, Save: self._save, Checkpoint: self._checkpoint,
@@ -206,22 +206,24 @@ class Engine:
         self.dev.detector.set_sample(m.which)
 
     # -- auto-ranging --------------------------------------------------------------------------------------------
-    def _setup_ranger(self, t_ref: float, t_min: float, dark_repeats: int) -> None:
+    def _setup_ranger(self, t_ref: float, t_min: float, dark_repeats: int, gains: tuple[float, ...] | None = None
+                      ) -> None:
         det = self.dev.detector
         rec = self.record.auto_range if self.record is not None else None
         self.ranger = AutoRanger(det, t_ref, t_min,
                                  read_dark=lambda: self.read_checked(
                                      dark_repeats, f"dark reading at t_int = {det.integration_time_s:g} s", dark=True),
-                                 on_dark=self._store_dark, retries=self.retries)
+                                 on_dark=self._store_dark, retries=self.retries, gains=gains)
         if rec is not None:
             rec.ladder_s = self.ranger.ladder
+            rec.ladder_gains = self.ranger.gains
             self.ranger.darks.update(rec.dark_readings())
             self.update_range_counts()
 
-    def _store_dark(self, t: float, rd: Reading) -> None:
+    def _store_dark(self, t: float, rd: Reading, gain: float | None = None) -> None:
         """Keep a dark at a new setting in the run record at once (a resume converts with the same darks)."""
         if self.record is not None and self.record.auto_range is not None:
-            self.record.auto_range.store_dark(t, rd)
+            self.record.auto_range.store_dark(t, rd, gain)
             self.record.save()
 
     def update_range_counts(self) -> None:
@@ -237,7 +239,7 @@ class Engine:
         r = self.result
         if not r.auto_ranged and not r.auto_range_readings:
             return
-        settings = ", ".join(f"{k} s: {v}" for k, v in r.auto_range_settings.items())
+        settings = "; ".join(f"{k}{'' if 'gain' in k else ' s'}: {v}" for k, v in r.auto_range_settings.items())
         log.info("auto-ranging: %d point(s) of the capture read at shorter integration times (%s); this run "
                  "discarded %d reading(s) and spent %.3f s of extra integration (dark readings included)",
                  r.auto_ranged, settings or "none", r.auto_range_readings, r.auto_range_overhead_s)
@@ -274,17 +276,17 @@ class Engine:
             if self.bar is not None:
                 self.bar.advance()
             return (ti, to, 0.0, 0.0)
-        f, fs = self.calibration.brdf(m.reading, to)
+        f, fs = self.calibration.brdf(m.reading, to, ti)
         rg = m.ranged
         rec = self.record.auto_range if self.record is not None else None
         if rg is not None and rec is not None:
             if rg.ranged:
-                log.info("point (%g, %g): auto-ranged to t_int = %g s (%d reading(s))", ti, to,
-                         rg.integration_time_s, rg.readings)
-            if rec.set_point(ti, to, rg.integration_time_s if rg.ranged else None):
+                log.info("point (%g, %g): auto-ranged to t_int = %g s%s (%d reading(s))", ti, to,
+                         rg.integration_time_s, "" if rg.gain is None else f", gain {rg.gain:g}", rg.readings)
+            if rec.set_point(ti, to, rg.integration_time_s if rg.ranged else None, rg.gain if rg.ranged else None):
                 self.update_range_counts()
                 assert self.record is not None
-                self.record.save()  # before the sample is appended: a point measured again is counted once
+                self.record.save(durable=False)  # before the sample is appended: a point measured again is counted once
         if self.sink is not None:
             self.sink.append(ti, to, f.tolist(), fs.tolist(), m.reading.n if m.repeats <= 0 else m.repeats)
         if self.account:

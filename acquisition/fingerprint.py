@@ -28,7 +28,8 @@ NOT_SET = "(not set)"
 #: [simulator] keys that change what the detector reads (the others: seed, time scale, stepper speeds, homing,
 #: faults, cannot change the meaning of a sample).
 SIMULATOR_MEANINGFUL = ("source_power", "detector_solid_angle_sr", "aperture_samples", "dark_offset", "read_noise",
-                        "shot_noise", "adc_bits", "gain", "backlash_deg", "settle_time_s", "settle_ringing_deg")
+                        "shot_noise", "adc_bits", "gain", "backlash_deg", "settle_time_s", "settle_ringing_deg",
+                        "input_noise", "input_offset", "electrons_per_count")
 SIMULATOR_HARMLESS = ("seed", "time_scale", "stepper_velocity_deg_s", "stepper_acceleration_deg_s2",
                       "homing_required")
 PLAN_MEANINGFUL = ("theta_i_deg", "theta_i_min_deg", "theta_i_max_deg", "theta_i_step_deg", "theta_o_min_deg",
@@ -99,6 +100,14 @@ def fingerprint(cfg: BenchConfig, plan_fingerprint: str) -> dict[str, Any]:
     d = cfg.detector
     for k in ("type", "integration_time_s", "saturation", "auto_range", "min_integration_time_s"):
         fp[f"[detector].{k}"] = _norm(getattr(d, k))
+    for k, default in (("solid_angle_sr", None), ("aperture_half_angle_deg", None), ("responsivity", "silicon"),
+                       ("gains", None)):  # the optics: only when given (fingerprints of earlier files stay equal)
+        if getattr(d, k) != default:
+            fp[f"[detector].{k}"] = _norm(getattr(d, k))
+    for k, default in (("source_divergence_deg", 0.0), ("beam_diameter_mm", None), ("sample_diameter_mm", None),
+                       ("source_spectrum", "halogen-3000K")):
+        if getattr(cfg.bench, k) != default:
+            fp[f"[bench].{k}"] = _norm(getattr(cfg.bench, k))
     c = cfg.calibration
     fp["[calibration].mode"] = c.mode
     if c.mode == "relative":

@@ -110,6 +110,16 @@ def rereference(cfg: BenchConfig) -> PlanGen:
     yield UseReference(ref)
 
 
+def footprint_of(cfg: BenchConfig) -> tuple[float, float, float] | None:
+    """The calibration's footprint: (beam, sample diameter in mm, the smallest fraction corrected), or None."""
+    from .optics import MIN_CORRECTABLE_FRACTION
+
+    b = cfg.bench
+    if b.beam_diameter_mm is None or b.sample_diameter_mm is None:
+        return None
+    return (b.beam_diameter_mm, b.sample_diameter_mm, MIN_CORRECTABLE_FRACTION)
+
+
 def calibrate(cfg: BenchConfig, rho_ref: np.ndarray) -> PlanGen:
     """The dark level, then (relative calibration) the white reference; tells the engine to convert with the
     result. Returns the :class:`Calibration`."""
@@ -122,8 +132,14 @@ def calibrate(cfg: BenchConfig, rho_ref: np.ndarray) -> PlanGen:
         if ranged is not None:
             t_ref_read = ranged.integration_time_s
             if ranged.ranged:
-                log.info("white reference: auto-ranged to t_int = %g s", t_ref_read)
-        cal = Calibration("relative", dark, ref, rho_ref, c.reference_theta_o_deg)
+                log.info("white reference: auto-ranged to t_int = %g s%s", t_ref_read,
+                         "" if ranged.gain is None else f", gain {ranged.gain:g}")
+                if ranged.dark is not None:  # the dark it was converted with: its uncertainty is the reference's
+                    d = ranged.dark
+                    ref = Reading(ref.mean, np.sqrt(ref.std ** 2 + ref.n * d.std_of_mean ** 2), ref.n,
+                                  ref.saturated)
+        cal = Calibration("relative", dark, ref, rho_ref, c.reference_theta_o_deg, footprint=footprint_of(cfg),
+                          reference_theta_i_deg=c.reference_theta_i_deg)
         try:
             cal.scale(c.reference_theta_o_deg)  # raises if the reference reads no signal
         except ValueError as e:
@@ -132,7 +148,11 @@ def calibrate(cfg: BenchConfig, rho_ref: np.ndarray) -> PlanGen:
                               ) from None
     else:
         assert c.source_power is not None and c.detector_solid_angle_sr is not None
-        cal = Calibration("absolute", dark, k_counts=c.source_power * c.detector_solid_angle_sr)
+        # source_power is counts at gain 1; readings are converted to the reference setting's gain
+        gains = cfg.detector.gains
+        g_ref = 1.0 if not gains else (max(gains) if cfg.detector.auto_range else min(gains))
+        cal = Calibration("absolute", dark, k_counts=c.source_power * c.detector_solid_angle_sr * g_ref,
+                          footprint=footprint_of(cfg))
     log.info("dark %s counts; %s", np.round(dark.mean, 3).tolist()[:8],
              f"reference {np.round(cal.reference.mean, 3).tolist()[:8]} counts" if cal.reference else
              f"K = {cal.k_counts:g} counts")

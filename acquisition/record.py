@@ -133,12 +133,15 @@ class AutoRangeRecord:
     min_integration_time_s: float = 0.0
     ladder_s: list[float] = field(default_factory=list)
     extra: dict[str, Any] = field(default_factory=dict)  # other keys (white_reference_..., overhead_s)
+    point_gains: dict[str, float] = field(default_factory=dict)  # the gain of every ranged point (with gains)
+    ladder_gains: list[float] | None = None
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> AutoRangeRecord:
         d = dict(d)
         known = {k: d.pop(k) for k in ("darks", "points", "enabled", "reference_integration_time_s",
-                                       "min_integration_time_s", "ladder_s") if k in d}
+                                       "min_integration_time_s", "ladder_s", "point_gains", "ladder_gains")
+                 if k in d}
         d.pop("settings", None)
         d.pop("ranged_points", None)
         return cls(**known, extra=d)
@@ -147,27 +150,37 @@ class AutoRangeRecord:
         return {**self.extra, "darks": self.darks, "points": self.points, "enabled": self.enabled,
                 "reference_integration_time_s": self.reference_integration_time_s,
                 "min_integration_time_s": self.min_integration_time_s, "ladder_s": self.ladder_s,
-                "settings": self.settings(), "ranged_points": len(self.points)}
+                "settings": self.settings(), "ranged_points": len(self.points),
+                **({"point_gains": self.point_gains, "ladder_gains": self.ladder_gains}
+                   if self.ladder_gains is not None else {})}
 
     def settings(self) -> dict[str, int]:
-        """Integration time (key) -> ranged points, longest first."""
+        """Setting (key: integration time, and gain when switched) -> ranged points, most sensitive first."""
         counts: dict[str, int] = {}
-        for t in self.points.values():
-            counts[setting_key(t)] = counts.get(setting_key(t), 0) + 1
-        return dict(sorted(counts.items(), key=lambda kv: -float(kv[0])))
+        sens: dict[str, float] = {}
+        for k, t in self.points.items():
+            g = self.point_gains.get(k)
+            key = setting_key(t, g)
+            counts[key] = counts.get(key, 0) + 1
+            sens[key] = t * (1.0 if g is None else g)
+        return dict(sorted(counts.items(), key=lambda kv: -sens[kv[0]]))
 
-    def store_dark(self, t: float, rd: Reading) -> None:
-        self.darks[setting_key(t)] = {"integration_time_s": t, **rd.to_meta()}
+    def store_dark(self, t: float, rd: Reading, gain: float | None = None) -> None:
+        self.darks[setting_key(t, gain)] = {"integration_time_s": t, **({"gain": gain} if gain is not None else {}),
+                                            **rd.to_meta()}
 
     def dark_readings(self) -> dict[str, Reading]:
         return {k: Reading.from_meta(m) for k, m in self.darks.items()}
 
-    def set_point(self, ti: float, to: float, t: float | None) -> bool:
+    def set_point(self, ti: float, to: float, t: float | None, gain: float | None = None) -> bool:
         """Record the setting of a point (``t`` None: read at the reference); True if the record changed."""
         key = f"{ti!r},{to!r}"
         if t is not None:
             self.points[key] = t
+            if gain is not None:
+                self.point_gains[key] = gain
             return True
+        self.point_gains.pop(key, None)
         if key in self.points:
             del self.points[key]
             return True
@@ -177,6 +190,7 @@ class AutoRangeRecord:
         """Drop points that never reached the slice (killed between record and append)."""
         for k in [k for k in self.points if key_of(_parse_point(k)) not in done]:
             del self.points[k]
+            self.point_gains.pop(k, None)
 
 
 @dataclass
@@ -270,8 +284,20 @@ class RunRecord:
                            for k in ("bench_time_s", "motion_s", "settle_s", "read_s", "calibration_s", "wall_s")}
         return d
 
-    def save(self) -> None:
-        """Write the record atomically (raises OSError: a full disk)."""
-        with atomic_open(self.path, "w", encoding="utf-8") as fh:
-            json.dump(self.to_json(), fh, indent=1, sort_keys=True)
-            fh.write("\n")
+    def save(self, durable: bool = True) -> None:
+        """Write the record atomically (raises OSError: a full disk). ``durable`` False: without the fsync (a
+        point's auto-ranged setting, saved before every sample: atomic against a kill, and a power cut loses at
+        most the settings of the last points, which the record only reports)."""
+        if durable:
+            with atomic_open(self.path, "w", encoding="utf-8") as fh:
+                json.dump(self.to_json(), fh, indent=1, sort_keys=True)
+                fh.write("\n")
+            return
+        tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
+        try:
+            tmp.write_text(json.dumps(self.to_json(), indent=1, sort_keys=True) + "\n", encoding="utf-8")
+            os.replace(tmp, self.path)
+        except OSError as e:
+            tmp.unlink(missing_ok=True)
+            e.filename = str(self.path)
+            raise

@@ -49,7 +49,7 @@ _FIELD = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*=[^\s=]*$")
 _WORD = re.compile(r"^[A-Za-z][A-Za-z0-9_?]*$")
 #: data-line tag expected for a command (by its first word)
 _TAGS = {"ID?": "ID", "STATUS?": "STATUS", "?": "STATUS", "TIME?": "TIME", "READ": "READ", "DARK": "DARK",
-         "DETECTOR?": "DETECTOR", "INT?": "INT", "SAMPLE?": "SAMPLE", "HELP": "HELP"}
+         "DETECTOR?": "DETECTOR", "INT?": "INT", "GAIN?": "GAIN", "SAMPLE?": "SAMPLE", "HELP": "HELP"}
 
 
 class ControllerError(DeviceError):
@@ -235,8 +235,11 @@ class SerialDetector:
     (``["value"]`` or ``["380nm", ...]``), ``wavelengths_nm`` the spectrometer grid (None for a photodiode)."""
 
     def __init__(self, link: SerialLink, expected_type: str, integration_time_s: float,
-                 saturation: float) -> None:
+                 saturation: float, gains: tuple[float, ...] | None = None, start_gain: float | None = None) -> None:
         self.link = link
+        self.gains = gains
+        self.start_gain = start_gain if start_gain is not None else (min(gains) if gains else None)
+        self.gain: float | None = None
         self.expected_type = expected_type
         self.integration_time_s = integration_time_s
         self.saturation = saturation
@@ -274,7 +277,37 @@ class SerialDetector:
         self.saturation = min(self.saturation, float(d["saturation"]))
         if abs(float(d["t_int"]) - self.integration_time_s) > 1e-9 * max(1.0, self.integration_time_s):
             self.link.command(f"INT {self.integration_time_s:.9g}")
+        if self.gains:
+            if "gains" in d:  # the amplifier lists its gains: the config's must be among them
+                have = _floats(d["gains"])
+                missing = [g for g in self.gains if not np.any(np.abs(have - g) <= 1e-6 * g)]
+                if missing:
+                    listed = ", ".join(f"{g:g}" for g in have)
+                    raise DeviceError(f"{self.link.name}: the amplifier has the gains {listed}"
+                                      f"; [detector].gains lists {', '.join(f'{g:g}' for g in missing)}, which it "
+                                      "has not")
+            self.set_gain(self.start_gain)  # auto-ranging's reference setting (the highest), else the lowest
         self.set_sample("TARGET")
+
+    def set_gain(self, gain: float) -> float:
+        """Switch the amplifier's gain (``GAIN n``) and return the one it reports (``GAIN?``; a controller without
+        it is taken at its word)."""
+        self.link.command(f"GAIN {gain:.9g}")
+
+        def check(r: Reply) -> None:
+            if not float(r.fields["gain"]) > 0:
+                raise ValueError(f"bad gain {r.fields['gain']!r}")
+
+        try:
+            actual = float(self.link.fields("GAIN?", check=check)["gain"])
+        except ControllerError as e:
+            if e.code != 1:
+                raise
+            actual = gain
+        if abs(actual - gain) > 1e-6 * gain:
+            raise DeviceError(f"{self.link.name}: gain {gain:g} requested, the amplifier reports {actual:g}")
+        self.gain = actual
+        return actual
 
     def set_integration_time(self, seconds: float) -> float:
         """Set the integration time per repeat (``INT``, s) and return the one the detector reports (``INT?``),
@@ -308,6 +341,8 @@ class SerialDetector:
             raise ValueError("wrong number of channels or sat count")
         if np.any(std < 0):
             raise ValueError("negative std")
+        if "gain" in f and self.gain is not None and abs(float(f["gain"]) - self.gain) > 1e-6 * self.gain:
+            raise ValueError(f"gain={f['gain']}, but the gain is {self.gain:g}")
         if "t_int" in f:  # catches a corrupt digit, or a controller that lost its INT setting (power cycle)
             t_int = float(f["t_int"])
             if not abs(t_int - self.integration_time_s) <= _T_INT_RTOL * self.integration_time_s:

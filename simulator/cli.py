@@ -196,6 +196,7 @@ def _serve(args: argparse.Namespace) -> int:
 
     try:
         cfg, bench = _load_bench(args.config, args.seed, args.time_scale, args.motion, args.attempt)
+        bench.physics.warm_up()  # before the ports serve: a first reading within the reply deadline
     except ValueError as e:
         print(f"gonio-sim: {e}", file=sys.stderr)
         return 2

@@ -75,10 +75,18 @@ SimulatorConfig = SimulatorSection
 
 @dataclass
 class DetectorConfig:
+    """``[detector]`` as the simulator reads it; ``solid_angle_sr`` is the detector cone (sr), ``gains`` the
+    amplifier's (None: any gain ``GAIN`` sets), ``band_weights`` the photodiode band on
+    :data:`reconstruction.schema.optics.BAND_NM`."""
+
     type: str = "photodiode"
     integration_time_s: float = 0.01
     repeats: int = 4
     saturation: float = 65535
+    solid_angle_sr: float = 1.0e-3
+    gains: tuple[float, ...] | None = None
+    responsivity: str = "silicon"
+    band_weights: Any = field(default=None, repr=False)
 
 
 @dataclass
@@ -95,6 +103,10 @@ class BenchConfig:
     material: dict[str, Any] = field(default_factory=dict)
     reference_reflectance: float = 0.99
     reference_spectrum: str | None = None
+    source_divergence_deg: float = 0.0
+    beam_diameter_mm: float | None = None
+    sample_diameter_mm: float | None = None
+    source_spectrum: str = "halogen-3000K"
     raw: dict[str, Any] = field(default_factory=dict)
     base_dir: Path = field(default_factory=Path.cwd)
 
@@ -150,6 +162,10 @@ def config_from_dict(raw: dict[str, Any], base_dir: Path | None = None, source: 
         if req not in axes:
             raise ConfigError(f"{src}: [axes.{req}]: missing table (required)")
     s = _table(src, "simulator", raw.get("simulator"))
+    if "aperture_samples" in s:
+        raise ConfigError(f"{src}: [simulator].aperture_samples: no longer read: the simulator integrates f cos "
+                          "theta_o over the detector's cone exactly; remove the key and give the cone as "
+                          "[detector].solid_angle_sr (or aperture_half_angle_deg)")
     faults = _read(src, "simulator.faults", _table(src, "simulator.faults", s.get("faults")), FaultsSection,
                    strict=True)
     spectrometer = _read(src, "simulator.spectrometer", _table(src, "simulator.spectrometer", s.get("spectrometer")),
@@ -166,6 +182,19 @@ def config_from_dict(raw: dict[str, Any], base_dir: Path | None = None, source: 
                           "spectrometer has (4096); use a coarser step")
     det = _read(src, "detector", _table(src, "detector", raw.get("detector")), DetectorTable,
                 defaults=_DETECTOR_DEFAULTS)
+    base = Path(base_dir) if base_dir is not None else Path.cwd()
+    solid = _solid_angle(src, det, sim.detector_solid_angle_sr)
+    weights = None
+    if det["type"] == "photodiode":
+        from reconstruction.schema.optics import band_weights, spectrum_of
+
+        try:
+            weights = band_weights(spectrum_of(det["responsivity"], "responsivity", base,
+                                               f"{src}: [detector].responsivity"),
+                                   spectrum_of(bench["source_spectrum"], "source", base,
+                                               f"{src}: [bench].source_spectrum"))
+        except SchemaError as e:
+            raise ConfigError(str(e)) from None
     cal = _table(src, "calibration", raw.get("calibration"))
     ref = cal.get("reference_reflectance", 0.99)
     cfg = BenchConfig(
@@ -174,13 +203,20 @@ def config_from_dict(raw: dict[str, Any], base_dir: Path | None = None, source: 
         min_separation_deg=bench["min_separation_deg"],
         blind_spot_half_width_deg=bench["blind_spot_half_width_deg"],
         axes=axes,
-        detector=DetectorConfig(**{k: det[k] for k in ("type", "integration_time_s", "repeats", "saturation")}),
+        detector=DetectorConfig(**{k: det[k] for k in ("type", "integration_time_s", "repeats", "saturation",
+                                                       "responsivity")}, solid_angle_sr=solid,
+                                gains=tuple(sorted(det["gains"])) if det["gains"] and det["type"] == "photodiode"
+                                else None, band_weights=weights),
         sim=sim,
         material=dict(_table(src, "material", raw.get("material"))),
         reference_reflectance=float(ref) if isinstance(ref, (int, float)) else 0.99,
         reference_spectrum=cal.get("reference_spectrum"),
+        source_divergence_deg=bench["source_divergence_deg"],
+        beam_diameter_mm=bench["beam_diameter_mm"],
+        sample_diameter_mm=bench["sample_diameter_mm"],
+        source_spectrum=bench["source_spectrum"],
         raw=raw,
-        base_dir=Path(base_dir) if base_dir is not None else Path.cwd(),
+        base_dir=base,
     )
     if cfg.motion not in ("dynamixel", "serial"):
         raise ConfigError(f"{src}: [bench].motion: must be \"dynamixel\" or \"serial\", got {_describe(cfg.motion)}")
@@ -188,6 +224,25 @@ def config_from_dict(raw: dict[str, Any], base_dir: Path | None = None, source: 
         raise ConfigError(f"{src}: [detector].type: must be \"photodiode\" or \"spectrometer\", got "
                           f"{_describe(cfg.detector.type)}")
     return cfg
+
+
+def _solid_angle(src: str, det: Table, old: float | None) -> float:
+    """The detector cone (sr): ``[detector].solid_angle_sr`` or ``aperture_half_angle_deg``, else the older
+    ``[simulator].detector_solid_angle_sr``, else 1e-3."""
+    import math
+
+    new = det.given("solid_angle_sr") or det.given("aperture_half_angle_deg")
+    if det.given("solid_angle_sr") and det.given("aperture_half_angle_deg"):
+        raise ConfigError(f"{src}: [detector].aperture_half_angle_deg: give either solid_angle_sr or "
+                          "aperture_half_angle_deg, not both")
+    if old is not None and new:
+        raise ConfigError(f"{src}: [simulator].detector_solid_angle_sr: the detector's acceptance is "
+                          "[detector].solid_angle_sr now; remove the old key")
+    if det.given("solid_angle_sr"):
+        return float(det["solid_angle_sr"])
+    if det.given("aperture_half_angle_deg"):
+        return 2 * math.pi * (1 - math.cos(math.radians(det["aperture_half_angle_deg"])))
+    return 1.0e-3 if old is None else float(old)
 
 
 def load_config(path: str | Path, **overrides: Any) -> BenchConfig:

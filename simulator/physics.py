@@ -1,22 +1,28 @@
 """Bench physics: what the detector reads for given arm angles.
 
-Signal model (counts, before noise)::
+Signal model (counts at gain 1, before noise)::
 
-    S = source_power * f_r(wi, wo) * cos(theta_o) * Omega_d * (t_int / t_int_ref)
+    S = source_power * Omega_d * R(theta_i, theta_o) * cos(theta_o) * frac(theta_i) * (t_int / t_int_ref)
 
-with ``Omega_d`` = ``detector_solid_angle_sr``, ``t_int_ref`` = ``[detector].integration_time_s`` (so
-``source_power`` is "counts per (1/sr * sr) at gain 1 and the configured integration time"). With
-``aperture_samples > 1`` the factor ``f_r * cos(theta_o)`` is averaged over a cone of solid angle ``Omega_d``
-around wo (a deterministic Vogel spiral, no randomness).
+with ``Omega_d`` the detector cone (``[detector].solid_angle_sr``), ``t_int_ref`` = ``[detector].integration_time_s``
+(so ``source_power`` is "counts per (1/sr * sr) at gain 1 and the configured integration time"). ``R`` is the
+physical reading (:func:`reconstruction.instrument.instrument_average`): the integral of f cos(theta_o) over the
+detector's cone and the source's divergence (``[bench].source_divergence_deg``), over ``Omega_d cos(theta_o)``,
+so f at the centre for a smooth BRDF and the lobe's energy for a mirror. ``frac`` is the part of the illuminated
+spot that falls on the sample (:func:`reconstruction.schema.optics.footprint_fraction`): the light lost where
+the spot, growing as 1 / cos theta_i, overfills it.
 
-A reading is ``round(gain * (S + shot) + dark_offset + read_noise)`` clipped to ``[0, min(saturation,
-2**adc_bits - 1)]``; ``shot`` is Poisson(S) - S when ``shot_noise`` is on. The source arm shadows the detector
-when ``|theta_i + theta_o| < blind_spot_half_width_deg``: then S = 0 and the reading is the dark level.
+A reading at gain g is ``round(g * (S + shot + input_offset + input_noise) + dark_offset + read_noise)`` clipped
+to ``[0, min(saturation, 2**adc_bits - 1)]``: each gain has its own offset (``g * input_offset``) and noise
+(``sqrt(read_noise**2 + (g * input_noise)**2)``); ``shot`` is Poisson(S e) / e - S with ``e`` =
+``electrons_per_count`` when ``shot_noise`` is on. ``[detector].gains`` lists the gains ``GAIN`` accepts. The
+source arm shadows the detector when ``|theta_i + theta_o| < blind_spot_half_width_deg``: then S = 0.
 
-Channels: a photodiode sees one channel, the mean over the material's channels (grey, RGB or spectral). A
-spectrometer evaluates a spectral material on its own grid (linear interpolation, clamped at the ends); an RGB
-material (linear sRGB) becomes spectra through the Mallett-Yuksel (2019) sRGB basis of colour-science, which
-converts back to the same RGB under D65; a grey material is flat.
+Channels: a photodiode sees one channel, the material's reflectance weighted by the band (``[detector]
+.responsivity`` x ``[bench].source_spectrum``, :mod:`reconstruction.schema.optics`), an RGB material (linear sRGB)
+becoming spectra through the Mallett-Yuksel (2019) sRGB basis of colour-science. A spectrometer evaluates a
+spectral material on its own grid (linear interpolation, clamped at the ends) and an RGB one through the same
+basis, which converts back to the same RGB under D65; a grey material is flat.
 """
 
 from __future__ import annotations
@@ -32,7 +38,9 @@ from .config import BenchConfig
 
 log = logging.getLogger("simulator.physics")
 
-GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
+#: Angle pairs whose physical reading is remembered per material (then the memory starts afresh).
+_CACHE_SIZE = 20000
+
 
 
 def _interp_matrix(grid: np.ndarray, src: np.ndarray) -> np.ndarray:
@@ -141,12 +149,28 @@ class BenchPhysics:
             wavelengths_nm=wl,
         )
         self.source_power = float(s.source_power)
-        self.solid_angle = float(s.detector_solid_angle_sr)
-        self.aperture_samples = max(1, int(s.aperture_samples))
+        self.solid_angle = float(cfg.detector.solid_angle_sr)
         self.dark_offset = float(s.dark_offset)
         self.read_noise = float(s.read_noise)
+        self.input_noise = float(s.input_noise)
+        self.input_offset = float(s.input_offset)
+        self.electrons_per_count = float(s.electrons_per_count)
         self.shot_noise = bool(s.shot_noise)
         self.blind_half_width = float(cfg.blind_spot_half_width_deg)
+        self.gains = cfg.detector.gains
+        from reconstruction.instrument import Instrument
+
+        self.instrument = Instrument(self.solid_angle, float(cfg.source_divergence_deg), cfg.beam_diameter_mm,
+                                     cfg.sample_diameter_mm)
+        self._band_cache: dict[int, np.ndarray] = {}
+        self._fc_cache: dict[int, dict[tuple[float, float], np.ndarray]] = {}
+
+    def warm_up(self) -> None:
+        """Do the slow first-time work now (``gonio-sim serve`` calls it before the ports serve: imports, the
+        band's sRGB basis, the first integration): a first reading must not take longer than a controller's reply
+        deadline."""
+        for mat in (self.material, self.reference):
+            self.f_cos(30.0, 20.0, mat)
 
     @property
     def reference(self) -> BRDF:
@@ -163,7 +187,7 @@ class BenchPhysics:
         """Map material channels (..., C) to detector channels (..., n_det)."""
         det = self.detector
         if det.wavelengths_nm is None:
-            return f.mean(axis=-1, keepdims=True)
+            return f @ self._band_vector(f.shape[-1], mat)[:, None]
         grid = det.wavelengths_nm
         c = f.shape[-1]
         wl = getattr(mat, "wavelengths_nm", None)
@@ -177,37 +201,52 @@ class BenchPhysics:
             raise ValueError(f"cannot map {c} material channels to a spectrometer grid")
         return f @ m.T  # linear in the channels: (..., C) -> (..., n_det)
 
-    # -- geometry ----------------------------------------------------------------------------------------------
-    def _aperture_dirs(self, theta_o: np.ndarray) -> np.ndarray:
-        """Detector sample directions (..., K, 3) around wo = (sin to, 0, cos to) for angles ``theta_o`` (rad)."""
-        k = self.aperture_samples
-        to = np.asarray(theta_o, dtype=float)[..., None]
-        wo = np.stack(np.broadcast_arrays(np.sin(to), np.zeros_like(to), np.cos(to)), axis=-1)
-        if k == 1:
-            return wo
-        half = np.arccos(1.0 - self.solid_angle / (2.0 * np.pi))  # cone half angle for Omega_d
-        j = np.arange(k)
-        r = half * np.sqrt((j + 0.5) / k)
-        ph = j * GOLDEN_ANGLE
-        u = np.stack(np.broadcast_arrays(np.cos(to), np.zeros_like(to), -np.sin(to)), axis=-1)
-        v = np.array([0.0, 1.0, 0.0])
-        d = (np.cos(r)[:, None] * wo + np.sin(r)[:, None] * (np.cos(ph)[:, None] * u + np.sin(ph)[:, None] * v))
-        return d
+    def _band_vector(self, c: int, mat: BRDF) -> np.ndarray:
+        """(C,) weights of the material's channels in the photodiode's one channel (they sum to 1)."""
+        v = self._band_cache.get(id(mat))
+        if v is not None and v.size == c:
+            return v
+        from reconstruction.schema.optics import BAND_NM
 
+        w = self.cfg.detector.band_weights
+        wl = getattr(mat, "wavelengths_nm", None)
+        if c == 1:
+            v = np.ones(1)
+        elif w is None:  # no band known: the mean of the channels
+            v = np.full(c, 1.0 / c)
+        elif wl is not None and np.asarray(wl).size == c:
+            v = w @ _interp_matrix(BAND_NM, np.asarray(wl, dtype=float))
+        elif c == 3:
+            v = w @ _srgb_basis(BAND_NM)
+        else:
+            raise ValueError(f"cannot map {c} material channels to the photodiode's band")
+        self._band_cache[id(mat)] = v
+        return v
+
+    # -- geometry ----------------------------------------------------------------------------------------------
     def f_cos(self, theta_i_deg, theta_o_deg, mat: BRDF | None = None) -> np.ndarray:
-        """f_r * cos(theta_o), aperture-averaged, on the detector channels: (..., n_det)."""
-        from reconstruction.geometry import inplane_to_dirs
+        """The physical reading R(theta_i, theta_o) * cos(theta_o) (1/sr; see the module docstring) on the
+        detector channels: (..., n_det). Angles in degrees; each angle pair is integrated once and remembered
+        (the arms stop at whole controller units, so a capture reads the same pairs again)."""
+        from reconstruction.instrument import instrument_average
 
         mat = mat if mat is not None else self.active_material
-        ti = np.radians(np.asarray(theta_i_deg, dtype=float))
-        to = np.radians(np.asarray(theta_o_deg, dtype=float))
-        ti, to = np.broadcast_arrays(ti, to)
-        wi, _ = inplane_to_dirs(ti, to)
-        dirs = self._aperture_dirs(to)  # (..., K, 3)
-        f = mat.eval(wi[..., None, :], dirs)  # (..., K, C)
-        cos_o = np.clip(dirs[..., 2], 0.0, None)[..., None]
-        fc = (f * cos_o).mean(axis=-2)
-        return self.to_detector_channels(fc, mat)
+        ti, to = np.broadcast_arrays(np.asarray(theta_i_deg, dtype=float), np.asarray(theta_o_deg, dtype=float))
+        pairs = np.stack([ti.ravel(), to.ravel()], axis=1)
+        uniq, inv = np.unique(pairs, axis=0, return_inverse=True)
+        cache = self._fc_cache.setdefault(id(mat), {})
+        keys = [(float(a), float(b)) for a, b in uniq]
+        todo = [i for i, k in enumerate(keys) if k not in cache]
+        if todo:
+            if len(cache) > _CACHE_SIZE:
+                cache.clear()
+            u = uniq[todo]
+            r = np.asarray(instrument_average(mat, u[:, 0], u[:, 1], self.instrument), dtype=float)
+            fc = r * np.clip(np.cos(np.radians(u[:, 1])), 0.0, None)[:, None]
+            for i, row in zip(todo, self.to_detector_channels(fc, mat), strict=True):
+                cache[keys[i]] = row
+        out = np.stack([cache[k] for k in keys])[np.asarray(inv).ravel()]
+        return out.reshape(ti.shape + out.shape[-1:])
 
     def expected_signal(self, theta_i_deg, theta_o_deg, source_on: bool = True,
                         integration_time_s: float | None = None) -> np.ndarray:
@@ -215,8 +254,13 @@ class BenchPhysics:
         t_int = self.detector.integration_time_s if integration_time_s is None else integration_time_s
         ti = np.asarray(theta_i_deg, dtype=float)
         to = np.asarray(theta_o_deg, dtype=float)
+        if not source_on:
+            return np.zeros(np.broadcast_shapes(ti.shape, to.shape) + (self.detector.n_channels,))
         fc = self.f_cos(ti, to)
+        from reconstruction.schema.optics import footprint_fraction
+
         s = self.source_power * fc * self.solid_angle * (t_int / self.detector.ref_integration_time_s)
+        s = s * footprint_fraction(ti, self.cfg.beam_diameter_mm, self.cfg.sample_diameter_mm)[..., None]
         blind = np.abs(ti + to) < self.blind_half_width
         s = np.where(blind[..., None], 0.0, s)
         if not source_on:
@@ -226,7 +270,12 @@ class BenchPhysics:
     def expected_reading(self, theta_i_deg, theta_o_deg, source_on: bool = True) -> np.ndarray:
         """Noise-free reading (counts): gain * S + dark, clipped to the detector range (not quantised)."""
         s = self.expected_signal(theta_i_deg, theta_o_deg, source_on)
-        return np.clip(self.detector.gain * s + self.dark_offset, 0.0, self.detector.max_code)
+        return np.clip(self.detector.gain * (s + self.input_offset) + self.dark_offset, 0.0, self.detector.max_code)
+
+    def noise_rms(self, gain: float | None = None) -> float:
+        """Dark-reading noise (counts rms) at ``gain`` (default: the present one): ADC and amplifier."""
+        g = self.detector.gain if gain is None else gain
+        return float(np.hypot(self.read_noise, g * self.input_noise))
 
     def read(self, theta_i_deg, theta_o_deg, source_on: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """Noisy readings for arrays of angles (one per repeat): (codes (n, n_det) float, saturated (n,) bool)."""
@@ -235,8 +284,12 @@ class BenchPhysics:
         s = self.expected_signal(ti, to, source_on)
         det = self.detector
         if self.shot_noise:
-            s = self.rng.poisson(np.maximum(s, 0.0)).astype(float)
-        x = det.gain * s + self.dark_offset
+            e = self.electrons_per_count
+            s = self.rng.poisson(np.maximum(s, 0.0) * e).astype(float) / e if e != 1.0 else \
+                self.rng.poisson(np.maximum(s, 0.0)).astype(float)
+        if self.input_noise > 0:
+            s = s + self.input_noise * self.rng.standard_normal(s.shape)
+        x = det.gain * (s + self.input_offset) + self.dark_offset
         if self.read_noise > 0:
             x = x + self.read_noise * self.rng.standard_normal(x.shape)
         x = np.round(x)

@@ -367,6 +367,8 @@ class SerialController:
         mean = codes.mean(axis=0)
         std = codes.std(axis=0, ddof=1) if n > 1 else np.zeros_like(mean)
         fields = [f"n={n}", f"sat={int(sat.sum())}", f"t_int={t_int:g}"]
+        if self.physics.gains:
+            fields.append(f"gain={det.gain:g}")
         if det.n_channels == 1:
             fields += [f"mean={mean[0]:.3f}", f"std={std[0]:.3f}",
                        "values=" + ",".join(str(int(v)) for v in codes[:, 0])]
@@ -384,6 +386,8 @@ class SerialController:
         det = self.physics.detector
         fields = [f"type={det.type}", f"channels={det.n_channels}", f"bits={det.adc_bits}",
                   f"gain={det.gain:g}", f"saturation={det.max_code:g}", f"t_int={det.integration_time_s:g}"]
+        if self.physics.gains:
+            fields.append("gains=" + ",".join(f"{g:g}" for g in self.physics.gains))
         if det.wavelengths_nm is not None:
             fields.append("wavelengths=" + ",".join(f"{w:g}" for w in det.wavelengths_nm))
         return ["DETECTOR " + " ".join(fields), "ok"]
@@ -399,11 +403,20 @@ class SerialController:
         return [f"INT t_int={self.physics.detector.integration_time_s:g}", "ok"]
 
     def _cmd_gain(self, args: list[str]) -> list[str]:
-        v = _one_float(args, 0.01, 1000.0)
+        gains = self.physics.gains
+        v = _one_float(args, 0.001, 1e7) if gains else _one_float(args, 0.01, 1000.0)
         if v is None:
             return self._err(E_ARGUMENT)
+        if gains:  # the amplifier's switchable gains only
+            match = [g for g in gains if abs(g - v) <= 1e-6 * g]
+            if not match:
+                return self._err(E_ARGUMENT)
+            v = match[0]
         self.physics.detector.gain = v
         return ["ok"]
+
+    def _cmd_gain_q(self, args: list[str]) -> list[str]:
+        return [f"GAIN gain={self.physics.detector.gain:g}", "ok"]
 
     def _cmd_sample(self, args: list[str]) -> list[str]:
         if len(args) != 1 or args[0].upper() not in ("REF", "TARGET"):
@@ -431,6 +444,7 @@ class SerialController:
         "INT": _cmd_int,
         "INT?": _cmd_int_q,
         "GAIN": _cmd_gain,
+        "GAIN?": _cmd_gain_q,
         "SAMPLE": _cmd_sample,
         "SAMPLE?": _cmd_sample_q,
     }

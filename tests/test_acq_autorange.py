@@ -157,6 +157,7 @@ def sharp_raw(detector: str = "photodiode", motion: str = "dynamixel", over: dic
     raw = make_raw({"bench": {"motion": motion}, "detector": {"type": detector},
                     "plan": {"theta_o_min_deg": 22.0, "theta_o_max_deg": 38.0, "theta_o_step_deg": 1.0},
                     "simulator": {"source_power": 1.0e8}}, extra, over or {})
+    del raw["detector"]["gains"]  # auto-ranging over integration time alone (gains: tests/test_acq_gains.py)
     raw["material"] = {"name": "sharp-ggx", "lobes": [
         {"type": "lambert", "albedo": 0.1}, {"type": "ggx", "alpha": 0.02, "specular": specular, "f0": 0.04}]}
     return raw

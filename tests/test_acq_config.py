@@ -261,3 +261,44 @@ def test_simulator_that_fails_to_start_reports_its_stderr_from_the_log(tmp_path)
     with pytest.raises(ConfigError, match=r"^x\.toml: \[simulator\]\.seed: expected an integer$"):
         sp.start()
     sp.stop()
+
+
+@pytest.mark.parametrize("over, where, what", [
+    ({"detector": {"aperture_half_angle_deg": 1.0}}, "[detector].aperture_half_angle_deg",
+     "give either solid_angle_sr or aperture_half_angle_deg, not both"),
+    ({"detector": {"solid_angle_sr": 0.6}}, "[detector].solid_angle_sr", "must lie in [0, 0.5]"),
+    ({"detector": {"responsivity": "germanium"}}, "[detector].responsivity",
+     "unknown responsivity 'germanium'; expected \"silicon\" or a path"),
+    ({"bench": {"source_spectrum": "halogen-hot"}}, "[bench].source_spectrum", "unknown source 'halogen-hot'"),
+    ({"detector": {"gains": [1.0, 1.0]}}, "[detector].gains", "gains must differ"),
+    ({"detector": {"gains": []}}, "[detector].gains", "expected a non-empty list of numbers"),
+    ({"bench": {"source_divergence_deg": 20.0}}, "[bench].source_divergence_deg", "must lie in [0, 10]"),
+    ({"simulator": {"detector_solid_angle_sr": 1e-3}}, "[simulator].detector_solid_angle_sr",
+     "the detector's acceptance is [detector].solid_angle_sr now; remove the old key"),
+])
+def test_bad_optics_keys_name_file_and_key(over, where, what):
+    msg = _err(make_raw(over))
+    assert f"bench.toml: {where}: " in msg and what in msg, msg
+
+
+def test_optics_keys(tmp_path):
+    """The optics of the shipped simulated bench; a beam without a sample diameter is refused; the older
+    [simulator].detector_solid_angle_sr still sets the cone; a responsivity CSV; gains are a photodiode's."""
+    d = config_from_dict(make_raw()).detector
+    assert d.acceptance_sr == 1e-3 and d.gains == (1.0, 10.0, 100.0, 1000.0, 10000.0)
+    assert abs(d.band_weights.sum() - 1.0) < 1e-12 and d.band_weights[-1] > 10 * d.band_weights[0]  # red-heavy
+    raw = make_raw()
+    del raw["bench"]["sample_diameter_mm"]
+    assert "[bench].sample_diameter_mm: missing: beam_diameter_mm is given" in _err(raw)
+    raw = make_raw({"simulator": {"detector_solid_angle_sr": 2e-3}})
+    del raw["detector"]["solid_angle_sr"]
+    assert config_from_dict(raw).detector.acceptance_sr == 2e-3
+    assert config_from_dict(make_raw({"detector": {"type": "spectrometer"}})).detector.gains is None
+    (tmp_path / "flat.csv").write_text("wavelength_nm,responsivity\n380,0.5\n780,0.5\n")
+    raw = make_raw({"detector": {"responsivity": "flat.csv"}, "bench": {"source_spectrum": "D65"}})
+    w = config_from_dict(raw, tmp_path / "bench.toml").detector.band_weights
+    assert w.argmax() < w.size // 2  # D65 on a flat detector: more weight in the blue than halogen on silicon
+    half = make_raw({"detector": {"aperture_half_angle_deg": 1.0}})
+    del half["detector"]["solid_angle_sr"]
+    assert abs(config_from_dict(half).detector.acceptance_sr - 2 * 3.141592653589793 * (1 - 0.9998476951563913)) \
+        < 1e-12

@@ -131,7 +131,8 @@ def test_real_saturation_stops_with_advice(tmp_path, capsys):
     cfg = write_config(tmp_path / "bright2.toml", raw)
     assert main(["--config", str(cfg), "--out", str(tmp_path / "out2"), "--no-progress"]) == 1
     err = capsys.readouterr().err
-    assert "white reference: the detector saturates (65535 counts) even at the shortest integration time, " \
+    assert "white reference: the detector saturates (65535 counts) even at the lowest gain (1) and the shortest " \
+           "integration time, " \
            "[detector].min_integration_time_s = 0.01 s" in err
 
 

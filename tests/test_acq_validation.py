@@ -101,8 +101,9 @@ def test_python_api_and_scene_plans_are_bounded_too(tmp_path):
                                                                "deg map to positions [2048, 8.50205e+06]"),
     ("dynamixel", {"detector": {"repeats": 1e300}}, "[detector].repeats: must lie in [1, 1000], got 1e+300"),
     ("dynamixel", {"plan": {"repeats": 1e300}}, "[plan].repeats: must lie in [1, 1000], got 1e+300"),
-    ("dynamixel", {"simulator": {"aperture_samples": 1e300}}, "[simulator].aperture_samples: must lie in [1, 4096], "
-                                                              "got 1e+300"),
+    ("dynamixel", {"simulator": {"aperture_samples": 1e300}}, "[simulator].aperture_samples: no longer read"),
+    ("dynamixel", {"simulator": {"electrons_per_count": 1e300}}, "[simulator].electrons_per_count: must lie in"),
+    ("dynamixel", {"detector": {"gains": [1.0, 1e300]}}, "[detector].gains: every gain must lie in"),
     ("dynamixel", {"simulator": {"seed": 1e300}}, "[simulator].seed: must lie in [0, 2**63), got 1e+300"),
     ("dynamixel", {"simulator": {"time_scale": 1e-300}}, "[simulator].time_scale: must be 0 (as fast as possible)"),
     ("dynamixel", {"detector": {"type": "spectrometer"}, "simulator": {"spectrometer": {"wl_step_nm": 1e-9}}},

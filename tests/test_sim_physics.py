@@ -11,7 +11,12 @@ from simulator.bench import VirtualBench
 from simulator.config import config_from_dict
 from tests.helpers import deep_merge
 
-NOISELESS = {"simulator": {"read_noise": 0.0, "shot_noise": False, "aperture_samples": 1}}
+NOISELESS = {"simulator": {"read_noise": 0.0, "shot_noise": False, "input_noise": 0.0, "input_offset": 0.0}}
+
+
+def CONE(omega_sr: float = 1e-3) -> float:
+    """A Lambertian's reading over f cos(theta_o) at the cone's centre: the cone's mean cos, 1 - Omega / (4 pi)."""
+    return 1.0 - omega_sr / (4.0 * math.pi)
 
 
 def bench_from(config_dict, *overs) -> VirtualBench:
@@ -35,25 +40,59 @@ def test_noiseless_reading_equals_formula(config_dict):
     from reconstruction.geometry import inplane_to_dirs
 
     wi, wo = inplane_to_dirs(math.radians(ti), math.radians(to))
-    f = float(np.mean(b.physics.material.eval(wi, wo)))
+    f = b.physics.material.eval(wi, wo)  # alpha 0.15: smooth over the 1e-3 sr cone (cone average = f to 1e-4)
+    f_band = float(f @ band_of_rgb())  # the photodiode's band (silicon x halogen-3000K), not the mean of R, G, B
+    assert abs(f_band - float(np.mean(f))) > 0.05 * f_band
     s = b.cfg.sim
-    expected = s.source_power * f * math.cos(math.radians(to)) * s.detector_solid_angle_sr + s.dark_offset
+    expected = s.source_power * f_band * math.cos(math.radians(to)) * 1e-3 + s.dark_offset
     r = read(b, "READ 3")
     vals = [int(v) for v in r["values"].split(",")]
     assert all(abs(v - expected) <= 0.5 for v in vals)
     assert r["sat"] == "0"
 
 
+def band_of_rgb() -> np.ndarray:
+    """(3,) weights of linear-sRGB R, G, B in the silicon x halogen-3000K band: each primary's Mallett-Yuksel
+    spectrum (colour-science's own recovery function) weighted by responsivity x Planck(3000 K), over 380-780 nm."""
+    import colour
+
+    wl = np.arange(380.0, 781.0, 5.0)
+    resp = np.interp(wl, [350, 400, 450, 500, 550, 600, 650, 700, 750, 800], [0.08, 0.12, 0.20, 0.27, 0.32, 0.37,
+                                                                              0.41, 0.45, 0.49, 0.53])
+    planck = wl ** -5.0 / np.expm1(1.4387769e7 / (wl * 3000.0))
+    w = resp * planck / np.sum(resp * planck)
+    out = []
+    for rgb in np.eye(3):
+        sd = colour.recovery.RGB_to_sd_Mallett2019(rgb)
+        out.append(float(w @ np.interp(wl, sd.wavelengths, sd.values)))
+    return np.array(out)
+
+
+def test_the_photodiode_band_cancels_for_grey_and_weights_colour(config_dict):
+    """A grey sample reads its albedo whatever the band; a blue one less than the mean of its R, G, B under a
+    halogen source on silicon (red-heavy), and a D65 source moves it towards blue."""
+    grey = bench_from(config_dict, {"material": {"lobes": [{"type": "lambert", "albedo": [0.3, 0.3, 0.3]}]}})
+    blue = {"material": {"lobes": [{"type": "lambert", "albedo": [0.05, 0.10, 0.40]}]}}
+    halogen = bench_from(config_dict, blue)
+    d65 = bench_from(config_dict, blue, {"bench": {"source_spectrum": "D65"}})
+    g = grey.physics.f_cos(0.0, 0.0)[0]
+    assert g == pytest.approx(0.3 / math.pi * CONE(), rel=1e-5)
+    h = halogen.physics.f_cos(0.0, 0.0)[0] * math.pi
+    d = d65.physics.f_cos(0.0, 0.0)[0] * math.pi
+    assert h == pytest.approx(float(np.array([0.05, 0.10, 0.40]) @ band_of_rgb()), rel=2e-3)
+    assert h < 0.8 * np.mean([0.05, 0.10, 0.40]) and d > 1.1 * h
+
+
 def test_lambertian_analytic(config_dict):
     b = bench_from(config_dict, {"material": {"lobes": [{"type": "lambert", "albedo": 0.5}]}})
     for ti, to in [(0.0, 45.0), (30.0, -60.0), (60.0, 10.0)]:
-        expected = 1e6 * 0.5 / math.pi * math.cos(math.radians(to)) * 1e-3 + 200.0
+        expected = 1e6 * 0.5 / math.pi * math.cos(math.radians(to)) * 1e-3 * CONE() + 200.0
         assert b.physics.expected_reading(ti, to)[0] == pytest.approx(expected)
     # a dark read has no signal
     assert float(read(b, "DARK 2")["mean"]) == 200.0
     # relative calibration: the white reference is a Lambertian of the configured reflectance
     read(b, "SAMPLE REF")
-    expected_ref = 1e6 * 0.99 / math.pi * math.cos(math.radians(45)) * 1e-3 + 200.0
+    expected_ref = 1e6 * 0.99 / math.pi * math.cos(math.radians(45)) * 1e-3 * CONE() + 200.0
     assert abs(float(read(b, "READ 1")["mean"]) - expected_ref) <= 0.5
     assert read(b, "SAMPLE?")["sample"] == "REF"
 
@@ -82,8 +121,9 @@ def test_integration_time_and_gain_scale_signal(config_dict):
     assert float(read(b, "READ 1")["mean"]) - 200.0 == pytest.approx(base, abs=0.5)
     read(b, "INT 0.02")
     assert float(read(b, "READ 1")["mean"]) - 200.0 == pytest.approx(2 * base, abs=0.5)
-    read(b, "GAIN 3")
-    assert float(read(b, "READ 1")["mean"]) - 200.0 == pytest.approx(6 * base, abs=0.5)
+    read(b, "GAIN 10")
+    assert float(read(b, "READ 1")["mean"]) - 200.0 == pytest.approx(20 * base, abs=0.5)
+    assert read(b, "GAIN?")["gain"] == "10"
     t0 = b.clock.now()
     read(b, "READ 5")
     assert b.clock.now() - t0 == pytest.approx(5 * 0.02)  # integration advances simulated time
@@ -105,19 +145,69 @@ def test_noise_statistics(config_dict):
     assert 4.5 < codes.std() < 5.5
 
 
-def test_aperture_averaging_blurs_peak(config_dict):
-    spec = {"material": {"lobes": [{"type": "ggx", "alpha": 0.02, "specular": 1.0, "f0": 1.0}]},
-            "simulator": {"detector_solid_angle_sr": 0.01}}
-    point = bench_from(config_dict, spec)
-    wide = bench_from(config_dict, spec, {"simulator": {"aperture_samples": 64}})
-    p = point.physics.expected_signal(30.0, 30.0)[0]
-    w = wide.physics.expected_signal(30.0, 30.0)[0]
-    assert w < 0.5 * p  # the narrow peak is averaged over the aperture
-    # a Lambertian is (almost) unaffected
-    lam = {"material": {"lobes": [{"type": "lambert", "albedo": 0.5}]}}
+def test_a_mirror_reads_its_reflectance_not_its_peak(config_dict):
+    """The reading integrates f cos over the detector's cone: a ggx lobe of alpha 1e-3 (0.06 deg wide) in the 1e-3 sr
+    cone gives about the lobe's energy (specular 0.95, no Fresnel), where f at the centre times the cone would be
+    ~100 times more; a Lambertian reads f cos theta_o times the cone's mean of cos / cos at its centre,
+    (1 + cos a) / 2 = 1 - Omega / (4 pi) exactly."""
+    spec = {"material": {"lobes": [{"type": "ggx", "alpha": 1e-3, "specular": 0.95}]}}
+    b = bench_from(config_dict, spec)
+    s = b.physics.expected_signal(30.0, 30.0)[0]
+    assert s == pytest.approx(1e6 * 0.95, rel=0.02)
+    from reconstruction.geometry import inplane_to_dirs
+
+    wi, wo = inplane_to_dirs(math.radians(30.0), math.radians(30.0))
+    point = 1e6 * float(b.physics.material.eval(wi, wo)[0]) * math.cos(math.radians(30.0)) * 1e-3
+    assert point > 50 * s
+    assert b.physics.expected_signal(30.0, 36.0)[0] < 1e-3 * s  # outside the cone: the diffuse floor only (none)
+    lam = {"material": {"lobes": [{"type": "lambert", "albedo": 0.5}]}, "detector": {"solid_angle_sr": 0.01}}
     a = bench_from(config_dict, lam).physics.expected_signal(30.0, 20.0)[0]
-    b = bench_from(config_dict, lam, {"simulator": {"aperture_samples": 64}}).physics.expected_signal(30.0, 20.0)[0]
-    assert b == pytest.approx(a, rel=1e-3)
+    assert a == pytest.approx(1e6 * 0.5 / math.pi * math.cos(math.radians(20.0)) * 0.01 * CONE(0.01), rel=1e-6)
+
+
+def test_each_gain_has_its_own_offset_and_noise(config_dict):
+    """Reading = g (S + input_offset + input_noise) + dark_offset + read_noise: a dark at gain 1e4 sits at 200 + 1e4
+    x 0.2 with sqrt(5^2 + (1e4 x 0.003)^2) counts rms; GAIN accepts only the amplifier's gains."""
+    b = VirtualBench(config_from_dict(config_dict({"simulator": {"shot_noise": False}})))
+    assert read(b, "DETECTOR?")["gains"] == "1,10,100,1000,10000"
+    stats = {}
+    for g in (1, 10000):
+        read(b, f"GAIN {g}")
+        codes = np.array([int(v) for v in read(b, "DARK 1000")["values"].split(",")])
+        stats[g] = (codes.mean(), codes.std())
+    assert stats[1][0] == pytest.approx(200.2, abs=0.5) and stats[1][1] == pytest.approx(5.0, rel=0.1)
+    assert stats[10000][0] == pytest.approx(2200.0, abs=3.0)
+    assert stats[10000][1] == pytest.approx(math.hypot(5.0, 30.0), rel=0.1)
+    assert b.process("serial", b"GAIN 3\n") == b"error:2\n"
+
+
+def test_the_spot_overfilling_the_sample_loses_light(config_dict):
+    """The 10 mm beam lights 10 / cos theta_i mm of the 40 mm sample: at 80 deg 10 / cos 80 = 57.6 mm, and the
+    reading falls by the part of the ellipse outside the circle (a Monte Carlo estimate here)."""
+    lam = {"material": {"lobes": [{"type": "lambert", "albedo": 0.5}]}}
+    b = bench_from(config_dict, lam)
+    f = b.physics.expected_signal(80.0, 10.0)[0] / (1e6 * 0.5 / math.pi * math.cos(math.radians(10.0)) * 1e-3 * CONE())
+    rng = np.random.default_rng(0)
+    u = rng.uniform(-1.0, 1.0, (400_000, 2))
+    u = u[(u ** 2).sum(axis=1) < 1.0] * [5.0 / math.cos(math.radians(80.0)), 5.0]
+    assert f == pytest.approx(np.mean((u ** 2).sum(axis=1) < 20.0 ** 2), abs=3e-3)
+    assert f < 0.85
+    assert b.physics.expected_signal(70.0, 10.0)[0] == pytest.approx(
+        1e6 * 0.5 / math.pi * math.cos(math.radians(10.0)) * 1e-3 * CONE(), rel=1e-9)  # 10 / cos 70 = 29 mm: all on it
+
+
+def test_old_simulator_keys(config_dict):
+    """[simulator].detector_solid_angle_sr still sets the cone (older files); aperture_samples is refused naming the
+    new key, and so is the old key beside the new one."""
+    raw = config_dict({"simulator": {"detector_solid_angle_sr": 0.004}})
+    del raw["detector"]["solid_angle_sr"]
+    assert config_from_dict(raw).detector.solid_angle_sr == 0.004
+    with pytest.raises(ValueError, match=r"\[simulator\].aperture_samples: no longer read.*\[detector\]"
+                                         r".solid_angle_sr"):
+        config_from_dict(config_dict({"simulator": {"aperture_samples": 1}}))
+    with pytest.raises(ValueError, match=r"\[simulator\].detector_solid_angle_sr: the detector's acceptance is "
+                                         r"\[detector\].solid_angle_sr now"):
+        config_from_dict(config_dict({"simulator": {"detector_solid_angle_sr": 0.004}}))
 
 
 def test_spectrometer(config_dict):

@@ -144,12 +144,19 @@ def test_single_number_arguments(config_dict):
 
     b = VirtualBench(config_from_dict(config_dict()))
     for line in ("DWELL", "DWELL x", "DWELL -1", "DWELL 3601", "DWELL 1 2", "DWELL nan", "INT", "INT 1e-6",
-                 "INT 11", "INT 0.01 0.02", "GAIN 0.001", "GAIN 1001", "GAIN 1 1", "GAIN inf"):
+                 "INT 11", "INT 0.01 0.02", "GAIN 0.001", "GAIN 3", "GAIN 1 1", "GAIN inf"):
         assert b.process("serial", f"{line}\n".encode()) == b"error:2\n", line
     assert b.sim_time() == 0.0
     assert b.process("serial", b"INT?\n") == b"INT t_int=0.01\nok\n"
-    for line in ("DWELL 0", "DWELL 2.5", "INT 1e-5", "INT 10", "GAIN 0.01", "GAIN 1000"):
+    for line in ("DWELL 0", "DWELL 2.5", "INT 1e-5", "INT 10", "GAIN 10000", "GAIN 1000"):
         assert b.process("serial", f"{line}\n".encode()) == b"ok\n", line
     assert b.sim_time() == pytest.approx(2.5)
     assert b.process("serial", b"INT?\n") == b"INT t_int=10\nok\n"
+    assert b.process("serial", b"GAIN?\n") == b"GAIN gain=1000\nok\n"
     assert b.physics.detector.gain == 1000.0
+    raw = config_dict()
+    del raw["detector"]["gains"]  # an amplifier without a list of gains: any gain in 0.01..1000
+    b = VirtualBench(config_from_dict(raw))
+    for line, reply in (("GAIN 0.001", b"error:2\n"), ("GAIN 1001", b"error:2\n"), ("GAIN 0.01", b"ok\n"),
+                        ("GAIN 3", b"ok\n")):
+        assert b.process("serial", f"{line}\n".encode()) == reply, line

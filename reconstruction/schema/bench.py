@@ -66,6 +66,14 @@ class BenchTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     blind_spot_half_width_deg: Annotated[float, _num(0.0, 90.0, description="the source arm shadows the detector "
                                                                             "within this of the retro direction")]
     simulator_command: Annotated[str, Meta(description="the simulator program (simulated benches)")] = "gonio-sim"
+    source_divergence_deg: Annotated[float, _num(0.0, 10.0, description="half angle of the source's beam "
+                                                                        "divergence (degrees)")] = 0.0
+    beam_diameter_mm: Annotated[float, _num(gt=0.0, hi=1000.0, check=_pos_within(1e-3, 1000, " mm"),
+                                            description="diameter of the beam at normal incidence (mm)")] | None = None
+    sample_diameter_mm: Annotated[float, _num(gt=0.0, hi=1000.0, check=_pos_within(1e-3, 1000, " mm"),
+                                              description="diameter of the sample (mm)")] | None = None
+    source_spectrum: Annotated[str, Meta(description='"halogen-3000K" (built in), "D65", or a wavelength_nm,value '
+                                                     "CSV (relative to the bench file)")] = "halogen-3000K"
 
 
 def _units_per_deg(v: float) -> str | None:
@@ -105,6 +113,16 @@ class MotionTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     poll_interval_s: Annotated[float, _num(0.0, 10.0)] = 0.01
 
 
+def _gains_check(v: list[float]) -> str | None:
+    if not 1 <= len(v) <= 12:
+        return f"expected 1 to 12 gains, got {len(v)}"
+    if any(not 1e-3 <= g <= 1e7 for g in v):
+        return f"every gain must lie in [0.001, 1e+07], got {v!r}"
+    if len(set(v)) != len(v):
+        return f"gains must differ, got {v!r}"
+    return None
+
+
 class DetectorTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     """``[detector]``: type, integration time per repeat, repeats, saturation, dark repeats, auto-ranging."""
 
@@ -116,6 +134,16 @@ class DetectorTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     auto_range: Annotated[bool, Meta(description="read saturated points again at shorter integration times")] = True
     min_integration_time_s: Annotated[float, _num(MIN_INTEGRATION_TIME_S, MAX_INTEGRATION_TIME_S)] = \
         MIN_INTEGRATION_TIME_S
+    solid_angle_sr: Annotated[float, _num(0.0, 0.5, description="acceptance of the detector cone (sr); 0 = a point "
+                                                               "detector")] | None = None
+    aperture_half_angle_deg: Annotated[float, _num(0.0, 23.0, description="half angle of the detector cone "
+                                                                          "(degrees), instead of solid_angle_sr")
+                                       ] | None = None
+    responsivity: Annotated[str, Meta(description='photodiode band: "silicon" (built in) or a '
+                                                  "wavelength_nm,responsivity CSV")] = "silicon"
+    gains: Annotated[list[float] | None, Meta(description="the amplifier's switchable gains, e.g. [1, 10, 100, "
+                                                          "1000, 10000] (GAIN n); auto-ranging uses them all",
+                                              extra={"check": _gains_check})] = None
 
 
 class CalibrationTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):

@@ -79,14 +79,22 @@ class SimulatorSection(msgspec.Struct, kw_only=True, forbid_unknown_fields=True)
                                                         "must be 0 (as fast as possible) or lie in [0.001, 1e+06]"),
                                     description="simulated seconds per wall second; 0 = as fast as possible")] = 0.0
     source_power: Annotated[float, _m(0.0, 1e15, _NONNEG, _within(0, 1e15), description="counts per 1/sr sr")] = 1.0e6
-    detector_solid_angle_sr: Annotated[float, _m(0.0, 2 * math.pi, _NONNEG, (lambda v: v <= 2 * math.pi,
-                                                                               "must lie in [0, 2 pi] sr"))] = 1.0e-3
-    aperture_samples: Annotated[int, _m(1, 4096, (lambda v: v >= 1, "must be >= 1"), _within(1, 4096))] = 1
+    detector_solid_angle_sr: Annotated[float, _m(0.0, 0.5, _NONNEG, (lambda v: v <= 0.5, "must lie in [0, 0.5] sr"),
+                                                 description="older name of [detector].solid_angle_sr")] | None = None
     dark_offset: Annotated[float, _m(0.0, 1e9, _NONNEG, _within(0, 1e9))] = 200.0
     read_noise: Annotated[float, _m(0.0, 1e9, _NONNEG, _within(0, 1e9))] = 5.0
     shot_noise: bool = True
     adc_bits: Annotated[int, _m(1, 32, (lambda v: 1 <= v <= 32, "must lie in [1, 32]"))] = 16
-    gain: Annotated[float, _m(1e-6, 1e6, _POS, _within(1e-6, 1e6))] = 1.0
+    gain: Annotated[float, _m(1e-6, 1e7, _POS, _within(1e-6, 1e7), description="gain at power-up")] = 1.0
+    input_noise: Annotated[float, _m(0.0, 1e6, _NONNEG, _within(0, 1e6), description="amplifier noise referred "
+                                                                                       "to its input (counts rms "
+                                                                                       "at gain 1)")] = 0.0
+    input_offset: Annotated[float, _m(0.0, 1e6, _NONNEG, _within(0, 1e6), description="amplifier offset referred "
+                                                                                         "to its input (counts at "
+                                                                                         "gain 1)")] = 0.0
+    electrons_per_count: Annotated[float, _m(1e-3, 1e9, _POS, _within(1e-3, 1e9), description="photo-electrons "
+                                                                                               "per count at gain 1 "
+                                                                                               "(shot noise)")] = 1.0
     backlash_deg: Annotated[float, _m(0.0, 10.0, _NONNEG, _within(0, 10))] = 0.0
     settle_time_s: Annotated[float, _m(0.0, 60.0, _NONNEG, _within(0, 60), description="mechanical settling after a "
                                                                                      "profile ends")] = 0.05
