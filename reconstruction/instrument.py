@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -108,8 +109,17 @@ class Instrument:
 # --- quadrature helpers ----------------------------------------------------------------------------------------
 
 
-def _gauss01(n: int) -> tuple[Array, Array]:
+@lru_cache(maxsize=32)
+def _leggauss(n: int) -> tuple[Array, Array]:
+    """Gauss-Legendre nodes and weights on [-1, 1] (computed once per n: the simulator asks for them per reading)."""
     x, w = np.polynomial.legendre.leggauss(n)
+    x.setflags(write=False)
+    w.setflags(write=False)
+    return x, w
+
+
+def _gauss01(n: int) -> tuple[Array, Array]:
+    x, w = _leggauss(n)
     return 0.5 * (x + 1.0), 0.5 * w
 
 
@@ -193,7 +203,7 @@ def _lobe_nodes(wi: Array, wc: Array, u: Array, v: Array, tan_a: float, alpha: f
     chi_in = np.broadcast_to((j + 0.5) * (2.0 * np.pi / npsi), (m, npsi))
     wchi_in = np.full((m, npsi), 2.0 * np.pi / npsi)
     # a peak outside the disk: the fan of rays that meets it, psi_c +- delta, as an arc of slope angles
-    xg, wg = np.polynomial.legendre.leggauss(npsi)
+    xg, wg = _leggauss(npsi)
     delta = np.arcsin(np.clip(tan_a / np.maximum(dist, 1e-300), 0.0, 1.0))
     centre = np.arctan2(-py, -px)
 
