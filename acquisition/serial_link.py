@@ -289,21 +289,26 @@ class SerialDetector:
             self.set_gain(self.start_gain)  # auto-ranging's reference setting (the highest), else the lowest
         self.set_sample("TARGET")
 
-    def set_gain(self, gain: float) -> float:
-        """Switch the amplifier's gain (``GAIN n``) and return the one it reports (``GAIN?``; a controller without
-        it is taken at its word)."""
-        self.link.command(f"GAIN {gain:.9g}")
+    def _set_and_read_back(self, command: str, query: str, field: str, value: float) -> float:
+        """Send ``command value`` and return the positive value ``query`` reports in ``field`` (a controller
+        without the query, error code 1, is taken at its word)."""
+        self.link.command(f"{command} {value:.9g}")
 
         def check(r: Reply) -> None:
-            if not float(r.fields["gain"]) > 0:
-                raise ValueError(f"bad gain {r.fields['gain']!r}")
+            if not float(r.fields[field]) > 0:
+                raise ValueError(f"bad {field} {r.fields[field]!r}")
 
         try:
-            actual = float(self.link.fields("GAIN?", check=check)["gain"])
+            return float(self.link.fields(query, check=check)[field])
         except ControllerError as e:
             if e.code != 1:
                 raise
-            actual = gain
+            return value
+
+    def set_gain(self, gain: float) -> float:
+        """Switch the amplifier's gain (``GAIN n``) and return the one it reports (``GAIN?``; a controller without
+        it is taken at its word)."""
+        actual = self._set_and_read_back("GAIN", "GAIN?", "gain", gain)
         if abs(actual - gain) > 1e-6 * gain:
             raise DeviceError(f"{self.link.name}: gain {gain:g} requested, the amplifier reports {actual:g}")
         self.gain = actual
@@ -313,18 +318,7 @@ class SerialDetector:
         """Set the integration time per repeat (``INT``, s) and return the one the detector reports (``INT?``),
         which later readings are checked against. A detector that rounds the setting is believed; one without
         ``INT?`` is taken at its word."""
-        self.link.command(f"INT {seconds:.9g}")
-
-        def check(r: Reply) -> None:
-            if not float(r.fields["t_int"]) > 0:
-                raise ValueError(f"bad t_int {r.fields['t_int']!r}")
-
-        try:
-            actual = float(self.link.fields("INT?", check=check)["t_int"])
-        except ControllerError as e:
-            if e.code != 1:
-                raise
-            actual = seconds
+        actual = self._set_and_read_back("INT", "INT?", "t_int", seconds)
         if abs(actual - seconds) > _T_INT_RTOL * seconds:
             log.warning("%s: integration time %.6g s requested, the detector uses %.6g s", self.link.name, seconds,
                         actual)
