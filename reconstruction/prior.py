@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import hashlib
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
@@ -154,14 +154,14 @@ def _cache_path(folder: Path, files: dict[str, Path]) -> Path:
 class PriorSet:
     """The prior's materials on the reduced grid: ``names`` (N) and ``tables`` (N, 3, n_cells) f_r in 1/sr."""
 
-
     folder: str
     names: list[str]
     tables: NDArray[np.float32]
+    _fc_cache: NDArray[np.float32] | None = field(default=None, init=False, repr=False)
 
     def _fc(self) -> NDArray[np.float32]:
         """f cos theta_i cos theta_o of every material and channel at the training cells, (3 N, M) float32."""
-        if not hasattr(self, "_fc_cache"):
+        if self._fc_cache is None:
             g = _grid()
             self._fc_cache = (self.tables.reshape(-1, g["cos"].size)[:, g["train"]]
                               * g["cos"][g["train"]].astype(np.float32))
