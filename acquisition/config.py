@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from reconstruction.schema import SchemaError, Table, files
+from reconstruction.schema import SchemaError, files
 from reconstruction.schema import describe as _describe
 from reconstruction.schema.bench import (
     AXIS_LETTERS,
@@ -47,6 +47,7 @@ from .planconfig import (  # noqa: F401 - names of this module before [plan] mov
     PlanConfig,
     _count,
     _frange,
+    _Table,  # one reader of a table against its schema, errors as ConfigError
     read_plan,
     resolution_deg,
 )
@@ -92,23 +93,6 @@ MAX_MATERIAL_BRDF = 1e8
 MAX_MATERIAL_CHANNELS = 4096
 
 log = logging.getLogger("acquisition.config")
-
-
-# --- reading one table against its schema (reconstruction.schema.bench) ---------------------------------------
-
-
-class _Table(Table):
-    """One table of the bench file read against its schema; errors are :class:`ConfigError` naming
-    ``file: [section].key``."""
-
-    def __init__(self, source: str, section: str, raw: Any, cls: type, **kw: Any) -> None:
-        try:
-            super().__init__(source, section, raw, cls, **kw)
-        except SchemaError as e:
-            raise ConfigError(str(e)) from None
-
-    def error(self, key: str, text: str) -> ConfigError:  # type: ignore[override]
-        return ConfigError(f"{self.source}: [{self.section}].{key}: {text}")
 
 
 # --- config dataclasses ----------------------------------------------------------------------------------------

@@ -29,7 +29,8 @@ MAX_PLAN_POINTS = 20_000
 
 
 class _Table(Table):
-    """One table read against its schema; errors are :class:`ConfigError`."""
+    """One table of the bench file read against its schema (used by :mod:`acquisition.config` too); errors are
+    :class:`ConfigError` naming ``file: [section].key``."""
 
     def __init__(self, source: str, section: str, raw: Any, cls: type, **kw: Any) -> None:
         try:
