@@ -32,8 +32,10 @@ def _brute(mat: Material, ti: float, to: float, half_deg: float, nr: int = 500, 
     return (f * (w * d[..., 2])[..., None]).sum(axis=(0, 1)) / omega / wc[2]
 
 
-# the peak at the centre, inside, just inside the edge, on it, just outside, in the tail, and at grazing incidence
-GEOMETRIES = [(0.0, 0.0), (30.0, 30.6), (30.0, 30.99), (30.0, 31.0), (30.0, 31.3), (80.0, 80.5), (60.0, 62.5)]
+# the peak at the centre, inside, just inside the edge, on it, just outside, in the tail, at grazing incidence, and
+# beyond the 6 cone radii past which the smooth rule takes the lobe (near grazing, where the tail is steepest)
+GEOMETRIES = [(0.0, 0.0), (30.0, 30.6), (30.0, 30.99), (30.0, 31.0), (30.0, 31.3), (80.0, 80.5), (60.0, 62.5),
+              (70.0, 72.0), (70.0, 76.5), (30.0, 23.5)]
 
 
 @pytest.mark.parametrize("alpha", [1e-3, 5e-3])
