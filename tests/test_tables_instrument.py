@@ -62,7 +62,7 @@ def test_microfacet_table_of_a_mirror_keeps_its_albedo_within_5_percent(mirror):
     assert np.all(_table_albedo(tabulate(point)) < 0.5 * exact)  # the readings taken as point values
 
 
-def test_revolve_table_of_a_mirror_keeps_its_albedo_where_the_mirror_is_measured(mirror):
+def test_revolve_table_of_a_mirror_keeps_its_albedo_within_5_percent(mirror):
     from reconstruction.methods import Options
     from reconstruction.pipeline import reconstruct, tabulate
 
@@ -71,9 +71,10 @@ def test_revolve_table_of_a_mirror_keeps_its_albedo_where_the_mirror_is_measured
     assert {p["theta_i_deg"] for p in rec.report()["instrument"]["plateaus"]} >= {30.0, 60.0, 80.0}
     assert rec.table_values.startswith("cell averages over theta_h")
     got = _table_albedo(tabulate(rec))
-    # theta_i = 0: the normal-incidence slice has its mirror direction in the blind spot, and revolve builds
-    # each incidence's lobes from its own slice (so does it from point data); 30, 60, 80 deg are measured
-    np.testing.assert_allclose(got[1:], exact[1:], rtol=0.05)
+    # theta_i = 0: the normal-incidence slice has its mirror direction in the blind spot; the peak measured at
+    # 10 deg fills that hole (at the same offsets from the mirror direction), so 0 deg holds too
+    assert any("the peak measured at theta_i 10 deg fills it" in n for n in rec.report()["notes"])
+    np.testing.assert_allclose(got, exact, rtol=0.05)
 
 
 def test_without_the_instrument_the_same_readings_lose_the_lobe(mirror):

@@ -15,7 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..base import ReconstructionError
 from ..slicefile import Slice
 from .aperture import hold_peaks_over_cone
-from .incidence import _analyse, _hemisphere_of, _Incidence, _loglin, _prepare, _subcurve_report
+from .incidence import _analyse, _hemisphere_of, _Incidence, _lend_peaks, _loglin, _prepare, _subcurve_report
 from .thesis import (
     _AXIS_KINDS,
     _COV_MIN,
@@ -560,6 +560,8 @@ def reconstruct_revolve(slices: Slice, *, axis: str = "auto", smoothing: float =
         raise ReconstructionError(f"min_turn_deg must be a finite number of degrees >= 0, got {min_turn_deg}")
     slices, plateaus = hold_peaks_over_cone(slices)  # a peak narrower than the instrument's cone keeps its energy
     incs, notes = _prepare(slices, sort, blind_spot_deg, bridge=fill == "interpolate")
+    if fill == "interpolate":
+        notes += _lend_peaks(incs)
     if plateaus:
         notes.append("peak narrower than the instrument's cone at theta_i = "
                      + ", ".join(f"{p['theta_i_deg']:g}" for p in plateaus)

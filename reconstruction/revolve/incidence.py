@@ -96,6 +96,62 @@ def _bridge_holes(inc: _Incidence) -> int:
     return int(t_all.size - to.size)
 
 
+#: A neighbouring incidence may lend its specular peak to one whose mirror direction is unmeasured when it lies
+#: within this many degrees of theta_i.
+_LEND_MAX_DEG = 20.0
+
+
+def _lend_peaks(incs: list[_Incidence]) -> list[str]:
+    """Fill an incidence's hole over its own mirror direction (normal incidence: the mirror direction is the retro
+    direction, inside the blind spot) with the nearest incidence's measured peak (in place); returns notes.
+
+    The donor's samples keep their offset from its mirror direction and f cos(theta_i) cos(theta_o) (a
+    microfacet lobe's measured shape barely changes over 10-20 deg of theta_i); they replace the hole's bridged
+    samples only where the donor shows a peak more than twice as bright as the bridge (a missed specular peak).
+    """
+    notes: list[str] = []
+    if len(incs) < 2:
+        return notes
+
+    def hole_over_mirror(inc: _Incidence) -> tuple[float, float] | None:
+        t = math.degrees(inc.theta_i)
+        return next(((a, b) for a, b in inc.holes_deg if a < t < b), None)
+
+    donors = [inc for inc in incs if hole_over_mirror(inc) is None
+              and np.min(np.abs(inc.theta_o - inc.theta_i)) < math.radians(1.0)]
+    for inc in incs:  # a handful
+        hole = hole_over_mirror(inc)
+        if hole is None or not donors:
+            continue
+        donor = min(donors, key=lambda d: abs(d.theta_i - inc.theta_i))
+        if abs(donor.theta_i - inc.theta_i) > math.radians(_LEND_MAX_DEG):
+            continue
+        lo, hi = math.radians(hole[0]), math.radians(hole[1])
+        d = donor.theta_o - donor.theta_i
+        take = (inc.theta_i + d > lo) & (inc.theta_i + d < hi)
+        if not take.any():
+            continue
+        to_new = inc.theta_i + d[take]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = (math.cos(donor.theta_i) * np.cos(donor.theta_o[take])) / (
+                math.cos(inc.theta_i) * np.cos(to_new))
+        f_new = donor.f[take] * np.where(np.isfinite(ratio), ratio, 0.0)[:, None]
+        inside = (inc.theta_o > lo) & (inc.theta_o < hi)
+        bridged = float(inc.lum[inside].max()) if inside.any() else float(max(inc.lum.min(), 0.0))
+        if not f_new.sum(axis=1).max() > 2.0 * bridged:
+            continue
+        t_all = np.r_[inc.theta_o[~inside], to_new]
+        f_all = np.vstack([inc.f[~inside], f_new])
+        order = np.argsort(t_all, kind="stable")
+        inc.theta_o, inc.f = t_all[order], f_all[order]
+        inc.lum = inc.f.sum(axis=1)
+        inc.hole_after = np.zeros(inc.theta_o.size - 1, dtype=bool)
+        notes.append(f"theta_i {math.degrees(inc.theta_i):g} deg: the mirror direction is in the hole "
+                     f"{hole} deg; the peak measured at theta_i {math.degrees(donor.theta_i):g} deg fills it "
+                     f"({int(take.sum())} samples at the same offsets from the mirror direction)")
+    return notes
+
+
 def _prepare(slices: Slice, sort: bool, blind_spot_deg: float | None, bridge: bool = False
              ) -> tuple[list[_Incidence], list[str]]:
     """Validate a slice and split it into cleaned incidences; raise ReconstructionError on bad input.
