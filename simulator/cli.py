@@ -94,7 +94,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="examples:\n  gonio-sim bench --quick\n  gonio-sim bench --workers 2\n"
                "  gonio-sim bench --scheduler tcp://10.0.0.5:8786   # run the cases on a Dask cluster",
     )
-    b.add_argument("--quick", action="store_true", help="a small grid (4 settings x 5 materials), ~1-2 min")
+    b.add_argument("--quick", action="store_true", help="a small grid (4 settings x 6 materials), ~3-4 min")
     b.add_argument("--config", default="configs/simulated.toml",
                    help="base simulated bench file (default: configs/simulated.toml)")
     b.add_argument("--out", default="out/study",

@@ -57,6 +57,10 @@ MATERIALS: dict[str, dict[str, Any]] = {
         {"type": "retro", "exponent": 12.0, "amount": 0.3}]},
     "rough-oren-nayar": {"name": "rough-oren-nayar", "lobes": [
         {"type": "oren_nayar", "albedo": 0.7, "sigma_deg": 30.0}]},
+    # the mirror-like sample: a lobe 0.06 deg wide inside the detector's 1 deg cone
+    "mirror": {"name": "mirror", "lobes": [
+        {"type": "lambert", "albedo": 0.02},
+        {"type": "ggx", "alpha": 0.001, "specular": [0.97, 0.95, 0.9]}]},
 }
 
 #: Incidence angles (deg) used for a given number of slices.

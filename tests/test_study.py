@@ -17,7 +17,8 @@ else:  # pragma: no cover
 
 def test_full_grid_is_the_product_of_the_issue_settings():
     g = study.grid()
-    assert len(g) == 4 * 4 * 3 * 2 * 2 * 5
+    assert len(g) == 4 * 4 * 3 * 2 * 2 * 6
+    assert "mirror" in study.MATERIALS  # the issue's mirror-like sample
     assert {c.step_deg for c in g} == {0.5, 1.0, 2.0, 5.0}
     assert {c.n_slices for c in g} == {1, 2, 4, 8}
     assert {c.repeats for c in g} == {1, 4, 16}
