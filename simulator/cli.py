@@ -92,7 +92,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "OUT/NAME-pareto.png.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="examples:\n  gonio-sim bench --quick\n  gonio-sim bench --workers 2\n"
-               "  gonio-sim bench --scheduler tcp://10.0.0.5:8786   # run the cases on a Dask cluster",
+               "  gonio-sim bench --scheduler tcp://10.0.0.5:8786   # run the cases on a Dask cluster\n"
+               "  gonio-sim bench --materials sharp-ggx,mirror --merge docs/study.csv --out docs",
     )
     b.add_argument("--quick", action="store_true", help="a small grid (4 settings x 6 materials), ~3-4 min")
     b.add_argument("--config", default="configs/simulated.toml",
@@ -103,8 +104,12 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--name", default=None, help="file name stem (default: study-quick or study)")
     b.add_argument("--workdir", default="out/study", help="captures and per-case configs (default: out/study)")
     b.add_argument("--materials", default=None,
-                   help="comma-separated subset of: diffuse, glossy-ggx, sharp-ggx, back-scatter, rough-oren-nayar "
-                        "(or of the --material-dir names)")
+                   help="comma-separated subset of: diffuse, glossy-ggx, sharp-ggx, back-scatter, rough-oren-nayar, "
+                        "mirror (or of the --material-dir names)")
+    b.add_argument("--merge", default=None, metavar="CSV",
+                   help="keep the rows of an earlier study CSV for the materials this run does not capture (e.g. "
+                        "rerun two materials of docs/study.csv: --materials sharp-ggx,mirror --merge docs/study.csv "
+                        "--out docs); the markdown says which rows are kept")
     b.add_argument("--material-dir", default=None, metavar="DIR",
                    help="study the materials of DIR instead: every neural BRDF set NAME_fc1.npy ... NAME_b3.npy "
                         "(e.g. ../shared/realdata/nbrdf-merl) and every material TOML file; recommendations then "
@@ -139,10 +144,19 @@ def _bench(args: argparse.Namespace) -> int:
     except ValueError as e:
         print(f"gonio-sim bench: --materials: {e}", file=sys.stderr)
         return 2
+    merge: list = []
+    if args.merge:
+        from .study import read_rows
+
+        try:
+            merge = read_rows(args.merge)
+        except ValueError as e:
+            print(f"gonio-sim bench: --merge: {e}", file=sys.stderr)
+            return 2
     name = args.name or ("study-quick" if args.quick else "study")
     command = "gonio-sim bench" + (" --quick" if args.quick else "") + (" --reduced" if args.reduced else "") + (
         f" --material-dir {args.material_dir}" if args.material_dir else "") + (
-        f" --materials {args.materials}" if args.materials else "")
+        f" --materials {args.materials}" if args.materials else "") + (f" --merge {args.merge}" if args.merge else "")
     from .study import METHODS, estimate_seconds
 
     workers = args.workers or (os.cpu_count() or 1)
@@ -154,7 +168,8 @@ def _bench(args: argparse.Namespace) -> int:
     try:
         rows = run_study(cases, args.config, args.workdir, args.out, name, command, args.scheduler, args.workers,
                          progress=not args.no_progress, catalogue=catalogue,
-                         metric="rmse80" if args.material_dir else "rel_rmse_cos")
+                         metric="rmse80" if args.material_dir else "rel_rmse_cos", merge=merge,
+                         merge_source=args.merge or "")
     except RuntimeError as e:
         print(f"gonio-sim bench: {e}", file=sys.stderr)
         return 2

@@ -374,7 +374,9 @@ def write_csv(path: Path, rows: Sequence[dict[str, Any]]) -> None:
 
 
 def write_markdown(path: Path, rows: Sequence[dict[str, Any]], title: str, command: str,
-                   metric: str = "rel_rmse_cos") -> None:
+                   metric: str = "rel_rmse_cos", merged: str = "") -> None:
+    """The study's markdown: recommendations per budget, Pareto fronts, every row. ``merged``: a sentence saying
+    which rows come from an earlier run (``--merge``)."""
     ok = _ok(rows)
     what = ("relative RMSE of f cos cos over the cells with both angles <= 80 deg (rmse80)" if metric == "rmse80"
             else "relative RMSE of f cos cos")
@@ -382,6 +384,8 @@ def write_markdown(path: Path, rows: Sequence[dict[str, Any]], title: str, comma
              "integration, dark and white-reference readings); errors are against the material's own table: relative",
              "RMSE of f cos(theta_i) cos(theta_o) over all valid cells, RMSE of its logarithm, relative error of the",
              "rendered preview sphere, and the largest directional-albedo error over theta_i = 0..80 deg.", ""]
+    if merged:
+        lines += [merged, ""]
     failed = [r for r in rows if r.get("status") != "ok"]
     lines += [f"{len(rows)} rows ({len({_setting(r) + r['material'] for r in rows})} captures), {len(failed)} failed.",
               ""]
@@ -463,12 +467,45 @@ def write_plot(path: Path, rows: Sequence[dict[str, Any]], title: str) -> None:
     plt.close(fig)
 
 
+def read_rows(path: str | Path) -> list[dict[str, Any]]:
+    """The rows of a study CSV (``write_csv``'s columns; an earlier run's missing columns stay missing). Raises
+    ValueError naming the file when it is not a study CSV."""
+    p = Path(path)
+    try:
+        with open(p, newline="", encoding="utf-8") as fh:
+            rows = list(csv.DictReader(fh))
+    except (OSError, UnicodeDecodeError, csv.Error) as e:
+        raise ValueError(f"{p}: cannot read the study CSV ({e})") from None
+    need = {"material", "step_deg", "n_slices", "repeats", "plan", "noise", "method", "status", "capture_time_s"}
+    if not rows or not need <= set(rows[0]):
+        missing = sorted(need - set(rows[0])) if rows else sorted(need)
+        raise ValueError(f"{p}: not a study CSV (line 1: expected the columns {', '.join(missing)})")
+    return [{k: v for k, v in r.items() if v not in ("", None)} for r in rows]
+
+
+def merge_rows(rows: list[dict[str, Any]], earlier: Sequence[dict[str, Any]], ran: set[str], source: str
+               ) -> tuple[list[dict[str, Any]], str]:
+    """``rows`` of this run plus the ``earlier`` rows of every material not in ``ran``, and the sentence that says
+    so ("" when none is kept)."""
+    kept = [r for r in earlier if r["material"] not in ran]
+    if not kept:
+        return rows, ""
+    mats = sorted({r["material"] for r in kept})
+    methods = sorted({r["method"] for r in kept}, key=lambda m: METHODS.index(m) if m in METHODS else 99)
+    note = (f"Rows of {', '.join(mats)} ({len(kept)} rows, methods {', '.join(methods)}) are kept from an earlier "
+            f"run ({source})" + (f"; the rows of {', '.join(sorted(ran))} are from this run." if ran else "."))
+    return rows + kept, note
+
+
 def run_study(cases: Sequence[Case], base_config: str | Path, workdir: str | Path, out_dir: str | Path,
               name: str, command: str, scheduler: str | None = None, workers: int | None = None,
               progress: bool = True, catalogue: dict[str, dict[str, Any]] | None = None,
-              metric: str = "rel_rmse_cos") -> list[dict[str, Any]]:
+              metric: str = "rel_rmse_cos", merge: Sequence[dict[str, Any]] = (), merge_source: str = ""
+              ) -> list[dict[str, Any]]:
     """Run ``cases`` through the executor, write ``out_dir/name.{csv,md}`` and ``name-pareto.png``; return rows.
-    ``catalogue``: material dicts by name (default :data:`MATERIALS`); ``metric``: what the recommendations use."""
+    ``catalogue``: material dicts by name (default :data:`MATERIALS`); ``metric``: what the recommendations use;
+    ``merge``: rows of an earlier run (:func:`read_rows` of ``merge_source``) kept for the materials this run
+    does not capture (the markdown says which)."""
     catalogue = catalogue if catalogue is not None else MATERIALS
     from tqdm import tqdm
 
@@ -498,8 +535,9 @@ def run_study(cases: Sequence[Case], base_config: str | Path, workdir: str | Pat
     rows.sort(key=lambda r: (order.get(Case(r["material"], float(r["step_deg"]), int(r["n_slices"]),
                                             int(r["repeats"]), r["plan"], r["noise"]).name, 0),
                              METHODS.index(r["method"])))
+    rows, note = merge_rows(rows, merge, {c.material for c in cases}, merge_source)
     write_csv(out_dir / f"{name}.csv", rows)
-    write_markdown(out_dir / f"{name}.md", rows, f"Speed/accuracy study ({name})", command, metric)
+    write_markdown(out_dir / f"{name}.md", rows, f"Speed/accuracy study ({name})", command, metric, note)
     write_plot(out_dir / f"{name}-pareto.png", rows, f"Error against capture time ({name})")
     os.sync()
     return rows

@@ -168,3 +168,35 @@ def test_the_study_writes_to_out_by_default_and_estimates_its_duration():
     fine = study.estimate_seconds([Case("diffuse", 0.5, 8, 16, "uniform", "low")], 1)
     coarse = study.estimate_seconds([Case("diffuse", 5.0, 1, 1, "uniform", "low")], 1)
     assert fine > coarse + 10  # thousands of samples cost more than a handful
+
+
+def test_merge_keeps_an_earlier_runs_rows_for_the_materials_not_rerun(tmp_path, capsys):
+    row = {"material": "diffuse", "step_deg": 5.0, "n_slices": 1, "repeats": 1, "plan": "uniform", "noise": "low",
+           "method": "fit", "method_used": "fit", "status": "ok", "samples": 33, "capture_time_s": 7.0,
+           "recon_time_s": 0.5, "rel_rmse_cos": 0.01, "log_rmse": 0.01, "sphere_rel_error": 0.01,
+           "albedo_max_abs_error": 0.001}
+    old = tmp_path / "old.csv"
+    study.write_csv(old, [row, {**row, "material": "mirror", "rel_rmse_cos": 0.5}])
+    kept = study.read_rows(old)
+    assert "rmse80" not in kept[0]  # a column the earlier run left empty stays missing
+    # a run of mirror keeps diffuse's earlier row and drops the earlier mirror row
+    new = [{**row, "material": "mirror", "method": "auto", "rel_rmse_cos": 0.05}]
+    merged, note = study.merge_rows(new, kept, {"mirror"}, "old.csv")
+    assert [(r["material"], r["method"]) for r in merged] == [("mirror", "auto"), ("diffuse", "fit")]
+    assert note.endswith("the rows of mirror are from this run.")
+    assert study.merge_rows(new, kept, {"mirror", "diffuse"}, "old.csv") == (new, "")
+    rows = study.run_study([], "configs/simulated.toml", tmp_path / "w", tmp_path / "out", "s", "test", workers=1,
+                           progress=False, merge=kept, merge_source=str(old))
+    assert len(rows) == 2  # nothing ran: every earlier row kept
+    md = (tmp_path / "out" / "s.md").read_text()
+    assert f"Rows of diffuse, mirror (2 rows, methods fit) are kept from an earlier run ({old})." in md
+    assert "| 5% | diffuse | 7.0 |" in md
+    assert [r["material"] for r in study.read_rows(tmp_path / "out" / "s.csv")] == ["diffuse", "mirror"]
+    bad = tmp_path / "bad.csv"
+    bad.write_text("a,b\n1,2\n")
+    with pytest.raises(ValueError, match="not a study CSV"):
+        study.read_rows(bad)
+    from simulator.cli import main
+
+    assert main(["bench", "--materials", "mirror", "--merge", str(bad)]) == 2
+    assert "--merge" in capsys.readouterr().err
