@@ -15,7 +15,9 @@ result, and :func:`run`, the whole way from input files to a table, a preview an
    model, is preferred unless another method predicts the held-out samples at least twice as well
    (:data:`SINGLE_SLICE_MARGIN`; on the 48 real MERL materials this lowers auto's median table error from one
    slice from 48 % to 41 %, see docs/real-materials.md, and an exact model, such as a simulated lambert + ggx
-   material, still wins by far more).
+   material, still wins by far more). With a prior of measured materials (``--prior``), ``prior`` is the
+   preferred method instead, by :data:`PRIOR_MARGIN_SINGLE` from one slice and :data:`PRIOR_MARGIN_SEVERAL`
+   from several.
 
 The report's ``cross_validation`` section holds the scheme, every method's held-out error and the choice.
 """
@@ -51,6 +53,12 @@ CV_MAX_SAMPLES = 3000
 CV_MAX_INCIDENCES = 24
 SINGLE_SLICE_PREFERRED = ("bivariate", "prior")
 SINGLE_SLICE_MARGIN = 2.0
+#: With a prior of measured materials (``--prior``) auto prefers ``prior`` unless another method predicts the
+#: held-out samples this many times better: from one slice, and from several (leave-one-incidence-out then sees
+#: the extrapolation across theta_i that one slice cannot). Chosen on the 48 MERL materials of
+#: benchmarks/bench_real_materials.py (see docs/real-materials.md).
+PRIOR_MARGIN_SINGLE = 4.0
+PRIOR_MARGIN_SEVERAL = 1.5
 
 
 def max_albedo(rec: Reconstruction) -> tuple[float, float]:
@@ -76,6 +84,22 @@ def thin_for_cv(s: Slice, max_samples: int = CV_MAX_SAMPLES, max_incidences: int
         keep[idx[::step]] = True
         keep[idx[np.argsort(np.abs(s.theta_o_deg[idx] - t))[:3]]] = True  # the specular peak
     return s.take(keep)
+
+
+def preference(methods: list[str], single: bool) -> tuple[list[str], float]:
+    """(the preferred methods, the factor by which another must predict better to be chosen over them) among
+    ``methods``: ``prior`` when it is there (:data:`PRIOR_MARGIN_SINGLE` from one slice,
+    :data:`PRIOR_MARGIN_SEVERAL` from several), else :data:`SINGLE_SLICE_PREFERRED` from one slice; none else."""
+    if "prior" in methods:  # measured materials know what one slice cannot show
+        return ["prior"], PRIOR_MARGIN_SINGLE if single else PRIOR_MARGIN_SEVERAL
+    if single:
+        return [m for m in SINGLE_SLICE_PREFERRED if m in methods], SINGLE_SLICE_MARGIN
+    return [], 1.0
+
+
+def rank(scores: list[CVScore], preferred: list[str], margin: float) -> list[CVScore]:
+    """``scores`` best first: by held-out error, that of a method not in ``preferred`` multiplied by ``margin``."""
+    return sorted(scores, key=lambda c: c.error * (margin if preferred and c.method not in preferred else 1.0))
 
 
 def _auto(s: Slice, opts: Options, progress: Callable[[str], None] | None) -> tuple[Reconstruction, dict[str, Any]]:
@@ -104,9 +128,8 @@ def _auto(s: Slice, opts: Options, progress: Callable[[str], None] | None) -> tu
             progress(f"cross-validating {name}")
         scores.append(cross_validate(s, name, build, masks, inside))
     single = np.unique(s.theta_i_deg).size == 1
-    preferred = [m for m in SINGLE_SLICE_PREFERRED if m in builders]
-    handicap = {m: (SINGLE_SLICE_MARGIN if single and m not in SINGLE_SLICE_PREFERRED else 1.0) for m in REGISTRY}
-    ranked = sorted(scores, key=lambda c: c.error * handicap[c.method])
+    preferred, margin = preference(list(builders), single)
+    ranked = rank(scores, preferred, margin)
     rejected: list[str] = []
     chosen: Reconstruction | None = None
     for sc in ranked:
@@ -128,9 +151,12 @@ def _auto(s: Slice, opts: Options, progress: Callable[[str], None] | None) -> tu
     model = f" ({fit_rec.result.name})" if chosen.method == "fit" else ""
     reason = (f"lowest held-out error ({scheme}): {chosen.method}{model} predicts the samples it did not see to "
               f"{best.error:.2%} relative RMSE of f cos cos" + (f" (then {others})" if others else ""))
-    if single:
+    if preferred and single:
         reason += (f"; with one incidence {' or '.join(preferred)} is preferred unless another method predicts "
-                   f"{SINGLE_SLICE_MARGIN:g} times better (one slice cannot show a model's extrapolation in theta_d)")
+                   f"{margin:g} times better (one slice cannot show a model's extrapolation in theta_d)")
+    elif preferred:
+        reason += (f"; prior (measured materials) is preferred unless another method predicts {margin:g} times "
+                   "better")
     if rejected:
         reason += "; not used: " + "; ".join(rejected)
     if s is not full:
@@ -139,8 +165,9 @@ def _auto(s: Slice, opts: Options, progress: Callable[[str], None] | None) -> tu
           "held-out samples" + (" inside the scene's ranges" if inside is not None else ""),
           "scores": [c.as_dict() for c in sorted(scores, key=lambda c: c.error)], "chosen": chosen.method,
           "fit_model": fit_rec.result.name, "rejected": rejected,
-          "single_incidence_preference": ({"method": preferred[0], "methods": preferred, "margin": SINGLE_SLICE_MARGIN}
-                                          if single else None)}
+          "single_incidence_preference": ({"method": preferred[0], "methods": preferred, "margin": margin}
+                                          if single and preferred else None),
+          "preference": {"methods": preferred, "margin": margin} if preferred else None}
     return chosen, {"requested": "auto", "used": chosen.method, "reason": reason, "cross_validation": cv,
                     "held_out_predictions": ({} if s is not full else  # per sample of the input (none when thinned)
                                              {c.method: c.predictions for c in scores if c.predictions is not None})}

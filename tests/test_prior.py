@@ -147,4 +147,24 @@ def test_gonio_reconstruct_with_a_prior_and_auto_trying_it(family, tmp_path):
     assert r.returncode == 0, r.stderr
     cv = json.loads((tmp_path / "a.json").read_text())["cross_validation"]
     assert "prior" in {c["method"] for c in cv["scores"]}
-    assert "prior" in cv["single_incidence_preference"]["methods"]
+    assert cv["single_incidence_preference"] == {"method": "prior", "methods": ["prior"],
+                                                 "margin": pipeline.PRIOR_MARGIN_SINGLE}
+    assert cv["chosen"] == "fit"  # the family's exact lambert + ggx predicts the held-out samples ~1e-9
+
+
+def test_auto_prefers_the_prior_by_its_margins_and_an_exact_model_still_wins():
+    from reconstruction.crossval import CVScore
+
+    sc = [CVScore("fit", 0.01, [], 0.0), CVScore("bivariate", 0.019, [], 0.0), CVScore("prior", 0.035, [], 0.0)]
+    order = lambda pref: [c.method for c in pipeline.rank(sc, *pref)]  # noqa: E731
+    with_prior = ["fit", "microfacet", "bivariate", "revolve", "prior"]
+    # one slice: prior within 4x of the best is chosen; several: within 1.5x only
+    assert pipeline.preference(with_prior, True) == (["prior"], pipeline.PRIOR_MARGIN_SINGLE)
+    assert order(pipeline.preference(with_prior, True))[0] == "prior"
+    assert order(pipeline.preference(with_prior, False)) == ["fit", "bivariate", "prior"]
+    # without a prior: bivariate within 2x from one slice, the plain held-out order from several
+    assert order(pipeline.preference(with_prior[:4], True))[0] == "bivariate"
+    assert order(pipeline.preference(with_prior[:4], False)) == ["fit", "bivariate", "prior"]
+    # an exact model predicts far better than any margin (the CLI test below: fit is chosen with the prior there)
+    exact = [CVScore("fit", 1e-9, [], 0.0), CVScore("prior", 0.02, [], 0.0)]
+    assert pipeline.rank(exact, *pipeline.preference(with_prior, True))[0].method == "fit"
