@@ -97,7 +97,9 @@ def test_fast_for_500_samples_of_a_sharp_lobe():
     instrument_average(mat.eval, ti[:5], to[:5], inst)  # warm up
     t0 = time.perf_counter()
     r = instrument_average(mat.eval, ti, to, inst)
-    assert time.perf_counter() - t0 < 0.5
+    # a guard against a quadrature that scales badly (a dense grid per sample takes minutes), with room for a
+    # loaded machine; the speed itself is measured by benchmarks/bench_instrument.py (about 0.1 s idle)
+    assert time.perf_counter() - t0 < 2.0
     assert r.shape == (500, 3) and np.all(np.isfinite(r)) and np.all(r > 0)
 
 
