@@ -185,7 +185,7 @@ def write_docs(records: list[dict[str, Any]], methods: list[str], docs: Path, su
     text = f"""# Reconstruction on real materials
 
 Regenerate: `.venv/bin/python benchmarks/bench_real_materials.py --docs docs` (reads `../shared/realdata`, which
-is not part of the project; about 19 minutes on 2 cores shared with other work).
+is not part of the project; about 10 minutes on 2 idle cores, 23 at a load near 8).
 
 The 48 MERL materials of `../shared/realdata/nbrdf-merl` (neural BRDF fits of the MERL measurements), sliced as
 a bench measures them: theta_o from -80 to 80 deg every 2 deg, the blind spot |theta_i + theta_o| < 4 deg left out;
