@@ -87,6 +87,18 @@ def _score(pred: Array, f: Array, c: Array) -> tuple[float, float]:
     return float(np.sum(((pred - f) * c) ** 2)), float(np.sum((f * c) ** 2))
 
 
+def noise_level(s: Slice, score_mask: NDArray[np.bool_] | None = None) -> float:
+    """The held-out error a perfect model would have: the relative RMSE of f cos cos that the samples' own standard
+    deviations (of the mean) amount to, pooled as :func:`cross_validate` pools its error (0 without std)."""
+    f, sd = s.brdf()
+    if score_mask is not None:
+        f, sd, s = f[score_mask], sd[score_mask], s.take(score_mask)
+    wi, wo = inplane_to_dirs(np.radians(s.theta_i_deg), np.radians(s.theta_o_deg))
+    c = (np.clip(wi[:, 2], 0, None) * np.clip(wo[:, 2], 0, None))[:, None]
+    den = float(np.sum((f * c) ** 2))
+    return math.sqrt(float(np.sum((np.nan_to_num(sd) * c) ** 2)) / den) if den > 0 else 0.0
+
+
 def scene_mask(s: Slice, scene: Any) -> NDArray[np.bool_] | None:
     """The samples inside a scene's theta_i and |theta_o| ranges (what the scene needs), or None for no scene."""
     if scene is None:

@@ -17,13 +17,14 @@ result, and :func:`run`, the whole way from input files to a table, a preview an
    slice from 48 % to 41 %, see docs/real-materials.md, and an exact model, such as a simulated lambert + ggx
    material, still wins by far more). With a prior of measured materials (``--prior``), ``prior`` is the
    preferred method instead, by :data:`PRIOR_MARGIN_SINGLE` from one slice and :data:`PRIOR_MARGIN_SEVERAL`
-   from several.
+   from several, unless the best method predicts to within :data:`NOISE_LEVEL_FACTOR` of the samples' own noise.
 
 The report's ``cross_validation`` section holds the scheme, every method's held-out error and the choice.
 """
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from collections.abc import Callable
@@ -36,7 +37,7 @@ from numpy.typing import NDArray
 
 from . import merl
 from .base import Reconstruction, ReconstructionError
-from .crossval import CVScore, cross_validate, folds, scene_mask
+from .crossval import CVScore, cross_validate, folds, noise_level, scene_mask
 from .inputs import check_slice
 from .methods import REGISTRY, Options, get
 from .metrics import directional_albedo
@@ -59,6 +60,10 @@ SINGLE_SLICE_MARGIN = 2.0
 #: benchmarks/bench_real_materials.py (see docs/real-materials.md).
 PRIOR_MARGIN_SINGLE = 4.0
 PRIOR_MARGIN_SEVERAL = 1.5
+#: ... unless the best method predicts the held-out samples within this factor of the samples' own noise
+#: (:func:`reconstruction.crossval.noise_level`): a model that explains all the data can show is taken as is (a
+#: lambert + ggx slice with 1 % noise: fit 1.3 % from one slice, where prior's 4x margin would have taken 17 %).
+NOISE_LEVEL_FACTOR = 1.5
 
 
 def max_albedo(rec: Reconstruction) -> tuple[float, float]:
@@ -97,8 +102,13 @@ def preference(methods: list[str], single: bool) -> tuple[list[str], float]:
     return [], 1.0
 
 
-def rank(scores: list[CVScore], preferred: list[str], margin: float) -> list[CVScore]:
-    """``scores`` best first: by held-out error, that of a method not in ``preferred`` multiplied by ``margin``."""
+def rank(scores: list[CVScore], preferred: list[str], margin: float, noise: float = 0.0) -> list[CVScore]:
+    """``scores`` best first: by held-out error, that of a method not in ``preferred`` multiplied by ``margin``;
+    by the plain held-out error when the best one is within :data:`NOISE_LEVEL_FACTOR` of ``noise`` (the error the
+    samples' own noise amounts to) and a prior is preferred."""
+    best = min((c.error for c in scores), default=math.inf)
+    if "prior" in preferred and noise > 0 and best <= NOISE_LEVEL_FACTOR * noise:
+        return sorted(scores, key=lambda c: c.error)
     return sorted(scores, key=lambda c: c.error * (margin if preferred and c.method not in preferred else 1.0))
 
 
@@ -129,7 +139,9 @@ def _auto(s: Slice, opts: Options, progress: Callable[[str], None] | None) -> tu
         scores.append(cross_validate(s, name, build, masks, inside))
     single = np.unique(s.theta_i_deg).size == 1
     preferred, margin = preference(list(builders), single)
-    ranked = rank(scores, preferred, margin)
+    noise = noise_level(s, inside)
+    ranked = rank(scores, preferred, margin, noise)
+    at_noise = "prior" in preferred and noise > 0 and min(c.error for c in scores) <= NOISE_LEVEL_FACTOR * noise
     rejected: list[str] = []
     chosen: Reconstruction | None = None
     for sc in ranked:
@@ -151,7 +163,10 @@ def _auto(s: Slice, opts: Options, progress: Callable[[str], None] | None) -> tu
     model = f" ({fit_rec.result.name})" if chosen.method == "fit" else ""
     reason = (f"lowest held-out error ({scheme}): {chosen.method}{model} predicts the samples it did not see to "
               f"{best.error:.2%} relative RMSE of f cos cos" + (f" (then {others})" if others else ""))
-    if preferred and single:
+    if at_noise:
+        reason += (f"; the best predicts to within {NOISE_LEVEL_FACTOR:g}x the samples' own noise ({noise:.2%}), so "
+                   "no method is preferred")
+    elif preferred and single:
         reason += (f"; with one incidence {' or '.join(preferred)} is preferred unless another method predicts "
                    f"{margin:g} times better (one slice cannot show a model's extrapolation in theta_d)")
     elif preferred:
@@ -167,7 +182,8 @@ def _auto(s: Slice, opts: Options, progress: Callable[[str], None] | None) -> tu
           "fit_model": fit_rec.result.name, "rejected": rejected,
           "single_incidence_preference": ({"method": preferred[0], "methods": preferred, "margin": margin}
                                           if single and preferred else None),
-          "preference": {"methods": preferred, "margin": margin} if preferred else None}
+          "preference": ({"methods": preferred, "margin": margin, "noise_level": noise, "applied": not at_noise}
+                         if preferred else None)}
     return chosen, {"requested": "auto", "used": chosen.method, "reason": reason, "cross_validation": cv,
                     "held_out_predictions": ({} if s is not full else  # per sample of the input (none when thinned)
                                              {c.method: c.predictions for c in scores if c.predictions is not None})}

@@ -168,3 +168,22 @@ def test_auto_prefers_the_prior_by_its_margins_and_an_exact_model_still_wins():
     # an exact model predicts far better than any margin (the CLI test below: fit is chosen with the prior there)
     exact = [CVScore("fit", 1e-9, [], 0.0), CVScore("prior", 0.02, [], 0.0)]
     assert pipeline.rank(exact, *pipeline.preference(with_prior, True))[0].method == "fit"
+    # ... unless the best predicts to within NOISE_LEVEL_FACTOR of the samples' own noise: then the plain order
+    assert pipeline.rank(sc, ["prior"], 4.0, noise=0.008)[0].method == "fit"  # 0.01 <= 1.5 x 0.008
+    assert pipeline.rank(sc, ["prior"], 4.0, noise=0.005)[0].method == "prior"
+
+
+def test_the_noise_level_is_what_the_samples_std_amounts_to():
+    from reconstruction.crossval import noise_level
+
+    assert noise_level(synthetic_slice(TARGET, (40.0,))) == 0.0
+    assert 0.009 < noise_level(synthetic_slice(TARGET, (40.0,), noise=0.01, seed=3)) < 0.011
+
+
+def test_auto_with_a_prior_keeps_an_exact_model_of_a_noisy_slice(family, truth):
+    s = synthetic_slice(TARGET, (40.0,), noise=0.01, seed=1)
+    rec, choice = pipeline.reconstruct(s, "auto", pipeline.Options(prior=str(family[0])))
+    pref = choice["cross_validation"]["preference"]
+    assert pref["methods"] == ["prior"] and pref["applied"] is False and 0.009 < pref["noise_level"] < 0.011
+    assert choice["used"] == "fit" and "samples' own noise" in choice["reason"]
+    assert relative_rmse_cos(pipeline.tabulate(rec), truth, 80) < 0.05
