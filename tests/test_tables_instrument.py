@@ -58,6 +58,12 @@ def test_microfacet_table_of_a_mirror_keeps_its_albedo_within_5_percent(mirror):
     assert rec.report()["instrument"]["cone_averaged_samples"] > 0
     assert rec.table_values.startswith("cell averages over theta_h")
     np.testing.assert_allclose(_table_albedo(tabulate(rec)), exact, rtol=0.05)
+    # alpha 1e-3 is below what a 1 deg cone resolves: the lobe is written at the resolution, its energy kept
+    from reconstruction.fit.aperture import resolution_alpha
+
+    merged = rec.report()["instrument"]["below_resolution"]
+    assert merged["resolution_alpha"] == pytest.approx(resolution_alpha(1.0)) and merged["weight"] > 0.5
+    assert rec.alphas[rec.weights > 0].min() == pytest.approx(resolution_alpha(1.0))
     point, _ = reconstruct(_capture(mat, Instrument.from_half_angle(1.0), meta=False), "microfacet", Options())
     assert np.all(_table_albedo(tabulate(point)) < 0.5 * exact)  # the readings taken as point values
 
