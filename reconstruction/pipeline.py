@@ -102,12 +102,18 @@ def preference(methods: list[str], single: bool) -> tuple[list[str], float]:
     return [], 1.0
 
 
+def at_noise_level(scores: list[CVScore], preferred: list[str], noise: float) -> bool:
+    """True when a prior is preferred and the best held-out error is within :data:`NOISE_LEVEL_FACTOR` of
+    ``noise`` (the error the samples' own noise amounts to): the preference then does not apply."""
+    best = min((c.error for c in scores), default=math.inf)
+    return "prior" in preferred and noise > 0 and best <= NOISE_LEVEL_FACTOR * noise
+
+
 def rank(scores: list[CVScore], preferred: list[str], margin: float, noise: float = 0.0) -> list[CVScore]:
     """``scores`` best first: by held-out error, that of a method not in ``preferred`` multiplied by ``margin``;
     by the plain held-out error when the best one is within :data:`NOISE_LEVEL_FACTOR` of ``noise`` (the error the
     samples' own noise amounts to) and a prior is preferred."""
-    best = min((c.error for c in scores), default=math.inf)
-    if "prior" in preferred and noise > 0 and best <= NOISE_LEVEL_FACTOR * noise:
+    if at_noise_level(scores, preferred, noise):
         return sorted(scores, key=lambda c: c.error)
     return sorted(scores, key=lambda c: c.error * (margin if preferred and c.method not in preferred else 1.0))
 
@@ -141,7 +147,7 @@ def _auto(s: Slice, opts: Options, progress: Callable[[str], None] | None) -> tu
     preferred, margin = preference(list(builders), single)
     noise = noise_level(s, inside)
     ranked = rank(scores, preferred, margin, noise)
-    at_noise = "prior" in preferred and noise > 0 and min(c.error for c in scores) <= NOISE_LEVEL_FACTOR * noise
+    at_noise = at_noise_level(scores, preferred, noise)
     rejected: list[str] = []
     chosen: Reconstruction | None = None
     for sc in ranked:
