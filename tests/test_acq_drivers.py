@@ -117,7 +117,9 @@ def test_serial_reply_checks_and_retries(pty_path):
         "TIME?": [b"TI\xcdE t=1.5\nok\n", b"TIME t=1.5\nok\n"],
     }
     _scripted_peer(state["master"], replies, seen)
-    link = SerialLink(path, 115200, timeout_s=0.5, retries=2)
+    # the scripted peer always answers: a long timeout only rides out a starved peer thread on a loaded CI
+    # machine (0.5 s once let two attempts time out there and the replies arrive one command late)
+    link = SerialLink(path, 115200, timeout_s=10.0, retries=2)
     det = SerialDetector(link, "photodiode", 0.01, 65535)
     rd = det.read(3)
     assert rd.mean.tolist() == [201.0] and rd.std.tolist() == [1.0] and rd.n == 3
@@ -142,7 +144,9 @@ def test_serial_detector_integration_time(pty_path):
                  b"READ n=2 sat=0 t_int=0.0032 mean=300.000 std=0.000 values=300,300\nok\n"],
     }
     _scripted_peer(state["master"], replies, seen)
-    link = SerialLink(path, 115200, timeout_s=0.5, retries=2)
+    # the scripted peer always answers: a long timeout only rides out a starved peer thread on a loaded CI
+    # machine (0.5 s once let two attempts time out there and the replies arrive one command late)
+    link = SerialLink(path, 115200, timeout_s=10.0, retries=2)
     det = SerialDetector(link, "photodiode", 0.01, 65535)
     assert det.set_integration_time(0.00316228) == 0.0032 and det.integration_time_s == 0.0032
     rd = det.read(2)
