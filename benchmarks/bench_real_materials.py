@@ -82,10 +82,8 @@ def run_material(job: tuple[str, str, list[str], str | None, list[str], str | No
                 cached.parent.mkdir(parents=True, exist_ok=True)
                 np.save(cached, truth.astype(np.float32))
         out = []
-        for mode, inc in MODES.items():
-            if mode not in modes:
-                continue
-            s = slices_of(mat, inc)
+        for mode in modes:
+            s = slices_of(mat, incidences_of(mode))
             for m in methods:
                 t0 = time.perf_counter()
                 rec_out: dict[str, Any] = {"material": name, "slices": mode, "method": m}
@@ -110,11 +108,29 @@ def run_material(job: tuple[str, str, list[str], str | None, list[str], str | No
     return out
 
 
+def incidences_of(mode: str) -> tuple[float, ...]:
+    """The incidences (deg) of a case: ``1`` (40), ``3`` (20/40/60) or any ``A/B/...`` list such as ``20/50/75``."""
+    if mode in MODES:
+        return MODES[mode]
+    try:
+        inc = tuple(float(x) for x in mode.split("/"))
+    except ValueError:
+        raise ValueError(f"case {mode!r}: expected 1, 3 or incidences in deg such as 20/50/75") from None
+    if not inc or any(not 0.0 <= t <= MAX_DEG for t in inc):
+        raise ValueError(f"case {mode!r}: incidences must lie in 0..{MAX_DEG:g} deg")
+    return inc
+
+
+def _label(mode: str) -> str:
+    inc = incidences_of(mode)
+    return f"{len(inc)} slice(s) at {'/'.join(f'{t:g}' for t in inc)} deg"
+
+
 def summarise(records: list[dict[str, Any]], methods: list[str]) -> list[str]:
     """Lines: per mode and method, median and worst rmse80 / medrel, plausibility, times; auto vs the best."""
     lines = []
-    for mode in sorted({r["slices"] for r in records}):
-        lines.append(f"{mode} slice(s) ({', '.join(f'{t:g}' for t in MODES[mode])} deg):")
+    for mode in dict.fromkeys(r["slices"] for r in records):
+        lines.append(f"{_label(mode)}:")
         for m in methods:
             rs = [r for r in records if r["slices"] == mode and r["method"] == m]
             ok = [r for r in rs if "rmse80" in r]
@@ -142,15 +158,18 @@ def summarise(records: list[dict[str, Any]], methods: list[str]) -> list[str]:
 
 
 def write_docs(records: list[dict[str, Any]], methods: list[str], docs: Path, summary: list[str]) -> None:
-    """docs/real-materials.md (every figure) and docs/real-materials.png."""
+    """docs/real-materials.md (every figure) and docs/real-materials.png, one panel and one group of columns per
+    case run."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     names = sorted({r["material"] for r in records})
-    fig, axes = plt.subplots(2, 1, figsize=(15, 9), sharex=True)
-    for ax, mode in zip(axes, MODES, strict=True):
+    modes = list(dict.fromkeys(r["slices"] for r in records))
+    fig, axes = plt.subplots(len(modes), 1, figsize=(15, 1.5 + 3.75 * len(modes)), sharex=True, squeeze=False)
+    axes = axes[:, 0]
+    for ax, mode in zip(axes, modes, strict=True):
         for k, m in enumerate(methods):
             v = {r["material"]: r.get("rmse80", np.nan) * 100 for r in records if r["slices"] == mode and
                  r["method"] == m}
@@ -158,20 +177,20 @@ def write_docs(records: list[dict[str, Any]], methods: list[str], docs: Path, su
                     "o" if m == "auto" else ".", ms=7 if m == "auto" else 5, label=m,
                     color="k" if m == "auto" else None)
         ax.set_yscale("log")
-        ax.axhline(15 if mode == "1" else 8, color="g", lw=0.8, ls="--", label="median target")
+        ax.axhline(15 if len(incidences_of(mode)) == 1 else 8, color="g", lw=0.8, ls="--", label="median target")
         ax.set_ylabel("rmse80 (%)")
-        ax.set_title(f"{mode} slice(s) at theta_i = {', '.join(f'{t:g}' for t in MODES[mode])} deg")
+        ax.set_title(_label(mode))
         ax.grid(True, which="both", alpha=0.3)
     axes[0].legend(ncol=len(methods) + 1, fontsize=8)
-    axes[1].set_xticks(np.arange(len(names)))
-    axes[1].set_xticklabels(names, rotation=75, fontsize=7)
+    axes[-1].set_xticks(np.arange(len(names)))
+    axes[-1].set_xticklabels(names, rotation=75, fontsize=7)
     fig.tight_layout()
     fig.savefig(docs / "real-materials.png", dpi=90)
-    rows = ["| material | " + " | ".join(f"{m} ({mode})" for mode in MODES for m in methods) + " |",
-            "|---|" + "---|" * (len(methods) * len(MODES))]
+    rows = ["| material | " + " | ".join(f"{m} ({mode})" for mode in modes for m in methods) + " |",
+            "|---|" + "---|" * (len(methods) * len(modes))]
     for n in names:
         cells = []
-        for mode in MODES:
+        for mode in modes:
             for m in methods:
                 r = next((r for r in records if r["material"] == n and r["slices"] == mode and r["method"] == m),
                          None)
@@ -184,12 +203,13 @@ def write_docs(records: list[dict[str, Any]], methods: list[str], docs: Path, su
         rows.append(f"| {n} | " + " | ".join(cells) + " |")
     text = f"""# Reconstruction on real materials
 
-Regenerate: `.venv/bin/python benchmarks/bench_real_materials.py --docs docs` (reads `../shared/realdata`, which
-is not part of the project; about 10 minutes on 2 idle cores, 23 at a load near 8).
+Regenerate: `.venv/bin/python benchmarks/bench_real_materials.py --slices {",".join(modes)} --docs docs` (reads
+`../shared/realdata`, which is not part of the project; about 5 minutes per case on 2 idle cores).
 
 The 48 MERL materials of `../shared/realdata/nbrdf-merl` (neural BRDF fits of the MERL measurements), sliced as
 a bench measures them: theta_o from -80 to 80 deg every 2 deg, the blind spot |theta_i + theta_o| < 4 deg left out;
-1 slice at theta_i = 40 deg, or 3 slices at 20, 40 and 60 deg. Each method's table is compared with the
+the cases run here: {"; ".join(_label(m) for m in modes)} (the issue's cases are 1 slice at 40 deg and 3 at
+20/40/60 deg; a column's heading names its case: 1, 3 or the incidences). Each method's table is compared with the
 material's own table. Figures: **rmse80** (relative RMSE of f cos theta_i cos theta_o over every cell with both
 angles <= 80 deg) / **medrel** (median relative error of f where f is above 1 % of its maximum, same cells),
 in %. `[method]` is the method `auto` chose by cross-validation; "(implausible)" marks a table that fails the
@@ -219,7 +239,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--materials", help="comma-separated material names (default: all)")
     ap.add_argument("--methods", default=",".join(pipeline.METHODS),
                     help=f"comma-separated methods (default: {','.join(pipeline.METHODS)})")
-    ap.add_argument("--slices", default="1,3", help="which cases: 1 (one slice at 40 deg), 3 (20/40/60 deg)")
+    ap.add_argument("--slices", default="1,3",
+                    help="which cases, comma-separated: 1 (one slice at 40 deg), 3 (20/40/60 deg), or incidences in "
+                         "deg joined by / (e.g. 20/50/75); default 1,3")
     ap.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1), help="worker processes")
     ap.add_argument("--cache", default=str(ROOT / "out" / "real-materials-cache"),
                     help="folder for the materials' own tables (computed once); '' for none")
@@ -251,7 +273,13 @@ def main(argv: list[str] | None = None) -> int:
 
     records: list[dict[str, Any]] = []
     t0 = time.perf_counter()
-    modes = [m.strip() for m in args.slices.split(",") if m.strip() in MODES]
+    modes = [m.strip() for m in args.slices.split(",") if m.strip()]
+    try:
+        for m in modes:
+            incidences_of(m)
+    except ValueError as e:
+        print(f"bench_real_materials: --slices: {e}", file=sys.stderr)
+        return 2
     if prior:
         from reconstruction.prior import load_prior
 
@@ -263,12 +291,12 @@ def main(argv: list[str] | None = None) -> int:
             for r in recs:
                 if "rmse80" in r:
                     used = f" [{r['used']}]" if r["method"] == "auto" else ""
-                    print(f"{r['material']:26s} {r['slices']} slice(s) {r['method']:11s} "
+                    print(f"{r['material']:26s} {r['slices']:>8s} {r['method']:11s} "
                           f"rmse80 {r['rmse80'] * 100:7.1f} %"
                           f"  medrel {r['medrel'] * 100:6.1f} %  {'plausible' if r['plausible'] else 'IMPLAUSIBLE'}"
                           f" (albedo max {r['max_albedo']:.3f})  {r['seconds']:5.2f} s{used}")
                 else:
-                    print(f"{r['material']:26s} {r['slices']} slice(s) {r['method']:11s} FAILED: {r['error']}")
+                    print(f"{r['material']:26s} {r['slices']:>8s} {r['method']:11s} FAILED: {r['error']}")
     summary = summarise(records, methods)
     summary.append(f"{len(names)} materials, {len(records)} reconstructions, {time.perf_counter() - t0:.0f} s "
                    f"wall with {args.workers} worker(s)")

@@ -176,21 +176,20 @@ def test_fit_runs_with_one_blas_thread():
 
 # --- fits that cannot explode (issue: energy-constrained, bounded, lobes only where samples constrain them) ----
 
-from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import HealthCheck, example, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
-from reconstruction.metrics import directional_albedo  # noqa: E402
+from reconstruction.metrics import halfvector_albedo  # noqa: E402
 
 
 def _max_albedo(rec):
-    # a fine quadrature: a coarse one overstates the albedo of narrow lobes by up to 1 %
-    return float(directional_albedo(rec.eval, np.radians(np.arange(0.0, 89.0, 4.0)), 128, 256).max())
+    # integrated over the half vector: resolves a lobe of any width (a 128 x 256 hemisphere grid read a beckmann
+    # alpha 0.005 lobe of true albedo 0.995 as 0.78 .. 1.018 depending on the incidence)
+    return float(halfvector_albedo(rec.eval, np.radians(np.arange(0.0, 89.0, 4.0))).max())
 
 
-# derandomized: a random draw found seed=5403, noise=0.25, (40,) where the fit's beckmann lobe reaches a directional
-# albedo of 1.018 (its tabulated albedo understates a fine quadrature's); that defect is open (issue 9's notes), and
-# the suite's examples are fixed so that one run does not pass where the next fails
-@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow], derandomize=True)
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@example(seed=5403, noise=0.25, incidences=(40.0,))  # the beckmann alpha 0.005 lobe the coarse grid misjudged
 @given(st.integers(0, 10_000), st.floats(0.0, 0.3), st.sampled_from([(40.0,), (15.0, 60.0)]))
 def test_fit_never_reflects_more_than_it_receives_on_fuzzed_slices(seed, noise, incidences):
     # random, mostly unphysical data: spikes, negative noise, values far above any albedo
