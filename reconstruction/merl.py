@@ -11,6 +11,7 @@ phi_d = (k + 0.5) deg, with phi_h = 0.
 
 from __future__ import annotations
 
+import os
 import warnings
 from collections.abc import Callable
 from functools import lru_cache
@@ -290,11 +291,37 @@ def _as_rgb(v: ArrayLike, n: int) -> Array:
     return np.broadcast_to(v, (n, 3))
 
 
+def _threads() -> int:
+    """Threads for a tabulation: the cores this process may use, at most 4 (numpy releases the GIL in the
+    vectorised work of each chunk; ``GONIO_THREADS`` overrides)."""
+    env = os.environ.get("GONIO_THREADS", "")
+    if env.isdigit() and int(env) > 0:
+        return int(env)
+    try:
+        n = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        n = os.cpu_count() or 1
+    return max(1, min(4, n))
+
+
 def _eval(f: Callable[[Array, Array], ArrayLike], wi: Array, wo: Array, chunk: int) -> Array:
-    """f at flat direction pairs (M, 3) -> (M, 3), in chunks that bound memory (each chunk vectorised)."""
+    """f at flat direction pairs (M, 3) -> (M, 3), in chunks that bound memory (each chunk vectorised), the
+    chunks spread over :func:`_threads` threads (``f`` must not keep state between calls)."""
     out = np.empty((wi.shape[0], 3))
-    for s in range(0, wi.shape[0], chunk):
+
+    def one(s: int) -> None:
         out[s:s + chunk] = _as_rgb(f(wi[s:s + chunk], wo[s:s + chunk]), min(chunk, wi.shape[0] - s))
+
+    starts = range(0, wi.shape[0], chunk)
+    n = min(_threads(), len(starts))
+    if n <= 1:
+        for s in starts:
+            one(s)
+        return out
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max_workers=n) as ex:
+        list(ex.map(one, starts))  # re-raises the first exception of any chunk
     return out
 
 

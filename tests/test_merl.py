@@ -142,6 +142,22 @@ def test_tabulate_grey_function_broadcasts_to_rgb():
     assert np.all(t[:, v] == 0.25)
 
 
+def test_threaded_tabulation_fills_every_chunk_as_one_thread_does(monkeypatch):
+    # a function of the directions that differs in every cell: a chunk written to the wrong rows, or left out,
+    # changes the table
+    def f(wi, wo):
+        return np.stack([wi[:, 0] + 2 * wo[:, 1], wi[:, 2] * wo[:, 2], wo[:, 0] - wi[:, 1]], axis=1)
+
+    monkeypatch.setenv("GONIO_THREADS", "1")
+    one = merl.tabulate(f, chunk_cells=150_001)
+    monkeypatch.setenv("GONIO_THREADS", "3")
+    assert merl._threads() == 3
+    many = merl.tabulate(f, chunk_cells=150_001)
+    assert np.array_equal(one, many, equal_nan=True)
+    with pytest.raises(ZeroDivisionError):  # an error in any chunk reaches the caller
+        merl.tabulate(lambda wi, wo: 1 // 0)
+
+
 def test_supersampling_resolves_a_lobe_narrower_than_a_cell():
     # a narrow bump in theta_h inside cell i = 40: point samples at the bin centre miss it, averages don't
     lo, hi = (40 / 90) ** 2 * (np.pi / 2), (41 / 90) ** 2 * (np.pi / 2)
