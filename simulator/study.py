@@ -243,6 +243,20 @@ def capture_estimate_s(summary: dict[str, Any]) -> float:
     return est if est > 0 else float(summary["bench_time_s"])
 
 
+def recorded_times(cap_dir: Path) -> dict[str, float]:
+    """``bench_time_s``, ``auto_range_s`` and ``capture_time_s`` (s) of a capture from its ``capture.json``: every
+    run's bench time, auto-ranging overhead, and the time model's estimate of the capture (the last run's
+    ``estimate.total_s``, which counts the runs before it). For a complete capture that a study reuses: resuming
+    it does nothing, so its summary says 0 s."""
+    rec = json.loads((cap_dir / "capture.json").read_text(encoding="utf-8"))
+    runs = rec.get("runs") or []
+    bench = float((rec.get("totals") or {}).get("bench_time_s") or sum(float(r.get("bench_time_s") or 0.0)
+                                                                        for r in runs))
+    ranging = sum(float((r.get("auto_range") or {}).get("overhead_s") or 0.0) for r in runs)
+    est = float((rec.get("estimate") or {}).get("total_s") or 0.0)
+    return {"bench_time_s": bench, "auto_range_s": ranging, "capture_time_s": est if est > 0 else bench}
+
+
 def photodiode_weights(cfg_path: Path) -> np.ndarray:
     """(3,) weights of a linear-sRGB material's R, G, B in the photodiode's one channel of the bench ``cfg_path``
     (its responsivity x source spectrum over the Mallett-Yuksel spectra of R, G, B; they sum to 1); the mean when
@@ -299,6 +313,8 @@ def run_case(job: tuple[Case, str, str]) -> list[dict[str, Any]]:
     row0["bench_time_s"] = float(summary["bench_time_s"])
     row0["auto_range_s"] = float(summary.get("auto_range_overhead_s") or 0.0)
     row0["capture_time_s"] = capture_estimate_s(summary)
+    if row0["bench_time_s"] <= 0.0:  # an earlier study's complete capture, resumed: this run did nothing
+        row0.update(recorded_times(cap_dir))
     foreseeable = row0["bench_time_s"] - row0["auto_range_s"]  # what ranging costs depends on the sample
     if abs(row0["capture_time_s"] - foreseeable) > 0.05 * foreseeable:
         log.warning("case %s: the time model's estimate %.2f s and the simulated bench time %.2f s (less %.2f s of "

@@ -116,6 +116,10 @@ def test_a_case_is_recaptured_when_its_config_changed_and_resumed_when_not(tmp_p
     stamp = slice_csv.stat().st_mtime_ns
     again = study.run_case((case, base, str(tmp_path)))[0]  # same config: the finished capture is reused
     assert slice_csv.stat().st_mtime_ns == stamp and again["rel_rmse_cos"] == first["rel_rmse_cos"]
+    # ... and keeps its times (the resumed run itself did nothing: its summary says 0 s)
+    assert first["capture_time_s"] > 1.0 and first["bench_time_s"] > 1.0
+    for key in ("capture_time_s", "bench_time_s", "auto_range_s"):
+        assert again[key] == pytest.approx(first[key], rel=1e-6, abs=1e-9), key
     monkeypatch.setitem(study.MATERIALS, "diffuse", {"name": "diffuse", "lobes": [{"type": "lambert",
                                                                                     "albedo": 0.3}]})
     study.truth_table.cache_clear()  # the cached truth belongs to the old material
