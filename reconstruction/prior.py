@@ -182,7 +182,9 @@ class PriorSet:
         fc = self._fc()[rows]
         at = np.einsum("nj,tnj->tn", w, fc[:, idx])  # (T, n) f cos cos at the samples
         scales = np.maximum(np.median(at, axis=1), 1e-12).astype(np.float32)
-        y = np.log(fc / scales[:, None] + np.float32(EPS))
+        y = np.divide(fc, scales[:, None], out=fc)  # in place: fc is this call's own copy (80 MB for 48 materials)
+        y += np.float32(EPS)
+        np.log(y, out=y)
         mu = y.mean(axis=0)
         y -= mu
         ev, vec = np.linalg.eigh((y @ y.T).astype(np.float64))  # (T, T): components from the small Gram matrix
