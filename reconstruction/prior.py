@@ -282,31 +282,20 @@ class PriorReconstruction:
         """The MERL table (3, 90, 90, 180): the grid interpolated to the MERL bin centres (linear in theta_d and
         phi_d, separable: two small matrix products; theta_h bins are MERL's own)."""
         from . import merl
+        from .colour import _interp_matrix
 
         nh, nd, npd = GRID
         v = self.values if self.values.shape[0] == 3 else np.repeat(self.values[:1], 3, axis=0)
         v = v.reshape(3, nh, nd, npd)
         v = np.concatenate([v, v[..., :1]], axis=-1)  # phi_d is periodic (pi)
-        wd = _linear_matrix((np.arange(90) + 0.5) / 90 * nd - 0.5, nd)  # (90, nd)
-        wp = _linear_matrix((np.arange(180) + 0.5) / 180 * npd, npd + 1)  # (180, npd + 1)
-        t = np.einsum("ad,chdp,bp->chab", wd, v, wp, optimize=True)
+        # linear interpolation matrices in bin-index units, ends held (as map_coordinates' mode="nearest")
+        wd = _interp_matrix(np.arange(nd, dtype=np.float64), (np.arange(90) + 0.5) / 90 * nd - 0.5)  # (nd, 90)
+        wp = _interp_matrix(np.arange(npd + 1, dtype=np.float64), (np.arange(180) + 0.5) / 180 * npd)  # (npd+1, 180)
+        t = np.einsum("da,chdp,pb->chab", wd, v, wp, optimize=True)
         return np.where(merl.valid_mask()[None], np.maximum(t, 0.0), 0.0)
 
     def report(self) -> dict[str, Any]:
         return {"method": self.method, **self.info}
-
-
-def _linear_matrix(x: Array, n: int) -> Array:
-    """(len(x), n) weights of linear interpolation at fractional indices ``x`` of a length-``n`` axis, the ends
-    held beyond it (as ``scipy.ndimage.map_coordinates(order=1, mode="nearest")``)."""
-    x = np.clip(np.asarray(x, dtype=np.float64), 0.0, n - 1.0)
-    i0 = np.minimum(np.floor(x).astype(np.intp), n - 2)
-    fr = x - i0
-    m = np.zeros((x.size, n))
-    rows = np.arange(x.size)
-    m[rows, i0] = 1.0 - fr
-    m[rows, i0 + 1] += fr
-    return m
 
 
 def _extend(f: Array) -> Array:
