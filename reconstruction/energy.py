@@ -17,6 +17,7 @@ accurately as a broad one. Built lazily on first use (about 0.3 s) and cached.
 
 from __future__ import annotations
 
+import math
 from functools import lru_cache
 
 import numpy as np
@@ -80,15 +81,15 @@ def _microfacet_tables(distribution: str) -> tuple[Array, Array, Array, Array]:
     return ti, la, e1, e5
 
 
-def _bilinear(x_nodes: Array, y_nodes: Array, table: Array, x: Array, y: Array) -> Array:
-    x = np.clip(x, x_nodes[0], x_nodes[-1])
-    y = np.clip(y, y_nodes[0], y_nodes[-1])
-    i = np.clip(np.searchsorted(x_nodes, x) - 1, 0, x_nodes.size - 2)
-    j = np.clip(np.searchsorted(y_nodes, y) - 1, 0, y_nodes.size - 2)
-    tx = (x - x_nodes[i]) / (x_nodes[i + 1] - x_nodes[i])
+def _bilinear(x_nodes: Array, y_nodes: Array, table: Array, x: Array, y: float) -> Array:
+    """Bilinear interpolation of ``table`` (n_x, n_y) at points ``x`` (any shape) and one ``y``, both held at
+    the end nodes: the column at ``y`` first, then linear in x (the same values as interpolating each point in
+    both axes, at a fraction of the cost inside a fit's loop)."""
+    y = min(max(float(y), float(y_nodes[0])), float(y_nodes[-1]))
+    j = min(max(int(np.searchsorted(y_nodes, y)) - 1, 0), y_nodes.size - 2)
     ty = (y - y_nodes[j]) / (y_nodes[j + 1] - y_nodes[j])
-    return ((1 - tx) * (1 - ty) * table[i, j] + tx * (1 - ty) * table[i + 1, j]
-            + (1 - tx) * ty * table[i, j + 1] + tx * ty * table[i + 1, j + 1])
+    column = (1.0 - ty) * table[:, j] + ty * table[:, j + 1]
+    return np.interp(np.asarray(x, dtype=np.float64), x_nodes, column)
 
 
 def microfacet_albedo(theta_i: ArrayLike, alpha: float, f0: float | None = None, distribution: str = "ggx"
@@ -99,7 +100,7 @@ def microfacet_albedo(theta_i: ArrayLike, alpha: float, f0: float | None = None,
         raise ValueError(f"unknown distribution {distribution!r}")
     ti_n, la_n, e1, e5 = _microfacet_tables(distribution)
     ti = np.asarray(theta_i, dtype=np.float64)
-    la = np.full(ti.shape, np.log(np.clip(alpha, *ALPHA_TABLE_RANGE)))
+    la = math.log(min(max(alpha, ALPHA_TABLE_RANGE[0]), ALPHA_TABLE_RANGE[1]))
     a1 = _bilinear(ti_n, la_n, e1, ti, la)
     if f0 is None:
         return a1
@@ -130,5 +131,5 @@ def retro_albedo(theta_i: ArrayLike, exponent: float) -> Array:
     """Directional albedo of a unit-amount retro lobe (exponent >= 0) at incidences ``theta_i`` (radians)."""
     ti_n, ln_n, tab = _retro_table()
     ti = np.asarray(theta_i, dtype=np.float64)
-    ln = np.full(ti.shape, np.log1p(np.clip(exponent, 0.0, EXPONENT_TABLE_MAX)))
+    ln = math.log1p(min(max(exponent, 0.0), EXPONENT_TABLE_MAX))
     return _bilinear(ti_n, ln_n, tab, ti, ln)

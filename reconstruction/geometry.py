@@ -212,12 +212,23 @@ def dirs_from_half_diff(
     >>> wi.round(4).tolist(), (wo.round(4) + 0.0).tolist()
     ([-0.5, 0.0, 0.866], [0.5, 0.0, 0.866])
     """
-    h = sph_to_vec(theta_h, phi_h)
-    d = sph_to_vec(theta_d, phi_d)
-    wi = rotate_z(rotate_y(d, theta_h), phi_h)
-    # wo is wi reflected about h: wo = 2 (wi . h) h - wi
-    wo = 2.0 * np.sum(wi * h, axis=-1, keepdims=True) * h - wi
-    return wi, normalize(wo)
+    th, ph, td, pd = (np.asarray(a, dtype=np.float64) for a in (theta_h, phi_h, theta_d, phi_d))
+    shape = np.broadcast_shapes(th.shape, ph.shape, td.shape, pd.shape)
+    sth, cth, sph, cph, std, ctd = np.sin(th), np.cos(th), np.sin(ph), np.cos(ph), np.sin(td), np.cos(td)
+    # d = (sin td cos pd, sin td sin pd, cos td), rotated by theta_h about y, then by phi_h about z (closed form)
+    dx, dy = std * np.cos(pd), std * np.sin(pd)
+    xr = cth * dx + sth * ctd
+    wi = np.empty(shape + (3,))
+    wo = np.empty(shape + (3,))
+    wi[..., 0] = cph * xr - sph * dy
+    wi[..., 1] = sph * xr + cph * dy
+    wi[..., 2] = cth * ctd - sth * dx
+    # wo is wi reflected about h = (sin th cos ph, sin th sin ph, cos th): wo = 2 (wi . h) h - wi, wi . h = cos td
+    k = 2.0 * ctd
+    wo[..., 0] = k * sth * cph - wi[..., 0]
+    wo[..., 1] = k * sth * sph - wi[..., 1]
+    wo[..., 2] = k * cth - wi[..., 2]
+    return wi, wo
 
 
 # --- the thesis's language -------------------------------------------------------------------------------

@@ -312,17 +312,21 @@ def _eval(f: Callable[[Array, Array], ArrayLike], wi: Array, wo: Array, chunk: i
     def one(s: int) -> None:
         out[s:s + chunk] = _as_rgb(f(wi[s:s + chunk], wo[s:s + chunk]), min(chunk, wi.shape[0] - s))
 
-    starts = range(0, wi.shape[0], chunk)
+    _map_chunks(one, range(0, wi.shape[0], chunk))
+    return out
+
+
+def _map_chunks(one: Callable[[int], None], starts: range) -> None:
+    """``one(s)`` for every chunk start, spread over :func:`_threads` threads (numpy releases the GIL)."""
     n = min(_threads(), len(starts))
     if n <= 1:
         for s in starts:
             one(s)
-        return out
+        return
     from concurrent.futures import ThreadPoolExecutor
 
     with ThreadPoolExecutor(max_workers=n) as ex:
         list(ex.map(one, starts))  # re-raises the first exception of any chunk
-    return out
 
 
 def _cell_average(f: Callable[[Array, Array], ArrayLike], cells: NDArray[np.intp], ns: tuple[int, int, int],
@@ -331,7 +335,8 @@ def _cell_average(f: Callable[[Array, Array], ArrayLike], cells: NDArray[np.intp
 
     Sub-samples are uniform in (sqrt theta_h, theta_d, phi_d) and weighted by the measure of the direction
     pairs they stand for, sin theta_h (d theta_h / du) sin theta_d cos theta_d; sub-samples below the horizon
-    get no weight (a renderer never asks for them), so a constant BRDF tabulates to itself.
+    get no weight (a renderer never asks for them), so a constant BRDF tabulates to itself. Chunks of cells are
+    spread over :func:`_threads` threads, as :func:`_eval`'s (``f`` must not keep state between calls).
     """
     oh = (np.arange(ns[0]) + 0.5) / ns[0]
     od = (np.arange(ns[1]) + 0.5) / ns[1]
@@ -340,7 +345,8 @@ def _cell_average(f: Callable[[Array, Array], ArrayLike], cells: NDArray[np.intp
     n_sub = oh.size
     per_chunk = max(1, chunk // n_sub)
     vals = np.empty((cells.shape[0], 3))
-    for s in range(0, cells.shape[0], per_chunk):  # chunks of cells, each vectorised over cells x sub-samples
+
+    def one(s: int) -> None:  # a chunk of cells, vectorised over cells x sub-samples
         c = cells[s:s + per_chunk]
         u = (c[:, 0:1] + oh[None, :]) / N_TH  # sqrt(theta_h / (pi/2))
         th = u * u * (np.pi / 2)
@@ -353,6 +359,8 @@ def _cell_average(f: Callable[[Array, Array], ArrayLike], cells: NDArray[np.intp
         fv = np.where(up[..., None], fv, 0.0)
         wsum = w.sum(axis=1)
         vals[s:s + per_chunk] = np.einsum("cs,csk->ck", w, fv) / np.maximum(wsum, 1e-300)[:, None]
+
+    _map_chunks(one, range(0, cells.shape[0], per_chunk))
     return vals
 
 

@@ -141,6 +141,49 @@ class MicrofacetReconstruction:
         s = self.specular_shape(wi, wo)
         return np.where(up[..., None], self.rho / np.pi + s[..., None] * self.ks, 0.0)
 
+    def _shape_hd(self, theta_h: Array, theta_d: Array, ci: Array, co: Array) -> Array:
+        """:meth:`specular_shape` from the half-diff angles (radians) and cos theta_i, cos theta_o (broadcast):
+        D of theta_h only and F of theta_d only are evaluated on their own axes."""
+        use = self.weights > 0
+        ch, cd = np.cos(theta_h), np.cos(theta_d)
+        up = (ci > 0) & (co > 0)
+        ci, co = np.clip(ci, 0.0, 1.0), np.clip(co, 0.0, 1.0)
+        s = np.zeros(np.broadcast_shapes(np.shape(ch), np.shape(cd), np.shape(ci), np.shape(co)))
+        for a, w in zip(self.alphas[use], self.weights[use], strict=True):  # in place: these are table-sized
+            g = ggx_g1_over_cos(ci, a)
+            g *= ggx_g1_over_cos(co, a)
+            g *= w / 4.0 * ggx_d(ch, a)
+            s += g
+        s *= fresnel(cd, self.fresnel_kind, self.eta, self.kappa)
+        s[~np.broadcast_to(up, s.shape)] = 0.0
+        return s
+
+    def table(self) -> Array:
+        """The MERL table (3, 90, 90, 180): bin-centre values, and below :attr:`sharp_theta_h_rad` the cell averages
+        over theta_h (:func:`reconstruction.halfdiff.average_theta_h_half_diff`, 8 per cell): the values of
+        ``merl.tabulate(eval)`` and ``merl.average_theta_h_cells``, computed in the half-diff angles. NaN below the
+        horizon."""
+        from . import halfdiff, merl
+
+        th, td, _ = merl.cell_angles()
+        ci, co = halfdiff.cell_cosines()
+        valid = (ci > 0) & (co > 0)  # merl.valid_mask()
+        rgb = self.rho if self.rho.size == 3 else np.repeat(self.rho[:1], 3)
+        ks = self.ks if self.ks.size == 3 else np.repeat(self.ks[:1], 3)
+        shape = self._shape_hd(th, td, ci, co)
+        diffuse = np.ones_like(shape)
+        sharp = self.sharp_theta_h_rad
+        if sharp:
+            rows, avg, covered = halfdiff.average_theta_h_half_diff(self._shape_hd, sharp, 8)
+            shape[:rows] = np.where(valid[:rows], avg, shape[:rows])
+            diffuse[:rows] = covered  # 0 for a cell whose sub-samples all lie below the horizon
+        out = np.empty((3,) + shape.shape)
+        for c in range(3):
+            np.multiply(shape, ks[c], out=out[c])
+            out[c] += diffuse * (rgb[c] / np.pi)
+        out[:, ~valid] = np.nan
+        return out
+
     @property
     def sharp_theta_h_rad(self) -> float | None:
         """theta_h (radians) below which the table holds theta_h cell averages (5 alpha of the sharpest term in

@@ -276,18 +276,18 @@ class Microfacet(Lobe):
     distribution: str = "ggx"
 
     def shape(self, wi: Array, wo: Array) -> Array:
-        ci, co, up = _cosines(wi, wo)
         h = normalize(wi + wo)
-        cos_h = h[..., 2]
-        cos_d = np.sum(wi * h, axis=-1)
-        if self.distribution == "ggx":
-            d = ggx_d(cos_h, self.alpha)
-            g = ggx_g1_over_cos(ci, self.alpha) * ggx_g1_over_cos(co, self.alpha)
-        else:
-            d = beckmann_d(cos_h, self.alpha)
-            g = beckmann_g1_over_cos(ci, self.alpha) * beckmann_g1_over_cos(co, self.alpha)
-        f = schlick(cos_d, self.f0) * d * g / 4.0
-        return np.where(up, f, 0.0)
+        return self._shape(h[..., 2], np.sum(wi * h, axis=-1), wi[..., 2], wo[..., 2])
+
+    def shape_half_diff(self, theta_h: ArrayLike, theta_d: ArrayLike, cos_i: ArrayLike, cos_o: ArrayLike) -> Array:
+        """:meth:`shape` from the half-diff angles (radians) and cos theta_i, cos theta_o (broadcast against each
+        other): D of theta_h and F of theta_d on their own axes, no direction vectors (a table's rows)."""
+        return self._shape(np.cos(theta_h), np.cos(theta_d), np.asarray(cos_i, float), np.asarray(cos_o, float))
+
+    def _shape(self, cos_h: Array, cos_d: Array, ci: Array, co: Array) -> Array:
+        d_fn, g1 = (ggx_d, ggx_g1_over_cos) if self.distribution == "ggx" else (beckmann_d, beckmann_g1_over_cos)
+        f = schlick(cos_d, self.f0) * d_fn(cos_h, self.alpha) * (g1(ci, self.alpha) * g1(co, self.alpha)) / 4.0
+        return np.where((ci > 0) & (co > 0), f, 0.0)
 
     def params(self) -> dict[str, Any]:
         p: dict[str, Any] = {"alpha": self.alpha}

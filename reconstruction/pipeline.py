@@ -219,10 +219,13 @@ def tabulate(rec: Reconstruction, supersample: tuple[int, int, int] | str | None
     Raises :class:`ReconstructionError` if a cell above the horizon is not finite or is negative.
     """
     fast = getattr(rec, "table", None)
-    t = fast() if (supersample is None and callable(fast)) else merl.tabulate(rec.eval, supersample=supersample)
-    sharp = getattr(rec, "sharp_theta_h_rad", None)  # a lobe narrower than the cells near theta_h = 0
-    if supersample is None and sharp:
-        t, _ = merl.average_theta_h_cells(rec.eval, t, sharp, n=8)
+    if supersample is None and callable(fast):
+        t = fast()  # the method's own table (its own theta_h cell averages where a lobe is sharper than the cells)
+    else:
+        t = merl.tabulate(rec.eval, supersample=supersample)
+        sharp = getattr(rec, "sharp_theta_h_rad", None)  # a lobe narrower than the cells near theta_h = 0
+        if supersample is None and sharp:
+            t, _ = merl.average_theta_h_cells(rec.eval, t, sharp, n=8)
     valid = merl.valid_mask()[None]
     bad = valid & ~np.isfinite(t)
     if bad.any():

@@ -240,3 +240,28 @@ def test_a_mirror_direction_in_a_gap_bounds_the_lobe_width():
     a_min = np.tan(np.radians(3.0)) / np.sqrt(np.sqrt(2) - 1)  # half the gap in theta_h
     assert c["alpha_min"] == pytest.approx(a_min, rel=1e-5)  # reported to 6 decimals
     assert rec.report()["parameters"][1]["alpha"] >= a_min * (1 - 1e-9)
+
+
+@pytest.mark.parametrize("n_channels", [1, 3])
+def test_fit_table_is_the_tabulated_eval_with_theta_h_averages(n_channels):
+    # FitReconstruction.table averages its sharp microfacet lobes in the half-diff angles: the same table as
+    # tabulating eval and averaging every lobe over theta_h (merl.average_theta_h_cells)
+    from reconstruction import merl, pipeline
+    from reconstruction.fit.report import FitReconstruction
+    from reconstruction.models import Colour, Lambert, Material, Microfacet, Retro
+
+    def col(*v: float) -> Colour:
+        return Colour(np.array(v[:n_channels]))
+
+    mat = Material("m", [Lambert(col(0.3, 0.2, 0.1)), Microfacet(col(0.5, 0.6, 0.7), alpha=0.002, f0=0.04),
+                         Microfacet(col(0.2, 0.2, 0.3), alpha=0.2, distribution="beckmann"),
+                         Retro(col(0.05, 0.04, 0.03), exponent=20.0)])
+    rec = FitReconstruction(mat, ["R", "G", "B"][:n_channels] if n_channels == 3 else ["value"], result=None)
+    assert rec.sharp_theta_h_rad == pytest.approx(0.01)
+    slow, rows = merl.average_theta_h_cells(rec.eval, merl.tabulate(rec.eval), rec.sharp_theta_h_rad, n=8)
+    fast = pipeline.tabulate(rec)
+    assert np.array_equal(np.isnan(fast), np.isnan(slow))
+    ok = np.isfinite(slow)
+    assert np.max(np.abs(fast[ok] - slow[ok]) / np.maximum(slow[ok], 1e-12)) < 1e-6
+    centre = merl.tabulate(rec.eval)  # the averages matter here: the test would not pass on bin centres
+    assert np.nanmax(np.abs(centre[:, :rows] - slow[:, :rows]) / slow[:, :rows].clip(1e-12)) > 0.05

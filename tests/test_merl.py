@@ -235,3 +235,21 @@ def test_written_file_has_ordinary_permissions(tmp_path):
     finally:
         os.umask(old)
     assert (tmp_path / "p.binary").stat().st_mode & 0o777 == 0o644  # not mkstemp's 0600
+
+
+def test_half_diff_cosines_and_theta_h_averages_match_the_direction_pairs():
+    # the closed-form cosines are the z of the cells' direction pairs, and the half-diff theta_h averages are
+    # merl.average_theta_h_cells of the same function evaluated on direction pairs
+    from reconstruction import halfdiff
+    from reconstruction.models import Microfacet
+
+    ci, co = halfdiff.cell_cosines()
+    wi, wo = merl._cell_dirs()
+    assert np.array_equal(ci, wi[..., 2]) and np.array_equal(co, wo[..., 2])
+    assert np.array_equal((ci > 0) & (co > 0), merl.valid_mask())
+    lobe = Microfacet(alpha=0.003, f0=0.05)
+    rows, avg, covered = halfdiff.average_theta_h_half_diff(lobe.shape_half_diff, 0.015, n=8)
+    ref, rows_ref = merl.average_theta_h_cells(lambda a, b: lobe.shape(a, b)[:, None], np.zeros(merl.SHAPE), 0.015, n=8)
+    assert rows == rows_ref >= 3 and covered[merl.valid_mask()[:rows]].all()
+    ok = merl.valid_mask()[:rows]
+    np.testing.assert_allclose(avg[ok], ref[0, :rows][ok], rtol=1e-9)

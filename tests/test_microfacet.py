@@ -103,3 +103,28 @@ def test_bad_input():
     wl = Slice([30] * 5, [0, 10, 20, 30, 40], np.ones((5, 2)), ["450nm", "550nm"])
     with pytest.raises(ReconstructionError, match="convert spectra"):
         reconstruct_microfacet(wl)
+
+
+@pytest.mark.parametrize("alphas, kind, channels", [
+    ((0.002, 0.05, 0.4), "dielectric", 3),  # a term sharper than the cells: theta_h cell averages near 0
+    ((0.03, 0.3), "conductor", 1),  # bin centres only, one grey channel
+])
+def test_table_is_the_tabulated_eval(alphas, kind, channels):
+    # the half-diff table must hold what tabulating eval gives (and, with a sharp term, its theta_h averages)
+    from reconstruction import pipeline
+    from reconstruction.microfacet import MicrofacetReconstruction
+
+    a = np.array(alphas)
+    rec = MicrofacetReconstruction(a, np.full(a.size, 1.0 / a.size), kind, 1.6, 2.5 if kind == "conductor" else 0.0,
+                                   np.linspace(0.2, 0.4, channels), np.linspace(0.3, 0.5, channels),
+                                   ["R", "G", "B"][:channels] if channels == 3 else ["value"])
+    slow = merl.tabulate(rec.eval)
+    sharp = rec.sharp_theta_h_rad
+    assert (sharp is not None) == (min(alphas) < 0.01)
+    if sharp:
+        slow, rows = merl.average_theta_h_cells(rec.eval, slow, sharp, n=8)
+        assert rows >= 2
+    fast = pipeline.tabulate(rec)
+    assert np.array_equal(np.isnan(fast), np.isnan(slow))
+    ok = np.isfinite(slow)
+    assert np.max(np.abs(fast[ok] - slow[ok]) / np.maximum(np.abs(slow[ok]), 1e-12)) < 1e-9

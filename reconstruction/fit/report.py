@@ -35,6 +35,33 @@ class FitReconstruction:
         """f_r (N, C) in 1/sr at unit direction pairs (N, 3); 0 below the horizon."""
         return self.material.eval(wi, wo)
 
+    def table(self) -> Array:
+        """The MERL table (3, 90, 90, 180): bin-centre values, and below :attr:`sharp_theta_h_rad` the microfacet
+        lobes' cell averages over theta_h (:func:`reconstruction.halfdiff.average_theta_h_half_diff`, 8 per cell) in the
+        half-diff angles; the other lobes (Lambert, retro: constant in theta_h at fixed theta_d) keep their values,
+        so this is ``merl.average_theta_h_cells`` of :meth:`eval` at a fraction of the cost. NaN below the
+        horizon."""
+        from .. import halfdiff, merl
+
+        t = merl.tabulate(self.material.eval)
+        sharp = self.sharp_theta_h_rad
+        if sharp is None:
+            return t
+        th, td, _ = merl.cell_angles()
+        cic, coc = halfdiff.cell_cosines()
+        m = self.material
+        covered = None
+        for lb in m.lobes:
+            if isinstance(lb, Microfacet):
+                rows, avg, covered = halfdiff.average_theta_h_half_diff(lb.shape_half_diff, sharp, 8)
+                valid = (cic[:rows] > 0) & (coc[:rows] > 0)
+                delta = np.where(valid, avg - lb.shape_half_diff(th[:rows], td, cic[:rows], coc[:rows]), 0.0)
+                col = np.broadcast_to(lb.colour.on(m.n_channels, m.wavelengths_nm), (3,))
+                t[:, :rows] += col[:, None, None, None] * delta[None]
+        if covered is not None:  # no sub-sample above the horizon: 0, as merl's
+            t[:, :rows][:, valid & ~covered] = 0.0
+        return t
+
     @property
     def sharp_theta_h_rad(self) -> float | None:
         """theta_h (radians) below which the table holds theta_h cell averages: 5 alpha of the narrowest

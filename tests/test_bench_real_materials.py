@@ -1,0 +1,64 @@
+"""benchmarks/bench_real_materials.py on synthetic neural BRDFs (the real data are never needed by the tests)."""
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+SHAPES = {"fc1": (6, 21), "b1": (21,), "fc2": (21, 21), "b2": (21,), "fc3": (21, 3), "b3": (3,)}
+
+
+@pytest.fixture(scope="module")
+def bench():
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_real_materials.py"
+    spec = importlib.util.spec_from_file_location("bench_real_materials", path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod  # its worker function is pickled by name for the process pool
+    spec.loader.exec_module(mod)
+    yield mod
+    sys.modules.pop(spec.name, None)
+
+
+def test_cases_are_parsed(bench):
+    assert bench.incidences_of("1") == (40.0,)
+    assert bench.incidences_of("3") == (20.0, 40.0, 60.0)
+    assert bench.incidences_of("20/50/75") == (20.0, 50.0, 75.0)
+    assert bench.incidences_of("70") == (70.0,)
+    assert bench._label("40/70") == "2 slice(s) at 40/70 deg"
+    for bad, why in (("x", "expected 1, 3 or incidences"), ("20/95", "0..80"), ("20//50", "expected")):
+        with pytest.raises(ValueError, match=why):
+            bench.incidences_of(bad)
+
+
+def write_nbrdf(prefix: Path, seed: int) -> None:
+    """A small positive network (f about 0.05 to 0.3 /sr: albedo below 1), shaped by theta_h and theta_d."""
+    rng = np.random.default_rng(seed)
+    w = {"fc1": rng.normal(0, 1.0, (6, 21)), "b1": np.full(21, 0.1), "fc2": rng.normal(0, 0.4, (21, 21)),
+         "b2": np.full(21, 0.1), "fc3": rng.uniform(0, 0.015, (21, 3)), "b3": np.full(3, 0.01)}
+    for k, a in w.items():
+        assert a.shape == SHAPES[k]
+        np.save(f"{prefix}_{k}.npy", a)
+
+
+def test_benchmark_runs_every_case_on_a_data_folder(bench, tmp_path, capsys):
+    data = tmp_path / "realdata"
+    (data / "nbrdf-merl").mkdir(parents=True)
+    for k, name in enumerate(("synthetic-a", "synthetic-b")):
+        write_nbrdf(data / "nbrdf-merl" / name, k)
+    out = tmp_path / "records.jsonl"
+    args = ["--data", str(data), "--methods", "bivariate", "--workers", "1", "--cache", "", "--prior", "",
+            "--jsonl", str(out)]
+    assert bench.main(args + ["--slices", "1,30/60"]) == 0
+    recs = [json.loads(line) for line in out.read_text().splitlines()]
+    assert sorted((r["material"], r["slices"]) for r in recs) == [
+        ("synthetic-a", "1"), ("synthetic-a", "30/60"), ("synthetic-b", "1"), ("synthetic-b", "30/60")]
+    assert all(np.isfinite(r["rmse80"]) and r["plausible"] for r in recs)
+    # two slices see more of each material than one
+    by = {(r["material"], r["slices"]): r["rmse80"] for r in recs}
+    assert all(by[(m, "30/60")] < by[(m, "1")] for m in ("synthetic-a", "synthetic-b"))
+    capsys.readouterr()
+    assert bench.main(args + ["--slices", "1,95"]) == 2
+    assert "--slices" in capsys.readouterr().err
