@@ -31,8 +31,9 @@ def cell_cosines() -> tuple[Array, Array]:
 
 def average_theta_h_half_diff(f_hd: Callable[[Array, Array, Array, Array], Array], theta_h_max: float, n: int = 8,
                               block_rows: int = 2) -> tuple[int, Array, NDArray[np.bool_]]:
-    """:func:`reconstruction.merl.average_theta_h_cells` for a function of the half-diff angles: ``f_hd(theta_h, theta_d, cos theta_i,
-    cos theta_o)`` (radians; broadcast shapes, 0 below the horizon) -> one value per point, e.g. a lobe's shape.
+    """:func:`reconstruction.merl.average_theta_h_cells` for a function of the half-diff angles: ``f_hd(theta_h,
+    theta_d, cos theta_i, cos theta_o)`` (radians; broadcast shapes, 0 below the horizon) -> one value per point,
+    e.g. a lobe's shape.
 
     The same ``n`` sub-samples and weights per cell, with cos theta_i and cos theta_o in closed form (phi_h = 0, as
     :func:`reconstruction.geometry.dirs_from_half_diff`), computed ``block_rows`` theta_h rows at a time (small

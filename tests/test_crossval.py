@@ -9,6 +9,7 @@ from reconstruction.base import ReconstructionError
 from reconstruction.crossval import cross_validate, folds, scene_mask
 from reconstruction.models import Material
 from reconstruction.scene import scene_from_dict
+from reconstruction.slicefile import Slice
 from reconstruction.synthetic import synthetic_slice
 
 MAT = Material.from_dict({"lobes": [{"type": "lambert", "albedo": 0.3},
@@ -88,3 +89,33 @@ def test_a_large_input_is_cross_validated_on_a_bounded_subsample():
     assert scheme.startswith("leave-one-group-out") and len(masks) == 8
     small = synthetic_slice(MAT, (20.0, 40.0))
     assert thin_for_cv(small) is small
+
+
+def test_one_slice_through_a_finite_cone_prefers_microfacet():
+    from reconstruction import pipeline
+    from reconstruction.crossval import CVScore
+    from reconstruction.instrument import Instrument, instrument_average
+    from reconstruction.models import Colour, Lambert, Material, Microfacet
+
+    methods = ["fit", "microfacet", "bivariate", "revolve"]
+    assert pipeline.preference(methods, True, aperture=True) == (["microfacet"],
+                                                                 pipeline.SINGLE_SLICE_APERTURE_MARGIN)
+    assert pipeline.preference(methods, True) == (["bivariate"], pipeline.SINGLE_SLICE_MARGIN)
+    assert pipeline.preference(methods, False, aperture=True) == ([], 1.0)
+    sc = [CVScore("bivariate", 0.01, [], 0.0), CVScore("microfacet", 0.025, [], 0.0), CVScore("fit", 0.02, [], 0.0)]
+    assert pipeline.rank(sc, *pipeline.preference(methods, True, aperture=True))[0].method == "microfacet"
+    assert pipeline.rank(sc, *pipeline.preference(methods, True))[0].method == "bivariate"
+    # the best within 1.5 x the samples' noise: no preference, whichever method is preferred
+    assert pipeline.rank(sc, ["microfacet"], 3.0, noise=0.008)[0].method == "bivariate"
+    # auto reads the aperture from the slice's instrument
+    mat = Material("m", [Lambert(Colour(np.array([0.3]))), Microfacet(Colour(np.array([0.4])), alpha=0.15)])
+    to = np.arange(-80.0, 81.0, 2.0)
+    to = to[np.abs(to + 40.0) > 4]
+    ti = np.full(to.size, 40.0)
+    inst = Instrument.from_half_angle(1.0)
+    v = instrument_average(mat, ti, to, inst)
+    cone = Slice(ti, to, v, ["value"], np.zeros_like(v), meta={"instrument": inst.to_meta()})
+    _, choice = pipeline.reconstruct(cone, "auto")
+    assert choice["cross_validation"]["preference"]["methods"] == ["microfacet"]
+    _, choice = pipeline.reconstruct(Slice(ti, to, v, ["value"], np.zeros_like(v)), "auto")
+    assert choice["cross_validation"]["preference"]["methods"] == ["bivariate"]
