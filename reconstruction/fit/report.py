@@ -48,18 +48,18 @@ class FitReconstruction:
         if sharp is None:
             return t
         th, td, _ = merl.cell_angles()
-        cic, coc = halfdiff.cell_cosines()
         m = self.material
-        covered = None
+        rows = int(min(merl.N_TH, merl.theta_h_index(sharp) + 1))
+        cic, coc = (c[:rows] for c in halfdiff.cell_cosines())
+        valid = (cic > 0) & (coc > 0)
+        covered = np.ones_like(valid)
         for lb in m.lobes:
-            if isinstance(lb, Microfacet):
-                rows, avg, covered = halfdiff.average_theta_h_half_diff(lb.shape_half_diff, sharp, 8)
-                valid = (cic[:rows] > 0) & (coc[:rows] > 0)
-                delta = np.where(valid, avg - lb.shape_half_diff(th[:rows], td, cic[:rows], coc[:rows]), 0.0)
+            if isinstance(lb, Microfacet):  # sharp (it sets the rows) or not: its average replaces its centre value
+                _, avg, covered = halfdiff.average_theta_h_half_diff(lb.shape_half_diff, sharp, 8)
+                delta = np.where(valid, avg - lb.shape_half_diff(th[:rows], td, cic, coc), 0.0)
                 col = np.broadcast_to(lb.colour.on(m.n_channels, m.wavelengths_nm), (3,))
                 t[:, :rows] += col[:, None, None, None] * delta[None]
-        if covered is not None:  # no sub-sample above the horizon: 0, as merl's
-            t[:, :rows][:, valid & ~covered] = 0.0
+        t[:, :rows][:, valid & ~covered] = 0.0  # no sub-sample above the horizon: 0, as merl's
         return t
 
     @property
