@@ -128,10 +128,8 @@ class MicrofacetReconstruction:
 
     def specular_shape(self, wi: Array, wo: Array) -> Array:
         """F sum_j w_j D_j G1_j G1_j / (4 ci co) (...), 1/sr, for ks = 1; 0 below the horizon."""
-        ch, cd, ci, co, up = _geometry(wi, wo)
-        use = self.weights > 0
-        s = _basis(ch, ci, co, self.alphas[use]) @ self.weights[use]
-        return np.where(up, s * fresnel(cd, self.fresnel_kind, self.eta, self.kappa), 0.0)
+        ch, cd, ci, co, _ = _geometry(wi, wo)
+        return self._shape_cos(ch, cd, ci, co)
 
     def eval(self, wi: Array, wo: Array) -> Array:
         """f_r (N, C) in 1/sr at unit direction pairs (N, 3); 0 below the horizon."""
@@ -144,14 +142,17 @@ class MicrofacetReconstruction:
     def _shape_hd(self, theta_h: Array, theta_d: Array, ci: Array, co: Array) -> Array:
         """:meth:`specular_shape` from the half-diff angles (radians) and cos theta_i, cos theta_o (broadcast):
         D of theta_h only and F of theta_d only are evaluated on their own axes."""
+        return self._shape_cos(np.cos(theta_h), np.cos(theta_d), ci, co)
+
+    def _shape_cos(self, ch: Array, cd: Array, ci: Array, co: Array) -> Array:
+        """The specular shape from cos theta_h, cos theta_d, cos theta_i, cos theta_o (broadcast); 0 where theta_i
+        or theta_o is at or below the horizon."""
         use = self.weights > 0
-        ch, cd = np.cos(theta_h), np.cos(theta_d)
         up = (ci > 0) & (co > 0)
         ci, co = np.clip(ci, 0.0, 1.0), np.clip(co, 0.0, 1.0)
         s = np.zeros(np.broadcast_shapes(np.shape(ch), np.shape(cd), np.shape(ci), np.shape(co)))
-        for a, w in zip(self.alphas[use], self.weights[use], strict=True):  # in place: these are table-sized
-            g = ggx_g1_over_cos(ci, a)
-            g *= ggx_g1_over_cos(co, a)
+        for a, w in zip(self.alphas[use], self.weights[use], strict=True):  # in place: table-sized arrays
+            g = ggx_g1_over_cos(ci, a) * ggx_g1_over_cos(co, a)
             g *= w / 4.0 * ggx_d(ch, a)
             s += g
         s *= fresnel(cd, self.fresnel_kind, self.eta, self.kappa)
