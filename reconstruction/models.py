@@ -277,14 +277,15 @@ class Microfacet(Lobe):
 
     def shape(self, wi: Array, wo: Array) -> Array:
         h = normalize(wi + wo)
-        return self._shape(h[..., 2], np.sum(wi * h, axis=-1), wi[..., 2], wo[..., 2])
+        return self.shape_cosines(h[..., 2], np.sum(wi * h, axis=-1), wi[..., 2], wo[..., 2])
 
     def shape_half_diff(self, theta_h: ArrayLike, theta_d: ArrayLike, cos_i: ArrayLike, cos_o: ArrayLike) -> Array:
         """:meth:`shape` from the half-diff angles (radians) and cos theta_i, cos theta_o (broadcast against each
         other): D of theta_h and F of theta_d on their own axes, no direction vectors (a table's rows)."""
-        return self._shape(np.cos(theta_h), np.cos(theta_d), np.asarray(cos_i, float), np.asarray(cos_o, float))
+        return self.shape_cosines(np.cos(theta_h), np.cos(theta_d), np.asarray(cos_i, float), np.asarray(cos_o, float))
 
-    def _shape(self, cos_h: Array, cos_d: Array, ci: Array, co: Array) -> Array:
+    def shape_cosines(self, cos_h: Array, cos_d: Array, ci: Array, co: Array) -> Array:
+        """:meth:`shape` from cos theta_h, cos theta_d (wi . h), cos theta_i and cos theta_o."""
         d_fn, g1 = (ggx_d, ggx_g1_over_cos) if self.distribution == "ggx" else (beckmann_d, beckmann_g1_over_cos)
         f = schlick(cos_d, self.f0) * d_fn(cos_h, self.alpha) * (g1(ci, self.alpha) * g1(co, self.alpha)) / 4.0
         return np.where((ci > 0) & (co > 0), f, 0.0)

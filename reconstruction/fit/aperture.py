@@ -127,7 +127,7 @@ def resolution_notes(chosen: Any, prob: Any) -> list[dict[str, Any]]:
         return []
     nl, _ = chosen.split()
     amps = chosen.amplitudes()
-    cols0 = np.stack([_column(s, p, prob.wi, prob.wo, blur) for s, p in zip(chosen.specs, nl, strict=True)], 1)
+    cols0 = np.stack([_column(s, p, prob) for s, p in zip(chosen.specs, nl, strict=True)], 1)
     sigma = prob.sigma_of(cols0 @ amps)
     notes = []
     grid = np.geomspace(ALPHA_FLOOR, 1.0, 41)
@@ -139,7 +139,7 @@ def resolution_notes(chosen: Any, prob: Any) -> list[dict[str, Any]]:
             p = nl[li].copy()
             p[0] = math.log(a)
             cols = cols0.copy()
-            cols[:, li] = _column(spec, p, prob.wi, prob.wo, blur)
+            cols[:, li] = _column(spec, p, prob)
             chi[k] = _weighted_nnls(cols, prob.f, sigma)[1]
         alpha = float(math.exp(nl[li][0]))
         best = int(np.argmin(chi))

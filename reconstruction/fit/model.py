@@ -10,6 +10,7 @@ import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -18,6 +19,7 @@ from scipy.optimize import least_squares, nnls
 
 from ..base import ReconstructionError
 from ..energy import microfacet_albedo, retro_albedo
+from ..geometry import normalize
 from ..instrument import Instrument, InstrumentError
 from ..models import Colour, Lambert, Lobe, Material, Microfacet, Retro
 from ..samples import sample_directions
@@ -100,15 +102,17 @@ def _lobe(spec: LobeSpec, nl: Sequence[float], colour: Array | None = None) -> L
     raise ReconstructionError(f"unknown lobe kind {spec.kind!r}")
 
 
-def _column(spec: LobeSpec, nl: Sequence[float], wi: Array, wo: Array, blur: Blur | None = None) -> Array:
-    """The lobe's shape for unit amplitude (N,), 1/sr (with its Fresnel factor: the amplitude is the specular
-    scale, <= 1); with ``blur`` (an instrument of finite aperture) a microfacet lobe is averaged over the cone
-    where that matters (:mod:`.aperture`)."""
+def _column(spec: LobeSpec, nl: Sequence[float], prob: _Problem) -> Array:
+    """The lobe's shape for unit amplitude (N,) at the problem's samples, 1/sr (with its Fresnel factor: the
+    amplitude is the specular scale, <= 1); with the problem's ``blur`` (an instrument of finite aperture) a
+    microfacet lobe is averaged over the cone where that matters (:mod:`.aperture`)."""
     lobe = _lobe(spec, nl)
-    point = lobe.shape(wi, wo)
-    if blur is None or not isinstance(lobe, Microfacet):
+    if not isinstance(lobe, Microfacet):
+        return lobe.shape(prob.wi, prob.wo)
+    point = lobe.shape_cosines(*prob.cosines)
+    if prob.blur is None:
         return point
-    return blur.column(lobe.distribution, lobe.alpha, lobe.f0, point)
+    return prob.blur.column(lobe.distribution, lobe.alpha, lobe.f0, point)
 
 
 def _unit_albedo(spec: LobeSpec, nl: Sequence[float], theta_i: Array) -> Array:
@@ -160,6 +164,13 @@ class _Problem:
     def n(self) -> int:
         return int(self.f.size)
 
+    @cached_property
+    def cosines(self) -> tuple[Array, Array, Array, Array]:
+        """(cos theta_h, cos theta_d, cos theta_i, cos theta_o) per sample (N,): once per problem (a fit
+        evaluates its lobes at the same samples thousands of times)."""
+        h = normalize(self.wi + self.wo)
+        return h[..., 2], np.sum(self.wi * h, axis=-1), self.wi[..., 2], self.wo[..., 2]
+
 
 def _nl_grid(spec: LobeSpec, alpha_min: float, exponent_max: float = EXP_MAX) -> list[tuple[float, ...]]:
     if spec.kind in ("ggx", "beckmann"):
@@ -206,7 +217,7 @@ def _start(specs: Sequence[LobeSpec], prob: _Problem) -> tuple[list[tuple[float,
     per_lobe = []
     for spec in specs:  # each lobe's columns over its own grid (the product only combines them)
         grid = _nl_grid(spec, prob.alpha_min, prob.exponent_max)
-        per_lobe.append([(g, _column(spec, g, prob.wi, prob.wo, prob.blur)) for g in grid])
+        per_lobe.append([(g, _column(spec, g, prob)) for g in grid])
     best: tuple[float, list[tuple[float, ...]], Array] | None = None
     for combo in itertools.product(*per_lobe):
         cols = np.stack([c for _, c in combo], axis=1)
@@ -435,6 +446,8 @@ def fit_model(specs: Sequence[LobeSpec], prob: _Problem, *, loss: str = "soft_l1
     inner = (lo_a + 1e-9 * (hi_a - lo_a), hi_a - 1e-9 * (hi_a - lo_a))  # least_squares starts strictly inside
     x0 = np.clip(x0, *inner)
 
+    lobe_of = [li for li, spec in enumerate(specs) for _ in spec.nonlinear]  # the lobe of each geometry parameter
+
     def unpack(x: Array) -> tuple[list[Array], Array]:
         nl, k = [], 0
         for s in specs:
@@ -444,7 +457,7 @@ def fit_model(specs: Sequence[LobeSpec], prob: _Problem, *, loss: str = "soft_l1
         return nl, np.exp(x[n_nl:].reshape(len(specs), n_c))
 
     def columns(nl: list[Array]) -> Array:
-        return np.stack([_column(s, p, prob.wi, prob.wo, prob.blur) for s, p in zip(specs, nl, strict=True)], axis=1)
+        return np.stack([_column(s, p, prob) for s, p in zip(specs, nl, strict=True)], axis=1)
 
     sigma = prob.sigma
 
@@ -465,11 +478,16 @@ def fit_model(specs: Sequence[LobeSpec], prob: _Problem, *, loss: str = "soft_l1
         pred, cols, scale, alb, e = predict(nl, amps)
         base = ((pred - prob.f) / sigma).ravel()
         j = np.zeros((base.size, x.size))
-        for k in range(n_nl):  # a few geometry parameters
+        for k in range(n_nl):  # a few geometry parameters: only lobe li's column and the energy scale move
             h = 1e-7 * max(1.0, abs(x[k]))
             xk = x.copy()
             xk[k] = min(x[k] + h, hi_a[k]) if x[k] + h <= hi_a[k] else x[k] - h
-            j[:, k] = (fun(xk) - base) / (xk[k] - x[k])
+            li = lobe_of[k]
+            nl_k, _ = unpack(xk)
+            cols_k = cols.copy()
+            cols_k[:, li] = _column(specs[li], nl_k[li], prob)
+            pred_k = cols_k @ (amps * _energy_scale(specs, nl_k, amps)[0][None, :])
+            j[:, k] = (((pred_k - prob.f) / sigma).ravel() - base) / (xk[k] - x[k])
         n_s = prob.f.shape[0]
         unscaled = cols @ amps  # (N, C)
         top = np.argmax(alb, axis=0)  # the incidence of each channel's largest albedo
