@@ -2,7 +2,7 @@
 
 An explicit list of MAX_PLAN_POINTS points with 4 repeats on the simulated bench (configs/simulated.toml), checked
 in a child process as a lab user runs it (interpreter start and imports included); prints each of five runs and
-the best. The README's "returns in under a second" is this figure. Usage::
+the best. The README's "returns in about a second" is this figure. Usage::
 
     .venv/bin/python benchmarks/bench_check.py
 """

@@ -43,8 +43,7 @@ from .base import Reconstruction, ReconstructionError
 from .crossval import CVScore, cross_validate, folds, noise_level, scene_mask
 from .inputs import check_slice
 from .methods import REGISTRY, Options, get
-from .metrics import directional_albedo, halfvector_albedo
-from .report import ALBEDO_INCIDENCES_DEG, ALBEDO_TOLERANCE
+from .report import ALBEDO_INCIDENCES_DEG, ALBEDO_TOLERANCE, checked_albedo
 from .slicefile import Slice
 
 Array = NDArray[np.float64]
@@ -82,12 +81,10 @@ NOISE_LEVEL_FACTOR = 1.5
 def max_albedo(rec: Reconstruction) -> tuple[float, float]:
     """(largest directional albedo over channels and theta_i = 0-85 deg, the theta_i in degrees where it is).
 
-    A hemisphere grid (48 x 96) first; when that exceeds 1 + tolerance, the half-vector integral, which resolves
-    a peak narrower than the grid (as the table's own check does: a mirror-like lobe aliases on the grid)."""
-    ti = np.radians(ALBEDO_INCIDENCES_DEG)
-    alb = directional_albedo(rec.eval, ti, 48, 96)
-    if alb.max() > 1.0 + ALBEDO_TOLERANCE:
-        alb = halfvector_albedo(rec.eval, ti)
+    Integrated as the written table's check integrates (:func:`reconstruction.report.checked_albedo`), on a
+    coarser 48 x 96 hemisphere grid: the half vector where the grid exceeds 1 + tolerance (a mirror-like lobe
+    aliases on it)."""
+    alb, _ = checked_albedo(rec.eval, 48, 96)
     k = int(np.argmax(alb.max(axis=1)))
     return float(alb.max()), float(ALBEDO_INCIDENCES_DEG[k])
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import re
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -35,8 +36,8 @@ from .slicefile import Slice
 
 Array = NDArray[np.float64]
 
-__all__ = ["ALBEDO_TOLERANCE", "RECIPROCITY_TOLERANCE", "sample_residuals", "plausibility", "coverage",
-           "build_report", "write_json"]
+__all__ = ["ALBEDO_TOLERANCE", "RECIPROCITY_TOLERANCE", "sample_residuals", "checked_albedo", "plausibility",
+           "coverage", "build_report", "write_json"]
 
 ALBEDO_TOLERANCE = 0.01
 RECIPROCITY_TOLERANCE = 1e-6
@@ -82,6 +83,17 @@ def sample_residuals(rec: Reconstruction, s: Slice, table: ArrayLike | None = No
     return out
 
 
+def checked_albedo(f: Callable[[Array, Array], ArrayLike], n_theta: int, n_phi: int) -> tuple[Array, str]:
+    """Directional albedo (len(ALBEDO_INCIDENCES_DEG), C) of the BRDF ``f`` at the checked incidences, and how it
+    was integrated: on an ``n_theta`` x ``n_phi`` hemisphere grid, or, when that exceeds 1 + ALBEDO_TOLERANCE, over
+    the half vector (a peak narrower than the grid, a mirror-like lobe, aliases on it)."""
+    ti = np.radians(ALBEDO_INCIDENCES_DEG)
+    alb = directional_albedo(f, ti, n_theta, n_phi)
+    if np.all(alb <= 1.0 + ALBEDO_TOLERANCE):
+        return alb, f"hemisphere, {n_theta} x {n_phi}"
+    return halfvector_albedo(f, ti), "half vector (a peak narrower than the hemisphere grid)"
+
+
 def plausibility(rec: Reconstruction, table: ArrayLike) -> dict[str, Any]:
     """The three checks of the module docstring on ``table`` (3, 90, 90, 180) and ``rec.eval``."""
     t = np.asarray(table, dtype=np.float64)
@@ -92,12 +104,7 @@ def plausibility(rec: Reconstruction, table: ArrayLike) -> dict[str, Any]:
     non_neg = {"pass": bool(missing == 0 and vmin >= 0.0), "min_1_per_sr": vmin, "missing_cells": missing,
                "max_1_per_sr": float(np.nanmax(vals))}
     look = lambda wi, wo: np.nan_to_num(merl.lookup(t, wi, wo, interpolate=True), nan=0.0)  # noqa: E731
-    alb = directional_albedo(look, np.radians(ALBEDO_INCIDENCES_DEG), 64, 128)  # (n, 3)
-    quadrature = "hemisphere, 64 x 128"
-    if not np.all(alb <= 1.0 + ALBEDO_TOLERANCE):
-        # a peak narrower than that grid (a mirror-like table) aliases: integrate over the half vector instead
-        alb = halfvector_albedo(look, np.radians(ALBEDO_INCIDENCES_DEG))
-        quadrature = "half vector (a peak narrower than the hemisphere grid)"
+    alb, quadrature = checked_albedo(look, 64, 128)
     albedo = {"pass": bool(np.all(alb <= 1.0 + ALBEDO_TOLERANCE)), "max": float(alb.max()),
               "theta_i_deg": ALBEDO_INCIDENCES_DEG.tolist(), "albedo": np.round(alb, 5).tolist(),
               "tolerance": ALBEDO_TOLERANCE, "of": "the written table", "quadrature": quadrature}

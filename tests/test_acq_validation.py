@@ -72,7 +72,7 @@ def test_check_of_the_largest_plan_prints_its_size_and_time(tmp_path):
     # the total, also in minutes, and what it is made of
     assert "estimated bench time: " in r.stdout and " min)" in r.stdout and "= motion " in r.stdout
     # bounded work: a check that grew worse than linear in the points (20,000 of them, each interpreted by the dry
-    # run) would take minutes. How fast it is (the README's "under a second") is benchmarks/bench_check.py's
+    # run) would take minutes. How fast it is (the README's "about a second") is benchmarks/bench_check.py's
     # figure, not a timed unit test: 0.95-1.1 s on a slow 2-core machine, interpreter start included.
     assert wall < 10.0, wall
 
