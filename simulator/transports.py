@@ -110,6 +110,9 @@ class PtyPort:
         except Exception:
             log.exception("%s: pump thread failed", self.name)
             self._close_fds()
+        finally:
+            if self._stop.is_set():
+                self._close_fds()  # close() left them to this thread (see there)
 
     def _close_fds(self) -> None:
         with self._fd_lock:
@@ -133,7 +136,10 @@ class PtyPort:
                     pass
         if self._thread.is_alive() and threading.current_thread() is not self._thread:
             self._thread.join(timeout=2.0)
-        self._close_fds()
+        # a pump thread still running (starved on a loaded machine) closes the fds itself when it stops: closed
+        # here under it, their numbers could be reused by the next pty, which the late thread would then serve
+        if not self._thread.is_alive():
+            self._close_fds()
 
 
 class PtyServer:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import select
 import threading
 import tty
 
@@ -21,8 +22,14 @@ def pty_path():
     master, slave = os.openpty()
     tty.setraw(slave)
     path = os.ttyname(slave)
-    state = {"master": master}
+    state = {"master": master, "peers": []}
     yield path, state
+    # stop and join every scripted peer before its fd is closed: a peer thread that outlived its pty read the
+    # next test's pty (the same fd number, reused) and swallowed its first command (CI, 10 s timeouts)
+    for stop, thread in state["peers"]:
+        stop.set()
+        thread.join(timeout=5.0)
+        assert not thread.is_alive(), "a scripted peer thread did not stop"
     for fd in (state.get("master"), slave):
         if fd is not None:
             try:
@@ -80,13 +87,21 @@ def test_serial_link_timeout_and_vanished_port(pty_path):
     link.close()
 
 
-def _scripted_peer(master: int, replies: dict[str, list[bytes]], seen: list[str]) -> threading.Thread:
-    """A scripted device on the far end of the pty: answers each command line with the next scripted reply."""
+def _scripted_peer(state: dict, replies: dict[str, list[bytes]], seen: list[str]) -> threading.Thread:
+    """A scripted device on the far end of the pty (``state["master"]``): answers each command line with the
+    next scripted reply. It polls a stop event that the fixture sets, and never reads once that is set."""
+    master = state["master"]
+    stop = threading.Event()
 
     def run() -> None:
         buf = b""
-        while True:
+        while not stop.is_set():
             try:
+                ready, _, _ = select.select([master], [], [], 0.02)
+                if stop.is_set():
+                    return
+                if not ready:
+                    continue
                 data = os.read(master, 1024)
             except OSError:
                 return
@@ -102,6 +117,7 @@ def _scripted_peer(master: int, replies: dict[str, list[bytes]], seen: list[str]
                     os.write(master, queue.pop(0))
 
     t = threading.Thread(target=run, daemon=True)
+    state["peers"].append((stop, t))
     t.start()
     return t
 
@@ -116,9 +132,8 @@ def test_serial_reply_checks_and_retries(pty_path):
         "MOVE": [b"ALARM:20\nerror:20\n"],
         "TIME?": [b"TI\xcdE t=1.5\nok\n", b"TIME t=1.5\nok\n"],
     }
-    _scripted_peer(state["master"], replies, seen)
-    # the scripted peer always answers: a long timeout only rides out a starved peer thread on a loaded CI
-    # machine (0.5 s once let two attempts time out there and the replies arrive one command late)
+    _scripted_peer(state, replies, seen)
+    # the scripted peer always answers; the long timeout only rides out a peer thread starved on a loaded machine
     link = SerialLink(path, 115200, timeout_s=10.0, retries=2)
     det = SerialDetector(link, "photodiode", 0.01, 65535)
     rd = det.read(3)
@@ -143,9 +158,8 @@ def test_serial_detector_integration_time(pty_path):
         "READ": [b"READ n=2 sat=0 t_int=0.01 mean=300.000 std=0.000 values=300,300\nok\n",
                  b"READ n=2 sat=0 t_int=0.0032 mean=300.000 std=0.000 values=300,300\nok\n"],
     }
-    _scripted_peer(state["master"], replies, seen)
-    # the scripted peer always answers: a long timeout only rides out a starved peer thread on a loaded CI
-    # machine (0.5 s once let two attempts time out there and the replies arrive one command late)
+    _scripted_peer(state, replies, seen)
+    # the scripted peer always answers; the long timeout only rides out a peer thread starved on a loaded machine
     link = SerialLink(path, 115200, timeout_s=10.0, retries=2)
     det = SerialDetector(link, "photodiode", 0.01, 65535)
     assert det.set_integration_time(0.00316228) == 0.0032 and det.integration_time_s == 0.0032
