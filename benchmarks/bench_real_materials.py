@@ -100,8 +100,9 @@ def run_material(job: tuple[str, str, list[str], str | None, list[str], str | No
                     if "cross_validation" in choice:
                         scores = choice["cross_validation"]["scores"]
                         rec_out["cv_seconds"] = sum(c["seconds"] for c in scores)
-                        rec_out["cv"] = {c["method"]: c["held_out_relative_rmse_cos"] for c in scores}
-                        rec_out["cv_folds"] = {c["method"]: c["fold_errors"] for c in scores}
+                        rec_out["cv"] = {c.get("label", c["method"]): c["held_out_relative_rmse_cos"] for c in scores}
+                        rec_out["cv_folds"] = {c.get("label", c["method"]): c["fold_errors"] for c in scores}
+                        rec_out["chosen_label"] = choice["cross_validation"].get("chosen_label", choice["used"])
                 except Exception as e:  # a benchmark reports a failure and goes on
                     rec_out.update(error=f"{type(e).__name__}: {e}", seconds=time.perf_counter() - t0)
                 out.append(rec_out)
@@ -197,7 +198,7 @@ def write_docs(records: list[dict[str, Any]], methods: list[str], docs: Path, su
                 if r is None or "rmse80" not in r:
                     cells.append("failed" if r else "")
                 else:
-                    used = f" [{r['used']}]" if m == "auto" else ""
+                    used = f" [{r.get('chosen_label', r['used'])}]" if m == "auto" else ""
                     flag = "" if r["plausible"] else " (implausible)"
                     cells.append(f"{r['rmse80'] * 100:.1f} / {r['medrel'] * 100:.1f}{used}{flag}")
         rows.append(f"| {n} | " + " | ".join(cells) + " |")
@@ -290,7 +291,7 @@ def main(argv: list[str] | None = None) -> int:
             records.extend(recs)
             for r in recs:
                 if "rmse80" in r:
-                    used = f" [{r['used']}]" if r["method"] == "auto" else ""
+                    used = f" [{r.get('chosen_label', r['used'])}]" if r["method"] == "auto" else ""
                     print(f"{r['material']:26s} {r['slices']:>8s} {r['method']:11s} "
                           f"rmse80 {r['rmse80'] * 100:7.1f} %"
                           f"  medrel {r['medrel'] * 100:6.1f} %  {'plausible' if r['plausible'] else 'IMPLAUSIBLE'}"

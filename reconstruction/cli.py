@@ -99,6 +99,7 @@ def _number(cast: Callable[[str], Any], ok: Callable[[Any], bool], what: str) ->
 
 _positive_int = _number(int, lambda v: v >= 1, "a positive integer")
 _nonneg_float = _number(float, lambda v: v >= 0, "a number >= 0")
+_unit_float = _number(float, lambda v: 0 <= v <= 1, "a number from 0 to 1")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -151,6 +152,10 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--prior", metavar="DIR", default=None,
                     help="folder of measured materials (NBRDF npy sets, MERL .binary tables or material TOML files): "
                          "--method prior completes the slices from their structure; auto also tries it")
+    ap.add_argument("--prior-anchor", type=_unit_float, default=0.0, metavar="A",
+                    help="method prior: blend its completion with the samples' bivariate interpolation, f = "
+                         "f_prior^(1-A) f_bivariate^A (0: the prior alone, the default; auto scores 0, 0.25 and "
+                         "0.5 by cross-validation and reports the one it chose)")
     ap.add_argument("--allow-implausible", action="store_true",
                     help="write the table even if it fails a plausibility check (the report and the console say so)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar and no summary line")
@@ -188,7 +193,8 @@ def job_from_args(args: argparse.Namespace, **overrides: Any) -> Job:
         html=args.html if isinstance(getattr(args, "html", None), str) else None,
         **{k: getattr(args, k, None) for k in ("rgl", "zemax", "zemax_incidences", "zemax_azimuths", "zemax_radials",
                                               "export_mitsuba", "export_json")},
-        preview_renderer=getattr(args, "preview_renderer", None) or "builtin", prior=getattr(args, "prior", None))
+        preview_renderer=getattr(args, "preview_renderer", None) or "builtin", prior=getattr(args, "prior", None),
+        prior_anchor=float(getattr(args, "prior_anchor", 0.0) or 0.0))
     fields.update(overrides)
     return Job(**fields)
 

@@ -35,7 +35,7 @@ from .slicefile import Slice
 
 Array = NDArray[np.float64]
 
-__all__ = ["folds", "cross_validate", "CVScore", "N_BLOCKS"]
+__all__ = ["folds", "cross_validate", "score_predictions", "CVScore", "N_BLOCKS"]
 
 N_BLOCKS = 8
 
@@ -76,11 +76,19 @@ class CVScore:
     seconds: float
     failure: str | None = None
     predictions: Array | None = None  # (N, C) each sample predicted by the fold that held it out (NaN: never)
+    anchor: float | None = None  # prior: the weight of the bivariate interpolation (None: not a prior variant)
+
+    @property
+    def label(self) -> str:
+        """The method, with its anchor for a prior variant: "prior (anchor 0.25)"."""
+        return f"{self.method} (anchor {self.anchor:g})" if self.anchor else self.method
 
     def as_dict(self) -> dict[str, Any]:
-        return {"method": self.method, "held_out_relative_rmse_cos": self.error if math.isfinite(self.error) else None,
+        return {"method": self.method, "label": self.label,
+                "held_out_relative_rmse_cos": self.error if math.isfinite(self.error) else None,
                 "fold_errors": [e if math.isfinite(e) else None for e in self.fold_errors],
-                "seconds": round(self.seconds, 3), **({"failure": self.failure} if self.failure else {})}
+                "seconds": round(self.seconds, 3), **({"failure": self.failure} if self.failure else {}),
+                **({"prior_anchor": self.anchor} if self.anchor is not None else {})}
 
 
 def _score(pred: Array, f: Array, c: Array) -> tuple[float, float]:
@@ -141,3 +149,27 @@ def cross_validate(s: Slice, name: str, build: Callable[[Slice], Reconstruction]
         per.append(math.sqrt(a / b) if b > 0 else math.inf)
     err = math.sqrt(num / den) if den > 0 else math.inf
     return CVScore(name, err, per, time.perf_counter() - t0, predictions=held_pred)
+
+
+def score_predictions(s: Slice, name: str, pred: Array, masks: list[NDArray[np.bool_]],
+                      score_mask: NDArray[np.bool_] | None = None, seconds: float = 0.0) -> CVScore:
+    """The :class:`CVScore` of held-out predictions ``pred`` (N, C) made by the folds ``masks`` (NaN where a
+    sample was never held out): pooled and per fold as :func:`cross_validate` scores them. Scores a combination
+    of methods (e.g. a blend of two methods' held-out predictions) without fitting again."""
+    f, _ = s.brdf()
+    wi, wo = inplane_to_dirs(np.radians(s.theta_i_deg), np.radians(s.theta_o_deg))
+    c = (np.clip(wi[:, 2], 0, None) * np.clip(wo[:, 2], 0, None))[:, None]
+    pred = np.broadcast_to(np.asarray(pred, dtype=np.float64), f.shape)
+    num = den = 0.0
+    per: list[float] = []
+    for held in masks:  # a handful of folds
+        out = held & score_mask if score_mask is not None else held
+        if not out.any():
+            continue
+        if not np.all(np.isfinite(pred[out])):
+            return CVScore(name, math.inf, per, seconds, f"fold {len(per) + 1}: no finite prediction")
+        a, b = _score(pred[out], f[out], c[out])
+        num += a
+        den += b
+        per.append(math.sqrt(a / b) if b > 0 else math.inf)
+    return CVScore(name, math.sqrt(num / den) if den > 0 else math.inf, per, seconds, predictions=np.array(pred))

@@ -377,8 +377,9 @@ def build_html(*, report: Mapping[str, Any], working: Slice, rec: Reconstruction
         rows = ""
         for c in cv["scores"]:
             err = c["held_out_relative_rmse_cos"]
-            cls = ' class="pass"' if c["method"] == cv["chosen"] else ""
-            rows += (f"<tr{cls}><td>{html.escape(c['method'])}</td><td>{'-' if err is None else f'{err:.4%}'}</td>"
+            label = c.get("label", c["method"])
+            cls = ' class="pass"' if label == cv.get("chosen_label", cv["chosen"]) else ""
+            rows += (f"<tr{cls}><td>{html.escape(label)}</td><td>{'-' if err is None else f'{err:.4%}'}</td>"
                      f"<td>{c['seconds']:.2f}</td></tr>")
         sec["choice"] = (f"<p>{html.escape(report.get('method_reason', ''))}</p><p>Scheme: "
                          f"{html.escape(cv['scheme'])}; metric: {html.escape(cv['metric'])}.</p><table><tr><th>"

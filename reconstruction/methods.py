@@ -37,6 +37,7 @@ class Options:
     cos_power: float | None = None  # bivariate: None = chosen from the data
     prior: str | None = None  # prior: the folder of prior materials (--prior)
     prior_exclude: tuple[str, ...] = ()  # prior: materials of the folder left out (a benchmark's leave-one-out)
+    prior_anchor: float = 0.0  # prior: weight of the samples' bivariate interpolation in a geometric blend
 
 
 class NoOptions(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -71,6 +72,8 @@ class PriorOptions(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 
     prior: Annotated[str, Meta(description="folder of prior materials: NBRDF npy sets, MERL .binary tables or "
                                            "material TOML files (--prior)")] | None = None
+    anchor: Annotated[float, Meta(ge=0.0, le=1.0, description="weight a of the samples' bivariate interpolation: "
+                                  "f = f_prior^(1-a) f_bivariate^a (--prior-anchor; 0: the prior alone)")] = 0.0
 
 
 class BivariateOptions(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -185,12 +188,20 @@ def _bivariate(s: Slice, o: Options, progress: Callable[[str], None] | None) -> 
 def _prior(s: Slice, o: Options, progress: Callable[[str], None] | None) -> Reconstruction:
     from .prior import reconstruct_prior
 
-    opt = PriorOptions(prior=o.prior)
+    if not 0.0 <= o.prior_anchor <= 1.0:
+        raise ReconstructionError(f"method prior: --prior-anchor {o.prior_anchor:g}: expected a weight from 0 (the "
+                                  "prior alone) to 1 (the bivariate interpolation alone)")
+    opt = PriorOptions(prior=o.prior, anchor=o.prior_anchor)
     if not opt.prior:
         raise ReconstructionError("method prior needs --prior DIR: a folder of measured materials (NBRDF npy sets, "
                                   "MERL .binary tables or material TOML files) whose structure the slice is "
                                   "completed with")
-    return reconstruct_prior(s, opt.prior, exclude=tuple(o.prior_exclude))
+    rec = reconstruct_prior(s, opt.prior, exclude=tuple(o.prior_exclude))
+    if opt.anchor <= 0.0:
+        return rec
+    from .prior import AnchoredPrior
+
+    return AnchoredPrior(rec, _bivariate(s, o, None), opt.anchor)
 
 
 register(Method("fit", "analytic lobes (lambert, ggx/beckmann with Fresnel, retro) chosen by BIC, energy-constrained",
@@ -202,4 +213,4 @@ register(Method("revolve", "the thesis's solids of revolution, extended to every
 register(Method("bivariate", "f(theta_h, theta_d) interpolated between the measured lines", _bivariate,
                 BivariateOptions, {"fill": "fill", "cos_power": "cos_power"}))
 register(Method("prior", "completed from a basis of measured materials (--prior DIR), fitted to the slices",
-                _prior, PriorOptions, {"prior": "prior"}, available=lambda o: bool(o.prior)))
+                _prior, PriorOptions, {"prior": "prior", "anchor": "prior_anchor"}, available=lambda o: bool(o.prior)))

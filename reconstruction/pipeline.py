@@ -27,6 +27,7 @@ The report's ``cross_validation`` section holds the scheme, every method's held-
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import time
@@ -40,7 +41,7 @@ from numpy.typing import NDArray
 
 from . import merl
 from .base import Reconstruction, ReconstructionError
-from .crossval import CVScore, cross_validate, folds, noise_level, scene_mask
+from .crossval import CVScore, cross_validate, folds, noise_level, scene_mask, score_predictions
 from .inputs import check_slice
 from .methods import REGISTRY, Options, get
 from .report import ALBEDO_INCIDENCES_DEG, ALBEDO_TOLERANCE, checked_albedo
@@ -76,6 +77,11 @@ PRIOR_MARGIN_SEVERAL = 2.0
 #: (:func:`reconstruction.crossval.noise_level`): a model that explains all the data can show is taken as is (a
 #: lambert + ggx slice with 1 % noise: fit 1.3 % from one slice, where prior's 4x margin would have taken 17 %).
 NOISE_LEVEL_FACTOR = 1.5
+#: The anchors of ``prior`` that auto scores (:class:`reconstruction.prior.AnchoredPrior`: f_prior^(1-a)
+#: f_bivariate^a), each from the held-out predictions of prior and bivariate (no further fits). On the 48 MERL
+#: materials (benchmarks/bench_real_materials.py) they cut auto's worst rmse80 from one slice from 146 % to 99 %
+#: and from 20/40/60 deg from 169 % to 86 % (medians within a point: see docs/real-materials.md).
+PRIOR_ANCHORS = (0.25, 0.5)
 
 
 def max_albedo(rec: Reconstruction) -> tuple[float, float]:
@@ -162,6 +168,8 @@ def _auto(s: Slice, opts: Options, progress: Callable[[str], None] | None) -> tu
             continue
         if name == "fit":
             builders[name] = lambda tr: reconstruct_fit(tr, scene=opts.scene, lobes=opts.lobes, specs=specs)
+        elif name == "prior":  # its anchored variants are scored from its and bivariate's held-out predictions
+            builders[name] = lambda tr, m=m: m.build(tr, dataclasses.replace(opts, prior_anchor=0.0), None)
         else:
             builders[name] = lambda tr, m=m: m.build(tr, opts, None)
     inside = scene_mask(s, opts.scene)
@@ -172,6 +180,7 @@ def _auto(s: Slice, opts: Options, progress: Callable[[str], None] | None) -> tu
         if progress:
             progress(f"cross-validating {name}")
         scores.append(cross_validate(s, name, build, masks, inside))
+    scores += _anchored_scores(s, scores, masks, inside)
     single = np.unique(s.theta_i_deg).size == 1
     preferred, margin = preference(list(builders), single, _finite_aperture(s))
     noise = noise_level(s, inside)
@@ -179,24 +188,24 @@ def _auto(s: Slice, opts: Options, progress: Callable[[str], None] | None) -> tu
     at_noise = at_noise_level(scores, preferred, noise)
     rejected: list[str] = []
     chosen: Reconstruction | None = None
+    best = ranked[0]
     for sc in ranked:
         if not np.isfinite(sc.error):
             continue
-        rec = fit_rec if sc.method == "fit" else REGISTRY[sc.method].build(full, opts, progress)
+        rec = fit_rec if sc.method == "fit" else REGISTRY[sc.method].build(full, _options_of(sc, opts), progress)
         alb, at = max_albedo(rec)
         if alb > 1.0 + ALBEDO_TOLERANCE:
-            rejected.append(f"{sc.method} (held-out {sc.error:.2%}) reflects more than it receives: directional "
+            rejected.append(f"{sc.label} (held-out {sc.error:.2%}) reflects more than it receives: directional "
                             f"albedo {alb:.3g} at theta_i = {at:g} deg")
             continue
-        chosen = rec
+        chosen, best = rec, sc
         break
     if chosen is None:
         raise ReconstructionError(f"{s.source}: no method gives a physically plausible BRDF from these samples ("
                                   + "; ".join(rejected or [f"{c.method}: {c.failure}" for c in scores]) + ")")
-    best = next(c for c in ranked if c.method == chosen.method)
-    others = ", ".join(f"{c.method} {c.error:.2%}" for c in ranked if c is not best and np.isfinite(c.error))
+    others = ", ".join(f"{c.label} {c.error:.2%}" for c in ranked if c is not best and np.isfinite(c.error))
     model = f" ({fit_rec.result.name})" if chosen.method == "fit" else ""
-    reason = (f"lowest held-out error ({scheme}): {chosen.method}{model} predicts the samples it did not see to "
+    reason = (f"lowest held-out error ({scheme}): {best.label}{model} predicts the samples it did not see to "
               f"{best.error:.2%} relative RMSE of f cos cos" + (f" (then {others})" if others else ""))
     if at_noise:
         reason += (f"; the best predicts to within {NOISE_LEVEL_FACTOR:g}x the samples' own noise ({noise:.2%}), so "
@@ -217,6 +226,7 @@ def _auto(s: Slice, opts: Options, progress: Callable[[str], None] | None) -> tu
     cv = {"scheme": scheme, "folds": len(masks), "metric": "relative RMSE of f cos(theta_i) cos(theta_o) over the "
           "held-out samples" + (" inside the scene's ranges" if inside is not None else ""),
           "scores": [c.as_dict() for c in sorted(scores, key=lambda c: c.error)], "chosen": chosen.method,
+          "chosen_label": best.label, **({"prior_anchor": best.anchor or 0.0} if best.method == "prior" else {}),
           "fit_model": fit_rec.result.name, "rejected": rejected,
           "single_incidence_preference": ({"method": preferred[0], "methods": preferred, "margin": margin}
                                           if single and preferred else None),
@@ -224,7 +234,34 @@ def _auto(s: Slice, opts: Options, progress: Callable[[str], None] | None) -> tu
                          if preferred else None)}
     return chosen, {"requested": "auto", "used": chosen.method, "reason": reason, "cross_validation": cv,
                     "held_out_predictions": ({} if s is not full else  # per sample of the input (none when thinned)
-                                             {c.method: c.predictions for c in scores if c.predictions is not None})}
+                                             {c.method: c.predictions for c in scores if c.predictions is not None
+                                              and (c.method != best.method or c is best)})}
+
+
+def _anchored_scores(s: Slice, scores: list[CVScore], masks: list[NDArray[np.bool_]],
+                     inside: NDArray[np.bool_] | None) -> list[CVScore]:
+    """The held-out scores of prior anchored to bivariate (:data:`PRIOR_ANCHORS`), from the two methods' own
+    held-out predictions (the blend of each fold's two predictions is that fold's prediction of the blend)."""
+    from .prior import anchored
+
+    by = {c.method: c for c in scores}
+    p, b = by.get("prior"), by.get("bivariate")
+    if (p is None or b is None or p.predictions is None or b.predictions is None or not math.isfinite(p.error)
+            or not math.isfinite(b.error)):
+        return []
+    p.anchor = 0.0
+    out = []
+    for a in PRIOR_ANCHORS:  # two weights
+        sc = score_predictions(s, "prior", anchored(p.predictions, b.predictions, a), masks, inside,
+                               p.seconds + b.seconds)
+        sc.anchor = a
+        out.append(sc)
+    return out
+
+
+def _options_of(sc: CVScore, opts: Options) -> Options:
+    """The options that build the method of ``sc`` (a prior variant: its anchor)."""
+    return dataclasses.replace(opts, prior_anchor=sc.anchor) if sc.anchor is not None else opts
 
 
 def reconstruct(s: Slice, method: str = "auto", opts: Options | None = None,
@@ -312,6 +349,7 @@ class Job:
     export_json: str | None = None
     preview_renderer: str = "builtin"
     prior: str | None = None  # --prior DIR: the folder of prior materials (method prior; auto tries it when given)
+    prior_anchor: float = 0.0  # --prior-anchor A: method prior's blend with the bivariate interpolation (0..1)
 
     @property
     def steps(self) -> list[str]:
@@ -433,7 +471,7 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
     done("colour", t0)
     t0 = begin("reconstructing")
     opts = Options(scene=scene, fill=job.fill, lobes=lobes, revolve_axis=job.axis, revolve_smoothing=job.smoothing,
-                   prior=job.prior)
+                   prior=job.prior, prior_anchor=job.prior_anchor)
     rec, choice = reconstruct(working, job.method, opts,
                               progress=(lambda name: progress.begin(f"fitting {name}")) if progress else None)
     done("reconstruct", t0)
