@@ -213,7 +213,8 @@ the cases run here: {"; ".join(_label(m) for m in modes)} (the issue's cases are
 20/40/60 deg; a column's heading names its case: 1, 3 or the incidences). Each method's table is compared with the
 material's own table. Figures: **rmse80** (relative RMSE of f cos theta_i cos theta_o over every cell with both
 angles <= 80 deg) / **medrel** (median relative error of f where f is above 1 % of its maximum, same cells),
-in %. `[method]` is the method `auto` chose by cross-validation; "(implausible)" marks a table that fails the
+in %. `[method]` is the method `auto` chose by cross-validation (`prior (anchor A)`: prior blended with the bivariate
+interpolation, f_prior^(1-A) f_bivariate^A); "(implausible)" marks a table that fails the
 plausibility checks (gonio-reconstruct refuses to write it without `--allow-implausible`). `prior` (and `auto`,
 which tries it) completes each material from a basis of the **other** 47 materials (leave-one-out: a material never
 sees itself); the other half of the MERL database is kept apart for independent judging.
