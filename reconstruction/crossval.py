@@ -125,12 +125,9 @@ def cross_validate(s: Slice, name: str, build: Callable[[Slice], Reconstruction]
     ``score_mask`` only the held-out samples inside it count (a scene's directions)."""
     f, _ = s.brdf()
     wi, wo = inplane_to_dirs(np.radians(s.theta_i_deg), np.radians(s.theta_o_deg))
-    c = (np.clip(wi[:, 2], 0, None) * np.clip(wo[:, 2], 0, None))[:, None]
     t0 = time.perf_counter()
-    num = den = 0.0
-    per: list[float] = []
     held_pred = np.full(f.shape, np.nan)
-    for held in masks:  # a handful of folds
+    for k, held in enumerate(masks):  # a handful of folds
         out = held & score_mask if score_mask is not None else held
         if not out.any():
             continue
@@ -139,16 +136,11 @@ def cross_validate(s: Slice, name: str, build: Callable[[Slice], Reconstruction]
             rec = build(train)
             pred = np.asarray(rec.eval(wi[out], wo[out]), dtype=np.float64).reshape(int(out.sum()), -1)
         except (ReconstructionError, ValueError, np.linalg.LinAlgError) as e:
-            return CVScore(name, math.inf, per, time.perf_counter() - t0, f"fold {len(per) + 1}: {e}")
+            return CVScore(name, math.inf, [], time.perf_counter() - t0, f"fold {k + 1}: {e}")
         if not np.all(np.isfinite(pred)):
-            return CVScore(name, math.inf, per, time.perf_counter() - t0, f"fold {len(per) + 1}: non-finite values")
+            return CVScore(name, math.inf, [], time.perf_counter() - t0, f"fold {k + 1}: non-finite values")
         held_pred[out] = np.broadcast_to(pred, f[out].shape)
-        a, b = _score(np.broadcast_to(pred, f[out].shape), f[out], c[out])
-        num += a
-        den += b
-        per.append(math.sqrt(a / b) if b > 0 else math.inf)
-    err = math.sqrt(num / den) if den > 0 else math.inf
-    return CVScore(name, err, per, time.perf_counter() - t0, predictions=held_pred)
+    return score_predictions(s, name, held_pred, masks, score_mask, time.perf_counter() - t0)
 
 
 def score_predictions(s: Slice, name: str, pred: Array, masks: list[NDArray[np.bool_]],

@@ -228,20 +228,27 @@ def test_an_anchored_prior_is_the_weighted_geometric_mean_of_prior_and_bivariate
         methods.get("prior").build(s, opts(1.5), None)
 
 
-def test_held_out_predictions_are_scored_as_cross_validation_scores_them():
-    from reconstruction import methods
-    from reconstruction.crossval import cross_validate, folds, score_predictions
+def test_held_out_predictions_are_scored_as_the_relative_rmse_of_f_cos_cos():
+    from reconstruction.crossval import folds, score_predictions
+    from reconstruction.geometry import inplane_to_dirs
 
     s = synthetic_slice(TARGET, (20.0, 40.0, 60.0)).sorted()
     _, masks = folds(s)
-    build = lambda tr: methods.get("bivariate").build(tr, pipeline.Options(), None)  # noqa: E731
+    f, _ = s.brdf()
+    wi, wo = inplane_to_dirs(np.radians(s.theta_i_deg), np.radians(s.theta_o_deg))
+    c = (wi[:, 2] * wo[:, 2])[:, None]
+    pred = f * np.random.default_rng(2).uniform(0.7, 1.3, f.shape)
     for inside in (None, np.abs(s.theta_o_deg) < 45):  # all held-out samples, or those inside a scene's range
-        cv = cross_validate(s, "bivariate", build, masks, inside)
-        again = score_predictions(s, "x", cv.predictions, masks, inside)
-        assert again.error == pytest.approx(cv.error, rel=1e-12) and len(again.fold_errors) == len(cv.fold_errors)
-        np.testing.assert_allclose(again.fold_errors, cv.fold_errors, rtol=1e-12)
-        worse = score_predictions(s, "x", 1.3 * cv.predictions, masks, inside)
-        assert worse.error > cv.error
+        sc = score_predictions(s, "x", pred, masks, inside)
+        use = np.ones(len(s), dtype=bool) if inside is None else inside
+        per = [np.sqrt(np.sum(((pred - f) * c)[m & use] ** 2) / np.sum((f * c)[m & use] ** 2)) for m in masks]
+        pooled = np.sqrt(np.sum(((pred - f) * c)[use] ** 2) / np.sum((f * c)[use] ** 2))  # the folds cover all
+        assert sc.error == pytest.approx(pooled, rel=1e-12) and sc.fold_errors == pytest.approx(per, rel=1e-12)
+    assert score_predictions(s, "x", f, masks).error == 0.0
+    holes = pred.copy()
+    holes[masks[1]] = np.nan  # a fold without predictions is a failure, not a silently smaller score
+    bad = score_predictions(s, "x", holes, masks)
+    assert np.isinf(bad.error) and "fold 2" in bad.failure
 
 
 def test_auto_anchors_the_prior_on_a_material_outside_its_family(family):
