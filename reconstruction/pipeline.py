@@ -262,8 +262,9 @@ def _anchored_scores(s: Slice, scores: list[CVScore], masks: list[NDArray[np.boo
 
 
 def _options_of(sc: CVScore, opts: Options) -> Options:
-    """The options that build the method of ``sc`` (a prior variant: its anchor)."""
-    return dataclasses.replace(opts, prior_anchor=sc.anchor) if sc.anchor is not None else opts
+    """The options that build the method of ``sc``: a prior variant with its anchor (the prior alone when none was
+    scored), as cross-validated; ``--prior-anchor`` is for ``--method prior``."""
+    return dataclasses.replace(opts, prior_anchor=sc.anchor or 0.0) if sc.method == "prior" else opts
 
 
 def reconstruct(s: Slice, method: str = "auto", opts: Options | None = None,

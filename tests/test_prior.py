@@ -269,6 +269,11 @@ def test_auto_anchors_the_prior_on_a_material_outside_its_family(family):
     assert choice["used"] == "prior" and cv["chosen_label"] == best["label"] != "prior"
     assert cv["prior_anchor"] == best["prior_anchor"] > 0 and best["label"] in choice["reason"]
     assert rec.report()["anchor"]["weight"] == best["prior_anchor"]
+    # --prior-anchor is for --method prior: auto scores and builds its own anchors whatever it says
+    rec1, choice1 = pipeline.reconstruct(s, "auto", pipeline.Options(prior=str(folder), prior_anchor=1.0))
+    got = {c["label"]: c["held_out_relative_rmse_cos"] for c in choice1["cross_validation"]["scores"]}
+    assert got == pytest.approx({c["label"]: c["held_out_relative_rmse_cos"] for c in cv["scores"]}, rel=1e-6)
+    assert rec1.report()["anchor"]["weight"] == best["prior_anchor"]
     # the variants' scores are those of the blend of prior's and bivariate's own held-out predictions
     from reconstruction import methods
     from reconstruction.crossval import cross_validate
