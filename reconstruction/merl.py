@@ -445,6 +445,15 @@ def tabulate(
     return out
 
 
+def tabulate_reciprocal(g: Callable[[Array, Array], ArrayLike]) -> Array:
+    """The bin-centre table of 0.5 (g(wi, wo) + g(wo, wi)) from one evaluation of ``g`` per cell, for a ``g``
+    symmetric under reflection in the plane of incidence: the swapped pair of cell phi_d is the mirror image of
+    cell pi - phi_d (bin k of 180 <-> bin 179 - k), so the reciprocal table is the average of g's table and
+    its phi_d-reversed self. (3, 90, 90, 180), NaN below the horizon as :func:`tabulate`."""
+    t = tabulate(g)
+    return 0.5 * (t + t[..., ::-1])
+
+
 def average_theta_h_cells(f: Callable[[Array, Array], ArrayLike], table: ArrayLike, theta_h_max: float,
                           n: int = 16, chunk_cells: int = 200_000) -> tuple[Array, int]:
     """``table`` with its cells below ``theta_h_max`` (radians) replaced by f's cell averages over theta_h.

@@ -253,3 +253,24 @@ def test_half_diff_cosines_and_theta_h_averages_match_the_direction_pairs():
     assert rows == rows_ref >= 3 and covered[merl.valid_mask()[:rows]].all()
     ok = merl.valid_mask()[:rows]
     np.testing.assert_allclose(avg[ok], ref[0, :rows][ok], rtol=1e-9)
+
+
+def test_the_reciprocal_table_of_a_mirror_symmetric_function_comes_from_one_evaluation_per_cell():
+    """g depends on wi's and wo's heights and |wo_y| (symmetric about the plane of incidence) but is not
+    reciprocal: the phi_d-reversed average is the table of 0.5 (g(wi, wo) + g(wo, wi))."""
+    calls = []
+
+    def g(wi, wo):
+        calls.append(len(wi))
+        v = 0.1 + wi[:, 2] ** 3 * (1.0 + np.abs(wo[:, 1])) + 0.5 * wo[:, 2]
+        return np.stack([v, 2 * v, 3 * v], axis=1)
+
+    fast = merl.tabulate_reciprocal(g)
+    n_fast = sum(calls)
+    calls.clear()
+    slow = merl.tabulate(lambda i, o: 0.5 * (g(i, o) + g(o, i)))
+    assert n_fast == sum(calls) // 2  # half the evaluations
+    v = merl.valid_mask()
+    np.testing.assert_allclose(fast[:, v], slow[:, v], rtol=1e-12)
+    assert np.isnan(fast[:, ~v]).all()
+    assert not np.allclose(merl.tabulate(g)[:, v], slow[:, v], rtol=1e-3)  # g alone is not reciprocal

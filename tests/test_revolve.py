@@ -606,3 +606,26 @@ def test_sort_option_and_bad_parameters():
             rv.reconstruct_revolve(good, **kw)
     with pytest.raises(ReconstructionError, match="was not measured"):
         rv.thesis_hemisphere(good, 45.0)
+
+
+def test_the_revolve_table_is_its_reciprocal_eval_at_every_cell_from_one_evaluation_per_cell():
+    mat = Material.from_dict({"name": "m", "lobes": [{"type": "lambert", "albedo": [0.3, 0.2, 0.1]},
+                                                     {"type": "ggx", "alpha": 0.15, "specular": 0.8, "f0": 0.04}]})
+    for inc in ((40.0,), (20.0, 40.0, 60.0)):
+        ti, to = [], []
+        for t in inc:
+            o = np.arange(-80.0, 80.1, 2.0)
+            o = o[np.abs(o + t) >= 4]
+            ti.append(np.full(o.size, t))
+            to.append(o)
+        a, b = np.concatenate(ti), np.concatenate(to)
+        s = Slice(a, b, mat.eval(*inplane_to_dirs(np.radians(a), np.radians(b))), ["R", "G", "B"])
+        rec = rv.reconstruct_revolve(s, reciprocal=True)
+        wi = sph_to_vec(np.radians([30.0, 50.0]), np.radians([0.0, 10.0]))
+        wo = sph_to_vec(np.radians([60.0, 20.0]), np.radians([140.0, 250.0]))
+        np.testing.assert_allclose(rec.eval(wi, wo), rec.eval(wo, wi), rtol=1e-6)  # reciprocal
+        assert not np.allclose(rec.eval(wi, wo, False), rec.eval(wo, wi, False), rtol=1e-3)  # the one-way model
+        fast, slow = rec.table(), merl.tabulate(rec.eval)
+        v = merl.valid_mask()
+        np.testing.assert_allclose(fast[:, v], slow[:, v], rtol=1e-5)
+        assert np.isnan(fast[:, ~v]).all()

@@ -419,12 +419,22 @@ class RevolveReconstruction:
         """The measured incidences theta_i, degrees, increasing."""
         return [math.degrees(t) for t in self._thetas]
 
-    def eval(self, wi: ArrayLike, wo: ArrayLike) -> Array:
+    def table(self) -> Array:
+        """The MERL table (3, 90, 90, 180): the reciprocal average from one evaluation per cell
+        (:func:`~reconstruction.merl.tabulate_reciprocal`: every lobe is symmetric about the plane of incidence)."""
+        from .. import merl
+
+        recip = self._params.get("reciprocal", False)
+        t = merl.tabulate_reciprocal(lambda i, o: self.eval(i, o, False)) if recip else merl.tabulate(self.eval)
+        return merl.average_theta_h_cells(self.eval, t, self.sharp_theta_h_rad, n=8)[0] if self.sharp_theta_h_rad else t
+
+    def eval(self, wi: ArrayLike, wo: ArrayLike, reciprocal: bool | None = None) -> Array:
         """f_r (..., C) in 1/sr at direction pairs (..., 3) (z = normal); 0 where either is below the horizon.
 
         Each pair is turned about the normal so that wi lies in the plane of incidence; every lobe is looked
         up at the angle from its axis for this incidence; between measured incidences the two neighbouring
-        models are blended linearly in theta_i (outside their range the nearest one is used).
+        models are blended linearly in theta_i (outside their range the nearest one is used). ``reciprocal``:
+        average f(wi, wo) and f(wo, wi) (default: as reconstructed).
         """
         wi = np.asarray(wi, dtype=np.float64)
         wo = np.asarray(wo, dtype=np.float64)
@@ -435,7 +445,7 @@ class RevolveReconstruction:
         wo = np.broadcast_to(wo, shape).reshape(-1, 3)
         n = wi.shape[0]
         out = np.empty((n, len(self.channels)))
-        recip = self._params.get("reciprocal", False)
+        recip = self._params.get("reciprocal", False) if reciprocal is None else reciprocal
         for a in range(0, n, _EVAL_CHUNK):  # blocks that stay in cache, each vectorised
             i, o = wi[a:a + _EVAL_CHUNK], wo[a:a + _EVAL_CHUNK]
             out[a:a + _EVAL_CHUNK] = 0.5 * (self._eval_flat(i, o) + self._eval_flat(o, i)) if recip else \
