@@ -181,7 +181,9 @@ def _auto(s: Slice, opts: Options, progress: Callable[[str], None] | None) -> tu
     for name, build in builders.items():  # a handful of methods
         if progress:
             progress(f"cross-validating {name}")
-        scores.append(cross_validate(s, name, build, masks, inside))
+        sc = cross_validate(s, name, build, masks, inside)
+        sc.anchor = 0.0 if name == "prior" else None  # built with anchor 0 (above)
+        scores.append(sc)
     scores += _anchored_scores(s, scores, masks, inside)
     single = np.unique(s.theta_i_deg).size == 1
     preferred, margin = preference(list(builders), single, _finite_aperture(s))
@@ -251,7 +253,6 @@ def _anchored_scores(s: Slice, scores: list[CVScore], masks: list[NDArray[np.boo
     if (p is None or b is None or p.predictions is None or b.predictions is None or not math.isfinite(p.error)
             or not math.isfinite(b.error)):
         return []
-    p.anchor = 0.0
     out = []
     for a in PRIOR_ANCHORS:  # two weights
         sc = score_predictions(s, "prior", anchored(p.predictions, b.predictions, a), masks, inside,
