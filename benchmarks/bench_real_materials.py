@@ -38,12 +38,30 @@ sys.path.insert(0, str(ROOT))
 
 from reconstruction import merl, pipeline, report  # noqa: E402
 from reconstruction.geometry import inplane_to_dirs  # noqa: E402
-from reconstruction.metrics import median_relative_error, relative_rmse_cos  # noqa: E402
+from reconstruction.metrics import (  # noqa: E402
+    _table_cosines,
+    median_relative_error,
+    relative_rmse_cos,
+    relative_rmse_cos_by_theta_d,
+    within_angle_mask,
+)
 from reconstruction.models import NBRDF_SUFFIXES, Material  # noqa: E402
 from reconstruction.slicefile import Slice  # noqa: E402
 
 MODES = {"1": (40.0,), "3": (20.0, 40.0, 60.0)}
 STEP_DEG, BLIND_DEG, MAX_DEG = 2.0, 4.0, 80.0
+THETA_D_EDGES = (0.0, 30.0, 45.0, 60.0, 90.0)  # bands of theta_d (deg) for the split of rmse80
+GRAZING_DEG = 60.0  # theta_d above what a 40 deg slice sees at its specular peak and beyond the 3 slices' peaks
+
+
+def grazing_level(table: np.ndarray, truth: np.ndarray) -> float:
+    """||f c|| / ||g c|| over the cells within 80 deg with theta_d >= GRAZING_DEG: the reconstruction's level
+    where no slice of the cases 1 and 3 reaches the specular peak (1 = right level, 2 = twice too bright)."""
+    c = _table_cosines()[None]
+    td = (np.arange(90) + 0.5)[None, None, :, None]
+    m = within_angle_mask(MAX_DEG)[None] & (td >= GRAZING_DEG) & np.isfinite(table) & np.isfinite(truth)
+    den = np.sqrt(np.sum(np.where(m, truth * c, 0.0) ** 2))
+    return float(np.sqrt(np.sum(np.where(m, table * c, 0.0) ** 2)) / den) if den > 0 else float("nan")
 
 
 def material_names(folder: Path) -> list[str]:
@@ -96,6 +114,9 @@ def run_material(job: tuple[str, str, list[str], str | None, list[str], str | No
                     checks = report.plausibility(rec, table)
                     rec_out.update(used=choice["used"], rmse80=relative_rmse_cos(table, truth, MAX_DEG),
                                    medrel=median_relative_error(table, truth, MAX_DEG),
+                                   rmse80_theta_d=relative_rmse_cos_by_theta_d(table, truth, MAX_DEG,
+                                                                               THETA_D_EDGES).tolist(),
+                                   grazing_level=grazing_level(table, truth),
                                    plausible=bool(checks["all_pass"]), max_albedo=float(checks["albedo"]["max"]))
                     if "cross_validation" in choice:
                         scores = choice["cross_validation"]["scores"]
@@ -147,6 +168,15 @@ def summarise(records: list[dict[str, Any]], methods: list[str]) -> list[str]:
                          f"; implausible tables: {sum(not r['plausible'] for r in ok)}; failed: {len(rs) - len(ok)};"
                          f" time median {np.median([r['seconds'] for r in ok]):.2f} s, max "
                          f"{max(r['seconds'] for r in ok):.2f} s")
+            if all("rmse80_theta_d" in r for r in ok):
+                parts = np.array([r["rmse80_theta_d"] for r in ok]) ** 2
+                share = parts[:, -1] / np.maximum(parts.sum(axis=1), 1e-300) * 100
+                lv = np.array([r["grazing_level"] for r in ok])
+                q = np.nanpercentile(lv, [10, 50, 90])
+                lines.append(f"  {'':11s} share of rmse80^2 at theta_d >= {GRAZING_DEG:g} deg: median "
+                             f"{np.median(share):4.0f} % (mean {share.mean():.0f} %); "
+                             f"level there (table/truth) 10/50/90 %: "
+                             f"{q[0]:.2f} / {q[1]:.2f} / {q[2]:.2f}")
         if "auto" in methods and len(methods) > 1:
             by = {}
             for r in records:
@@ -218,6 +248,17 @@ interpolation, f_prior^(1-A) f_bivariate^A); "(implausible)" marks a table that 
 plausibility checks (gonio-reconstruct refuses to write it without `--allow-implausible`). `prior` (and `auto`,
 which tries it) completes each material from a basis of the **other** 47 materials (leave-one-out: a material never
 sees itself); the other half of the MERL database is kept apart for independent judging.
+
+## Where the error lies
+
+Under each method's line, the summary splits rmse80 by the difference angle: the share of its square that comes
+from cells with theta_d >= 60 deg, and the reconstruction's level there (||f c|| / ||g c|| over those cells, c =
+cos theta_i cos theta_o; 1 = right). A slice at incidence theta_i reaches theta_d = theta_i at its specular peak
+and (theta_i + 80)/2 at its last sample, so from 40 deg (and from 20/40/60 deg) the grazing specular peak, where
+most materials brighten steeply (Fresnel, shadowing), is never measured: every method extrapolates it. Most of
+the error is there; the levels' spread (10th to 90th percentile) says how far from the truth that extrapolation
+lands. A capture meant for grazing renders needs a slice at high incidence (70-75 deg): see the cases
+20/50/75 and 40/70 (`--slices 1,3,20/50/75,40/70`).
 
 ## Summary
 

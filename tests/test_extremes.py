@@ -103,3 +103,33 @@ def test_theta_h_zero_and_grazing_pairs_are_finite_in_every_model():
     for mat in (SHARP, ROUGH, DIFFUSE):
         v = mat.eval(wi, wo)
         assert np.all(np.isfinite(v)) and np.all(v >= 0)
+
+
+class _EvalOnly:
+    """A reconstruction with eval only (no table of its own), as a user's plug-in method might be."""
+
+    method = "eval-only"
+
+    def __init__(self, mat, sharp):
+        self._mat, self.sharp_theta_h_rad = mat, sharp
+
+    def eval(self, wi, wo):
+        return self._mat.eval(wi, wo)
+
+
+def test_tabulate_without_a_table_averages_a_sharp_lobe_over_its_cells():
+    """pipeline.tabulate's fallback for a method without table(): bin-centre values, and where the method names a
+    lobe sharper than the cells (sharp_theta_h_rad), theta_h cell averages there; negative values refused."""
+    point = merl.tabulate(SHARP.eval)
+    plain = pipeline.tabulate(_EvalOnly(SHARP, None))
+    np.testing.assert_array_equal(plain, point)
+    avg = pipeline.tabulate(_EvalOnly(SHARP, 0.01))
+    ref, rows = merl.average_theta_h_cells(SHARP.eval, point, 0.01, n=8)
+    np.testing.assert_allclose(avg, ref, rtol=1e-12)
+    valid = merl.valid_mask()
+    assert rows >= 1 and not np.allclose(avg[:, :rows][:, valid[:rows]], point[:, :rows][:, valid[:rows]])
+    np.testing.assert_array_equal(avg[:, rows:], point[:, rows:])  # beyond the sharp rows: bin centres
+    neg = _EvalOnly(SHARP, None)
+    neg.eval = lambda wi, wo: -SHARP.eval(wi, wo)
+    with pytest.raises(ReconstructionError, match="negative"):
+        pipeline.tabulate(neg)

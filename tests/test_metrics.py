@@ -46,3 +46,17 @@ def test_log_rmse_weighs_the_floor_where_relative_rmse_sees_the_peak(truth):
     dim[weighted < 0.02 * weighted.max()] *= 0.5  # halve only the dim cells, a large part of the table
     assert metrics.relative_rmse_cos(dim, truth) < 0.05
     assert metrics.log_rmse(dim, truth, eps=1e-6) > 0.2  # ln 2 on ~14 % of the cells
+
+
+def test_rmse_by_theta_d_splits_the_error_where_it_lies(truth):
+    """An error placed only at grazing theta_d (>= 60 deg) shows in that band alone, and the bands' squares add
+    up to the whole relative RMSE."""
+    off = truth.copy()
+    off[:, :, 70:80, :] *= 1.5  # theta_d bins 70..79 deg only
+    off[:, 0:5, 10:20, :] *= 0.9  # a smaller error at theta_d 10..19 deg
+    parts = metrics.relative_rmse_cos_by_theta_d(off, truth, 80.0, (0.0, 30.0, 60.0, 90.0))
+    whole = metrics.relative_rmse_cos(off, truth, 80.0)
+    assert parts.shape == (3,)
+    assert np.sum(parts**2) == pytest.approx(whole**2, rel=1e-9)
+    assert parts[1] == 0.0 and parts[0] > 0.0 and parts[2] > parts[0]
+    np.testing.assert_allclose(metrics.relative_rmse_cos_by_theta_d(truth, truth, 80.0), 0.0)
