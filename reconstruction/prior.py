@@ -292,13 +292,14 @@ class PriorReconstruction:
         from .colour import _interp_matrix
 
         nh, nd, npd = GRID
-        v = self.values if self.values.shape[0] == 3 else np.repeat(self.values[:1], 3, axis=0)
-        v = v.reshape(3, nh, nd, npd)
+        v = self.values if self.values.shape[0] == 3 else self.values[:1]  # a grey BRDF: one channel, repeated
+        v = v.reshape(v.shape[0], nh, nd, npd)
         v = np.concatenate([v, v[..., :1]], axis=-1)  # phi_d is periodic (pi)
         # linear interpolation matrices in bin-index units, ends held (as map_coordinates' mode="nearest")
         wd = _interp_matrix(np.arange(nd, dtype=np.float64), (np.arange(90) + 0.5) / 90 * nd - 0.5)  # (nd, 90)
         wp = _interp_matrix(np.arange(npd + 1, dtype=np.float64), (np.arange(180) + 0.5) / 180 * npd)  # (npd+1, 180)
         t = np.einsum("da,chdp,pb->chab", wd, v, wp, optimize=True)
+        t = np.broadcast_to(t, (3, *t.shape[1:]))  # the same numbers in every channel, not three roundings
         return np.where(merl.valid_mask()[None], np.maximum(t, 0.0), 0.0)
 
     def report(self) -> dict[str, Any]:

@@ -10,6 +10,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -315,10 +316,26 @@ def test_a_second_signal_while_stopping_is_no_traceback_and_keeps_the_status(tmp
     out = tmp_path / "out"
     p = popen_capture("--config", str(cfg), "--out", str(out), "--no-progress")
     wait_for_rows(out / "slice.csv", 3, p)
+    lines: list[str] = []
+    seen = threading.Event()
+
+    def drain() -> None:  # stderr read as it comes, so the second signal waits for the first's acknowledgement
+        for line in p.stderr:  # type: ignore[union-attr]
+            lines.append(line)
+            if "received: stopping" in line:
+                seen.set()
+
+    reader = threading.Thread(target=drain, daemon=True)
+    reader.start()
     p.send_signal(first)
+    # pending signals are run in signal-number order, so two that arrive before the process runs either would
+    # be seen as SIGINT first: the second is sent once the first is acknowledged
+    assert seen.wait(30), "".join(lines)
     time.sleep(gap)
     p.send_signal(second)
-    _, err = p.communicate(timeout=30)
+    p.wait(timeout=30)
+    reader.join(timeout=30)
+    err = "".join(lines)
     assert p.returncode == code, err
     assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
     assert f"interrupted by {signal.Signals(first).name}" in err and "--resume" in err
