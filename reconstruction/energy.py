@@ -12,17 +12,21 @@ hemisphere (dimensionless; a passive BRDF has a <= 1 at every incidence). For lo
 
 The tables are integrals over the half vector with the distribution's own inverse CDF (Gauss-Legendre in the
 CDF variable and in the azimuth), so a lobe far narrower than any fixed grid (alpha = 1e-3) is integrated as
-accurately as a broad one. Built lazily on first use (about 0.3 s) and cached.
+accurately as a broad one. Built on first use (about 0.3-0.5 s per table) and cached on disk
+(:mod:`.cache`, keyed by this module's source), so a process pays it only on a new machine or a changed module.
 """
 
 from __future__ import annotations
 
+import hashlib
 import math
 from functools import lru_cache
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .cache import cached_arrays
 from .models import beckmann_g1_over_cos, ggx_g1_over_cos
 
 Array = NDArray[np.float64]
@@ -45,9 +49,20 @@ def _gauss01(n: int) -> tuple[Array, Array]:
     return 0.5 * (x + 1.0), 0.5 * w
 
 
+@lru_cache(maxsize=1)
+def _source_key() -> str:
+    """The cache key of every table here: this module's own source (its grids, integrands and constants)."""
+    return hashlib.sha1(Path(__file__).read_bytes()).hexdigest()
+
+
 @lru_cache(maxsize=2)
 def _microfacet_tables(distribution: str) -> tuple[Array, Array, Array, Array]:
-    """(theta_i nodes, log alpha nodes, E1, E5) with E* of shape (n_ti, n_alpha)."""
+    """(theta_i nodes, log alpha nodes, E1, E5) with E* of shape (n_ti, n_alpha), from the disk cache."""
+    ti, la, e1, e5 = cached_arrays(f"albedo-{distribution}", _source_key(), lambda: _build_microfacet(distribution))
+    return ti, la, e1, e5
+
+
+def _build_microfacet(distribution: str) -> tuple[Array, Array, Array, Array]:
     ti = _ti_grid()
     la = np.linspace(np.log(ALPHA_TABLE_RANGE[0]), np.log(ALPHA_TABLE_RANGE[1]), _N_A)
     u, wu = _gauss01(_N_U)
@@ -69,15 +84,14 @@ def _microfacet_tables(distribution: str) -> tuple[Array, Array, Array, Array]:
         woz = 2.0 * c_d * hz - wiz
         ok = (c_d > 0) & (woz > 0)
         # f cos_o d omega_o = D F G1 G1 / (4 ci co) co 4 (wo . h) d omega_h, with wo . h = wi . h
-        vals = np.zeros(np.broadcast_shapes(alpha.shape, hx.shape))
-        for j, a in enumerate(np.exp(la)):  # G1 / cos takes a scalar alpha
-            gi = g1(np.full(1, wiz), a)[0]
-            go = g1(np.clip(woz[0, j], 0.0, 1.0), a)
-            vals[0, j] = np.where(ok[0, j], gi * go * np.clip(woz[0, j], 0.0, None) * c_d[0, j] / cth[0, j], 0.0)
+        a = alpha[0]  # (n_a, 1, 1): every alpha at once
+        gi = g1(np.full(a.shape, wiz), a)
+        go = g1(np.clip(woz[0], 0.0, 1.0), a)
+        vals = np.where(ok[0], gi * go * np.clip(woz[0], 0.0, None) * c_d[0] / cth[0], 0.0)
         w = wu[None, :, None] / _N_PHI  # du dphi / (2 pi) with the midpoint rule in phi
-        e1[k] = np.sum(vals[0] * w, axis=(1, 2))
+        e1[k] = np.sum(vals * w, axis=(1, 2))
         f5 = (1.0 - np.clip(c_d[0], 0.0, 1.0)) ** 5
-        e5[k] = np.sum(vals[0] * f5 * w, axis=(1, 2))
+        e5[k] = np.sum(vals * f5 * w, axis=(1, 2))
     return ti, la, e1, e5
 
 
@@ -110,7 +124,12 @@ def microfacet_albedo(theta_i: ArrayLike, alpha: float, f0: float | None = None,
 
 @lru_cache(maxsize=1)
 def _retro_table() -> tuple[Array, Array, Array]:
-    """(theta_i nodes, log(1 + n) nodes, albedo (n_ti, n_n)) of the normalised retro lobe."""
+    """(theta_i nodes, log(1 + n) nodes, albedo (n_ti, n_n)) of the normalised retro lobe, from the disk cache."""
+    ti, ln, out = cached_arrays("albedo-retro", _source_key(), _build_retro)
+    return ti, ln, out
+
+
+def _build_retro() -> tuple[Array, Array, Array]:
     ti = _ti_grid()
     ln = np.linspace(0.0, np.log1p(EXPONENT_TABLE_MAX), _N_A)
     n = np.expm1(ln)

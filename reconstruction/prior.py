@@ -42,6 +42,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .base import ReconstructionError
+from .cache import cache_dir
 from .geometry import dirs_from_half_diff, half_diff_from_dirs, inplane_to_dirs
 from .slicefile import Slice
 
@@ -153,8 +154,7 @@ def _cache_path(folder: Path, files: dict[str, Path]) -> Path:
         for q in (sorted(p.parent.glob(f"{p.name}_*.npy")) if not p.suffix else [p]):
             st = q.stat()
             h.update(f"{name} {q.name} {st.st_size} {st.st_mtime_ns}".encode())
-    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "gonio-brdf"
-    return base / f"prior-{h.hexdigest()[:16]}.npz"
+    return cache_dir() / f"prior-{h.hexdigest()[:16]}.npz"
 
 
 @dataclass

@@ -62,3 +62,17 @@ def test_benchmark_runs_every_case_on_a_data_folder(bench, tmp_path, capsys):
     capsys.readouterr()
     assert bench.main(args + ["--slices", "1,95"]) == 2
     assert "--slices" in capsys.readouterr().err
+
+
+def test_the_summary_counts_auto_against_the_best_method_and_bounds_any_choice(bench):
+    def rec(material, method, e):
+        return {"material": material, "slices": "1", "method": method, "rmse80": e, "medrel": e, "plausible": True,
+                "seconds": 0.1, "max_albedo": 0.5}
+
+    records = [rec("a", "auto", 0.20), rec("a", "fit", 0.19), rec("a", "revolve", 0.40),   # within 10 %
+               rec("b", "auto", 0.60), rec("b", "fit", 0.30), rec("b", "revolve", 0.90),   # not
+               rec("c", "auto", 0.70), rec("c", "fit", 0.80), rec("c", "revolve", 0.65)]   # within
+    lines = "\n".join(bench.summarise(records, ["auto", "fit", "revolve"]))
+    assert "within 10 % (relative) of the best method's rmse80: 2 of 3" in lines
+    # the best per material: 19, 30, 65 %
+    assert "chosen with the truth, a bound on any choice): rmse80 median 30.0 %, worst 65.0 %, > 50 %: 1" in lines

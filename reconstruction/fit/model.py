@@ -468,14 +468,23 @@ def fit_model(specs: Sequence[LobeSpec], prob: _Problem, *, loss: str = "soft_l1
         scale, alb, e = _energy_scale(specs, nl, amps)
         return cols @ (amps * scale[None, :]), cols, scale, alb, e
 
+    last: dict[bytes, tuple[Array, Array, Array, Array, Array]] = {}
+
+    def predict_at(x: Array) -> tuple[Array, Array, Array, Array, Array]:
+        # least_squares asks for fun and then jac at the same x: the model is evaluated once for both
+        key = x.tobytes()
+        if key not in last:
+            last.clear()
+            last[key] = predict(*unpack(x))
+        return last[key]
+
     def fun(x: Array) -> Array:
-        nl, amps = unpack(x)
-        return ((predict(nl, amps)[0] - prob.f) / sigma).ravel()
+        return ((predict_at(x)[0] - prob.f) / sigma).ravel()
 
     def jac(x: Array) -> Array:
         # amplitudes analytically (through the energy scale); geometry by forward differences
         nl, amps = unpack(x)
-        pred, cols, scale, alb, e = predict(nl, amps)
+        pred, cols, scale, alb, e = predict_at(x)
         base = ((pred - prob.f) / sigma).ravel()
         j = np.zeros((base.size, x.size))
         for k in range(n_nl):  # a few geometry parameters: only lobe li's column and the energy scale move
@@ -505,8 +514,7 @@ def fit_model(specs: Sequence[LobeSpec], prob: _Problem, *, loss: str = "soft_l1
                           "method": "trf", "max_nfev": max_nfev}
     res = least_squares(fun, x0, **kw)
     # second pass: the relative uncertainty of each sample from the model's value there, warm-started
-    nl, amps = unpack(res.x)
-    sigma = prob.sigma_of(predict(nl, amps)[0])
+    sigma = prob.sigma_of(predict_at(res.x)[0])
     nfev = res.nfev
     res = least_squares(fun, np.clip(res.x, *inner), **kw)
     r = res.fun.reshape(prob.f.shape)

@@ -1,0 +1,45 @@
+"""A small on-disk cache of computed arrays (``$XDG_CACHE_HOME/gonio-brdf``, else ``~/.cache/gonio-brdf``).
+
+Tables that cost a noticeable fraction of a second to build (the lobes' albedo tables, a prior's basis) are built
+once per machine instead of once per process. A file is written atomically; one that cannot be read is rebuilt;
+a cache that cannot be written only costs the build again.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .atomic import atomic_open
+
+__all__ = ["cache_dir", "cached_arrays"]
+
+
+def cache_dir() -> Path:
+    """The project's cache folder (not created here)."""
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "gonio-brdf"
+
+
+def cached_arrays(name: str, key: str, build: Callable[[], Sequence[NDArray[np.float64]]]
+                  ) -> tuple[NDArray[np.float64], ...]:
+    """The arrays ``build()`` returns, read from ``cache_dir()/NAME-HASH.npz`` when a file for this ``key`` (every
+    input the arrays depend on, as text) is there, else built and saved."""
+    path = cache_dir() / f"{name}-{hashlib.sha1(key.encode()).hexdigest()[:16]}.npz"
+    try:
+        with np.load(path) as z:
+            return tuple(z[f"a{k}"] for k in range(len(z.files)))
+    except (OSError, ValueError, KeyError, EOFError):
+        pass  # absent or damaged: built again
+    out = tuple(np.asarray(a) for a in build())
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_open(path, "wb") as fh:
+            np.savez(fh, **{f"a{k}": a for k, a in enumerate(out)})
+    except OSError:
+        pass  # no cache: the next process builds again
+    return out
