@@ -76,3 +76,26 @@ def test_the_summary_counts_auto_against_the_best_method_and_bounds_any_choice(b
     assert "within 10 % (relative) of the best method's rmse80: 2 of 3" in lines
     # the best per material: 19, 30, 65 %
     assert "chosen with the truth, a bound on any choice): rmse80 median 30.0 %, worst 65.0 %, > 50 %: 1" in lines
+
+
+def test_the_prior_floor_benchmark_runs_on_a_data_folder(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_prior_floor.py"
+    spec = importlib.util.spec_from_file_location("bench_prior_floor", path)
+    floor = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(floor)
+    data = tmp_path / "realdata"
+    (data / "nbrdf-merl").mkdir(parents=True)
+    for k in range(4):
+        write_nbrdf(data / "nbrdf-merl" / f"synthetic-{k}", k)
+    assert floor.main(["--data", str(data), "--materials", "synthetic-0,synthetic-1"]) == 0
+    out = capsys.readouterr().out
+    for case in ("all", "theta_d<60", "slice 40", "slices 20/40/60", "slices 40/70"):
+        assert f"  {case} " in out
+    from reconstruction.prior import load_prior
+
+    ps = load_prior(data / "nbrdf-merl")
+    f = floor.floors(ps, 0, floor.cell_sets())
+    assert all(np.isfinite(v) and v >= 0 for v in f.values())
+    assert f["all"] < 0.5 * f["slice 40"]  # fitted to every cell, far closer than from one slice's cells
+    assert floor.main(["--data", str(data), "--materials", "nope"]) == 2
