@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import zipfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -33,7 +34,7 @@ def cached_arrays(name: str, key: str, build: Callable[[], Sequence[NDArray[np.f
     try:
         with np.load(path) as z:
             return tuple(z[f"a{k}"] for k in range(len(z.files)))
-    except (OSError, ValueError, KeyError, EOFError):
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
         pass  # absent or damaged: built again
     out = tuple(np.asarray(a) for a in build())
     try:
