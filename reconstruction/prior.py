@@ -31,8 +31,6 @@ both are, and its directional albedo is at most the weighted mean of theirs (wei
 
 from __future__ import annotations
 
-import hashlib
-import os
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -42,7 +40,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .base import ReconstructionError
-from .cache import cache_dir
+from .cache import cached_arrays
 from .geometry import dirs_from_half_diff, half_diff_from_dirs, inplane_to_dirs
 from .slicefile import Slice
 
@@ -148,13 +146,14 @@ def _tabulate_material(path: Path) -> Array:
     return np.minimum(f, np.maximum(peak, 1e-12))
 
 
-def _cache_path(folder: Path, files: dict[str, Path]) -> Path:
-    h = hashlib.sha1(f"v{CACHE_VERSION} {GRID} {folder.resolve()}".encode())
+def _cache_key(folder: Path, files: dict[str, Path]) -> str:
+    """Everything the tabulated prior depends on: the grid, the folder and every file's name, size and time."""
+    parts = [f"v{CACHE_VERSION} {GRID} {folder.resolve()}"]
     for name, p in sorted(files.items()):
         for q in (sorted(p.parent.glob(f"{p.name}_*.npy")) if not p.suffix else [p]):
             st = q.stat()
-            h.update(f"{name} {q.name} {st.st_size} {st.st_mtime_ns}".encode())
-    return cache_dir() / f"prior-{h.hexdigest()[:16]}.npz"
+            parts.append(f"{name} {q.name} {st.st_size} {st.st_mtime_ns}")
+    return "\n".join(parts)
 
 
 @dataclass
@@ -220,28 +219,18 @@ def _load_cached(folder: str) -> PriorSet:
     if len(files) < 2:
         raise ReconstructionError(f"--prior {folder}: {len(files)} material(s) found; expected at least 2 (NBRDF npy "
                                   f"sets NAME_fc1.npy ... NAME_b3.npy, MERL .binary tables or material TOML files)")
-    cache = _cache_path(p, files)
-    if cache.is_file():
-        try:
-            with np.load(cache) as z:
-                if list(z["names"]) == sorted(files):
-                    return PriorSet(folder, list(z["names"]), z["tables"])
-        except (OSError, ValueError, KeyError):
-            pass  # a damaged cache is rebuilt
     names = sorted(files)
-    tables = np.empty((len(names), 3, _grid()["cos"].size), dtype=np.float32)
-    for k, n in enumerate(names):  # one material at a time (each is a vectorised evaluation of the grid)
-        try:
-            tables[k] = _tabulate_material(files[n])
-        except (OSError, ValueError) as e:
-            raise ReconstructionError(f"--prior {folder}: material {n}: {e}") from None
-    try:
-        cache.parent.mkdir(parents=True, exist_ok=True)
-        tmp = cache.with_suffix(".tmp.npz")
-        np.savez(tmp, names=np.array(names), tables=tables)
-        os.replace(tmp, cache)
-    except OSError:
-        pass  # no cache: the next run tabulates again
+
+    def tabulate() -> tuple[Any, ...]:
+        tables = np.empty((len(names), 3, _grid()["cos"].size), dtype=np.float32)
+        for k, n in enumerate(names):  # one material at a time (each is a vectorised evaluation of the grid)
+            try:
+                tables[k] = _tabulate_material(files[n])
+            except (OSError, ValueError) as e:
+                raise ReconstructionError(f"--prior {folder}: material {n}: {e}") from None
+        return (tables,)
+
+    (tables,) = cached_arrays("prior", _cache_key(p, files), tabulate)  # the key holds every name
     return PriorSet(folder, names, tables)
 
 
