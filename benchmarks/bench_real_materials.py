@@ -194,9 +194,27 @@ def summarise(records: list[dict[str, Any]], methods: list[str]) -> list[str]:
     return lines
 
 
+NOTES_BEGIN = "<!-- notes: written by hand; bench_real_materials.py --docs keeps this block as it is -->"
+NOTES_END = "<!-- /notes -->"
+
+
+def kept_notes(page: Path) -> str:
+    """The hand-written block of an existing ``page`` (between NOTES_BEGIN and NOTES_END, markers included), so a
+    regeneration keeps the reading of the figures that people wrote; a placeholder block if there is none."""
+    try:
+        old = page.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError):
+        old = ""
+    i = old.find(NOTES_BEGIN)
+    j = old.find(NOTES_END, i + 1) if i >= 0 else -1
+    if i >= 0 and j > i:
+        return old[i:j + len(NOTES_END)]
+    return f"{NOTES_BEGIN}\n(No notes yet: what the figures say, with the command of any figure quoted.)\n{NOTES_END}"
+
+
 def write_docs(records: list[dict[str, Any]], methods: list[str], docs: Path, summary: list[str]) -> None:
     """docs/real-materials.md (every figure) and docs/real-materials.png, one panel and one group of columns per
-    case run."""
+    case run; the page's hand-written notes block (:func:`kept_notes`) is kept."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -238,10 +256,13 @@ def write_docs(records: list[dict[str, Any]], methods: list[str], docs: Path, su
                     flag = "" if r["plausible"] else " (implausible)"
                     cells.append(f"{r['rmse80'] * 100:.1f} / {r['medrel'] * 100:.1f}{used}{flag}")
         rows.append(f"| {n} | " + " | ".join(cells) + " |")
+    notes = kept_notes(docs / "real-materials.md")
     text = f"""# Reconstruction on real materials
 
 Regenerate: `.venv/bin/python benchmarks/bench_real_materials.py --slices {",".join(modes)} --docs docs` (reads
-`../shared/realdata`, which is not part of the project; about 5 minutes per case on 2 idle cores).
+`../shared/realdata`, which is not part of the project; about 3-5 minutes per case on 2 cores). It rewrites this
+page except the section "Reading the figures", which is written by hand and names the command of every figure it
+quotes that this benchmark does not print.
 
 The 48 MERL materials of `../shared/realdata/nbrdf-merl` (neural BRDF fits of the MERL measurements), sliced as
 a bench measures them: theta_o from -80 to 80 deg every 2 deg, the blind spot |theta_i + theta_o| < 4 deg left out;
@@ -273,6 +294,10 @@ lands. A capture meant for grazing renders needs a slice at high incidence (70-7
 ```
 
 ![rmse80 per material and method](real-materials.png)
+
+## Reading the figures
+
+{notes}
 
 ## Every material
 

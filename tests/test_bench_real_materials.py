@@ -99,3 +99,19 @@ def test_the_prior_floor_benchmark_runs_on_a_data_folder(tmp_path, capsys, monke
     assert all(np.isfinite(v) and v >= 0 for v in f.values())
     assert f["all"] < 0.5 * f["slice 40"]  # fitted to every cell, far closer than from one slice's cells
     assert floor.main(["--data", str(data), "--materials", "nope"]) == 2
+
+
+def test_the_docs_page_keeps_its_hand_written_notes(bench, tmp_path):
+    recs = [{"material": m, "slices": "1", "method": "auto", "rmse80": e, "medrel": e, "plausible": True,
+             "used": "prior", "seconds": 0.1} for m, e in (("a", 0.2), ("b", 0.4))]
+    bench.write_docs(recs, ["auto"], tmp_path, ["SUMMARY LINE"])
+    first = (tmp_path / "real-materials.md").read_text(encoding="utf-8")
+    assert "SUMMARY LINE" in first and "| a | 20.0 / 20.0 [prior] |" in first
+    assert bench.NOTES_BEGIN in first and "No notes yet" in first  # a new page gets a placeholder block
+    notes = f"{bench.NOTES_BEGIN}\nTwo slices at 40/70 deg beat three (`some --command`).\n{bench.NOTES_END}"
+    (tmp_path / "real-materials.md").write_text(first.replace(bench.kept_notes(tmp_path / "real-materials.md"), notes),
+                                                encoding="utf-8")
+    bench.write_docs([dict(r, rmse80=0.3) for r in recs], ["auto"], tmp_path, ["NEW SUMMARY"])
+    second = (tmp_path / "real-materials.md").read_text(encoding="utf-8")
+    assert "NEW SUMMARY" in second and "SUMMARY LINE" not in second  # the figures are rewritten ...
+    assert second.count(notes) == 1 and "No notes yet" not in second  # ... the notes kept, once
