@@ -17,7 +17,7 @@ then parked and torque switched off (a second signal aborts the parking; no sign
 that arrives during the final dark reading or the parking still gives the signal's exit status). A hardware
 fault or a communication failure stops the same way, without parking when an axis reports a fault; a full disk
 stops it with one line saying so. How a capture ended is a :class:`~acquisition.record.Stop`; the exit status
-is the CLI's (:func:`acquisition.cli.exit_status`).
+is :func:`acquisition.record.exit_status`.
 """
 
 from __future__ import annotations
@@ -38,6 +38,7 @@ from reconstruction.atomic import is_no_space
 from reconstruction.slicefile import Slice, SliceWriter
 
 from .calibration import Calibration, Reading, reference_rho
+from .dryrun import estimate, estimate_points
 from .engine import Engine
 from .errors import CaptureInterrupted, CommError, ConfigError, DeviceError, HardwareError, PlanError
 from .fingerprint import fingerprint, settings
@@ -46,7 +47,7 @@ from .optics import footprint_meta, footprint_warning, instrument_of
 from .outdir import LOG_NAME, SIM_LOG_NAME, SLICE_NAME, check_resume, check_writable, make_out_dir, out_dir_problem
 from .plan import Plan, point_key
 from .plans import CaptureContext, PointsPlan, Sample, capture, footprint_of, measure_points
-from .record import SIDECAR_NAME, AutoRangeRecord, CaptureResult, RunRecord, Stop, result_dict
+from .record import SIDECAR_NAME, AutoRangeRecord, CaptureResult, RunRecord, Stop, exit_status, result_dict
 
 log = logging.getLogger("acquisition.engine")
 
@@ -276,8 +277,6 @@ class RunEngine:
     def _estimate(self, chk: Any, existing: Slice | None) -> dict[str, float]:
         """The time model's estimate of this run (:func:`acquisition.dryrun.estimate`): the whole capture plan on a
         dry-run bench, from the calibration (or the resumed slice's) to the final dark."""
-        from .dryrun import estimate
-
         done = [] if existing is None else list(zip(existing.theta_i_deg, existing.theta_o_deg, strict=True))
         est = estimate(self.plan, self.bench.geometry, self.cfg.detector.integration_time_s, chk.measurable,
                        cfg=self.cfg, points_plan=self.points_plan, done=done, calibrated=existing is not None)
@@ -461,7 +460,8 @@ class RunEngine:
                     rho = reference_rho(c.reference_reflectance, c.reference_spectrum, bench.detector.wavelengths_nm,
                                         d.band_weights)
                     engine.run(capture(CaptureContext(cfg, self.plan, bench.geometry, measurable, done, cal, rho,
-                                                      self.record.previous_bench_time(), self.points_plan)))
+                                                      self.record.previous_bench_time(), self.points_plan,
+                                                      estimate_points)))
                 finally:
                     try:
                         r.bench_time_s = bench.now() - t0
@@ -496,8 +496,6 @@ class RunEngine:
             self._make_safe(opened_here, hardware_fault)
             if self._guard.signum is not None and r.status == "complete":
                 # everything was measured, but the signal arrived while stopping: say so in the exit status
-                from .cli import exit_status
-
                 name = signal.Signals(self._guard.signum).name
                 r.signum = self._guard.signum
                 r.exit_code = exit_status(Stop.INTERRUPTED, self._guard.signum)

@@ -13,11 +13,12 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import signal
 import sys
 import warnings
 from pathlib import Path
 from typing import Any
+
+from .record import exit_status  # noqa: F401 - the exit status of a capture, here since the CLI gives it
 
 #: 2-opt budget of the time estimate that ``--check`` prints (the capture uses plan.TWO_OPT_MAX_EVALUATIONS).
 CHECK_TWO_OPT_EVALUATIONS = 500_000
@@ -33,21 +34,6 @@ exit status: 0 complete, 1 stopped by a hardware/communication fault or a full d
 config/plan, output folder not writable or in use by another capture (nothing moved), 130/143 interrupted by
 SIGINT/SIGTERM (resumable with --resume).
 """
-
-
-def exit_status(stop: Any, signum: int | None = None) -> int:
-    """The exit status of a capture that ended with ``stop`` (:class:`acquisition.record.Stop`): 0 complete; 1 a
-    hardware or communication fault, a full disk or an unforeseen error (resumable); 2 a config or plan the
-    capture refused (nothing moved); 128 + the signal number when interrupted (130 SIGINT, 143 SIGTERM)."""
-    from .record import Stop
-
-    if stop is Stop.COMPLETE:
-        return 0
-    if stop is Stop.INTERRUPTED:
-        return 128 + (signum or signal.SIGINT)
-    if stop in (Stop.CONFIG_REFUSED, Stop.PLAN_ERROR):
-        return 2
-    return 1
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -141,6 +127,7 @@ def _time_summary(r: Any) -> str:
 def _run(args: argparse.Namespace) -> int:
     from .bench import Bench, SimulatorCheck
     from .config import MAX_PLAN_POINTS
+    from .dryrun import estimate
     from .errors import CommError, ConfigError, PlanError
     from .lock import OutDirLocked
     from .outdir import out_dir_problem
@@ -168,8 +155,8 @@ def _run(args: argparse.Namespace) -> int:
         return 1
     if args.check:
         # a quicker 2-opt than the capture's own: the same order up to ~1000 points, and --check stays < 1 s
-        est = plan.estimate(bench.geometry, bench.cfg.detector.integration_time_s, chk.measurable,
-                            max_evaluations=CHECK_TWO_OPT_EVALUATIONS, cfg=bench.cfg)
+        est = estimate(plan, bench.geometry, bench.cfg.detector.integration_time_s, chk.measurable,
+                       max_evaluations=CHECK_TWO_OPT_EVALUATIONS, cfg=bench.cfg)
         if sim_check is not None:
             try:
                 sim_check.result()

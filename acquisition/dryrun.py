@@ -23,8 +23,9 @@ from .calibration import Calibration, Reading
 from .config import BenchConfig
 from .engine import Engine
 from .errors import PlanError
-from .plan import TWO_OPT_MAX_EVALUATIONS, Geometry, Plan, Point, path_time, point_key
-from .plans import CaptureContext, PointsPlan, capture, measure
+from .geometry import Geometry, Point, point_key
+from .ordering import TWO_OPT_MAX_EVALUATIONS, path_time
+from .plans import CaptureContext, PlanSpec, PointsPlan, capture, measure
 from .protocols import Devices, MoveStatus
 from .record import CaptureResult
 
@@ -140,7 +141,7 @@ def _dry_calibration(cfg: BenchConfig) -> Calibration:
     return Calibration("relative", zero, one, np.ones(1), cfg.calibration.reference_theta_o_deg or 0.0)
 
 
-def estimate(plan: Plan, geometry: Geometry, integration_time_s: float, points: Sequence[Point] | None = None,
+def estimate(plan: PlanSpec, geometry: Geometry, integration_time_s: float, points: Sequence[Point] | None = None,
              max_evaluations: int = TWO_OPT_MAX_EVALUATIONS, cfg: BenchConfig | None = None,
              points_plan: PointsPlan | None = None, done: Sequence[Point] = (), calibrated: bool = False,
              ) -> dict[str, float]:
@@ -173,7 +174,8 @@ def estimate(plan: Plan, geometry: Geometry, integration_time_s: float, points: 
     have = {point_key(p) for p in done}
     todo = [p for p in pts if point_key(p) not in have]
     ctx = CaptureContext(cfg, plan, geometry, pts, {point_key(p): (p[0], p[1], 0.0, 0.0) for p in done},
-                         _dry_calibration(cfg) if calibrated else None, np.ones(1), 0.0, points_plan or own_points)
+                         _dry_calibration(cfg) if calibrated else None, np.ones(1), 0.0, points_plan or own_points,
+                         estimate_points)
     bench = DryRunBench(geometry, integration_time_s)
     with _quiet():
         Engine(bench.devices(), settle_s=geometry.settle_s, retries=0, result=res, account=True,

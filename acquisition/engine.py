@@ -42,7 +42,7 @@ from .messages import (
     Where,
 )
 from .protocols import Devices
-from .record import CaptureResult, RunRecord
+from .record import SIDECAR_NAME, CaptureResult, RunRecord, result_dict  # noqa: F401 - kept importable here
 
 log = logging.getLogger("acquisition.engine")
 
@@ -314,16 +314,3 @@ class Engine:
 
     def _tally(self, m: Tally) -> None:
         setattr(self.result, m.name, m.value)
-
-
-def __getattr__(name: str) -> Any:  # the capture as a whole moved to acquisition.capture; its names stay here
-    if name in ("RunEngine", "out_dir_problem", "SLICE_NAME", "LOG_NAME", "SIM_LOG_NAME"):
-        from . import capture
-
-        return getattr(capture, name)
-    if name in ("CaptureResult", "result_dict", "SIDECAR_NAME"):
-        from . import record
-
-        return getattr(record, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-

@@ -16,13 +16,14 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from .calibration import Calibration, Reading
 from .config import BenchConfig
 from .errors import DeviceError
+from .geometry import Geometry, Point, point_key
 from .messages import (
     Announce,
     Calibrate,
@@ -40,17 +41,32 @@ from .messages import (
     UseReference,
     Where,
 )
-from .plan import TWO_OPT_MAX_EVALUATIONS, Geometry, Plan, Point, order_points, path_time, point_key, refine_points
+from .ordering import TWO_OPT_MAX_EVALUATIONS, order_points, path_time
+from .planconfig import AdaptiveConfig
+from .refine import refine_points
 
 log = logging.getLogger("acquisition.plans")
 
-__all__ = ["PlanGen", "PointsPlan", "Sample", "point", "measure", "measure_points", "white_reference", "rereference",
-           "calibrate", "adaptive", "final_dark", "CaptureContext", "capture"]
+__all__ = ["PlanGen", "PointsPlan", "PlanSpec", "RoundEstimate", "Sample", "point", "measure", "measure_points",
+           "white_reference", "rereference", "calibrate", "adaptive", "final_dark", "CaptureContext", "capture"]
 
 #: A plan: yields messages, is sent their replies, returns its result.
 PlanGen = Generator[Msg, Any, Any]
 #: A measured sample as plans see it: (theta_i, theta_o, mean f_r over channels, mean std), degrees and 1/sr.
 Sample = tuple[float, float, float, float]
+
+
+class PlanSpec(Protocol):
+    """What the capture plans need of a plan (:class:`acquisition.plan.Plan` is one): its repeats, order,
+    adaptive refinement and final dark. A protocol, so that the plans and the dry run do not import the plan module
+    (whose ``Plan.estimate`` asks the dry run)."""
+
+    repeats: int
+    order: str
+    dark_at_end: bool
+    adaptive: AdaptiveConfig | None
+
+    def check(self, geom: Geometry) -> Any: ...
 
 
 def point(theta_i_deg: float, theta_o_deg: float, repeats: int) -> PlanGen:
@@ -184,12 +200,13 @@ def adaptive(ctx: CaptureContext, t_start: float) -> PlanGen:
         if a.time_budget_s and (yield Now()) - t_start > a.time_budget_s:
             log.info("adaptive: time budget %g s used up before round %d", a.time_budget_s, rnd)
             break
-        from .dryrun import estimate_points  # the round's time, estimated as it is planned
-
-        t_round = estimate_points(ctx, new, (yield Where()), ctx.cfg.detector.integration_time_s)
-        t_est += t_round
-        yield Tally("estimate_refinement_s", t_est)
-        log.info("adaptive round %d: %d new point(s), estimated %.2f s", rnd, len(new), t_round)
+        if ctx.estimate_points is not None:  # the round's time, estimated as it is planned
+            t_round = ctx.estimate_points(ctx, new, (yield Where()), ctx.cfg.detector.integration_time_s)
+            t_est += t_round
+            yield Tally("estimate_refinement_s", t_est)
+            log.info("adaptive round %d: %d new point(s), estimated %.2f s", rnd, len(new), t_round)
+        else:
+            log.info("adaptive round %d: %d new point(s)", rnd, len(new))
         yield from ctx.points_plan(ctx, new)
         known |= {point_key(p) for p in new}
         yield Tally("adaptive_rounds", rnd)
@@ -217,17 +234,22 @@ def measure_points(ctx: CaptureContext, points: Sequence[Point]) -> PlanGen:
 
 #: A points plan: measures ``points`` within a capture (the samples go to ``ctx.done``).
 PointsPlan = Callable[["CaptureContext", Sequence[Point]], PlanGen]
+#: How a round of adaptive refinement is estimated as it is planned: (context, the round's points, where the arms
+#: are, the integration time in s) -> bench seconds (:func:`acquisition.dryrun.estimate_points`).
+RoundEstimate = Callable[["CaptureContext", Sequence[Point], Point, float], float]
 
 
 @dataclass
 class CaptureContext:
     """What :func:`capture` needs: the bench file, the plan, the geometry, the measurable points, the samples
     already in the slice (a resume) and its calibration (None: measure one), the white reference's rho per
-    channel, the bench time of this capture's earlier runs (s), and the plan that measures points
-    (:func:`measure_points`, or a procedure of one's own, e.g. ``examples/reference_every_n.py``)."""
+    channel, the bench time of this capture's earlier runs (s), the plan that measures points
+    (:func:`measure_points`, or a procedure of one's own, e.g. ``examples/reference_every_n.py``), and how a round of
+    adaptive refinement is estimated as it is planned (the capture gives :func:`acquisition.dryrun.estimate_points`:
+    the caller asks the dry run, the plans do not; None: the rounds are not estimated)."""
 
     cfg: BenchConfig
-    plan: Plan
+    plan: PlanSpec
     geometry: Geometry
     measurable: list[Point]
     done: dict[tuple[float, float], Sample] = field(default_factory=dict)
@@ -235,6 +257,7 @@ class CaptureContext:
     rho_ref: Any = None
     previous_bench_time_s: float = 0.0
     points_plan: PointsPlan = measure_points
+    estimate_points: RoundEstimate | None = None
 
 
 def capture(ctx: CaptureContext) -> PlanGen:

@@ -13,6 +13,7 @@ import json
 import logging
 import math
 import os
+import signal
 import time
 from dataclasses import asdict, dataclass, field
 from enum import Enum
@@ -26,13 +27,13 @@ from .calibration import Reading
 
 log = logging.getLogger("acquisition.record")
 
-__all__ = ["RunRecord", "AutoRangeRecord", "CaptureResult", "Stop", "result_dict", "SIDECAR_NAME"]
+__all__ = ["RunRecord", "AutoRangeRecord", "CaptureResult", "Stop", "exit_status", "result_dict", "SIDECAR_NAME"]
 
 SIDECAR_NAME = "capture.json"
 
 
 class Stop(Enum):
-    """Why a capture ended; :mod:`acquisition.cli` maps each to an exit status."""
+    """Why a capture ended; :func:`exit_status` maps each to the exit status of ``gonio-capture``."""
 
     COMPLETE = "complete"
     INTERRUPTED = "interrupted"          # SIGINT / SIGTERM (``CaptureResult.signum``)
@@ -45,10 +46,17 @@ class Stop(Enum):
 
 
 def exit_status(stop: Stop, signum: int | None = None) -> int:
-    """The exit status of ``gonio-capture`` for a capture that ended with ``stop`` (see :mod:`acquisition.cli`)."""
-    from .cli import exit_status as cli_exit_status
-
-    return cli_exit_status(stop, signum)
+    """The exit status of ``gonio-capture`` for a capture that ended with ``stop``: 0 complete; 1 a hardware or
+    communication fault, a full disk or an unforeseen error (resumable); 2 a config or plan the capture refused
+    (nothing moved); 128 + the signal number when interrupted (130 SIGINT, 143 SIGTERM). It belongs with the run
+    record (:mod:`acquisition.cli` re-exports it)."""
+    if stop is Stop.COMPLETE:
+        return 0
+    if stop is Stop.INTERRUPTED:
+        return 128 + (signum or signal.SIGINT)
+    if stop in (Stop.CONFIG_REFUSED, Stop.PLAN_ERROR):
+        return 2
+    return 1
 
 
 @dataclass
