@@ -27,7 +27,6 @@ import logging
 import math
 import signal
 import sys
-import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -42,6 +41,7 @@ from .dryrun import estimate, estimate_points
 from .engine import Engine
 from .errors import CaptureInterrupted, CommError, ConfigError, DeviceError, HardwareError, PlanError
 from .fingerprint import fingerprint, settings
+from .interrupts import SignalGuard
 from .lock import OutLock
 from .optics import footprint_meta, footprint_warning, instrument_of
 from .outdir import LOG_NAME, SIM_LOG_NAME, SLICE_NAME, check_resume, check_writable, make_out_dir, out_dir_problem
@@ -62,49 +62,6 @@ def _software_version() -> str:
         return version("gonio-brdf")
     except Exception:  # pragma: no cover
         return "unknown"
-
-
-class _SignalGuard:
-    """SIGINT/SIGTERM become flags, main thread only: the first asks the capture to stop after the current step
-    (:meth:`check` raises :class:`CaptureInterrupted` there); a second also aborts the parking
-    (:meth:`check_abort`). The handler itself never raises, so a signal arriving anywhere (in logging, in a write,
-    in the clean-up) cannot end in a traceback; the exit status is the first signal's."""
-
-    def __init__(self, enabled: bool) -> None:
-        self.enabled = enabled and threading.current_thread() is threading.main_thread()
-        self.signum: int | None = None
-        self.abort = False
-        self._old: dict[int, Any] = {}
-
-    def __enter__(self) -> _SignalGuard:
-        if self.enabled:
-            for s in (signal.SIGINT, signal.SIGTERM):
-                self._old[s] = signal.getsignal(s)
-                signal.signal(s, self._handler)
-        return self
-
-    def _handler(self, signum: int, frame: Any) -> None:
-        name = signal.Signals(signum).name
-        if self.signum is None:
-            self.signum = signum
-            log.warning("%s received: stopping after the current step (send it again to abort parking)", name)
-        elif not self.abort:
-            self.abort = True
-            log.warning("%s received again: not waiting for the arms to park", name)
-
-    def check(self) -> None:
-        if self.signum is not None:
-            raise CaptureInterrupted(f"interrupted by {signal.Signals(self.signum).name}", self.signum)
-
-    def check_abort(self) -> None:
-        """The cancel check while parking: only a second signal stops it."""
-        if self.abort:
-            assert self.signum is not None
-            raise CaptureInterrupted(f"parking aborted by a second {signal.Signals(self.signum).name}", self.signum)
-
-    def __exit__(self, *exc: object) -> None:
-        for s, h in self._old.items():
-            signal.signal(s, h)
 
 
 class _LogFile(logging.FileHandler):
@@ -232,7 +189,7 @@ class RunEngine:
         self.record = RunRecord(self.sidecar_path)
         self.fingerprint: dict[str, Any] = {}
         self.settings: dict[str, Any] = {}
-        self._guard = _SignalGuard(False)
+        self._guard = SignalGuard(False)
         self._run_started = False
         self._before_motion = False  # the run stopped before the bench was open: nothing to resume or park
         self._io_fault = False  # an output file could not be written (a full disk)
@@ -258,7 +215,7 @@ class RunEngine:
         self.result.unmeasurable = [[ti, to, why] for ti, to, why in chk.unmeasurable]
         self.fingerprint = fingerprint(self.cfg, self.plan.fingerprint())
         self.settings = settings(self.cfg)
-        with _SignalGuard(self.handle_signals) as guard:  # from here on no signal ends in a traceback
+        with SignalGuard(self.handle_signals) as guard:  # from here on no signal ends in a traceback
             self._guard = guard
             make_out_dir(self.out)
             lock = OutLock(self.out)
@@ -317,6 +274,7 @@ class RunEngine:
             if self._run_started:
                 self.record.plan_fields["estimate"] = self._estimate_fields()  # with the refinement rounds
                 self.record.finish_run(self.result)
+            self._guard.drain()  # what the signal handler said comes before the outcome
             self._report()
             logging.getLogger("acquisition").removeHandler(handler)
             handler.close()
