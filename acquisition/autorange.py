@@ -174,7 +174,8 @@ class AutoRanger:
         self.read_dark = read_dark
         self.on_dark = on_dark
         self.darks: dict[str, Reading] = {}      # setting_key(actual t, gain) -> dark reading at that setting
-        self.ref_dark: Reading | None = None     # the calibration's dark at the reference setting (rung 0)
+        self.ref_dark: Reading | None = None     # the calibration's dark at the reference setting (rung 0); None:
+        #                                          measured when first needed (reference_dark)
         self._actual: dict[int, float] = {0: float(detector.integration_time_s)}
         self._gain: dict[int, float | None] = {}
         self._rung = 0                           # where the next point starts (the last rung that worked)
@@ -213,21 +214,31 @@ class AutoRanger:
             self._current = i
         return self._actual[i]
 
-    def restore(self) -> None:
-        """Back to the reference setting (next reading, end-of-run dark, the caller's bench)."""
+    def restore(self, keep_start: bool = False) -> None:
+        """Back to the reference setting (next reading, end-of-run dark, the caller's bench). ``keep_start``: the
+        next reading still starts on the setting the last one needed (between readings of one bench script)."""
         if self.gains is not None:
             self._set(0)
         elif self._current != 0 or self.det.integration_time_s != self._actual[0]:
             self._actual[0] = self.det.set_integration_time(self.t_ref)
             self._current = 0
-        self._rung = 0
+        if not keep_start:
+            self._rung = 0
+
+    def reference_dark(self) -> Reading:
+        """The dark at the reference setting (rung 0): the calibration's, else measured now (once)."""
+        if self.ref_dark is None:
+            self._set(0)
+            self.ref_dark = self.read_dark()
+            log.info("dark level at the reference setting (%s): %s counts (%d repeats)", self._describe(0),
+                     np.round(self.ref_dark.mean, 3).tolist()[:8], self.ref_dark.n)
+        return self.ref_dark
 
     # -- darks -------------------------------------------------------------------------------------------------
     def dark_at(self, i: int) -> Reading:
         """The dark reading at rung ``i`` (measured once, then cached; rung 0 is the calibration's dark)."""
         if i == 0:
-            assert self.ref_dark is not None, "set ref_dark first"
-            return self.ref_dark
+            return self.reference_dark()
         t = self._set(i)
         key = self.setting_key_of(i)
         d = self.darks.get(key)
@@ -335,8 +346,10 @@ class AutoRanger:
         dark = self.dark_at(i)
         if len(self.darks) > n_darks:
             spent += dark.n * t
-        assert self.ref_dark is not None
+        if self.ref_dark is None:  # no calibration (a bench script's reading): measured once, now
+            spent += self.reference_dark().n * self.t_ref
+        ref_dark = self.reference_dark()
         r = self.sensitivity(0) / self.sensitivity(i)
-        conv = Reading(self.ref_dark.mean + (rd.mean - dark.mean) * r, rd.std * r, rd.n, 0)
+        conv = Reading(ref_dark.mean + (rd.mean - dark.mean) * r, rd.std * r, rd.n, 0)
         self._rung = i
         return Ranged(conv, rd, t, reads, spent, gain, Reading(dark.mean * r, dark.std * r, dark.n, 0))

@@ -47,3 +47,8 @@ class CaptureInterrupted(AcquisitionError):
     def __init__(self, message: str, signum: int | None = None) -> None:
         super().__init__(message)
         self.signum = signum
+
+
+class SaturationWarning(UserWarning):
+    """A reading returned with saturated (clipped) repeats: its mean is a lower bound, not a measurement
+    (:meth:`acquisition.Bench.read` without auto-ranging)."""
