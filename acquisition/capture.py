@@ -414,6 +414,8 @@ class RunEngine:
                     if engine.ranger is not None and self.record.auto_range is not None:
                         self.record.auto_range.prune(set(done), point_key)
                         engine.update_range_counts()
+                        if existing is not None and cal is not None:  # the old neighbours predict settings too
+                            engine.seed_ranger(cal, existing)
                     c = cfg.calibration
                     rho = reference_rho(c.reference_reflectance, c.reference_spectrum, bench.detector.wavelengths_nm,
                                         d.band_weights)

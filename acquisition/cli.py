@@ -210,10 +210,12 @@ def _run(args: argparse.Namespace) -> int:
                          f"listed in {Path(args.out) / 'capture.log'}")
             ranged = ""
             if result.auto_ranged:
+                from .autorange import ranged_wording
+
                 settings = "; ".join(f"{k}{'' if 'gain' in k else ' s'}: {v}"
                                      for k, v in result.auto_range_settings.items())
-                what = "other settings" if "gain" in settings else "shorter integration times"
-                ranged = (f"\n  auto-ranged {result.auto_ranged} point(s) to {what} ({settings});"
+                what = ranged_wording(result.auto_range_settings, bench.cfg.detector.integration_time_s)
+                ranged = (f"\n  auto-ranged {result.auto_ranged} point(s), read {what} ({settings});"
                           f" {result.auto_range_overhead_s:.2f} s of extra integration in this run")
             print(f"gonio-capture: {result.message}{extra}\n{_time_summary(result)}{ranged}", file=sys.stderr)
         return 0

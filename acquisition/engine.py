@@ -22,7 +22,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from .autorange import AutoRanger, read_clean
+from .autorange import AutoRanger, ranged_wording, read_clean
 from .calibration import Calibration, Reading
 from .errors import DeviceError
 from .messages import (
@@ -191,12 +191,14 @@ class Engine:
         if self.ranger is None:
             rd = self.dev.detector.read(m.repeats)
             return (rd if not rd.saturated else self.read_checked(m.repeats, m.label, first=rd)), None
-        rg = self.ranger.read(m.repeats, m.label, m.rung)
+        rg = self.ranger.read(m.repeats, m.label, m.rung, m.point)
         self.result.auto_range_readings += rg.readings - 1
         self.result.auto_range_overhead_s += rg.overhead_s
         return rg.reading, rg
 
     def _dark(self, m: Dark) -> Reading:
+        if m.setting is not None and self.ranger is not None:
+            return self.ranger.dark_at(m.setting)
         rd = self.read_checked(m.repeats, m.what, dark=True)
         if m.calibration and self.ranger is not None:
             self.ranger.ref_dark = rd
@@ -220,6 +222,30 @@ class Engine:
             self.ranger.darks.update(rec.dark_readings())
             self.update_range_counts()
 
+    def seed_ranger(self, calibration: Calibration, s: Any) -> None:
+        """A resumed capture: the samples of slice ``s`` (:class:`reconstruction.slicefile.Slice`) turned back
+        into readings at the reference setting with their ``calibration``, and their settings from the run record,
+        so that auto-ranging predicts the new points' settings from the old neighbours too."""
+        if self.ranger is None or len(s) == 0:
+            return
+        self.ranger.ref_dark = calibration.dark
+        ti, to = np.asarray(s.theta_i_deg, dtype=float), np.asarray(s.theta_o_deg, dtype=float)
+        k = calibration.scale(to) * np.asarray(calibration.footprint_factor(ti), dtype=float).reshape(-1, 1)
+        with np.errstate(all="ignore"):
+            mean = calibration.dark.mean + np.asarray(s.values, dtype=float) / k
+            std = np.asarray(s.std, dtype=float) * np.sqrt(np.asarray(s.repeats, dtype=float))[:, None] / np.abs(k)
+        rec = self.record.auto_range if self.record is not None else None
+        ranged: dict[tuple[float, float], int] = {}
+        if rec is not None:
+            for key, t in rec.points.items():
+                a, b = key.split(",")
+                ranged[(round(float(a), 6) + 0.0, round(float(b), 6) + 0.0)] = self.ranger.rung_of(
+                    t, rec.point_gains.get(key))
+        rungs = np.array([ranged.get((round(float(a), 6) + 0.0, round(float(b), 6) + 0.0), 0)
+                          for a, b in zip(ti, to, strict=True)], dtype=int)
+        ok = np.all(np.isfinite(mean), axis=1) & np.all(np.isfinite(std), axis=1)
+        self.ranger.seed(ti[ok], to[ok], mean[ok], std[ok], rungs[ok])
+
     def _store_dark(self, t: float, rd: Reading, gain: float | None = None) -> None:
         """Keep a dark at a new setting in the run record at once (a resume converts with the same darks)."""
         if self.record is not None and self.record.auto_range is not None:
@@ -240,9 +266,10 @@ class Engine:
         if not r.auto_ranged and not r.auto_range_readings:
             return
         settings = "; ".join(f"{k}{'' if 'gain' in k else ' s'}: {v}" for k, v in r.auto_range_settings.items())
-        log.info("auto-ranging: %d point(s) of the capture read at shorter integration times (%s); this run "
-                 "discarded %d reading(s) and spent %.3f s of extra integration (dark readings included)",
-                 r.auto_ranged, settings or "none", r.auto_range_readings, r.auto_range_overhead_s)
+        log.info("auto-ranging: %d point(s) of the capture read %s (%s); this run discarded %d reading(s) and "
+                 "spent %.3f s of extra integration (dark readings included)", r.auto_ranged,
+                 ranged_wording(r.auto_range_settings, self.ranger.t_ref), settings or "none",
+                 r.auto_range_readings, r.auto_range_overhead_s)
 
     # -- calibration and samples ------------------------------------------------------------------------------
     def _calibrate(self, m: Calibrate) -> None:

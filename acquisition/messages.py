@@ -53,11 +53,14 @@ class Read(Msg):
 @dataclass(slots=True)
 class Dark(Msg):
     """``repeats`` readings with the source off, re-read around saturation -> Reading. ``calibration``: this is
-    the calibration's dark level (auto-ranging converts with it from now on)."""
+    the calibration's dark level (auto-ranging converts with it from now on). ``setting``: the auto-ranging setting
+    (rung) to read it at, kept for the conversions of the readings taken there (at the present setting when the
+    detector is not auto-ranged, as in a dry run)."""
 
     repeats: int
     what: str = "dark reading"
     calibration: bool = False
+    setting: int | None = None
 
 
 @dataclass(slots=True)

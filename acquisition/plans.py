@@ -137,11 +137,15 @@ def footprint_of(cfg: BenchConfig) -> tuple[float, float, float] | None:
 
 
 def calibrate(cfg: BenchConfig, rho_ref: np.ndarray) -> PlanGen:
-    """The dark level, then (relative calibration) the white reference; tells the engine to convert with the
-    result. Returns the :class:`Calibration`."""
+    """The dark level (auto-ranged over gains: at every gain), then (relative calibration) the white reference;
+    tells the engine to convert with the result. Returns the :class:`Calibration`."""
     c = cfg.calibration
     log.info("measuring the dark level (%d repeats, source off)", cfg.detector.dark_repeats)
     dark = yield Dark(cfg.detector.dark_repeats, "dark reading", calibration=True)
+    d = cfg.detector
+    if d.auto_range and d.gains:  # a dark at every other gain now, with the source off anyway: what auto-ranging
+        for k, g in enumerate(sorted(d.gains, reverse=True)[1:], start=1):  # converts with, known to the estimate
+            yield Dark(d.dark_repeats, f"dark reading at gain {g:g}", setting=k)
     t_ref_read = cfg.detector.integration_time_s
     if c.mode == "relative":
         ref, ranged = yield from white_reference(cfg)
