@@ -39,14 +39,22 @@ from reconstruction.slicefile import Slice, SliceWriter
 from .calibration import Calibration, Reading, reference_rho
 from .dryrun import estimate, estimate_points
 from .engine import Engine
-from .errors import CaptureInterrupted, CommError, ConfigError, DeviceError, HardwareError, PlanError
-from .fingerprint import fingerprint, settings
+from .errors import (
+    CaptureInterrupted,
+    CommError,
+    ConfigError,
+    DeviceError,
+    HardwareError,
+    PlanError,
+    SampleChanged,
+)
+from .fingerprint import describe_differences, fingerprint, settings
 from .interrupts import SignalGuard
 from .lock import OutLock
 from .optics import footprint_meta, footprint_warning, instrument_of
 from .outdir import LOG_NAME, SIM_LOG_NAME, SLICE_NAME, check_resume, check_writable, make_out_dir, out_dir_problem
 from .plan import Plan, point_key
-from .plans import CaptureContext, PointsPlan, Sample, capture, footprint_of, measure_points
+from .plans import CaptureContext, PointsPlan, Sample, capture, footprint_of, last_recorded, measure_points
 from .record import SIDECAR_NAME, AutoRangeRecord, CaptureResult, RunRecord, Stop, exit_status, result_dict
 
 log = logging.getLogger("acquisition.engine")
@@ -174,8 +182,9 @@ class RunEngine:
     """Runs one capture of ``plan`` on ``bench`` into ``out``; see the module docstring."""
 
     def __init__(self, bench: Any, plan: Plan, out: str | Path, resume: bool = False, progress: bool | None = None,
-                 handle_signals: bool = True, points_plan: PointsPlan | None = None) -> None:
+                 handle_signals: bool = True, points_plan: PointsPlan | None = None, force: bool = False) -> None:
         self.points_plan = points_plan or measure_points
+        self.force = force  # a resume goes on with another sample on the bench (recorded in capture.json)
         self.bench = bench
         self.cfg = bench.cfg
         self.plan = plan
@@ -224,7 +233,7 @@ class RunEngine:
                 check_writable(self.out)
                 self.record = RunRecord.load(self.sidecar_path)
                 res = check_resume(self.cfg, self.plan, self.out, self.resume, self.record, self.fingerprint,
-                                   self.settings)
+                                   self.settings, self.force)
                 est = self._estimate(chk, res.existing)
                 self._run_locked(chk, est, res, stale_pid=stale, t_wall0=t_wall0)
             finally:
@@ -271,6 +280,9 @@ class RunEngine:
             self.result.wall_s = time.monotonic() - t_wall0
             if self.result.samples_new:
                 self.result.wall_per_sample_s = self.result.wall_s / self.result.samples_new
+            if res.sample_changes:  # --force accepted another [material]: the run record says so
+                self.result.sample_check = {**(self.result.sample_check or {}), "forced": True,
+                                            "config_changes": describe_differences(res.sample_changes)}
             if self._run_started:
                 self.record.plan_fields["estimate"] = self._estimate_fields()  # with the refinement rounds
                 self.record.finish_run(self.result)
@@ -419,9 +431,11 @@ class RunEngine:
                     c = cfg.calibration
                     rho = reference_rho(c.reference_reflectance, c.reference_spectrum, bench.detector.wavelengths_nm,
                                         d.band_weights)
+                    recheck = [] if existing is None else last_recorded(list(zip(
+                        existing.theta_i_deg, existing.theta_o_deg, strict=True)))
                     engine.run(capture(CaptureContext(cfg, self.plan, bench.geometry, measurable, done, cal, rho,
                                                       self.record.previous_bench_time(), self.points_plan,
-                                                      estimate_points)))
+                                                      estimate_points, recheck, self.force)))
                 finally:
                     try:
                         r.bench_time_s = bench.now() - t0
@@ -443,6 +457,10 @@ class RunEngine:
                 r.end(Stop.CONFIG_REFUSED, f"{e}\nnothing was moved.")
             except PlanError as e:
                 r.end(Stop.PLAN_ERROR, str(e))
+            except SampleChanged as e:
+                r.end(Stop.SAMPLE_CHANGED, f"cannot resume: {e}. If the sample was changed on purpose, go on with: "
+                                           f"{self.resume_command()} --force (recorded in {self.sidecar_path}); "
+                                           "otherwise mount the recorded sample as it was, and resume again")
             except OSError as e:  # the slice, the run record or the log cannot be written (a full disk)
                 self._io_failure(e)
             except Exception as e:  # a bug or an unforeseen device reply: still stop safely and stay resumable
@@ -517,7 +535,7 @@ class RunEngine:
         if self._io_fault:  # one line: what could not be written, what is safe, how to go on
             how = "Free some space, then resume" if "disk is full" in r.message else "Once it can be written, resume"
             r.message = f"{r.message}; {kept} {how} with: {self.resume_command()}"
-        elif not self._before_motion:
+        elif not self._before_motion and r.stop is not Stop.SAMPLE_CHANGED:  # that one says how to go on
             r.message = f"{r.message}\n{kept} {self.resume_hint()}"
         log.error(r.message, extra={"final": True})
 

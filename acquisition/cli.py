@@ -1,11 +1,14 @@
 """``gonio-capture``: drive the bench and capture an in-plane BRDF slice.
 
-``gonio-capture --config CONFIG --out DIR [--resume]`` validates the bench file and the plan (nothing moves
-before that succeeds), then captures into ``DIR/slice.csv`` (with its metadata), logging to ``DIR/capture.log``.
+``gonio-capture --config CONFIG --out DIR [--resume [--force]]`` validates the bench file and the plan (nothing
+moves before that succeeds), then captures into ``DIR/slice.csv`` (with its metadata), logging to
+``DIR/capture.log``. A resume first measures the last recorded points again: another sample on the bench stops it
+(``--force`` goes on, recorded in ``DIR/capture.json``).
 
 Exit status: 0 complete; 1 stopped by a hardware or communication failure or a full disk (arms made safe,
 resumable); 2 bad config, plan or output directory, or the directory is in use by another capture (nothing
-moved); 130 / 143 interrupted by SIGINT / SIGTERM (resumable). Every failure is reported without a traceback.
+moved), or a resume that found another sample on the bench; 130 / 143 interrupted by SIGINT / SIGTERM
+(resumable). Every failure is reported without a traceback.
 """
 
 from __future__ import annotations
@@ -27,12 +30,14 @@ EPILOG = """\
 examples:
   gonio-capture --config configs/simulated.toml --out out/demo
   gonio-capture --config configs/simulated.toml --out out/demo --resume
+  gonio-capture --config configs/simulated.toml --out out/demo --resume --force   # another sample, on purpose
   gonio-capture --config configs/simulated.toml --out out/paint --scene configs/scenes/glossy-product.toml
   gonio-capture --config configs/dynamixel-bench.toml --check
 
 exit status: 0 complete, 1 stopped by a hardware/communication fault or a full disk (resumable), 2 bad
-config/plan, output folder not writable or in use by another capture (nothing moved), 130/143 interrupted by
-SIGINT/SIGTERM (resumable with --resume).
+config/plan, output folder not writable or in use by another capture (nothing moved), or a resume whose last
+points, measured again, do not read as recorded (another sample: --resume --force goes on), 130/143 interrupted
+by SIGINT/SIGTERM (resumable with --resume).
 """
 
 
@@ -46,6 +51,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", metavar="DIR", help="output directory: slice.csv, capture.log, capture.json")
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted capture in --out (measured samples are kept and skipped)")
+    p.add_argument("--force", action="store_true",
+                   help="with --resume: go on although the last recorded points, measured again first, do not read "
+                        "as recorded (another sample on purpose; recorded in capture.json)")
     p.add_argument("--scene", help="scene file restricting the plan (configs/scenes/*.toml)")
     p.add_argument("--check", action="store_true",
                    help="validate the config (on a simulated bench also its [simulator] sections, through "
@@ -74,7 +82,10 @@ class _BarSafeHandler(logging.StreamHandler):  # type: ignore[type-arg]
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``gonio-capture`` console script."""
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.force and not args.resume:
+        parser.error("--force goes with --resume (it accepts another sample in a capture being resumed)")
     handler = _BarSafeHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("gonio-capture: %(levelname)s: %(message)s"))
     handler.setLevel(getattr(logging, args.log_level.upper()))
@@ -191,7 +202,8 @@ def _run(args: argparse.Namespace) -> int:
         print(f"gonio-capture: --out {out_dir_problem(Path(args.out), e)}", file=sys.stderr)
         return 2
     try:
-        result = bench.capture(plan, out=Path(args.out), resume=args.resume, progress=args.progress)
+        result = bench.capture(plan, out=Path(args.out), resume=args.resume, progress=args.progress,
+                               force=args.force)
     except OutDirLocked as e:  # one line: the folder and the PID holding it
         print(f"gonio-capture: {e}", file=sys.stderr)
         return 2

@@ -30,7 +30,7 @@ from .engine import Engine
 from .errors import PlanError
 from .geometry import Geometry, Point, point_key
 from .ordering import TWO_OPT_MAX_EVALUATIONS, path_time
-from .plans import CaptureContext, PlanSpec, PointsPlan, capture, measure
+from .plans import CaptureContext, PlanSpec, PointsPlan, capture, last_recorded, measure
 from .protocols import Devices, MoveStatus
 from .record import CaptureResult
 
@@ -180,7 +180,7 @@ def estimate(plan: PlanSpec, geometry: Geometry, integration_time_s: float, poin
     todo = [p for p in pts if point_key(p) not in have]
     ctx = CaptureContext(cfg, plan, geometry, pts, {point_key(p): (p[0], p[1], 0.0, 0.0) for p in done},
                          _dry_calibration(cfg) if calibrated else None, np.ones(1), 0.0, points_plan or own_points,
-                         estimate_points)
+                         estimate_points, last_recorded(done) if calibrated else [])
     bench = DryRunBench(geometry, integration_time_s)
     with _quiet():
         Engine(bench.devices(), settle_s=geometry.settle_s, retries=0, result=res, account=True,

@@ -29,6 +29,7 @@ from .messages import (
     Announce,
     Calibrate,
     Checkpoint,
+    Convert,
     Dark,
     Move,
     Now,
@@ -108,7 +109,8 @@ class Engine:
             self._setup_ranger(*auto_range, gains=gains)
         self._handlers: dict[type, Callable[[Any], Any]] = {
             Move: self._move, Settle: self._settle, Read: self._read, Dark: self._dark,
-            SelectSample: self._select, Calibrate: self._calibrate, Save: self._save, Checkpoint: self._checkpoint,
+            SelectSample: self._select, Calibrate: self._calibrate, Save: self._save, Convert: self._convert,
+            Checkpoint: self._checkpoint,
             Where: self._where, Now: self._now, Announce: self._announce, RestoreSetting: self._restore,
             Tally: self._tally, UseReference: self._use_reference,
         }
@@ -322,6 +324,15 @@ class Engine:
         r.samples_total += 1
         if self.bar is not None:
             self.bar.advance()
+        return (ti, to, float(np.mean(f)), float(np.mean(fs)))
+
+    def _convert(self, m: Convert) -> tuple[float, float, float, float]:
+        ti, to = m.theta_i_deg, m.theta_o_deg
+        if self.account:
+            self._account()
+        if self.calibration is None or not self.convert:  # a dry run
+            return (ti, to, 0.0, 0.0)
+        f, fs = self.calibration.brdf(m.reading, to, ti)
         return (ti, to, float(np.mean(f)), float(np.mean(fs)))
 
     def _account(self) -> None:

@@ -41,6 +41,11 @@ class HardwareError(DeviceError):
     """A latched hardware fault (Dynamixel Hardware Error Status, a controller alarm): the capture stops safely."""
 
 
+class SampleChanged(AcquisitionError):
+    """A resumed capture re-measured the last recorded points and the sample on the bench does not read as the one
+    in the slice (swapped, moved): the capture stops before measuring anything new."""
+
+
 class CaptureInterrupted(AcquisitionError):
     """The capture was stopped by Ctrl-C or SIGTERM (``signum`` tells which)."""
 
