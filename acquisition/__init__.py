@@ -20,6 +20,7 @@ from .errors import (
     DeviceError,
     HardwareError,
     PlanError,
+    SaturationWarning,
 )
 from .plan import Geometry, Plan, PlanCheck, Reason, Scene, load_scene, order_points, path_time
 
@@ -42,6 +43,7 @@ __all__ = [
     "Reading",
     "Reason",
     "RunEngine",
+    "SaturationWarning",
     "Scene",
     "SimulatorProcess",
     "Stop",

@@ -23,8 +23,13 @@ reads it again at shorter times from a fixed ladder ``t_ref``, ``t_ref / sqrt(10
 
 Readings are therefore kept within the same limit whichever way the ladder was walked.
 
-The setting that worked stays for the next point (neighbours around a peak need it too; a dim point costs one
-short extra reading before going back up), so the ladder is walked once per peak, not once per point.
+The first reading of a point starts on the setting its neighbours predict (:meth:`AutoRanger.predict`: the
+points already read at the same incidence, their signal at the point, interpolated or extrapolated along their
+trend; between gains at one integration time with some hysteresis), so that the ladder is not walked at every
+point where the signal crosses into another setting's range; a point without neighbours starts on the setting
+the last point needed, and one whose setting is a guess (the white reference) searches with a probe of
+:data:`PROBE_REPEATS` repeats before reading the rest. With gains, the darks at every gain are measured with the
+calibration's (:func:`acquisition.plans.calibrate`), so the estimate counts them.
 
 A reading at time ``t`` is converted to the reference exposure: the signal above the dark level scales with the
 integration time, the dark level itself is measured at ``t`` (once, then cached: a photodiode's dark current
@@ -39,9 +44,10 @@ raw counts.
 
 from __future__ import annotations
 
+import bisect
 import logging
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -53,7 +59,7 @@ from .errors import DeviceError
 log = logging.getLogger("acquisition.autorange")
 
 __all__ = ["AutoRanger", "Ranged", "ladder", "settings_ladder", "setting_key", "read_clean", "HEADROOM",
-           "RUNG_RATIO"]
+           "RUNG_RATIO", "PROBE_REPEATS", "PREDICTION_BAND", "ranged_wording"]
 
 #: Ratio between neighbouring integration times of the ladder.
 RUNG_RATIO = math.sqrt(10.0)
@@ -61,6 +67,13 @@ RUNG_RATIO = math.sqrt(10.0)
 #: fraction of the saturation; a longer setting is chosen only if it is predicted to.
 HEADROOM = 0.8
 NEAR_SIGMAS = 3.0
+#: Repeats of a probe: a reading whose setting is a guess (no neighbour predicts it: the white reference, the first
+#: point of an incidence) searches the ladder with this many repeats, then reads the rest at the setting found.
+PROBE_REPEATS = 4
+#: Hysteresis between gains at one integration time: a point starts on its neighbours' gain unless their signal,
+#: x or / this factor, still says another, and a reading on a predicted gain goes to a higher one only if it fits
+#: there by this factor (a lower gain costs no signal; near the edge of a range noise would decide back and forth).
+PREDICTION_BAND = 2.0
 
 
 class RangedDetector(Protocol):
@@ -132,6 +145,20 @@ def setting_key(t: float, gain: float | None = None) -> str:
     return f"{t:.6g}" if gain is None else f"{t:.6g} s, gain {gain:g}"
 
 
+def ranged_wording(settings: Mapping[str, int], t_ref: float) -> str:
+    """What auto-ranging changed, in words, from the settings of the ranged points (keys of
+    :func:`setting_key`): "at lower gains", "at shorter integration times", "at lower gains and shorter
+    integration times" ("at the reference setting" for none)."""
+    gain = time = False
+    for key in settings:
+        t = float(key.split(" s,")[0])
+        gain |= "gain" in key
+        time |= t < t_ref * (1 - 1e-6)
+    if gain and time:
+        return "at lower gains and shorter integration times"
+    return "at lower gains" if gain else "at shorter integration times" if time else "at the reference setting"
+
+
 @dataclass(frozen=True)
 class Ranged:
     """An auto-ranged reading: ``reading`` converted to the reference exposure (counts at ``t_ref``), ``raw``
@@ -174,12 +201,16 @@ class AutoRanger:
         self.read_dark = read_dark
         self.on_dark = on_dark
         self.darks: dict[str, Reading] = {}      # setting_key(actual t, gain) -> dark reading at that setting
-        self.ref_dark: Reading | None = None     # the calibration's dark at the reference setting (rung 0)
+        self.ref_dark: Reading | None = None     # the calibration's dark at the reference setting (rung 0); None:
+        #                                          measured when first needed (reference_dark)
         self._actual: dict[int, float] = {0: float(detector.integration_time_s)}
         self._gain: dict[int, float | None] = {}
         self._rung = 0                           # where the next point starts (the last rung that worked)
         self._current = 0                        # the rung the detector is set to
         self._det_gain: float | None = None      # the gain the amplifier reported last
+        #: theta_i -> (sorted theta_o, their signals in reference-setting counts above the dark, their rungs):
+        #: what predict() knows of the points read
+        self._seen: dict[float, tuple[list[float], list[float], list[int]]] = {}
 
     def sensitivity(self, i: int) -> float:
         """Counts per unit signal on rung ``i`` relative to gain 1 and ``t_ref`` (gain x time / t_ref)."""
@@ -213,28 +244,38 @@ class AutoRanger:
             self._current = i
         return self._actual[i]
 
-    def restore(self) -> None:
-        """Back to the reference setting (next reading, end-of-run dark, the caller's bench)."""
+    def restore(self, keep_start: bool = False) -> None:
+        """Back to the reference setting (next reading, end-of-run dark, the caller's bench). ``keep_start``: the
+        next reading still starts on the setting the last one needed (between readings of one bench script)."""
         if self.gains is not None:
             self._set(0)
         elif self._current != 0 or self.det.integration_time_s != self._actual[0]:
             self._actual[0] = self.det.set_integration_time(self.t_ref)
             self._current = 0
-        self._rung = 0
+        if not keep_start:
+            self._rung = 0
+
+    def reference_dark(self) -> Reading:
+        """The dark at the reference setting (rung 0): the calibration's, else measured now (once)."""
+        if self.ref_dark is None:
+            self._set(0)
+            self.ref_dark = self.read_dark()
+            log.info("dark level at the reference setting (%s): %s counts (%d repeats)", self._describe(0),
+                     np.round(self.ref_dark.mean, 3).tolist()[:8], self.ref_dark.n)
+        return self.ref_dark
 
     # -- darks -------------------------------------------------------------------------------------------------
     def dark_at(self, i: int) -> Reading:
         """The dark reading at rung ``i`` (measured once, then cached; rung 0 is the calibration's dark)."""
         if i == 0:
-            assert self.ref_dark is not None, "set ref_dark first"
-            return self.ref_dark
+            return self.reference_dark()
         t = self._set(i)
         key = self.setting_key_of(i)
         d = self.darks.get(key)
         if d is None:
             d = self.read_dark()
             self.darks[key] = d
-            log.info("dark level at t_int = %s s: %s counts (%d repeats)", key, np.round(d.mean, 3).tolist()[:8],
+            log.info("dark level at %s: %s counts (%d repeats)", self._describe(i), np.round(d.mean, 3).tolist()[:8],
                      d.n)
             if self.on_dark is not None:
                 if self.gains is None:
@@ -255,26 +296,153 @@ class AutoRanger:
             return "near"
         return "ok"
 
-    def _longest_fitting(self, rd: Reading, i: int, t: float, excluded: set[int]) -> int:
-        """The longest rung j < i (not in ``excluded``) at which ``rd`` (taken on rung i, time t) is predicted to
-        stay below HEADROOM of the saturation; ``i`` if none."""
+    def _longest_fitting(self, rd: Reading, i: int, t: float, excluded: set[int], margin: float = 1.0) -> int:
+        """The longest rung j < i (not in ``excluded``) at which ``rd`` (taken on rung i, time t), times
+        ``margin``, is predicted to stay below HEADROOM of the saturation; ``i`` if none."""
         base = self.ref_dark.mean if self.ref_dark is not None else np.zeros_like(rd.mean)
         if self.gains is not None:  # the dark at this rung, if known, is the better base (each gain has its offset)
             base = self.darks.get(self.setting_key_of(i), Reading(base, base, 1)).mean if i else base
-        net = np.max(np.maximum(rd.mean - base, 0.0) + NEAR_SIGMAS * rd.std)
+        net = margin * np.max(np.maximum(rd.mean - base, 0.0) + NEAR_SIGMAS * rd.std)
         top = HEADROOM * self.det.saturation - float(np.max(base))
         s_i = self.sensitivity(i)
         for j in range(i):
             if j in excluded:
                 continue
-            if net * self.sensitivity(j) / s_i < top:
+            # ``margin`` holds only for another gain at the same integration time (no signal lost by staying)
+            if net * (margin if self.ladder[j] == self.ladder[i] else 1.0) * self.sensitivity(j) / s_i < top:
                 return j
         return i
 
-    def read(self, n: int, what: str, start: int | None = None) -> Ranged:
-        """``n`` repeats, ranged: see the module docstring. ``start``: the rung to begin on (default: the rung
-        the last point needed). Raises DeviceError if even ``t_min`` saturates."""
-        i = self._rung if start is None else start
+    # -- the setting a point starts on -----------------------------------------------------------------------------
+    def _fitting_rung(self, net_ref: float) -> int:
+        """The most sensitive rung on which a signal of ``net_ref`` (reference-setting counts above the dark, the
+        brightest channel, with NEAR_SIGMAS of its noise) stays below HEADROOM of the saturation; the last rung if
+        none does."""
+        ref = self.ref_dark.mean if self.ref_dark is not None else None
+        for j in range(len(self.settings)):
+            d = self.darks.get(self.setting_key_of(j)) if j else None
+            base = d.mean if d is not None else ref
+            top = HEADROOM * self.det.saturation - (float(np.max(base)) if base is not None else 0.0)
+            if net_ref * self.sensitivity(j) / self.sensitivity(0) < top:
+                return j
+        return len(self.settings) - 1
+
+    def predict(self, point: tuple[float, float]) -> int | None:
+        """The rung the first reading of ``point`` (theta_i, theta_o in degrees) starts on, predicted from its
+        neighbours already read at the same incidence (None: there are none): the most sensitive setting their
+        signal at the point fits, that signal being the brighter of the two neighbours on either side, or
+        extrapolated from the two nearest on one side (their trend, at most x10 per step: a slope up to a peak
+        ranges down ahead of it, a slope away from it up). Between gains at the same integration time the
+        neighbours' setting (the nearest one's; on both sides the less sensitive) stays unless their signal says
+        another by more than :data:`PREDICTION_BAND` either way: near the edge of a gain's range a reading's noise
+        decides, a point would go back and forth, and a lower gain costs no signal."""
+        row = self._seen.get(round(float(point[0]), 6))
+        if not row:
+            return None
+        tos, nets, rungs = row
+        to = round(float(point[1]), 6)
+        k = bisect.bisect_left(tos, to)
+        if k < len(tos) and tos[k] == to:  # read before (a point measured again)
+            net, rung = nets[k], rungs[k]
+        elif 0 < k < len(tos):
+            net, rung = max(nets[k - 1], nets[k]), max(rungs[k - 1], rungs[k])
+        else:
+            j, j2 = (k - 1, k - 2) if k > 0 else (k, k + 1)
+            net, rung = nets[j], rungs[j]
+            if 0 <= j2 < len(tos) and nets[j] > 0 and nets[j2] > 0:
+                steps = abs(to - tos[j]) / max(abs(tos[j] - tos[j2]), 1e-9)
+                net *= min(max(nets[j] / nets[j2], 0.1), 10.0) ** min(steps, 1.0)
+        best = self._fitting_rung(net)
+        if (rung != best and self.ladder[rung] == self.ladder[best]
+                and self._fitting_rung(net / PREDICTION_BAND) <= rung <= self._fitting_rung(net * PREDICTION_BAND)):
+            return rung  # another gain at the same integration time, near the edge: the neighbours' stays
+        return best
+
+    def _remember(self, point: tuple[float, float], reading: Reading, rung: int) -> None:
+        """Keep the signal of a point read (converted to the reference setting) and its rung for :meth:`predict`."""
+        if self.ref_dark is None:
+            return
+        net = float(np.max(np.maximum(reading.mean - self.ref_dark.mean, 0.0) + NEAR_SIGMAS * reading.std))
+        tos, nets, rungs = self._seen.setdefault(round(float(point[0]), 6), ([], [], []))
+        to = round(float(point[1]), 6)
+        k = bisect.bisect_left(tos, to)
+        if k < len(tos) and tos[k] == to:
+            nets[k], rungs[k] = net, rung
+        else:
+            tos.insert(k, to)
+            nets.insert(k, net)
+            rungs.insert(k, rung)
+
+    def rung_of(self, t: float, gain: float | None = None) -> int:
+        """The rung of a setting (integration time in s, gain) as a run record gives it: the same gain, the
+        nearest time."""
+        cands = [j for j, (g, _) in enumerate(self.settings) if (g is None or gain is None or g == gain)]
+        return min(cands or range(len(self.settings)), key=lambda j: abs(math.log(max(t, 1e-12) / self.ladder[j])))
+
+    def seed(self, theta_i_deg: np.ndarray, theta_o_deg: np.ndarray, mean: np.ndarray, std: np.ndarray,
+             rungs: np.ndarray) -> None:
+        """What earlier runs read (a resumed capture): per point (N) its reading converted to the reference setting
+        (``mean``, ``std`` per repeat: (N, C) counts) and its rung (N), for :meth:`predict`. Needs ``ref_dark``."""
+        if self.ref_dark is None or len(theta_i_deg) == 0:
+            return
+        nets = np.max(np.maximum(mean - self.ref_dark.mean, 0.0) + NEAR_SIGMAS * std, axis=1)
+        ti = np.round(np.asarray(theta_i_deg, dtype=float), 6) + 0.0
+        to = np.round(np.asarray(theta_o_deg, dtype=float), 6) + 0.0
+        for t_i in np.unique(ti):  # per incidence: its outgoing angles sorted, as _remember keeps them
+            sel = np.flatnonzero(ti == t_i)
+            sel = sel[np.argsort(to[sel], kind="stable")]
+            keep = np.r_[to[sel][1:] != to[sel][:-1], True]  # a point read twice: its last reading
+            sel = sel[keep]
+            self._seen[float(t_i)] = ([float(x) for x in to[sel]], [float(x) for x in nets[sel]],
+                                      [int(x) for x in np.asarray(rungs)[sel]])
+
+    # -- reading ----------------------------------------------------------------------------------------------
+    def read(self, n: int, what: str, start: int | None = None, point: tuple[float, float] | None = None
+             ) -> Ranged:
+        """``n`` repeats, ranged: see the module docstring. ``start``: the rung to begin on; else the one
+        :meth:`predict` gives for ``point`` from its neighbours; else the rung the last reading needed. A start
+        that is not predicted is a guess: the search for the setting reads :data:`PROBE_REPEATS` repeats, the rest
+        are read at the setting found and pooled with its probe. Raises DeviceError if even ``t_min`` saturates."""
+        predicted = self.predict(point) if start is None and point is not None else None
+        i = start if start is not None else predicted if predicted is not None else self._rung
+        m = n if predicted is not None else min(n, PROBE_REPEATS)
+        # a predicted setting is left for a more sensitive one only if the reading fits it by PREDICTION_BAND
+        (i, t, rd), reads, spent = self._search(n, m, what, i, PREDICTION_BAND if predicted is not None else 1.0)
+        if rd.n < n:  # the probe found the setting: the rest of the repeats there
+            self._set(i)
+            rest, _, repeats = read_clean(self.det.read, n - rd.n, self.retries)
+            spent += repeats * t
+            if rest.saturated:  # brighter than its probe (a transient that stays, a drifting source): search again
+                (i, t, rd), more, again = self._search(n, n, what, i)
+                reads, spent = reads + more, spent + again
+            else:
+                rd = pool(rd, rest)
+        spent -= n * t
+        gain = self._gain.get(i)
+        if i == 0:
+            self._rung = 0
+            if point is not None:
+                self._remember(point, rd, 0)
+            return Ranged(rd, rd, t, reads, spent, gain)
+        n_darks = len(self.darks)
+        dark = self.dark_at(i)
+        if len(self.darks) > n_darks:
+            spent += dark.n * t
+        if self.ref_dark is None:  # no calibration (a bench script's reading): measured once, now
+            spent += self.reference_dark().n * self.t_ref
+        ref_dark = self.reference_dark()
+        r = self.sensitivity(0) / self.sensitivity(i)
+        conv = Reading(ref_dark.mean + (rd.mean - dark.mean) * r, rd.std * r, rd.n, 0)
+        self._rung = i
+        if point is not None:
+            self._remember(point, conv, i)
+        return Ranged(conv, rd, t, reads, spent, gain, Reading(dark.mean * r, dark.std * r, dark.n, 0))
+
+    def _search(self, n: int, m: int, what: str, i: int, margin: float = 1.0
+                ) -> tuple[tuple[int, float, Reading], int, float]:
+        """Walk the ladder from rung ``i`` with readings of ``m`` repeats (of the ``n`` asked for) until one is
+        clean and no more sensitive rung is predicted to fit (the reading times ``margin``): ((rung, integration
+        time, reading), readings taken, integration time spent in all)."""
         best: tuple[int, float, Reading] | None = None
         excluded: set[int] = set()
         retried: set[int] = set()
@@ -286,9 +454,9 @@ class AutoRanger:
         while True:
             t = self._set(i)
             if i in retried:  # read again after a partial clip: transients are read around (read_clean)
-                rd, _, repeats = read_clean(self.det.read, n, self.retries)
+                rd, _, repeats = read_clean(self.det.read, m, self.retries)
             else:
-                rd, repeats = self.det.read(n), n
+                rd, repeats = self.det.read(m), m
             reads += 1  # one (possibly pieced) reading
             spent += repeats * t
             state = self._state(rd)
@@ -297,7 +465,7 @@ class AutoRanger:
                     best = (i, t, rd)
                 # up the ladder once (with gains, whose noise the prediction overstates, until it stops gaining)
                 if i > 0 and not upranged:
-                    j = self._longest_fitting(rd, i, t, excluded)
+                    j = self._longest_fitting(rd, i, t, excluded, margin)
                     if j < i:
                         upranges += 1
                         upranged = self.gains is None or upranges >= len(self.settings)
@@ -311,7 +479,7 @@ class AutoRanger:
             if state == "partial" and i not in retried:
                 retried.add(i)
                 log.warning("%s: %d of %d repeats saturated at %s; reading again", what, rd.saturated,
-                            n, self._describe(i))
+                            m, self._describe(i))
                 continue
             excluded.add(i)
             if i == last:
@@ -322,21 +490,7 @@ class AutoRanger:
                     "the source power")
             nxt = min(i + (2 if state == "full" else 1), last)
             log.info("%s: %s at %s (%d of %d repeats clipped); trying %s", what,
-                     "saturated" if state != "near" else "near saturation", self._describe(i), rd.saturated, n,
+                     "saturated" if state != "near" else "near saturation", self._describe(i), rd.saturated, m,
                      self._describe(nxt))
             i = nxt
-        i, t, rd = best
-        spent -= n * t
-        gain = self._gain.get(i)
-        if i == 0:
-            self._rung = 0
-            return Ranged(rd, rd, t, reads, spent, gain)
-        n_darks = len(self.darks)
-        dark = self.dark_at(i)
-        if len(self.darks) > n_darks:
-            spent += dark.n * t
-        assert self.ref_dark is not None
-        r = self.sensitivity(0) / self.sensitivity(i)
-        conv = Reading(self.ref_dark.mean + (rd.mean - dark.mean) * r, rd.std * r, rd.n, 0)
-        self._rung = i
-        return Ranged(conv, rd, t, reads, spent, gain, Reading(dark.mean * r, dark.std * r, dark.n, 0))
+        return best, reads, spent

@@ -29,13 +29,15 @@ import subprocess
 import sys
 import tempfile
 import time
+import warnings
 from pathlib import Path
 from typing import IO, Any
 
+from .autorange import AutoRanger
 from .calibration import Reading
 from .config import BenchConfig, load_config
 from .dynamixel import DynamixelAxes
-from .errors import CommError, ConfigError, DeviceError
+from .errors import CommError, ConfigError, DeviceError, SaturationWarning
 from .plan import Geometry, Plan, PlanCheck, Point, Reason, load_scene
 from .protocols import Devices, MoveStatus
 from .serial_link import SerialAxes, SerialDetector, SerialLink
@@ -232,6 +234,8 @@ class Bench:
         self.sim_args: tuple[str, ...] = ()
         self._opened = False
         self._wall0 = time.monotonic()
+        self._ranger: AutoRanger | None = None  # read()'s auto-ranging, once used
+        self._ref_dark: Reading | None = None  # the last dark() (at the reference setting)
 
     @classmethod
     def from_config(cls, path: str | Path, **kw: Any) -> Bench:
@@ -306,6 +310,7 @@ class Bench:
         self.link = None
         self.detector = None
         self.motion = None
+        self._ranger = self._ref_dark = None
         self._opened = False
 
     def shutdown(self, park: bool = True) -> None:
@@ -366,14 +371,55 @@ class Bench:
         return (p["light"], p["detector"])
 
     def read(self, repeats: int | None = None) -> Reading:
-        """Detector reading with the source on (raw counts)."""
+        """Detector reading with the source on: mean and std per channel in counts at the reference setting.
+
+        With ``[detector].auto_range`` (the default) a reading that saturates, or comes near it, is taken again at
+        less sensitive settings (lower gains, shorter integration times) as a capture's is, and converted to the
+        reference setting (the configured integration time at the highest gain): its mean may then exceed the
+        saturation, and ``saturated`` is 0. The darks this needs are measured once (source off; the reference
+        setting's is the last :meth:`dark`, else measured when first needed). Without auto-ranging a saturated
+        reading is returned as read, with a :class:`~acquisition.errors.SaturationWarning`: its mean is only a
+        lower bound. Raises :class:`DeviceError` if even the least sensitive setting saturates."""
         _, det = self._need()
-        return det.read(repeats or self.cfg.detector.repeats)
+        n = repeats or self.cfg.detector.repeats
+        if not self.cfg.detector.auto_range:
+            rd = det.read(n)
+            if rd.saturated:
+                warnings.warn(f"Bench.read: {rd.saturated} of {rd.n} repeats saturated at {det.saturation:g} counts: "
+                              "the mean is clipped (a lower bound); lower [detector].integration_time_s or the gain, "
+                              "or set [detector].auto_range = true", SaturationWarning, stacklevel=2)
+            return rd
+        ranger = self._auto_ranger(det)
+        try:
+            rg = ranger.read(n, "Bench.read")
+        finally:
+            ranger.restore(keep_start=True)  # the detector at the reference setting for dark() and capture()
+        if rg.ranged:
+            log.info("Bench.read: auto-ranged to t_int = %g s%s, converted to the reference setting",
+                     rg.integration_time_s, "" if rg.gain is None else f", gain {rg.gain:g}")
+        return rg.reading
 
     def dark(self, repeats: int | None = None) -> Reading:
-        """Detector reading with the source off (raw counts)."""
+        """Detector reading with the source off (raw counts), at the reference setting (a later auto-ranged
+        :meth:`read` converts with it)."""
         _, det = self._need()
-        return det.dark(repeats or self.cfg.detector.dark_repeats)
+        if self._ranger is not None:
+            self._ranger.restore(keep_start=True)
+        rd = det.dark(repeats or self.cfg.detector.dark_repeats)
+        self._ref_dark = rd
+        if self._ranger is not None:
+            self._ranger.ref_dark = rd
+        return rd
+
+    def _auto_ranger(self, det: SerialDetector) -> AutoRanger:
+        """The auto-ranging of :meth:`read` (one per opening of the bench)."""
+        if self._ranger is None:
+            d = self.cfg.detector
+            self._ranger = AutoRanger(det, d.integration_time_s, d.min_integration_time_s,
+                                      read_dark=lambda: det.dark(d.dark_repeats), retries=self.cfg.motion.retries,
+                                      gains=d.gains)
+            self._ranger.ref_dark = self._ref_dark
+        return self._ranger
 
     def settle(self) -> None:
         """Wait ``[motion].settle_s`` of bench time."""
@@ -400,19 +446,21 @@ class Bench:
 
     def capture(self, plan: Plan | None = None, out: str | Path | None = None, resume: bool = False,
                 progress: bool | None = None, handle_signals: bool = True,
-                points_plan: Any = None):  # -> CaptureResult
+                points_plan: Any = None, force: bool = False):  # -> CaptureResult
         """Capture ``plan`` (default: the config's) into ``out``/slice.csv; see :class:`acquisition.capture.RunEngine`.
 
         Opens the bench if needed (and then closes it again). Returns a :class:`~acquisition.record.CaptureResult`
         (``result.ok``; ``result.raise_for_status()``). ``points_plan``: the plan that measures the points
-        (default :func:`acquisition.plans.measure_points`; e.g. ``examples/reference_every_n.py``).
+        (default :func:`acquisition.plans.measure_points`; e.g. ``examples/reference_every_n.py``). A resume first
+        measures the last recorded points again and stops (``result.exit_code`` 2) if the sample does not read as
+        recorded; ``force``: go on all the same (a deliberate change, recorded in capture.json).
         """
         from .capture import RunEngine
 
         if out is None:
             out = Path("out") / time.strftime("capture-%Y%m%d-%H%M%S")
         eng = RunEngine(self, plan if plan is not None else self.plan(), out, resume=resume, progress=progress,
-                        handle_signals=handle_signals, points_plan=points_plan)
+                        handle_signals=handle_signals, points_plan=points_plan, force=force)
         return eng.run()
 
 

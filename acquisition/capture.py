@@ -17,7 +17,7 @@ then parked and torque switched off (a second signal aborts the parking; no sign
 that arrives during the final dark reading or the parking still gives the signal's exit status). A hardware
 fault or a communication failure stops the same way, without parking when an axis reports a fault; a full disk
 stops it with one line saying so. How a capture ended is a :class:`~acquisition.record.Stop`; the exit status
-is the CLI's (:func:`acquisition.cli.exit_status`).
+is :func:`acquisition.record.exit_status`.
 """
 
 from __future__ import annotations
@@ -27,7 +27,6 @@ import logging
 import math
 import signal
 import sys
-import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -38,15 +37,25 @@ from reconstruction.atomic import is_no_space
 from reconstruction.slicefile import Slice, SliceWriter
 
 from .calibration import Calibration, Reading, reference_rho
+from .dryrun import estimate, estimate_points
 from .engine import Engine
-from .errors import CaptureInterrupted, CommError, ConfigError, DeviceError, HardwareError, PlanError
-from .fingerprint import fingerprint, settings
+from .errors import (
+    CaptureInterrupted,
+    CommError,
+    ConfigError,
+    DeviceError,
+    HardwareError,
+    PlanError,
+    SampleChanged,
+)
+from .fingerprint import describe_differences, fingerprint, settings
+from .interrupts import SignalGuard
 from .lock import OutLock
 from .optics import footprint_meta, footprint_warning, instrument_of
 from .outdir import LOG_NAME, SIM_LOG_NAME, SLICE_NAME, check_resume, check_writable, make_out_dir, out_dir_problem
 from .plan import Plan, point_key
-from .plans import CaptureContext, PointsPlan, Sample, capture, footprint_of, measure_points
-from .record import SIDECAR_NAME, AutoRangeRecord, CaptureResult, RunRecord, Stop, result_dict
+from .plans import CaptureContext, PointsPlan, Sample, capture, footprint_of, last_recorded, measure_points
+from .record import SIDECAR_NAME, AutoRangeRecord, CaptureResult, RunRecord, Stop, exit_status, result_dict
 
 log = logging.getLogger("acquisition.engine")
 
@@ -61,49 +70,6 @@ def _software_version() -> str:
         return version("gonio-brdf")
     except Exception:  # pragma: no cover
         return "unknown"
-
-
-class _SignalGuard:
-    """SIGINT/SIGTERM become flags, main thread only: the first asks the capture to stop after the current step
-    (:meth:`check` raises :class:`CaptureInterrupted` there); a second also aborts the parking
-    (:meth:`check_abort`). The handler itself never raises, so a signal arriving anywhere (in logging, in a write,
-    in the clean-up) cannot end in a traceback; the exit status is the first signal's."""
-
-    def __init__(self, enabled: bool) -> None:
-        self.enabled = enabled and threading.current_thread() is threading.main_thread()
-        self.signum: int | None = None
-        self.abort = False
-        self._old: dict[int, Any] = {}
-
-    def __enter__(self) -> _SignalGuard:
-        if self.enabled:
-            for s in (signal.SIGINT, signal.SIGTERM):
-                self._old[s] = signal.getsignal(s)
-                signal.signal(s, self._handler)
-        return self
-
-    def _handler(self, signum: int, frame: Any) -> None:
-        name = signal.Signals(signum).name
-        if self.signum is None:
-            self.signum = signum
-            log.warning("%s received: stopping after the current step (send it again to abort parking)", name)
-        elif not self.abort:
-            self.abort = True
-            log.warning("%s received again: not waiting for the arms to park", name)
-
-    def check(self) -> None:
-        if self.signum is not None:
-            raise CaptureInterrupted(f"interrupted by {signal.Signals(self.signum).name}", self.signum)
-
-    def check_abort(self) -> None:
-        """The cancel check while parking: only a second signal stops it."""
-        if self.abort:
-            assert self.signum is not None
-            raise CaptureInterrupted(f"parking aborted by a second {signal.Signals(self.signum).name}", self.signum)
-
-    def __exit__(self, *exc: object) -> None:
-        for s, h in self._old.items():
-            signal.signal(s, h)
 
 
 class _LogFile(logging.FileHandler):
@@ -216,8 +182,9 @@ class RunEngine:
     """Runs one capture of ``plan`` on ``bench`` into ``out``; see the module docstring."""
 
     def __init__(self, bench: Any, plan: Plan, out: str | Path, resume: bool = False, progress: bool | None = None,
-                 handle_signals: bool = True, points_plan: PointsPlan | None = None) -> None:
+                 handle_signals: bool = True, points_plan: PointsPlan | None = None, force: bool = False) -> None:
         self.points_plan = points_plan or measure_points
+        self.force = force  # a resume goes on with another sample on the bench (recorded in capture.json)
         self.bench = bench
         self.cfg = bench.cfg
         self.plan = plan
@@ -231,7 +198,7 @@ class RunEngine:
         self.record = RunRecord(self.sidecar_path)
         self.fingerprint: dict[str, Any] = {}
         self.settings: dict[str, Any] = {}
-        self._guard = _SignalGuard(False)
+        self._guard = SignalGuard(False)
         self._run_started = False
         self._before_motion = False  # the run stopped before the bench was open: nothing to resume or park
         self._io_fault = False  # an output file could not be written (a full disk)
@@ -257,7 +224,7 @@ class RunEngine:
         self.result.unmeasurable = [[ti, to, why] for ti, to, why in chk.unmeasurable]
         self.fingerprint = fingerprint(self.cfg, self.plan.fingerprint())
         self.settings = settings(self.cfg)
-        with _SignalGuard(self.handle_signals) as guard:  # from here on no signal ends in a traceback
+        with SignalGuard(self.handle_signals) as guard:  # from here on no signal ends in a traceback
             self._guard = guard
             make_out_dir(self.out)
             lock = OutLock(self.out)
@@ -266,7 +233,7 @@ class RunEngine:
                 check_writable(self.out)
                 self.record = RunRecord.load(self.sidecar_path)
                 res = check_resume(self.cfg, self.plan, self.out, self.resume, self.record, self.fingerprint,
-                                   self.settings)
+                                   self.settings, self.force)
                 est = self._estimate(chk, res.existing)
                 self._run_locked(chk, est, res, stale_pid=stale, t_wall0=t_wall0)
             finally:
@@ -276,8 +243,6 @@ class RunEngine:
     def _estimate(self, chk: Any, existing: Slice | None) -> dict[str, float]:
         """The time model's estimate of this run (:func:`acquisition.dryrun.estimate`): the whole capture plan on a
         dry-run bench, from the calibration (or the resumed slice's) to the final dark."""
-        from .dryrun import estimate
-
         done = [] if existing is None else list(zip(existing.theta_i_deg, existing.theta_o_deg, strict=True))
         est = estimate(self.plan, self.bench.geometry, self.cfg.detector.integration_time_s, chk.measurable,
                        cfg=self.cfg, points_plan=self.points_plan, done=done, calibrated=existing is not None)
@@ -315,9 +280,13 @@ class RunEngine:
             self.result.wall_s = time.monotonic() - t_wall0
             if self.result.samples_new:
                 self.result.wall_per_sample_s = self.result.wall_s / self.result.samples_new
+            if res.sample_changes:  # --force accepted another [material]: the run record says so
+                self.result.sample_check = {**(self.result.sample_check or {}), "forced": True,
+                                            "config_changes": describe_differences(res.sample_changes)}
             if self._run_started:
                 self.record.plan_fields["estimate"] = self._estimate_fields()  # with the refinement rounds
                 self.record.finish_run(self.result)
+            self._guard.drain()  # what the signal handler said comes before the outcome
             self._report()
             logging.getLogger("acquisition").removeHandler(handler)
             handler.close()
@@ -457,11 +426,16 @@ class RunEngine:
                     if engine.ranger is not None and self.record.auto_range is not None:
                         self.record.auto_range.prune(set(done), point_key)
                         engine.update_range_counts()
+                        if existing is not None and cal is not None:  # the old neighbours predict settings too
+                            engine.seed_ranger(cal, existing)
                     c = cfg.calibration
                     rho = reference_rho(c.reference_reflectance, c.reference_spectrum, bench.detector.wavelengths_nm,
                                         d.band_weights)
+                    recheck = [] if existing is None else last_recorded(list(zip(
+                        existing.theta_i_deg, existing.theta_o_deg, strict=True)))
                     engine.run(capture(CaptureContext(cfg, self.plan, bench.geometry, measurable, done, cal, rho,
-                                                      self.record.previous_bench_time(), self.points_plan)))
+                                                      self.record.previous_bench_time(), self.points_plan,
+                                                      estimate_points, recheck, self.force)))
                 finally:
                     try:
                         r.bench_time_s = bench.now() - t0
@@ -483,6 +457,10 @@ class RunEngine:
                 r.end(Stop.CONFIG_REFUSED, f"{e}\nnothing was moved.")
             except PlanError as e:
                 r.end(Stop.PLAN_ERROR, str(e))
+            except SampleChanged as e:
+                r.end(Stop.SAMPLE_CHANGED, f"cannot resume: {e}. If the sample was changed on purpose, go on with: "
+                                           f"{self.resume_command()} --force (recorded in {self.sidecar_path}); "
+                                           "otherwise mount the recorded sample as it was, and resume again")
             except OSError as e:  # the slice, the run record or the log cannot be written (a full disk)
                 self._io_failure(e)
             except Exception as e:  # a bug or an unforeseen device reply: still stop safely and stay resumable
@@ -496,8 +474,6 @@ class RunEngine:
             self._make_safe(opened_here, hardware_fault)
             if self._guard.signum is not None and r.status == "complete":
                 # everything was measured, but the signal arrived while stopping: say so in the exit status
-                from .cli import exit_status
-
                 name = signal.Signals(self._guard.signum).name
                 r.signum = self._guard.signum
                 r.exit_code = exit_status(Stop.INTERRUPTED, self._guard.signum)
@@ -559,7 +535,7 @@ class RunEngine:
         if self._io_fault:  # one line: what could not be written, what is safe, how to go on
             how = "Free some space, then resume" if "disk is full" in r.message else "Once it can be written, resume"
             r.message = f"{r.message}; {kept} {how} with: {self.resume_command()}"
-        elif not self._before_motion:
+        elif not self._before_motion and r.stop is not Stop.SAMPLE_CHANGED:  # that one says how to go on
             r.message = f"{r.message}\n{kept} {self.resume_hint()}"
         log.error(r.message, extra={"final": True})
 

@@ -1,11 +1,14 @@
 """``gonio-capture``: drive the bench and capture an in-plane BRDF slice.
 
-``gonio-capture --config CONFIG --out DIR [--resume]`` validates the bench file and the plan (nothing moves
-before that succeeds), then captures into ``DIR/slice.csv`` (with its metadata), logging to ``DIR/capture.log``.
+``gonio-capture --config CONFIG --out DIR [--resume [--force]]`` validates the bench file and the plan (nothing
+moves before that succeeds), then captures into ``DIR/slice.csv`` (with its metadata), logging to
+``DIR/capture.log``. A resume first measures the last recorded points again: another sample on the bench stops it
+(``--force`` goes on, recorded in ``DIR/capture.json``).
 
 Exit status: 0 complete; 1 stopped by a hardware or communication failure or a full disk (arms made safe,
 resumable); 2 bad config, plan or output directory, or the directory is in use by another capture (nothing
-moved); 130 / 143 interrupted by SIGINT / SIGTERM (resumable). Every failure is reported without a traceback.
+moved), or a resume that found another sample on the bench; 130 / 143 interrupted by SIGINT / SIGTERM
+(resumable). Every failure is reported without a traceback.
 """
 
 from __future__ import annotations
@@ -13,11 +16,12 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import signal
 import sys
 import warnings
 from pathlib import Path
 from typing import Any
+
+from .record import exit_status  # noqa: F401 - the exit status of a capture, here since the CLI gives it
 
 #: 2-opt budget of the time estimate that ``--check`` prints (the capture uses plan.TWO_OPT_MAX_EVALUATIONS).
 CHECK_TWO_OPT_EVALUATIONS = 500_000
@@ -26,28 +30,15 @@ EPILOG = """\
 examples:
   gonio-capture --config configs/simulated.toml --out out/demo
   gonio-capture --config configs/simulated.toml --out out/demo --resume
+  gonio-capture --config configs/simulated.toml --out out/demo --resume --force   # another sample, on purpose
   gonio-capture --config configs/simulated.toml --out out/paint --scene configs/scenes/glossy-product.toml
   gonio-capture --config configs/dynamixel-bench.toml --check
 
 exit status: 0 complete, 1 stopped by a hardware/communication fault or a full disk (resumable), 2 bad
-config/plan, output folder not writable or in use by another capture (nothing moved), 130/143 interrupted by
-SIGINT/SIGTERM (resumable with --resume).
+config/plan, output folder not writable or in use by another capture (nothing moved), or a resume whose last
+points, measured again, do not read as recorded (another sample: --resume --force goes on), 130/143 interrupted
+by SIGINT/SIGTERM (resumable with --resume).
 """
-
-
-def exit_status(stop: Any, signum: int | None = None) -> int:
-    """The exit status of a capture that ended with ``stop`` (:class:`acquisition.record.Stop`): 0 complete; 1 a
-    hardware or communication fault, a full disk or an unforeseen error (resumable); 2 a config or plan the
-    capture refused (nothing moved); 128 + the signal number when interrupted (130 SIGINT, 143 SIGTERM)."""
-    from .record import Stop
-
-    if stop is Stop.COMPLETE:
-        return 0
-    if stop is Stop.INTERRUPTED:
-        return 128 + (signum or signal.SIGINT)
-    if stop in (Stop.CONFIG_REFUSED, Stop.PLAN_ERROR):
-        return 2
-    return 1
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -60,6 +51,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", metavar="DIR", help="output directory: slice.csv, capture.log, capture.json")
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted capture in --out (measured samples are kept and skipped)")
+    p.add_argument("--force", action="store_true",
+                   help="with --resume: go on although the last recorded points, measured again first, do not read "
+                        "as recorded (another sample on purpose; recorded in capture.json)")
     p.add_argument("--scene", help="scene file restricting the plan (configs/scenes/*.toml)")
     p.add_argument("--check", action="store_true",
                    help="validate the config (on a simulated bench also its [simulator] sections, through "
@@ -88,7 +82,10 @@ class _BarSafeHandler(logging.StreamHandler):  # type: ignore[type-arg]
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``gonio-capture`` console script."""
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.force and not args.resume:
+        parser.error("--force goes with --resume (it accepts another sample in a capture being resumed)")
     handler = _BarSafeHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("gonio-capture: %(levelname)s: %(message)s"))
     handler.setLevel(getattr(logging, args.log_level.upper()))
@@ -141,6 +138,7 @@ def _time_summary(r: Any) -> str:
 def _run(args: argparse.Namespace) -> int:
     from .bench import Bench, SimulatorCheck
     from .config import MAX_PLAN_POINTS
+    from .dryrun import estimate
     from .errors import CommError, ConfigError, PlanError
     from .lock import OutDirLocked
     from .outdir import out_dir_problem
@@ -168,8 +166,8 @@ def _run(args: argparse.Namespace) -> int:
         return 1
     if args.check:
         # a quicker 2-opt than the capture's own: the same order up to ~1000 points, and --check stays < 1 s
-        est = plan.estimate(bench.geometry, bench.cfg.detector.integration_time_s, chk.measurable,
-                            max_evaluations=CHECK_TWO_OPT_EVALUATIONS, cfg=bench.cfg)
+        est = estimate(plan, bench.geometry, bench.cfg.detector.integration_time_s, chk.measurable,
+                       max_evaluations=CHECK_TWO_OPT_EVALUATIONS, cfg=bench.cfg)
         if sim_check is not None:
             try:
                 sim_check.result()
@@ -204,7 +202,8 @@ def _run(args: argparse.Namespace) -> int:
         print(f"gonio-capture: --out {out_dir_problem(Path(args.out), e)}", file=sys.stderr)
         return 2
     try:
-        result = bench.capture(plan, out=Path(args.out), resume=args.resume, progress=args.progress)
+        result = bench.capture(plan, out=Path(args.out), resume=args.resume, progress=args.progress,
+                               force=args.force)
     except OutDirLocked as e:  # one line: the folder and the PID holding it
         print(f"gonio-capture: {e}", file=sys.stderr)
         return 2
@@ -223,10 +222,12 @@ def _run(args: argparse.Namespace) -> int:
                          f"listed in {Path(args.out) / 'capture.log'}")
             ranged = ""
             if result.auto_ranged:
+                from .autorange import ranged_wording
+
                 settings = "; ".join(f"{k}{'' if 'gain' in k else ' s'}: {v}"
                                      for k, v in result.auto_range_settings.items())
-                what = "other settings" if "gain" in settings else "shorter integration times"
-                ranged = (f"\n  auto-ranged {result.auto_ranged} point(s) to {what} ({settings});"
+                what = ranged_wording(result.auto_range_settings, bench.cfg.detector.integration_time_s)
+                ranged = (f"\n  auto-ranged {result.auto_ranged} point(s), read {what} ({settings});"
                           f" {result.auto_range_overhead_s:.2f} s of extra integration in this run")
             print(f"gonio-capture: {result.message}{extra}\n{_time_summary(result)}{ranged}", file=sys.stderr)
         return 0

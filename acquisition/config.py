@@ -51,6 +51,7 @@ from .planconfig import (  # noqa: F401 - names of this module before [plan] mov
     read_plan,
     resolution_deg,
 )
+from .sections import AxisConfig, BenchSection, CalibrationConfig, DetectorConfig, MotionConfig
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -93,137 +94,6 @@ MAX_MATERIAL_BRDF = 1e8
 MAX_MATERIAL_CHANNELS = 4096
 
 log = logging.getLogger("acquisition.config")
-
-
-# --- config dataclasses ----------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class AxisConfig:
-    """One rotary axis: controller units = ``zero_offset + direction * units_per_deg * deg``."""
-
-    name: str
-    id: int | str
-    model: str | None
-    units_per_deg: float
-    zero_offset: float
-    direction: int
-    min_deg: float
-    max_deg: float
-    park_deg: float
-
-    @property
-    def letter(self) -> str:
-        """Axis letter on the serial text protocol: ``id`` when it is a string, else L/D/S by axis name."""
-        if isinstance(self.id, str):
-            return self.id.upper()
-        return AXIS_LETTERS.get(self.name, self.name[:1].upper())
-
-    def deg_to_units(self, deg: float) -> float:
-        """Axis angle (deg) -> controller units (not rounded)."""
-        return self.zero_offset + self.direction * self.units_per_deg * deg
-
-    def units_to_deg(self, units: float) -> float:
-        """Controller units -> axis angle (deg)."""
-        return (units - self.zero_offset) / (self.direction * self.units_per_deg)
-
-    def within(self, deg: float, eps: float = 1e-9) -> bool:
-        return self.min_deg - eps <= deg <= self.max_deg + eps
-
-
-@dataclass(frozen=True)
-class BenchSection:
-    """``[bench]``: transport, ports and the geometry constraints of the arms."""
-
-    name: str
-    transport: str
-    motion: str                        # "dynamixel" | "serial": which motion hardware is driven
-    dynamixel_port: str
-    dynamixel_baudrate: int
-    serial_port: str
-    serial_baudrate: int
-    serial_timeout_s: float
-    min_separation_deg: float
-    blind_spot_half_width_deg: float
-    simulator_command: str
-    source_divergence_deg: float = 0.0
-    beam_diameter_mm: float | None = None
-    sample_diameter_mm: float | None = None
-    source_spectrum: str = "halogen-3000K"
-
-
-@dataclass(frozen=True)
-class MotionConfig:
-    """``[motion]``: profiles (Dynamixel units), stepper speeds (deg/s, deg/s^2), tolerance, settle, retries."""
-
-    profile_velocity: int
-    profile_acceleration: int
-    velocity_deg_s: float
-    acceleration_deg_s2: float
-    tolerance_deg: float
-    settle_s: float
-    timeout_s: float
-    retries: int
-    poll_interval_s: float
-
-
-@dataclass(frozen=True)
-class DetectorConfig:
-    """``[detector]``: type, integration time per repeat (s), default repeats, saturation (raw counts), dark
-    repeats, and auto-ranging: with ``auto_range`` a saturated reading is taken again at shorter integration
-    times, down to ``min_integration_time_s`` (s), and converted back to ``integration_time_s``."""
-
-    type: str
-    integration_time_s: float
-    repeats: int
-    saturation: float
-    dark_repeats: int
-    auto_range: bool = True
-    min_integration_time_s: float = 1e-5
-    solid_angle_sr: float | None = None        # acceptance of the detector cone (sr); None: not given
-    aperture_half_angle_deg: float | None = None
-    responsivity: str = "silicon"
-    gains: tuple[float, ...] | None = None     # the amplifier's gains, ascending; None: the gain is not switched
-    band_weights: Any = field(default=None, repr=False)  # photodiode: weights on reconstruction.schema.optics.BAND_NM
-
-    @property
-    def acceptance_sr(self) -> float:
-        """The detector cone's solid angle (sr): ``solid_angle_sr``, or from ``aperture_half_angle_deg``, or 0 (a
-        point detector: not given)."""
-        if self.solid_angle_sr is not None:
-            return self.solid_angle_sr
-        if self.aperture_half_angle_deg is not None:
-            return 2 * math.pi * (1 - math.cos(math.radians(self.aperture_half_angle_deg)))
-        return 0.0
-
-
-@dataclass(frozen=True)
-class CalibrationConfig:
-    """``[calibration]``: relative (white reference) or absolute (source power and detector solid angle)."""
-
-    mode: str
-    reference_reflectance: float | None
-    reference_spectrum: tuple[tuple[float, ...], tuple[float, ...]] | None  # (wavelengths_nm, reflectance)
-    reference_spectrum_path: str | None
-    reference_theta_i_deg: float
-    reference_theta_o_deg: float
-    reference_repeats: int
-    source_power: float | None
-    detector_solid_angle_sr: float | None
-
-    def to_meta(self) -> dict[str, Any]:
-        d: dict[str, Any] = {"mode": self.mode}
-        if self.mode == "relative":
-            if self.reference_spectrum_path:
-                d["reference_spectrum"] = self.reference_spectrum_path
-            else:
-                d["reference_reflectance"] = self.reference_reflectance
-            d["reference_theta_i_deg"] = self.reference_theta_i_deg
-            d["reference_theta_o_deg"] = self.reference_theta_o_deg
-        else:
-            d["source_power"] = self.source_power
-            d["detector_solid_angle_sr"] = self.detector_solid_angle_sr
-        return d
 
 
 @dataclass

@@ -5,8 +5,13 @@ through the same engine, which accounts its times as in a capture: every move is
 the time model accumulates (the shared move-time model of :mod:`reconstruction.benchtime`, by which the
 simulator's axes move, plus the polling delay; ``[motion].settle_s`` per point; ``repeats`` x the integration
 time per reading), so the estimate and the capture cannot disagree about what the plan does. Nothing is opened or
-moved. Auto-ranging cannot be foreseen (it depends on the sample): a saturated point costs its
-``auto_range_overhead_s`` on top of the estimate; adaptive refinement's rounds are estimated as they are planned.
+moved. Auto-ranging: the darks at every gain are part of the calibration plan, so they are counted; every reading
+is counted on the setting it needs, which the capture's first reading of a point predicts from its neighbours
+(:meth:`acquisition.autorange.AutoRanger.predict`); what the estimate cannot foresee, the sample being unknown, is
+the readings of a mispredicted setting (the white reference's probe, the first point of an incidence, a peak's
+edge: ``auto_range_overhead_s`` of the result, about 0.5 % of the demo's bench time) and the shorter integration
+times of a sample brighter than the lowest gain holds (counted at the configured time: the estimate is then long).
+Adaptive refinement's rounds are estimated as they are planned.
 """
 
 from __future__ import annotations
@@ -23,8 +28,9 @@ from .calibration import Calibration, Reading
 from .config import BenchConfig
 from .engine import Engine
 from .errors import PlanError
-from .plan import TWO_OPT_MAX_EVALUATIONS, Geometry, Plan, Point, path_time, point_key
-from .plans import CaptureContext, PointsPlan, capture, measure
+from .geometry import Geometry, Point, point_key
+from .ordering import TWO_OPT_MAX_EVALUATIONS, path_time
+from .plans import CaptureContext, PlanSpec, PointsPlan, capture, last_recorded, measure
 from .protocols import Devices, MoveStatus
 from .record import CaptureResult
 
@@ -140,7 +146,7 @@ def _dry_calibration(cfg: BenchConfig) -> Calibration:
     return Calibration("relative", zero, one, np.ones(1), cfg.calibration.reference_theta_o_deg or 0.0)
 
 
-def estimate(plan: Plan, geometry: Geometry, integration_time_s: float, points: Sequence[Point] | None = None,
+def estimate(plan: PlanSpec, geometry: Geometry, integration_time_s: float, points: Sequence[Point] | None = None,
              max_evaluations: int = TWO_OPT_MAX_EVALUATIONS, cfg: BenchConfig | None = None,
              points_plan: PointsPlan | None = None, done: Sequence[Point] = (), calibrated: bool = False,
              ) -> dict[str, float]:
@@ -153,7 +159,7 @@ def estimate(plan: Plan, geometry: Geometry, integration_time_s: float, points: 
     ``total_s``, what the capture's ``bench_time_s`` measures (parking afterwards is ``park_s``, not in it).
     ``done``: points already in the slice (a resume), ``calibrated``: the calibration comes from the slice.
     Without ``cfg``: only the points, from park and back (as before). Adaptive refinement is not in it (its rounds
-    are estimated as they are planned, :func:`estimate_points`); auto-ranging neither (it depends on the sample).
+    are estimated as they are planned, :func:`estimate_points`); auto-ranging is as the module docstring says.
     A :class:`PlanError` for a move beyond the soft limits."""
     pts = plan.check(geometry).measurable if points is None else list(points)
     res = CaptureResult("", "")
@@ -173,7 +179,8 @@ def estimate(plan: Plan, geometry: Geometry, integration_time_s: float, points: 
     have = {point_key(p) for p in done}
     todo = [p for p in pts if point_key(p) not in have]
     ctx = CaptureContext(cfg, plan, geometry, pts, {point_key(p): (p[0], p[1], 0.0, 0.0) for p in done},
-                         _dry_calibration(cfg) if calibrated else None, np.ones(1), 0.0, points_plan or own_points)
+                         _dry_calibration(cfg) if calibrated else None, np.ones(1), 0.0, points_plan or own_points,
+                         estimate_points, last_recorded(done) if calibrated else [])
     bench = DryRunBench(geometry, integration_time_s)
     with _quiet():
         Engine(bench.devices(), settle_s=geometry.settle_s, retries=0, result=res, account=True,

@@ -22,13 +22,14 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from .autorange import AutoRanger, read_clean
+from .autorange import AutoRanger, ranged_wording, read_clean
 from .calibration import Calibration, Reading
 from .errors import DeviceError
 from .messages import (
     Announce,
     Calibrate,
     Checkpoint,
+    Convert,
     Dark,
     Move,
     Now,
@@ -42,7 +43,7 @@ from .messages import (
     Where,
 )
 from .protocols import Devices
-from .record import CaptureResult, RunRecord
+from .record import SIDECAR_NAME, CaptureResult, RunRecord, result_dict  # noqa: F401 - kept importable here
 
 log = logging.getLogger("acquisition.engine")
 
@@ -108,7 +109,8 @@ class Engine:
             self._setup_ranger(*auto_range, gains=gains)
         self._handlers: dict[type, Callable[[Any], Any]] = {
             Move: self._move, Settle: self._settle, Read: self._read, Dark: self._dark,
-            SelectSample: self._select, Calibrate: self._calibrate, Save: self._save, Checkpoint: self._checkpoint,
+            SelectSample: self._select, Calibrate: self._calibrate, Save: self._save, Convert: self._convert,
+            Checkpoint: self._checkpoint,
             Where: self._where, Now: self._now, Announce: self._announce, RestoreSetting: self._restore,
             Tally: self._tally, UseReference: self._use_reference,
         }
@@ -191,12 +193,14 @@ class Engine:
         if self.ranger is None:
             rd = self.dev.detector.read(m.repeats)
             return (rd if not rd.saturated else self.read_checked(m.repeats, m.label, first=rd)), None
-        rg = self.ranger.read(m.repeats, m.label, m.rung)
+        rg = self.ranger.read(m.repeats, m.label, m.rung, m.point)
         self.result.auto_range_readings += rg.readings - 1
         self.result.auto_range_overhead_s += rg.overhead_s
         return rg.reading, rg
 
     def _dark(self, m: Dark) -> Reading:
+        if m.setting is not None and self.ranger is not None:
+            return self.ranger.dark_at(m.setting)
         rd = self.read_checked(m.repeats, m.what, dark=True)
         if m.calibration and self.ranger is not None:
             self.ranger.ref_dark = rd
@@ -220,6 +224,30 @@ class Engine:
             self.ranger.darks.update(rec.dark_readings())
             self.update_range_counts()
 
+    def seed_ranger(self, calibration: Calibration, s: Any) -> None:
+        """A resumed capture: the samples of slice ``s`` (:class:`reconstruction.slicefile.Slice`) turned back
+        into readings at the reference setting with their ``calibration``, and their settings from the run record,
+        so that auto-ranging predicts the new points' settings from the old neighbours too."""
+        if self.ranger is None or len(s) == 0:
+            return
+        self.ranger.ref_dark = calibration.dark
+        ti, to = np.asarray(s.theta_i_deg, dtype=float), np.asarray(s.theta_o_deg, dtype=float)
+        k = calibration.scale(to) * np.asarray(calibration.footprint_factor(ti), dtype=float).reshape(-1, 1)
+        with np.errstate(all="ignore"):
+            mean = calibration.dark.mean + np.asarray(s.values, dtype=float) / k
+            std = np.asarray(s.std, dtype=float) * np.sqrt(np.asarray(s.repeats, dtype=float))[:, None] / np.abs(k)
+        rec = self.record.auto_range if self.record is not None else None
+        ranged: dict[tuple[float, float], int] = {}
+        if rec is not None:
+            for key, t in rec.points.items():
+                a, b = key.split(",")
+                ranged[(round(float(a), 6) + 0.0, round(float(b), 6) + 0.0)] = self.ranger.rung_of(
+                    t, rec.point_gains.get(key))
+        rungs = np.array([ranged.get((round(float(a), 6) + 0.0, round(float(b), 6) + 0.0), 0)
+                          for a, b in zip(ti, to, strict=True)], dtype=int)
+        ok = np.all(np.isfinite(mean), axis=1) & np.all(np.isfinite(std), axis=1)
+        self.ranger.seed(ti[ok], to[ok], mean[ok], std[ok], rungs[ok])
+
     def _store_dark(self, t: float, rd: Reading, gain: float | None = None) -> None:
         """Keep a dark at a new setting in the run record at once (a resume converts with the same darks)."""
         if self.record is not None and self.record.auto_range is not None:
@@ -240,9 +268,10 @@ class Engine:
         if not r.auto_ranged and not r.auto_range_readings:
             return
         settings = "; ".join(f"{k}{'' if 'gain' in k else ' s'}: {v}" for k, v in r.auto_range_settings.items())
-        log.info("auto-ranging: %d point(s) of the capture read at shorter integration times (%s); this run "
-                 "discarded %d reading(s) and spent %.3f s of extra integration (dark readings included)",
-                 r.auto_ranged, settings or "none", r.auto_range_readings, r.auto_range_overhead_s)
+        log.info("auto-ranging: %d point(s) of the capture read %s (%s); this run discarded %d reading(s) and "
+                 "spent %.3f s of extra integration (dark readings included)", r.auto_ranged,
+                 ranged_wording(r.auto_range_settings, self.ranger.t_ref), settings or "none",
+                 r.auto_range_readings, r.auto_range_overhead_s)
 
     # -- calibration and samples ------------------------------------------------------------------------------
     def _calibrate(self, m: Calibrate) -> None:
@@ -297,6 +326,15 @@ class Engine:
             self.bar.advance()
         return (ti, to, float(np.mean(f)), float(np.mean(fs)))
 
+    def _convert(self, m: Convert) -> tuple[float, float, float, float]:
+        ti, to = m.theta_i_deg, m.theta_o_deg
+        if self.account:
+            self._account()
+        if self.calibration is None or not self.convert:  # a dry run
+            return (ti, to, 0.0, 0.0)
+        f, fs = self.calibration.brdf(m.reading, to, ti)
+        return (ti, to, float(np.mean(f)), float(np.mean(fs)))
+
     def _account(self) -> None:
         """A point saved: its move (since the last point or the calibration), settle and reading times."""
         r = self.result
@@ -314,16 +352,3 @@ class Engine:
 
     def _tally(self, m: Tally) -> None:
         setattr(self.result, m.name, m.value)
-
-
-def __getattr__(name: str) -> Any:  # the capture as a whole moved to acquisition.capture; its names stay here
-    if name in ("RunEngine", "out_dir_problem", "SLICE_NAME", "LOG_NAME", "SIM_LOG_NAME"):
-        from . import capture
-
-        return getattr(capture, name)
-    if name in ("CaptureResult", "result_dict", "SIDECAR_NAME"):
-        from . import record
-
-        return getattr(record, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-

@@ -41,9 +41,19 @@ class HardwareError(DeviceError):
     """A latched hardware fault (Dynamixel Hardware Error Status, a controller alarm): the capture stops safely."""
 
 
+class SampleChanged(AcquisitionError):
+    """A resumed capture re-measured the last recorded points and the sample on the bench does not read as the one
+    in the slice (swapped, moved): the capture stops before measuring anything new."""
+
+
 class CaptureInterrupted(AcquisitionError):
     """The capture was stopped by Ctrl-C or SIGTERM (``signum`` tells which)."""
 
     def __init__(self, message: str, signum: int | None = None) -> None:
         super().__init__(message)
         self.signum = signum
+
+
+class SaturationWarning(UserWarning):
+    """A reading returned with saturated (clipped) repeats: its mean is a lower bound, not a measurement
+    (:meth:`acquisition.Bench.read` without auto-ranging)."""

@@ -9,7 +9,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["Msg", "Move", "Settle", "Read", "Dark", "SelectSample", "Calibrate", "UseReference", "Save", "Checkpoint",
+__all__ = ["Msg", "Move", "Settle", "Read", "Dark", "SelectSample", "Calibrate", "UseReference", "Save", "Convert",
+           "Checkpoint",
            "Where", "Now", "Announce", "RestoreSetting", "Tally"]
 
 
@@ -53,11 +54,14 @@ class Read(Msg):
 @dataclass(slots=True)
 class Dark(Msg):
     """``repeats`` readings with the source off, re-read around saturation -> Reading. ``calibration``: this is
-    the calibration's dark level (auto-ranging converts with it from now on)."""
+    the calibration's dark level (auto-ranging converts with it from now on). ``setting``: the auto-ranging setting
+    (rung) to read it at, kept for the conversions of the readings taken there (at the present setting when the
+    detector is not auto-ranged, as in a dry run)."""
 
     repeats: int
     what: str = "dark reading"
     calibration: bool = False
+    setting: int | None = None
 
 
 @dataclass(slots=True)
@@ -93,6 +97,17 @@ class Save(Msg):
     reading: Any
     ranged: Any = None
     repeats: int = 0  # the repeats asked for (0: the reading's own count)
+
+
+@dataclass(slots=True)
+class Convert(Msg):
+    """Convert the reading of point (theta_i, theta_o) to f_r as :class:`Save` does, without saving it (a point
+    measured again to compare) -> (theta_i, theta_o, mean f_r, mean std) over channels; its move, settling and
+    reading count as a point's in the times."""
+
+    theta_i_deg: float
+    theta_o_deg: float
+    reading: Any
 
 
 @dataclass(slots=True)

@@ -86,8 +86,12 @@ class Resume:
     existing: Slice | None = None
     setting_changes: list[tuple[str, Any, Any]] = field(default_factory=list)
     legacy: bool = False
+    sample_changes: list[tuple[str, Any, Any]] = field(default_factory=list)  # [material], accepted with --force
 
     def log_checks(self, slice_path: Path) -> None:
+        if self.sample_changes:
+            log.warning("resuming with another [material] (the simulated sample), as --force asks: %s",
+                        describe_differences(self.sample_changes))
         if self.setting_changes:
             log.info("resuming with changed setting(s) that cannot change a sample: %s",
                      describe_differences(self.setting_changes))
@@ -97,13 +101,17 @@ class Resume:
 
 
 def _check_fingerprint(res: Resume, meta: dict[str, Any], slice_path: Path, fp: dict[str, Any],
-                       settings: dict[str, Any]) -> None:
-    """Refuse a resume whose config changes the meaning of a sample; remember the harmless changes."""
+                       settings: dict[str, Any], force: bool = False) -> None:
+    """Refuse a resume whose config changes the meaning of a sample (``force``: but for the [material], the
+    simulated sample, which a deliberate change may swap); remember the harmless changes."""
     old = meta.get("config_fingerprint")
     if not isinstance(old, dict):
         res.legacy = True
         return
     diffs = differences(old, fp)
+    if force:
+        res.sample_changes = [d for d in diffs if d[0].startswith("[material]")]
+        diffs = [d for d in diffs if not d[0].startswith("[material]")]
     if diffs:
         plan = [d for d in diffs if d[0].startswith(("[plan", "plan "))]
         what = ("plan" if len(plan) == len(diffs) else "plan and configuration" if plan else "configuration")
@@ -116,7 +124,7 @@ def _check_fingerprint(res: Resume, meta: dict[str, Any], slice_path: Path, fp: 
 
 
 def check_resume(cfg: BenchConfig, plan: Plan, out: Path, resume: bool, record: RunRecord, fp: dict[str, Any],
-                 settings: dict[str, Any]) -> Resume:
+                 settings: dict[str, Any], force: bool = False) -> Resume:
     """What the run in ``out`` continues, or a :class:`PlanError` if it may not (another experiment, or a capture
     there without ``--resume``). A slice without a complete sample is removed (nothing to keep); the record of
     a folder without a slice keeps its history of runs only."""
@@ -141,7 +149,7 @@ def check_resume(cfg: BenchConfig, plan: Plan, out: Path, resume: bool, record: 
     except SliceError as e:
         raise PlanError(f"cannot resume: {e}") from None
     meta = existing.meta
-    _check_fingerprint(res, meta, slice_path, fp, settings)
+    _check_fingerprint(res, meta, slice_path, fp, settings, force)
     fpr = meta.get("plan_fingerprint")
     if fpr != plan.fingerprint():
         raise PlanError(f"cannot resume: {slice_path} was captured with a different plan (fingerprint "

@@ -9,15 +9,13 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from reconstruction.schema import SchemaError, Table
 from reconstruction.schema.bench import AdaptiveTable, PlanTable
 
 from .errors import ConfigError
-
-if TYPE_CHECKING:
-    from .config import AxisConfig, DetectorConfig
+from .sections import AxisConfig, DetectorConfig
 
 __all__ = ["MAX_PLAN_POINTS", "AdaptiveConfig", "PlanConfig", "read_plan", "resolution_deg"]
 

@@ -14,19 +14,22 @@ reference every N points).
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from .calibration import Calibration, Reading
 from .config import BenchConfig
-from .errors import DeviceError
+from .errors import DeviceError, SampleChanged
+from .geometry import Geometry, Point, point_key
 from .messages import (
     Announce,
     Calibrate,
     Checkpoint,
+    Convert,
     Dark,
     Move,
     Msg,
@@ -40,17 +43,40 @@ from .messages import (
     UseReference,
     Where,
 )
-from .plan import TWO_OPT_MAX_EVALUATIONS, Geometry, Plan, Point, order_points, path_time, point_key, refine_points
+from .ordering import TWO_OPT_MAX_EVALUATIONS, order_points, path_time
+from .planconfig import AdaptiveConfig
+from .refine import refine_points
 
 log = logging.getLogger("acquisition.plans")
 
-__all__ = ["PlanGen", "PointsPlan", "Sample", "point", "measure", "measure_points", "white_reference", "rereference",
-           "calibrate", "adaptive", "final_dark", "CaptureContext", "capture"]
+__all__ = ["PlanGen", "PointsPlan", "PlanSpec", "RoundEstimate", "Sample", "point", "measure", "measure_points",
+           "white_reference", "rereference", "calibrate", "adaptive", "final_dark", "CaptureContext", "capture",
+           "check_sample", "last_recorded", "RESUME_CHECK_POINTS", "RESUME_CHECK_SIGMAS", "RESUME_DRIFT_ALLOWANCE"]
+
+#: A resumed capture first measures again this many of the points recorded last (:func:`check_sample`) ...
+RESUME_CHECK_POINTS = 2
+#: ... and goes on only if each reads as recorded within this many standard deviations (of the mean, the larger of
+#: the two, each side) plus RESUME_DRIFT_ALLOWANCE of the value (the source and detector drifting between runs).
+RESUME_CHECK_SIGMAS = 5.0
+RESUME_DRIFT_ALLOWANCE = 0.05
 
 #: A plan: yields messages, is sent their replies, returns its result.
 PlanGen = Generator[Msg, Any, Any]
 #: A measured sample as plans see it: (theta_i, theta_o, mean f_r over channels, mean std), degrees and 1/sr.
 Sample = tuple[float, float, float, float]
+
+
+class PlanSpec(Protocol):
+    """What the capture plans need of a plan (:class:`acquisition.plan.Plan` is one): its repeats, order,
+    adaptive refinement and final dark. A protocol, so that the plans and the dry run do not import the plan module
+    (whose ``Plan.estimate`` asks the dry run)."""
+
+    repeats: int
+    order: str
+    dark_at_end: bool
+    adaptive: AdaptiveConfig | None
+
+    def check(self, geom: Geometry) -> Any: ...
 
 
 def point(theta_i_deg: float, theta_o_deg: float, repeats: int) -> PlanGen:
@@ -121,11 +147,15 @@ def footprint_of(cfg: BenchConfig) -> tuple[float, float, float] | None:
 
 
 def calibrate(cfg: BenchConfig, rho_ref: np.ndarray) -> PlanGen:
-    """The dark level, then (relative calibration) the white reference; tells the engine to convert with the
-    result. Returns the :class:`Calibration`."""
+    """The dark level (auto-ranged over gains: at every gain), then (relative calibration) the white reference;
+    tells the engine to convert with the result. Returns the :class:`Calibration`."""
     c = cfg.calibration
     log.info("measuring the dark level (%d repeats, source off)", cfg.detector.dark_repeats)
     dark = yield Dark(cfg.detector.dark_repeats, "dark reading", calibration=True)
+    d = cfg.detector
+    if d.auto_range and d.gains:  # a dark at every other gain now, with the source off anyway: what auto-ranging
+        for k, g in enumerate(sorted(d.gains, reverse=True)[1:], start=1):  # converts with, known to the estimate
+            yield Dark(d.dark_repeats, f"dark reading at gain {g:g}", setting=k)
     t_ref_read = cfg.detector.integration_time_s
     if c.mode == "relative":
         ref, ranged = yield from white_reference(cfg)
@@ -184,17 +214,72 @@ def adaptive(ctx: CaptureContext, t_start: float) -> PlanGen:
         if a.time_budget_s and (yield Now()) - t_start > a.time_budget_s:
             log.info("adaptive: time budget %g s used up before round %d", a.time_budget_s, rnd)
             break
-        from .dryrun import estimate_points  # the round's time, estimated as it is planned
-
-        t_round = estimate_points(ctx, new, (yield Where()), ctx.cfg.detector.integration_time_s)
-        t_est += t_round
-        yield Tally("estimate_refinement_s", t_est)
-        log.info("adaptive round %d: %d new point(s), estimated %.2f s", rnd, len(new), t_round)
+        if ctx.estimate_points is not None:  # the round's time, estimated as it is planned
+            t_round = ctx.estimate_points(ctx, new, (yield Where()), ctx.cfg.detector.integration_time_s)
+            t_est += t_round
+            yield Tally("estimate_refinement_s", t_est)
+            log.info("adaptive round %d: %d new point(s), estimated %.2f s", rnd, len(new), t_round)
+        else:
+            log.info("adaptive round %d: %d new point(s)", rnd, len(new))
         yield from ctx.points_plan(ctx, new)
         known |= {point_key(p) for p in new}
         yield Tally("adaptive_rounds", rnd)
         if a.max_points and len(known) >= a.max_points:
             break
+
+
+def last_recorded(points: Sequence[Point], k: int = RESUME_CHECK_POINTS) -> list[Point]:
+    """The last ``k`` distinct points of ``points`` (a slice's rows, in the order they were recorded), in that
+    order."""
+    out: list[Point] = []
+    seen: set[tuple[float, float]] = set()
+    for p in reversed(points):
+        key = point_key(p)
+        if key not in seen:
+            seen.add(key)
+            out.append((float(p[0]), float(p[1])))
+            if len(out) == k:
+                break
+    return out[::-1]
+
+
+def check_sample(ctx: CaptureContext) -> PlanGen:
+    """A resume's first step: measure ``ctx.recheck`` (the points recorded last) again and compare each with its
+    sample in ``ctx.done``: they agree within :data:`RESUME_CHECK_SIGMAS` standard deviations plus
+    :data:`RESUME_DRIFT_ALLOWANCE` of the value, or another sample is on the bench (swapped, moved, turned: the
+    settings' fingerprint cannot see that) and :class:`SampleChanged` stops the capture before anything new is
+    measured, unless ``ctx.accept_changed_sample`` (``--resume --force``: logged). Tallies ``sample_check``
+    (the points, both readings, the verdict) for the run record."""
+    rows = []
+    for ti, to in ctx.recheck:
+        old = ctx.done.get(point_key((ti, to)))
+        if old is None:
+            continue
+        yield Move(ti, to)
+        yield Settle()
+        reading, _ = yield Read(ctx.plan.repeats, point=(ti, to))
+        _, _, v, sd = yield Convert(ti, to, reading)
+        _, _, v0, sd0 = old
+        tol = RESUME_CHECK_SIGMAS * math.sqrt(2.0) * max(sd, sd0) + RESUME_DRIFT_ALLOWANCE * max(abs(v), abs(v0))
+        rows.append({"theta_i_deg": ti, "theta_o_deg": to, "recorded": v0, "recorded_std": sd0, "now": v,
+                     "now_std": sd, "agree": bool(abs(v - v0) <= tol)})
+    if not rows:
+        return
+    agree = all(r["agree"] for r in rows)
+    yield Tally("sample_check", {"points": rows, "agree": agree, "forced": not agree and ctx.accept_changed_sample,
+                                 "sigmas": RESUME_CHECK_SIGMAS, "drift_allowance": RESUME_DRIFT_ALLOWANCE})
+    text = "; ".join(f"at ({r['theta_i_deg']:g}, {r['theta_o_deg']:g}) it read {r['recorded']:.4g} +- "
+                     f"{r['recorded_std']:.2g} 1/sr then and {r['now']:.4g} +- {r['now_std']:.2g} 1/sr now"
+                     for r in rows)
+    if agree:
+        log.info("resume: the sample reads as recorded (%s)", text)
+        return
+    where = f"{text} (more than {RESUME_CHECK_SIGMAS:g} sigma + {100 * RESUME_DRIFT_ALLOWANCE:g} % apart)"
+    if ctx.accept_changed_sample:
+        log.warning("resume: the sample does not read as recorded: %s; going on as --force asks (recorded in the "
+                    "run record)", where)
+        return
+    raise SampleChanged(f"the sample on the bench does not read as the one recorded: {where}")
 
 
 def final_dark(cfg: BenchConfig, calibration: Calibration) -> PlanGen:
@@ -217,17 +302,23 @@ def measure_points(ctx: CaptureContext, points: Sequence[Point]) -> PlanGen:
 
 #: A points plan: measures ``points`` within a capture (the samples go to ``ctx.done``).
 PointsPlan = Callable[["CaptureContext", Sequence[Point]], PlanGen]
+#: How a round of adaptive refinement is estimated as it is planned: (context, the round's points, where the arms
+#: are, the integration time in s) -> bench seconds (:func:`acquisition.dryrun.estimate_points`).
+RoundEstimate = Callable[["CaptureContext", Sequence[Point], Point, float], float]
 
 
 @dataclass
 class CaptureContext:
     """What :func:`capture` needs: the bench file, the plan, the geometry, the measurable points, the samples
     already in the slice (a resume) and its calibration (None: measure one), the white reference's rho per
-    channel, the bench time of this capture's earlier runs (s), and the plan that measures points
-    (:func:`measure_points`, or a procedure of one's own, e.g. ``examples/reference_every_n.py``)."""
+    channel, the bench time of this capture's earlier runs (s), the plan that measures points
+    (:func:`measure_points`, or a procedure of one's own, e.g. ``examples/reference_every_n.py``), and how a round of
+    adaptive refinement is estimated as it is planned (the capture gives :func:`acquisition.dryrun.estimate_points`:
+    the caller asks the dry run, the plans do not; None: the rounds are not estimated). A resume measures
+    ``recheck`` again first (:func:`check_sample`; ``accept_changed_sample``: go on if they disagree)."""
 
     cfg: BenchConfig
-    plan: Plan
+    plan: PlanSpec
     geometry: Geometry
     measurable: list[Point]
     done: dict[tuple[float, float], Sample] = field(default_factory=dict)
@@ -235,15 +326,20 @@ class CaptureContext:
     rho_ref: Any = None
     previous_bench_time_s: float = 0.0
     points_plan: PointsPlan = measure_points
+    estimate_points: RoundEstimate | None = None
+    recheck: list[Point] = field(default_factory=list)
+    accept_changed_sample: bool = False
 
 
 def capture(ctx: CaptureContext) -> PlanGen:
-    """The whole capture: calibration, the points, adaptive refinement, the final dark reading."""
+    """The whole capture: calibration (a resume: the slice's, and the last points measured again), the points,
+    adaptive refinement, the final dark reading."""
     t0 = yield Now()
-    if ctx.calibration is not None:  # a resume: the slice's own calibration
+    if ctx.calibration is not None:  # a resume: the slice's own calibration, and the same sample?
         yield SelectSample("TARGET")
         yield Calibrate(ctx.calibration)
         cal = ctx.calibration
+        yield from check_sample(ctx)
     else:
         cal = yield from calibrate(ctx.cfg, ctx.rho_ref)
     yield from ctx.points_plan(ctx, ctx.measurable)

@@ -13,6 +13,7 @@ import json
 import logging
 import math
 import os
+import signal
 import time
 from dataclasses import asdict, dataclass, field
 from enum import Enum
@@ -26,13 +27,13 @@ from .calibration import Reading
 
 log = logging.getLogger("acquisition.record")
 
-__all__ = ["RunRecord", "AutoRangeRecord", "CaptureResult", "Stop", "result_dict", "SIDECAR_NAME"]
+__all__ = ["RunRecord", "AutoRangeRecord", "CaptureResult", "Stop", "exit_status", "result_dict", "SIDECAR_NAME"]
 
 SIDECAR_NAME = "capture.json"
 
 
 class Stop(Enum):
-    """Why a capture ended; :mod:`acquisition.cli` maps each to an exit status."""
+    """Why a capture ended; :func:`exit_status` maps each to the exit status of ``gonio-capture``."""
 
     COMPLETE = "complete"
     INTERRUPTED = "interrupted"          # SIGINT / SIGTERM (``CaptureResult.signum``)
@@ -41,14 +42,22 @@ class Stop(Enum):
     IO_FAULT = "io fault"                # an output file could not be written (a full disk)
     CONFIG_REFUSED = "config refused"    # the simulator refused its sections: nothing moved
     PLAN_ERROR = "plan error"            # the plan cannot be run as given
+    SAMPLE_CHANGED = "sample changed"    # a resume re-measured the last points: another sample is on the bench
     UNEXPECTED = "unexpected error"      # a bug or an unforeseen reply: stopped safely, resumable
 
 
 def exit_status(stop: Stop, signum: int | None = None) -> int:
-    """The exit status of ``gonio-capture`` for a capture that ended with ``stop`` (see :mod:`acquisition.cli`)."""
-    from .cli import exit_status as cli_exit_status
-
-    return cli_exit_status(stop, signum)
+    """The exit status of ``gonio-capture`` for a capture that ended with ``stop``: 0 complete; 1 a hardware or
+    communication fault, a full disk or an unforeseen error (resumable); 2 a config or plan the capture refused
+    (nothing moved), or a resume that found another sample on the bench; 128 + the signal number when interrupted
+    (130 SIGINT, 143 SIGTERM). It belongs with the run record (:mod:`acquisition.cli` re-exports it)."""
+    if stop is Stop.COMPLETE:
+        return 0
+    if stop is Stop.INTERRUPTED:
+        return 128 + (signum or signal.SIGINT)
+    if stop in (Stop.CONFIG_REFUSED, Stop.PLAN_ERROR, Stop.SAMPLE_CHANGED):
+        return 2
+    return 1
 
 
 @dataclass
@@ -84,6 +93,7 @@ class CaptureResult:
     auto_range_settings: dict[str, int] = field(default_factory=dict)  # integration time (s) -> points
     auto_range_readings: int = 0          # readings discarded by auto-ranging in this run
     auto_range_overhead_s: float = 0.0    # their integration time plus new dark readings, this run (s)
+    sample_check: dict[str, Any] | None = None  # a resume's last recorded points measured again (plans.check_sample)
 
     def __post_init__(self) -> None:
         self.stop: Stop | None = None
@@ -264,6 +274,8 @@ class RunRecord:
             run["auto_range"] = {"readings_discarded": r.auto_range_readings, "overhead_s": r.auto_range_overhead_s}
             self.auto_range.extra["overhead_s"] = float(sum(x.get("auto_range", {}).get("overhead_s", 0.0)
                                                             for x in self.runs))
+        if r.sample_check is not None:
+            run["sample_check"] = r.sample_check
         if r.dark_drift is not None:
             self.dark_drift = r.dark_drift
         try:

@@ -35,7 +35,9 @@ def main() -> int:
         print(f"dark level {dark.mean[0]:.1f} counts")
         bench.move(30.0, 30.0)                    # both arms at once; waits until in position
         bench.settle()
-        print(f"specular reading {bench.read(4).mean[0]:.1f} counts")
+        spec = bench.read(4)                      # auto-ranged (a saturated reading is read again, less sensitive)
+        print(f"specular reading {spec.mean[0]:.1f} counts at the reference setting ({spec.saturated} of "
+              f"{spec.n} repeats saturated)")
         result = bench.capture(plan, out=out, resume=True, progress=False)   # resumable: run it again
     print(result.message)
     if not result.ok:

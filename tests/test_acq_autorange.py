@@ -48,6 +48,7 @@ class FakeDetector:
         self.std = 0.0
         self.forced: list[int] = []
         self.reads: list[float] = []
+        self.sizes: list[int] = []  # the repeats of each reading
         self.darks: list[float] = []
         self.int_commands = 0
 
@@ -61,6 +62,7 @@ class FakeDetector:
 
     def read(self, n: int) -> Reading:
         self.reads.append(self.integration_time_s)
+        self.sizes.append(n)
         x = self._dark_level() + self.signal * self.integration_time_s / T_REF
         sat = n if np.any(x >= self.saturation) else 0
         if self.forced:
@@ -141,6 +143,62 @@ def test_a_longer_setting_that_saturates_keeps_the_clean_shorter_reading():
     det.forced = [4, 0, 2]  # 0.01 s clipped; 0.001 s clean (predicts 0.00316 s fits); 0.00316 s clips after all
     g = r.read(4, "p")
     assert det.reads == [0.01, 0.001, 0.00316228] and g.integration_time_s == 0.001 and g.readings == 3
+
+
+def peak(to: np.ndarray | float) -> np.ndarray:
+    """A specular peak at theta_o = 30 deg, 40 x the saturation at T_REF, over a floor of 1 % of it."""
+    return np.atleast_1d(650.0 + 2.6e6 * np.exp(-0.5 * ((np.asarray(to, dtype=float) - 30.0) / 2.0) ** 2))
+
+
+def sweep(r: AutoRanger, det: FakeDetector, tos, with_points: bool) -> list[int]:
+    """Read theta_o = ``tos`` at theta_i = 30 in that order (``with_points``: each read as its point); the
+    readings taken per point. Every reading is converted exactly, however it was ranged."""
+    counts = []
+    for to in tos:
+        det.signal = peak(to)
+        g = r.read(4, f"({to:g})", point=(30.0, float(to)) if with_points else None)
+        assert g.reading.mean[0] == pytest.approx(float(r.ref_dark.mean[0]) + float(det.signal[0]), rel=1e-9)
+        counts.append(g.readings)
+    return counts
+
+
+def test_the_first_reading_of_a_point_starts_on_the_setting_its_neighbours_predict():
+    """Across a peak 1 deg at a time, the setting the last point needed (before) costs a reading wherever the
+    signal crosses into another setting's range, up the slope and down; predicted from the neighbours' signal
+    (their trend on one side) the first reading is on the right setting almost everywhere. A midpoint between two
+    points read (adaptive refinement) starts on what they predict: one reading."""
+    tos = np.arange(10.0, 51.0, 1.0)
+    det = FakeDetector()
+    sticky = sweep(ranger_for(det), det, tos, with_points=False)
+    det = FakeDetector()
+    r = ranger_for(det)
+    predicted = sweep(r, det, tos, with_points=True)
+    assert sum(sticky) - len(tos) >= 6  # the ladder walked at every crossing
+    assert sum(predicted) - len(tos) <= 2, (predicted, sticky)
+    assert r.predict((30.0, 29.5)) == r.predict((30.0, 30.0)) and r.predict((99.0, 30.0)) is None
+    det.reads.clear()
+    det.signal = peak(30.5)
+    g = r.read(4, "midpoint", point=(30.0, 30.5))
+    assert g.readings == 1 and len(det.reads) == 1
+
+
+def test_a_guessed_setting_is_probed_with_a_few_repeats_and_the_rest_pooled():
+    """The white reference (32 repeats, no neighbour to predict it) saturates at the reference setting: the
+    search reads 4 repeats per setting, then the other 28 at the setting found, pooled with its probe; only the
+    clipped probe was extra integration."""
+    from acquisition.autorange import PROBE_REPEATS
+
+    det = FakeDetector(dark_current=0.0)
+    r = ranger_for(det)
+    det.signal, det.std = np.array([5.0e5]), 10.0
+    g = r.read(32, "white reference", start=0)
+    assert PROBE_REPEATS == 4 and det.sizes == [4, 4, 28] and det.reads == [0.01, 0.001, 0.001]
+    assert g.reading.n == 32 and g.integration_time_s == 0.001 and g.readings == 2
+    assert g.reading.mean[0] == pytest.approx(200.0 + 5.0e5)
+    assert g.overhead_s == pytest.approx(4 * 0.01 + 32 * 0.001)  # the clipped probe and the new dark
+    det.reads.clear(), det.sizes.clear()
+    g = r.read(4, "a point", point=(30.0, 30.0))  # no more repeats than a probe: one reading as before
+    assert det.sizes == [4] and g.readings == 1
 
 
 # --- hardware in the loop ----------------------------------------------------------------------------------------

@@ -139,6 +139,40 @@ def test_example_script_runs(tmp_path):
                        capture_output=True, text=True, timeout=60, cwd=REPO)
     assert p.returncode == 0, p.stderr
     assert "samples" in p.stdout
+    # the specular reading of the demo material is auto-ranged, not clipped at the saturation (65535 counts)
+    line = next(ln for ln in p.stdout.splitlines() if ln.startswith("specular reading"))
+    assert "(0 of 4 repeats saturated)" in line and float(line.split()[2]) > 65535.0, line
+
+
+def test_bench_read_ranges_a_saturated_reading_or_warns_without_auto_ranging(tmp_path):
+    """The README's Bench snippet at the demo material's specular peak, (30, 30), which saturates the reference
+    setting (gain 10000, 0.01 s): with auto-ranging the reading is taken at a lower gain and converted to the
+    reference setting (above the saturation, none clipped), as a capture's; the detector is left at the reference
+    setting (a dark reads the reference's dark level); without auto-ranging (the lowest gain then, and a source
+    1000 x brighter so that it still clips) the clipped reading comes with a SaturationWarning."""
+    import warnings
+
+    from acquisition import SaturationWarning
+
+    cfg = write_config(tmp_path / "b.toml", make_raw())
+    with Bench.from_config(cfg) as bench, warnings.catch_warnings():
+        warnings.simplefilter("error", SaturationWarning)
+        dark = bench.dark()
+        bench.move(30.0, 30.0)
+        bench.settle()
+        first, again = bench.read(4), bench.read(4)
+        assert first.saturated == again.saturated == 0 and first.n == 4
+        assert first.mean[0] > 20 * bench.cfg.detector.saturation  # converted to gain 10000: far above the clip
+        assert again.mean[0] == pytest.approx(first.mean[0], rel=0.02)
+        assert bench.dark().mean[0] == pytest.approx(dark.mean[0], abs=5 * dark.std[0])  # back at the reference
+    cfg = write_config(tmp_path / "n.toml", make_raw({"detector": {"auto_range": False},  # gain 1: 1e3 x the light
+                                                       "simulator": {"source_power": 1e9}}))
+    with Bench.from_config(cfg) as bench:
+        bench.move(30.0, 30.0)
+        bench.settle()
+        with pytest.warns(SaturationWarning, match=r"Bench.read: 4 of 4 repeats saturated at 65535 counts"):
+            clipped = bench.read(4)
+        assert clipped.saturated == 4
 
 
 def test_cli_subprocess_json(tmp_path):

@@ -80,7 +80,7 @@ def test_stepper_stalls_stop_safely_and_resume_exactly(tmp_path, capsys):
 
 
 def test_vanished_port_then_resume(tmp_path, capsys):
-    raw = make_raw({"simulator": {"faults": {"port_vanish_after_s": 3.0, "vanish_ports": "dynamixel"}}})
+    raw = make_raw({"simulator": {"faults": {"port_vanish_after_s": 4.5, "vanish_ports": "dynamixel"}}})
     cfg = write_config(tmp_path / "vanish.toml", raw)
     out = tmp_path / "out"
     assert main(["--config", str(cfg), "--out", str(out), "--no-progress"]) == 1
@@ -97,7 +97,7 @@ def test_vanished_port_then_resume(tmp_path, capsys):
 
 
 def test_serial_port_vanishing_parks_the_servos(tmp_path, capsys):
-    raw = make_raw({"simulator": {"faults": {"port_vanish_after_s": 3.0, "vanish_ports": "serial"}}})
+    raw = make_raw({"simulator": {"faults": {"port_vanish_after_s": 4.5, "vanish_ports": "serial"}}})
     cfg = write_config(tmp_path / "vanish.toml", raw)
     out = tmp_path / "out"
     assert main(["--config", str(cfg), "--out", str(out), "--no-progress"]) == 1

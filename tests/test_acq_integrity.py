@@ -115,7 +115,7 @@ def test_in_process_captures_of_one_folder_exclude_each_other(tmp_path):
 
 
 def partial_capture(tmp_path: Path, capsys) -> tuple[Path, dict]:
-    raw = make_raw({"simulator": {"faults": {"port_vanish_after_s": 3.0, "vanish_ports": "dynamixel"}}})
+    raw = make_raw({"simulator": {"faults": {"port_vanish_after_s": 4.5, "vanish_ports": "dynamixel"}}})
     cfg = write_config(tmp_path / "vanish.toml", raw)
     out = tmp_path / "out"
     assert main(["--config", str(cfg), "--out", str(out), "--no-progress"]) == 1
@@ -155,6 +155,76 @@ def test_resume_refuses_a_slice_whose_columns_are_not_the_detectors(tmp_path, ca
     err = capsys.readouterr().err
     assert "cannot resume" in err and "['550nm']" in err and "nothing was moved" in err, err
     assert path.read_text() == text
+
+
+SWAPPED = {"name": "white-paint", "lobes": [{"type": "lambert", "albedo": 0.8}]}
+
+
+def swapped_sample_simulator(tmp_path: Path) -> Path:
+    """A ``[bench].simulator_command`` (a setting that cannot change a sample) that serves the bench file with
+    another sample mounted: its [material] replaced by SWAPPED, everything else as given. So the capture's config,
+    and its fingerprint, stay the same while the sample on the (simulated) bench changes, as on a real bench."""
+    script = tmp_path / "swapped-sim"
+    script.write_text(f"""#!{sys.executable}
+import os, sys, tomllib, tomli_w
+args = sys.argv[1:]
+k = args.index("--config") + 1
+raw = tomllib.loads(open(args[k], encoding="utf-8").read())
+raw["material"] = {SWAPPED!r}
+with open(args[k] + ".swapped.toml", "w", encoding="utf-8") as fh:
+    fh.write(tomli_w.dumps(raw))
+args[k] += ".swapped.toml"
+os.execv(sys.executable, [sys.executable, "-m", "simulator.cli", *args])
+""")
+    script.chmod(0o755)
+    return script
+
+
+def test_a_resume_with_another_sample_on_the_bench_is_refused_unless_forced(tmp_path, capsys):
+    """Issue 22, item 4: a capture stopped part-way is resumed with another sample on the bench (the config the
+    same): the last two recorded points are measured again first, read ~5 x the recorded values, and the resume
+    is refused (exit 2) with both readings and what to do, before anything is appended; ``--resume --force``
+    goes on, and capture.json records both readings and that it was forced. The same sample resumes as before
+    (its points read as recorded), and with --force a changed [material] (the simulated sample) passes the
+    fingerprint too, recorded."""
+    out, raw = partial_capture(tmp_path, capsys)
+    for name in ("same", "material"):
+        shutil.copytree(out, tmp_path / name)
+    before = (out / "slice.csv").read_bytes()
+    n_before = len(read(out / "slice.csv"))
+    swapped = write_config(tmp_path / "swapped.toml", make_raw({"bench": {
+        "simulator_command": str(swapped_sample_simulator(tmp_path))}}))
+    assert main(["--config", str(swapped), "--out", str(out), "--resume", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "cannot resume: the sample on the bench does not read as the one recorded: at (30, " in err, err
+    assert "1/sr then and" in err and "1/sr now" in err and "more than 5 sigma + 5 % apart" in err
+    assert f"gonio-capture --config {swapped} --out {out} --resume --force" in err and "Traceback" not in err
+    assert (out / "slice.csv").read_bytes() == before  # nothing appended
+    run = json.loads((out / "capture.json").read_text())["runs"][-1]
+    check = run["sample_check"]
+    assert run["status"] == "failed" and check["agree"] is False and check["forced"] is False
+    assert len(check["points"]) == 2 and all(p["now"] > 3 * p["recorded"] for p in check["points"]), check
+    assert main(["--config", str(swapped), "--out", str(out), "--resume", "--force", "--no-progress"]) == 0
+    s = read(out / "slice.csv")
+    assert sorted(keys(s)) == planned(swapped)
+    rec = json.loads((out / "capture.json").read_text())
+    assert rec["status"] == "complete" and rec["runs"][-1]["sample_check"]["forced"] is True
+    assert "going on as --force asks" in (out / "capture.log").read_text()
+    assert float(np.median(s.values[n_before:, 0])) > 3 * float(np.median(s.values[:n_before, 0]))  # two samples
+    # the same sample: its points read as recorded, the resume goes on
+    fixed = write_config(tmp_path / "fixed.toml", raw)
+    assert main(["--config", str(fixed), "--out", str(tmp_path / "same"), "--resume", "--no-progress"]) == 0
+    check = json.loads((tmp_path / "same" / "capture.json").read_text())["runs"][-1]["sample_check"]
+    assert check["agree"] is True and check["forced"] is False and len(check["points"]) == 2
+    # another [material] in the config itself: the fingerprint refuses it, --force accepts it as a sample change
+    changed = write_config(tmp_path / "changed.toml", make_raw({"material": SWAPPED}))
+    capsys.readouterr()
+    assert main(["--config", str(changed), "--out", str(tmp_path / "material"), "--resume", "--no-progress"]) == 2
+    assert "[material].lobes[0].albedo" in capsys.readouterr().err
+    assert main(["--config", str(changed), "--out", str(tmp_path / "material"), "--resume", "--force",
+                 "--no-progress"]) == 0
+    check = json.loads((tmp_path / "material" / "capture.json").read_text())["runs"][-1]["sample_check"]
+    assert check["forced"] is True and "[material].lobes[0].albedo" in check["config_changes"]
 
 
 @pytest.fixture(scope="module")

@@ -99,3 +99,98 @@ def test_sigkill_at_random_moments_then_resume(tmp_path):
     assert np.all(np.abs(z) < 5.0), (f"seed {seed}", delays, counts)
     assert counts == sorted(counts), (f"seed {seed}", delays, counts)  # never lost a sample
     print("seed", seed, "kill delays", delays, "samples after each kill", counts)
+
+
+# --- a second signal early in a run (issue 22, item 5) ----------------------------------------------------------
+
+
+def test_a_signal_arriving_inside_a_log_record_does_not_log_from_the_handler():
+    """The first SIGTERM's message is being logged when the second arrives (a handler that sends it from inside
+    its emit): the guard's handler never logs itself, so no log record is emitted inside another one on the same
+    thread (before the fix, the handler logged: the second record was emitted in the middle of the first, which
+    the capture's console handler, importing tqdm, turned into "--- Logging error ---" and a traceback); both
+    messages are logged, in order; the stop is the first signal's."""
+    import logging
+    import threading
+
+    from acquisition.interrupts import SignalGuard
+
+    lg = logging.getLogger("acquisition")
+    seen: list[str] = []
+    nested: list[str] = []
+    inside = threading.local()
+
+    class SecondSignalInside(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            if getattr(inside, "depth", 0):
+                nested.append(record.getMessage())
+            inside.depth = getattr(inside, "depth", 0) + 1
+            try:
+                seen.append(record.getMessage())
+                if len(seen) == 1:
+                    os.kill(os.getpid(), signal.SIGTERM)  # the second signal, while the first one is being logged
+                    t_end = time.monotonic() + 2.0
+                    while time.monotonic() < t_end and not guard.abort:  # bytecodes: the handler may run here
+                        time.sleep(0.001)
+            finally:
+                inside.depth -= 1
+
+    h = SecondSignalInside(level=logging.WARNING)
+    old_term = signal.getsignal(signal.SIGTERM)
+    lg.addHandler(h)
+    old_level = lg.level
+    lg.setLevel(logging.INFO)
+    try:
+        with SignalGuard(True) as guard:
+            os.kill(os.getpid(), signal.SIGTERM)
+            t_end = time.monotonic() + 5.0
+            while not guard.abort and time.monotonic() < t_end:
+                time.sleep(0.001)
+            guard.drain()
+            assert guard.signum == signal.SIGTERM and guard.abort
+            with pytest.raises(Exception, match="interrupted by SIGTERM"):
+                guard.check()
+    finally:
+        lg.removeHandler(h)
+        lg.setLevel(old_level)
+    assert nested == []
+    assert seen == ["SIGTERM received: stopping after the current step (send it again to abort parking)",
+                    "SIGTERM received again: not waiting for the arms to park"]
+    assert signal.getsignal(signal.SIGTERM) == old_term  # the handler before the guard is back
+
+
+def test_two_sigterms_at_any_moment_never_print_a_traceback(tmp_path):
+    """SIGTERM to the capture's process group and again 20 ms later, at several moments: during start-up (before
+    the capture handles signals: killed by the signal, silently), while the simulator starts, during the
+    calibration and among the points. Never a traceback or a logging error; 143 once the capture handles them."""
+    import subprocess
+    import sys
+
+    from tests.test_acq_support import REPO
+
+    cfg = write_config(tmp_path / "c.toml", make_raw({"simulator": {"time_scale": 2.0}}))
+    moments = [0.05, 0.4, "log", "rows"]  # seconds after the start, or: once capture.log exists / rows are written
+    for k, when in enumerate(moments):
+        out = tmp_path / f"out{k}"
+        p = subprocess.Popen([sys.executable, "-m", "acquisition.cli", "--config", str(cfg), "--out", str(out),
+                              "--no-progress"], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                             start_new_session=True)
+        if when == "log":
+            t_end = time.monotonic() + 30.0
+            while not (out / "capture.log").exists() and time.monotonic() < t_end and p.poll() is None:
+                time.sleep(0.005)
+        elif when == "rows":
+            wait_for_rows(out / "slice.csv", 2, p)
+        else:
+            time.sleep(float(when))
+        for _ in range(2):
+            try:
+                os.killpg(p.pid, signal.SIGTERM)
+            except ProcessLookupError:
+                pass
+            time.sleep(0.02)
+        _, err = p.communicate(timeout=60)
+        assert "Traceback" not in err and "Logging error" not in err, (when, err)
+        assert p.returncode in (143, -signal.SIGTERM), (when, p.returncode, err)
+        if when in ("log", "rows"):
+            assert p.returncode == 143 and "interrupted by SIGTERM" in err, (when, err)

@@ -1,10 +1,13 @@
-"""The house rules: import contracts (import-linter), module size, and the doctests being collected."""
+"""The house rules: import contracts (import-linter), no import cycles within a package, module size, and the doctests
+being collected."""
 
 from __future__ import annotations
 
 import subprocess
 import sys
 from pathlib import Path
+
+import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 PACKAGES = ("acquisition", "reconstruction", "simulator")
@@ -43,3 +46,97 @@ def test_every_public_function_of_geometry_and_merl_has_a_doctest_that_pytest_ru
         funcs = [n for n in mod.__all__ if inspect.isfunction(getattr(mod, n))]
         missing = [n for n in funcs if ">>> " not in (getattr(mod, n).__doc__ or "")]
         assert funcs and missing == [], (mod.__name__, missing)
+
+
+# --- no import cycles ---------------------------------------------------------------------------------------------
+
+
+def import_cycles(package: str) -> list[list[str]]:
+    """The import cycles among the modules of ``package`` (the package and its descendants): each strongly
+    connected component of its import graph with more than one module (or a module importing itself), sorted,
+    largest first. Every import counts: at module level, inside a function, under ``TYPE_CHECKING`` (grimp, which
+    import-linter uses, reads them all); imports of other packages are left out."""
+    import grimp
+
+    graph = grimp.build_graph(package, include_external_packages=False)
+    modules = {m for m in graph.modules if m == package or m.startswith(package + ".")}
+    edges = {m: sorted(i for i in graph.find_modules_directly_imported_by(m) if i in modules) for m in modules}
+    # Tarjan's strongly connected components, iteratively (no recursion limit on a deep chain)
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
+    for root in sorted(modules):
+        if root in index:
+            continue
+        work = [(root, 0)]
+        while work:
+            v, k = work.pop()
+            if k == 0:
+                index[v] = low[v] = len(index)
+                stack.append(v)
+                on_stack.add(v)
+            if k < len(edges[v]):
+                work.append((v, k + 1))
+                w = edges[v][k]
+                if w not in index:
+                    work.append((w, 0))
+                elif w in on_stack:
+                    low[v] = min(low[v], index[w])
+                continue
+            if work:  # v is done: its low link reaches its caller
+                u = work[-1][0]
+                low[u] = min(low[u], low[v])
+            if low[v] == index[v]:
+                comp = []
+                while True:
+                    w = stack.pop()
+                    on_stack.discard(w)
+                    comp.append(w)
+                    if w == v:
+                        break
+                if len(comp) > 1 or v in edges[v]:
+                    found.append(sorted(comp))
+    return sorted(found, key=lambda c: (-len(c), c))
+
+
+def describe_cycle(package: str, component: list[str]) -> str:
+    """The modules of ``component`` (a strongly connected set of modules) and one cycle through them, each import
+    with its line numbers."""
+    import grimp
+
+    graph = grimp.build_graph(package, include_external_packages=False)
+    start, chain = component[0], component
+    for m in component[1:]:
+        back = graph.find_shortest_chain(importer=m, imported=start)
+        if back and graph.direct_import_exists(importer=start, imported=m):
+            chain = [start, *back]
+            break
+    steps = []
+    for a, b in zip(chain, chain[1:], strict=False):
+        lines = [d["line_number"] for d in graph.get_import_details(importer=a, imported=b)]
+        steps.append(f"{a} -> {b} (line {', '.join(map(str, lines)) or '?'})")
+    return f"{len(component)} modules ({', '.join(component)}), e.g. {'; '.join(steps)}"
+
+
+@pytest.mark.parametrize("package", ["acquisition", "simulator"])
+def test_no_import_cycles(package):
+    """No module of the package imports, directly or through others, a module that imports it back."""
+    cycles = import_cycles(package)
+    assert cycles == [], "import cycles:\n" + "\n".join(describe_cycle(package, c) for c in cycles)
+
+
+def test_the_cycle_finder_finds_a_cycle(tmp_path, monkeypatch):
+    """import_cycles on a package made for it: a -> b -> a (b's import inside a function) and c -> c are found;
+    d -> a is not a cycle."""
+    pkg = tmp_path / "cyclepkg"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "a.py").write_text("from . import b\n")
+    (pkg / "b.py").write_text("def f():\n    from . import a\n    return a\n")
+    (pkg / "c.py").write_text("from . import c\n")
+    (pkg / "d.py").write_text("from . import a\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert import_cycles("cyclepkg") == [["cyclepkg.a", "cyclepkg.b"], ["cyclepkg.c"]]
+    assert "cyclepkg.a -> cyclepkg.b (line 1)" in describe_cycle("cyclepkg", ["cyclepkg.a", "cyclepkg.b"])
