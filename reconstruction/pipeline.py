@@ -40,7 +40,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from . import merl
+from . import merl, sharprows
 from .base import Reconstruction, ReconstructionError
 from .crossval import CVScore, cross_validate, folds, noise_level, scene_mask, score_predictions
 from .inputs import check_slice
@@ -282,21 +282,29 @@ def reconstruct(s: Slice, method: str = "auto", opts: Options | None = None,
     return rec, {"requested": method, "used": rec.method, "reason": f"requested with --method {method}"}
 
 
-def tabulate(rec: Reconstruction, supersample: tuple[int, int, int] | str | None = None) -> Array:
+def tabulate(rec: Reconstruction, supersample: tuple[int, int, int] | str | None = None,
+             info: dict[str, Any] | None = None) -> Array:
     """The MERL table (3, 90, 90, 180) of ``rec``: bin-centre values, or cell averages with ``supersample``
     ((nh, nd, np) or "adaptive", see :func:`reconstruction.merl.tabulate`).
 
-    Uses the method's own fast ``table()`` for bin centres when it has one; otherwise ``merl.tabulate``.
+    Uses the method's own fast ``table()`` for bin centres when it has one; otherwise ``merl.tabulate``. Where the
+    method names a lobe narrower than the cells (``sharp_theta_h_rad``), the rows holding it are cell averages over
+    theta_h, each theta_d row scaled to the lobe's energy as table readers see it
+    (:func:`reconstruction.sharprows.renormalise`; its figures go into ``info`` when given).
     Raises :class:`ReconstructionError` if a cell above the horizon is not finite or is negative.
     """
     fast = getattr(rec, "table", None)
+    sharp = getattr(rec, "sharp_theta_h_rad", None)  # a lobe narrower than the cells near theta_h = 0
     if supersample is None and callable(fast):
         t = fast()  # the method's own table (its own theta_h cell averages where a lobe is sharper than the cells)
     else:
         t = merl.tabulate(rec.eval, supersample=supersample)
-        sharp = getattr(rec, "sharp_theta_h_rad", None)  # a lobe narrower than the cells near theta_h = 0
         if supersample is None and sharp:
             t, _ = merl.average_theta_h_cells(rec.eval, t, sharp, n=8)
+    if supersample is None and sharp:  # those rows keep the lobe's energy as table readers see it
+        t, figures = sharprows.renormalise(rec.eval, t, sharp)
+        if info is not None:
+            info.update(figures)
     valid = merl.valid_mask()[None]
     bad = valid & ~np.isfinite(t)
     if bad.any():
@@ -480,7 +488,8 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
                               progress=(lambda name: progress.begin(f"fitting {name}")) if progress else None)
     done("reconstruct", t0)
     t0 = begin("tabulating" + (f" (supersample {job.supersample})" if job.supersample else ""))
-    table = tabulate(rec, job.supersample)
+    energy: dict[str, Any] = {}
+    table = tabulate(rec, job.supersample, energy)
     done("tabulate", t0)
     t0 = begin("plausibility checks")
     checks = report.plausibility(rec, table)
@@ -505,7 +514,9 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
                 "columns": job.columns, "scene": job.scene},
         colour=colour_info,
         table_info={"cells": 3 * merl.N_CELLS,
-                    "values": "cell averages" if job.supersample else getattr(rec, "table_values", "bin centres"),
+                    "values": "cell averages" if job.supersample else getattr(rec, "table_values", "bin centres")
+                    + ("; " + sharprows.DESCRIPTION if energy else ""),
+                    **({"sharp_rows": energy} if energy else {}),
                     "supersample": (list(job.supersample) if isinstance(job.supersample, tuple)
                                     else job.supersample),
                     "bin_centres": "theta_h = ((i + 0.5) / 90)^2 * 90 deg, theta_d = j + 0.5 deg, "

@@ -246,7 +246,7 @@ def test_a_mirror_direction_in_a_gap_bounds_the_lobe_width():
 def test_fit_table_is_the_tabulated_eval_with_theta_h_averages(n_channels):
     # FitReconstruction.table averages its sharp microfacet lobes in the half-diff angles: the same table as
     # tabulating eval and averaging every lobe over theta_h (merl.average_theta_h_cells)
-    from reconstruction import merl, pipeline
+    from reconstruction import merl, pipeline, sharprows
     from reconstruction.fit.report import FitReconstruction
     from reconstruction.models import Colour, Lambert, Material, Microfacet, Retro
 
@@ -259,7 +259,10 @@ def test_fit_table_is_the_tabulated_eval_with_theta_h_averages(n_channels):
     rec = FitReconstruction(mat, ["R", "G", "B"][:n_channels] if n_channels == 3 else ["value"], result=None)
     assert rec.sharp_theta_h_rad == pytest.approx(0.01)
     slow, rows = merl.average_theta_h_cells(rec.eval, merl.tabulate(rec.eval), rec.sharp_theta_h_rad, n=8)
-    fast = pipeline.tabulate(rec)
+    fast = rec.table()
+    # what gonio-reconstruct writes: those rows then renormalised to the lobe's energy (reconstruction.sharprows)
+    written, _ = sharprows.renormalise(rec.eval, fast, rec.sharp_theta_h_rad)
+    np.testing.assert_array_equal(pipeline.tabulate(rec), written)
     assert np.array_equal(np.isnan(fast), np.isnan(slow))
     ok = np.isfinite(slow)
     assert np.max(np.abs(fast[ok] - slow[ok]) / np.maximum(slow[ok], 1e-12)) < 1e-6

@@ -14,6 +14,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..base import ReconstructionError
 from ..slicefile import Slice
+from . import grazing, incidence
 from .aperture import hold_peaks_over_cone
 from .incidence import _analyse, _hemisphere_of, _Incidence, _lend_peaks, _loglin, _prepare, _subcurve_report
 from .thesis import (
@@ -70,38 +71,6 @@ class _Model:
     floor: Array | None = None  # (C,) / scale: the base of a forward excess when there is no diffuse lobe
 
 
-def _side_segments(inc: _Incidence, rng: tuple[int, int], axis_angle: float, side: int
-                   ) -> tuple[Array, Array, bool, NDArray[np.bool_]] | None:
-    """Samples of sub-curve ``rng`` on one side of the axis as (psi ascending, values, open end, holes).
-
-    ``side`` +1 takes theta_o >= axis, -1 theta_o <= axis. A sub-curve straddling the axis gets a point
-    interpolated on it (psi = 0). ``open`` is True when the far end is the end of the measured slice.
-    ``holes`` (m - 1,) marks gaps between consecutive returned samples that are missing data.
-    """
-    a, b = rng
-    to, f = inc.theta_o[a:b + 1], inc.f[a:b + 1]
-    hole = inc.hole_after[a:b]
-    psi = side * (to - axis_angle)
-    idx = np.nonzero(psi >= 0)[0]
-    if idx.size == 0:
-        return None
-    ps, fs = psi[idx], f[idx]
-    hs = hole[idx[:-1]]  # gap after each kept sample (in theta_o order; the kept samples are contiguous)
-    k = int(np.searchsorted(to, axis_angle)) - 1  # the gap holding the axis
-    if psi.min() < 0 < psi.max() and not hole[k]:  # straddles the axis: add the point on it (not in a hole)
-        f0 = _loglin(np.array([axis_angle]), to, f)
-        h0 = np.array([False])
-        if side > 0:
-            ps, fs, hs = np.r_[0.0, ps], np.concatenate([f0, fs]), np.r_[h0, hs]
-        else:
-            ps, fs, hs = np.r_[ps, 0.0], np.concatenate([fs, f0]), np.r_[hs, h0]
-    if side < 0:
-        ps, fs, hs = ps[::-1], fs[::-1], hs[::-1]
-    far = b if side > 0 else a
-    is_open = far == (inc.theta_o.size - 1 if side > 0 else 0)
-    return ps, fs, bool(is_open), hs
-
-
 def _inplane(comp: _Component, psi_grid: Array, theta_o: Array) -> Array:
     """The diffuse base under a lobe, as :func:`_eval_model` adds it back: ``comp``'s profile (f_r / scale)
     at in-plane angles ``theta_o`` of its own incidence, (m, C). Its own side where covered, else the other
@@ -147,7 +116,7 @@ def _build_component(inc: _Incidence, kind: str, members: list[int], offset: flo
     cmin = 1.0
     for s, side in enumerate((1, -1)):
         for j in members:  # the lobe's sub-curves: a handful
-            seg = _side_segments(inc, inc.ranges[j], axis_angle, side)
+            seg = incidence._side_segments(inc, inc.ranges[j], axis_angle, side)
             if seg is None:
                 continue
             ps, fs, is_open, hs = seg
@@ -262,9 +231,11 @@ def _build_model(inc: _Incidence, fill: str, lobe_axis: str, forward_frame: str,
                   None if floor is None else floor / scale)
 
 
-def _eval_model(model: _Model, ox: Array, oy: Array, oz: Array, si: Array, ci: Array, fill: str) -> Array:
+def _eval_model(model: _Model, ox: Array, oy: Array, oz: Array, si: Array, ci: Array, fill: str,
+                fwd: tuple[Array, Array] | None = None) -> Array:
     """f_r (n, C) of one incidence's lobes for outgoing directions in the canonical frame (wi in the x-z
-    plane on the -x side, sin/cos of its theta_i ``si``, ``ci``): the lobe of highest luminance wins.
+    plane on the -x side, sin/cos of its theta_i ``si``, ``ci``): the lobe of highest luminance wins. ``fwd``:
+    (factor on the divisor's hold, gain) (n,) of a forward excess beyond the last measured incidence (:mod:`.grazing`).
 
     Each lobe's two side profiles are interpolated at the direction's angle from its axis and blended by
     its azimuth around the axis; a forward or back lobe fades out towards a side where it has no data (that
@@ -319,7 +290,9 @@ def _eval_model(model: _Model, ox: Array, oy: Array, oz: Array, si: Array, ci: A
             val *= np.minimum(cov + cov, np.float32(1.0))[:, None]  # fade out towards a side without data
         val *= ok[:, None]
         if comp.excess:  # back to f_r: undo the measurement's cosines, add the diffuse base below
-            val /= np.maximum(ci * oz, comp.cmin).astype(np.float32)[:, None]
+            val /= np.maximum(ci * oz, comp.cmin if fwd is None else comp.cmin * fwd[0]).astype(np.float32)[:, None]
+            if fwd is not None:
+                val *= fwd[1].astype(np.float32)[:, None]
             if base is not None:
                 val += base
         lum = val[:, 0].copy()
@@ -413,6 +386,10 @@ class RevolveReconstruction:
         self._notes = notes
         self._thetas = np.array([m.theta_i for m in models])
         self._hemi: dict[int, HemisphereMap] = {}
+        last = models[-1]  # a narrow forward lobe beyond the last incidence: its cap there (see .grazing)
+        fwd = [cm for cm in last.comps if cm.kind == "forward" and cm.excess]
+        narrow = bool(fwd) and grazing.hwhm_deg(fwd[0].val, last.du) < grazing.NARROW_HWHM_DEG
+        self._gains = grazing.held_gains(self._eval_last, last.theta_i) if narrow else None
 
     @property
     def incidences_deg(self) -> list[float]:
@@ -459,11 +436,12 @@ class RevolveReconstruction:
             valid, si, ci, ox, oy, oz, rho = _canonical(wi, wo)
             th = self._thetas
             fill = self._params["fill"]
+            ti = np.arctan2(rho, wi[:, 2])
+            fwd = self._beyond(ti, ci, valid)
             if th.size == 1:
-                res = _eval_model(self._models[0], ox, oy, oz, si, ci, fill)
+                res = _eval_model(self._models[0], ox, oy, oz, si, ci, fill, fwd)
             else:
                 res = np.zeros((valid.size, c))
-                ti = np.arctan2(rho, wi[:, 2])
                 k = np.clip(np.searchsorted(th, ti, side="right") - 1, 0, th.size - 2)
                 t = np.clip((ti - th[k]) / (th[k + 1] - th[k]), 0.0, 1.0)
                 for j in range(th.size - 1):  # one bracket of measured incidences at a time: a handful
@@ -473,8 +451,25 @@ class RevolveReconstruction:
                     args = (ox[sel], oy[sel], oz[sel], si[sel], ci[sel], fill)
                     tj = t[sel, None]
                     lo = _eval_model(self._models[j], *args) if np.any(tj < 1) else 0.0
-                    hi = _eval_model(self._models[j + 1], *args) if np.any(tj > 0) else 0.0
+                    last = None if fwd is None or j < th.size - 2 else (fwd[0][sel], fwd[1][sel])
+                    hi = _eval_model(self._models[j + 1], *args, last) if np.any(tj > 0) else 0.0
                     res[sel] = (1.0 - tj) * lo + tj * hi
+        return np.where(valid[:, None] & (res > 0), res, 0.0)
+
+    def _beyond(self, ti: Array, ci: Array, valid: NDArray[np.bool_]) -> tuple[Array, Array] | None:
+        """(factor on the hold, gain) of the last model's narrow forward excess at incidences ``ti`` (radians), or None
+        when no pair is beyond the last measured incidence or the lobe is broad (:mod:`.grazing`)."""
+        out = valid & (ti > self._thetas[-1])
+        if self._gains is None or not out.any():
+            return None
+        nodes, gains = self._gains
+        return grazing.floor_scale(ci, float(self._thetas[-1])), np.where(out, np.interp(ti, nodes, gains), 1.0)
+
+    def _eval_last(self, wi: Array, wo: Array, gain: float) -> Array:
+        """The last measured incidence's model alone with its forward excess times ``gain`` (the hold scaled)."""
+        valid, si, ci, ox, oy, oz, _ = _canonical(wi, wo)
+        fwd = (grazing.floor_scale(ci, float(self._thetas[-1])), np.full(ci.shape, gain))
+        res = _eval_model(self._models[-1], ox, oy, oz, si, ci, self._params["fill"], fwd)
         return np.where(valid[:, None] & (res > 0), res, 0.0)
 
     def hemisphere(self, theta_i_deg: float | None = None, *, resolution_deg: float = 1.0,

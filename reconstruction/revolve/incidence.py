@@ -390,3 +390,34 @@ def thesis_hemisphere(slices: Slice, theta_i_deg: float | None = None, *, axis: 
 
 # --- the extension: lobes relative to their axes, for every (wi, wo) -------------------------------------
 
+
+def _side_segments(inc: _Incidence, rng: tuple[int, int], axis_angle: float, side: int
+                   ) -> tuple[Array, Array, bool, NDArray[np.bool_]] | None:
+    """Samples of sub-curve ``rng`` on one side of the axis as (psi ascending, values, open end, holes).
+
+    ``side`` +1 takes theta_o >= axis, -1 theta_o <= axis. A sub-curve straddling the axis gets a point
+    interpolated on it (psi = 0). ``open`` is True when the far end is the end of the measured slice.
+    ``holes`` (m - 1,) marks gaps between consecutive returned samples that are missing data.
+    """
+    a, b = rng
+    to, f = inc.theta_o[a:b + 1], inc.f[a:b + 1]
+    hole = inc.hole_after[a:b]
+    psi = side * (to - axis_angle)
+    idx = np.nonzero(psi >= 0)[0]
+    if idx.size == 0:
+        return None
+    ps, fs = psi[idx], f[idx]
+    hs = hole[idx[:-1]]  # gap after each kept sample (in theta_o order; the kept samples are contiguous)
+    k = int(np.searchsorted(to, axis_angle)) - 1  # the gap holding the axis
+    if psi.min() < 0 < psi.max() and not hole[k]:  # straddles the axis: add the point on it (not in a hole)
+        f0 = _loglin(np.array([axis_angle]), to, f)
+        h0 = np.array([False])
+        if side > 0:
+            ps, fs, hs = np.r_[0.0, ps], np.concatenate([f0, fs]), np.r_[h0, hs]
+        else:
+            ps, fs, hs = np.r_[ps, 0.0], np.concatenate([fs, f0]), np.r_[hs, h0]
+    if side < 0:
+        ps, fs, hs = ps[::-1], fs[::-1], hs[::-1]
+    far = b if side > 0 else a
+    is_open = far == (inc.theta_o.size - 1 if side > 0 else 0)
+    return ps, fs, bool(is_open), hs
