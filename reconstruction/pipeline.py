@@ -453,8 +453,9 @@ def _check_outputs(job: Job) -> None:
 
     if job.out:
         check_output(Path(job.out), ".binary", "--out")
-    elif not exports.wants_outputs(job):
-        raise ReconstructionError("give --out MATERIAL.binary (or --rgl, --zemax, --export-mitsuba, --export-json)")
+    elif not exports.asks_output(job):
+        raise ReconstructionError("give --out MATERIAL.binary (or another output: --preview, --html, --report, --rgl, "
+                                  "--zemax, --export-mitsuba, --export-json)")
     exports.check_arguments(job)
     if job.preview:
         check_output(Path(job.preview), ".exr", "--preview")

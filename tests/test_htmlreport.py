@@ -6,6 +6,7 @@ import re
 from html.parser import HTMLParser
 
 import numpy as np
+import pytest
 
 from reconstruction import cli
 from reconstruction.htmlreport import SECTIONS
@@ -150,3 +151,31 @@ def test_grey_data_have_one_albedo_curve():
 
     assert curves(grey) == ["grey (every channel)"]
     assert curves(colour) == ["R", "G", "B"]
+
+
+def test_an_html_report_a_preview_or_a_report_alone_is_an_output(tmp_path, capsys):
+    """--out is optional once another output is asked: the HTML page (or the preview, or the JSON report) alone
+    is written, and no table."""
+    src = slice_file(tmp_path / "slice.csv", BLUE_PLASTIC, step=4.0)
+    assert cli.main([str(src), "--html", str(tmp_path / "r.html"), "--quiet"]) == 0
+    assert parse(tmp_path / "r.html").sections == list(SECTIONS)
+    assert cli.main([str(src), "--preview", str(tmp_path / "p.exr"), "--report", str(tmp_path / "p.json")]) == 0
+    assert (tmp_path / "p.exr").exists() and (tmp_path / "p.png").exists()
+    rep = json.loads((tmp_path / "p.json").read_text())
+    assert "table" not in rep["outputs"] and rep["outputs"]["preview"]["exr"] == str(tmp_path / "p.exr")
+    assert "wrote " + str(tmp_path / "p.exr") in capsys.readouterr().err
+    assert not list(tmp_path.glob("*.binary"))
+    # nothing asked: still one line pointing at the flags
+    with pytest.raises(SystemExit) as e:
+        cli.main([str(src)])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and "--out MATERIAL.binary or another output (--preview, --html" in err
+
+
+def test_the_help_of_out_names_every_other_output():
+    from reconstruction.exports import OTHER_OUTPUTS
+
+    out = next(a for a in cli.build_parser()._actions if "--out" in a.option_strings)
+    assert "optional once another output is asked" in out.help
+    for flag in OTHER_OUTPUTS:
+        assert "--" + flag.replace("_", "-") in out.help, flag
