@@ -27,24 +27,6 @@ def test_no_module_is_longer_than_600_lines():
     assert long == {}, f"modules over {MAX_MODULE_LINES} lines: {long}"
 
 
-def test_every_public_function_of_geometry_and_merl_has_a_doctest_that_pytest_runs():
-    import inspect
-
-    from reconstruction import geometry, merl
-
-    if sys.version_info >= (3, 11):
-        import tomllib
-    else:  # pragma: no cover
-        import tomli as tomllib
-
-    paths = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["pytest"]["ini_options"]["testpaths"]
-    assert {"reconstruction/geometry.py", "reconstruction/merl.py"} <= set(paths)
-    for mod in (geometry, merl):
-        funcs = [n for n in mod.__all__ if inspect.isfunction(getattr(mod, n))]
-        missing = [n for n in funcs if ">>> " not in (getattr(mod, n).__doc__ or "")]
-        assert funcs and missing == [], (mod.__name__, missing)
-
-
 def test_no_unit_test_bounds_the_wall_clock():
     """Unit tests assert behaviour, not speed (a bound flakes on a loaded machine); speed is a figure that a
     benchmarks/ script prints. No test reads time.perf_counter / process_time / time.time, and none asserts an
@@ -76,3 +58,21 @@ def test_no_unit_test_bounds_the_wall_clock():
                 if elapsed and any(isinstance(op, (ast.Lt, ast.LtE)) for op in cmp.ops):
                     bad.append(f"{p.name}:{a.lineno}: an upper bound on elapsed time")
     assert bad == [], bad
+
+
+def test_every_public_function_of_geometry_and_merl_has_a_doctest_that_pytest_runs():
+    import inspect
+
+    from reconstruction import geometry, merl
+
+    if sys.version_info >= (3, 11):
+        import tomllib
+    else:  # pragma: no cover
+        import tomli as tomllib
+
+    paths = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["pytest"]["ini_options"]["testpaths"]
+    assert {"reconstruction/geometry.py", "reconstruction/merl.py"} <= set(paths)
+    for mod in (geometry, merl):
+        funcs = [n for n in mod.__all__ if inspect.isfunction(getattr(mod, n))]
+        missing = [n for n in funcs if ">>> " not in (getattr(mod, n).__doc__ or "")]
+        assert funcs and missing == [], (mod.__name__, missing)
