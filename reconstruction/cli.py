@@ -113,7 +113,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--method", choices=METHODS, default="auto",
                     help="reconstruction method (default: auto, the one that best predicts held-out samples): "
                          + "; ".join(f"{m.name}: {m.summary}" for m in REGISTRY.values()))
-    ap.add_argument("--out", metavar="MATERIAL.binary", help="MERL table to write (required unless --batch)")
+    ap.add_argument("--out", metavar="MATERIAL.binary",
+                    help="MERL table to write; optional once another output is asked (--preview, --html, --report, "
+                         "--rgl, --zemax, --export-mitsuba, --export-json); not with --batch (--out-dir)")
     ap.add_argument("--preview", metavar="MATERIAL.exr",
                     help="render a sphere under a point light: linear float OpenEXR, plus a PNG next to it")
     ap.add_argument("--html", metavar="REPORT.html", nargs="?", const=True, default=None,
@@ -346,16 +348,16 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(ap: argparse.ArgumentParser, args: argparse.Namespace) -> int:
-    from .exports import wants_outputs
+    from .exports import asks_output, wants_outputs
 
     if args.batch:
         if args.inputs or args.out or args.preview or args.report or wants_outputs(args):
             ap.error("--batch takes no INPUT, --out, --preview, --report, --rgl, --zemax, --export-mitsuba or "
                      "--export-json (outputs are named after the inputs)")
         return run_batch(args)
-    if not args.inputs or not (args.out or wants_outputs(args)):
-        ap.error("give INPUT... and --out MATERIAL.binary (or --rgl, --zemax, --export-mitsuba, --export-json; or "
-                 "--batch FOLDER)")
+    if not args.inputs or not (args.out or asks_output(args)):
+        ap.error("give INPUT... and --out MATERIAL.binary or another output (--preview, --html, --report, --rgl, "
+                 "--zemax, --export-mitsuba, --export-json); or --batch FOLDER")
     if args.html is True:
         print(f"{PROG}: error: --html: give the page to write, e.g. --html m.html (a bare --html is for --batch)",
               file=sys.stderr)

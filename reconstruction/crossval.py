@@ -15,7 +15,10 @@ exactly and can still be far off elsewhere), so methods are compared on samples 
 
 The error is the relative RMSE of f cos(theta_i) cos(theta_o) pooled over every held-out sample and channel (the
 same weighting as the table metric). ``fit`` is cross-validated with its model structure fixed to the one chosen
-on all samples (its lobes refitted in every fold), so the score is of that model.
+on all samples (its lobes refitted in every fold to the samples it was fitted to: those inside a scene's ranges
+when the scene's budget chose a simpler model), so the score is of that model. With a scene, only the held-out
+samples inside its ranges count (:func:`scene_mask`), and :func:`budget_check` compares the choice's error with
+the scene's error budget.
 """
 
 from __future__ import annotations
@@ -35,7 +38,7 @@ from .slicefile import Slice
 
 Array = NDArray[np.float64]
 
-__all__ = ["folds", "cross_validate", "score_predictions", "CVScore", "N_BLOCKS"]
+__all__ = ["folds", "cross_validate", "score_predictions", "CVScore", "N_BLOCKS", "budget_check", "SceneBudgetWarning"]
 
 N_BLOCKS = 8
 
@@ -77,18 +80,22 @@ class CVScore:
     failure: str | None = None
     predictions: Array | None = None  # (N, C) each sample predicted by the fold that held it out (NaN: never)
     anchor: float | None = None  # prior: the weight of the bivariate interpolation (None: not a prior variant)
+    variant: str | None = None  # another variant of the method (e.g. fit's BIC choice beside a scene's budget's)
 
     @property
     def label(self) -> str:
-        """The method, with its anchor for a prior variant: "prior (anchor 0.25)"."""
-        return f"{self.method} (anchor {self.anchor:g})" if self.anchor else self.method
+        """The method, with its anchor for a prior variant ("prior (anchor 0.25)") or its variant."""
+        if self.anchor:
+            return f"{self.method} (anchor {self.anchor:g})"
+        return f"{self.method} ({self.variant})" if self.variant else self.method
 
     def as_dict(self) -> dict[str, Any]:
         return {"method": self.method, "label": self.label,
                 "held_out_relative_rmse_cos": self.error if math.isfinite(self.error) else None,
                 "fold_errors": [e if math.isfinite(e) else None for e in self.fold_errors],
                 "seconds": round(self.seconds, 3), **({"failure": self.failure} if self.failure else {}),
-                **({"prior_anchor": self.anchor} if self.anchor is not None else {})}
+                **({"prior_anchor": self.anchor} if self.anchor is not None else {}),
+                **({"variant": self.variant} if self.variant else {})}
 
 
 def _score(pred: Array, f: Array, c: Array) -> tuple[float, float]:
@@ -111,12 +118,9 @@ def scene_mask(s: Slice, scene: Any) -> NDArray[np.bool_] | None:
     """The samples inside a scene's theta_i and |theta_o| ranges (what the scene needs), or None for no scene."""
     if scene is None:
         return None
-    from .fit import SCENE_DEFAULT_RANGE_DEG
+    from .fit.budget import scene_inside
 
-    (ti_lo, ti_hi), (to_lo, to_hi) = scene.ranges(SCENE_DEFAULT_RANGE_DEG)
-    to = np.abs(s.theta_o_deg)
-    return ((s.theta_i_deg >= ti_lo - 1e-9) & (s.theta_i_deg <= ti_hi + 1e-9)
-            & (to >= to_lo - 1e-9) & (to <= to_hi + 1e-9))
+    return scene_inside(scene, s)
 
 
 def cross_validate(s: Slice, name: str, build: Callable[[Slice], Reconstruction],
@@ -165,3 +169,27 @@ def score_predictions(s: Slice, name: str, pred: Array, masks: list[NDArray[np.b
         den += b
         per.append(math.sqrt(a / b) if b > 0 else math.inf)
     return CVScore(name, math.sqrt(num / den) if den > 0 else math.inf, per, seconds, predictions=np.array(pred))
+
+
+class SceneBudgetWarning(UserWarning):
+    """``auto`` chose a method whose held-out error over a scene's samples exceeds the scene's error budget."""
+
+
+def budget_check(scene: Any, best: CVScore, scores: list[CVScore], noise: float = 0.0) -> dict[str, Any]:
+    """The ``cross_validation`` keys ``error_budget`` and ``over_budget`` (and ``over_budget_warning``, what the
+    console shows) of the choice ``best`` against the ``scene``'s ``relative_rmse`` ({} without a budget): its
+    held-out error over the scene's samples is what the budget bounds. ``noise``: the error the samples' own
+    noise amounts to (:func:`noise_level`), said when it is a good part of the excess."""
+    if scene is None or scene.relative_rmse is None:
+        return {}
+    budget = float(scene.relative_rmse)
+    if best.error <= budget:
+        return {"error_budget": budget, "over_budget": False}
+    lowest = min(scores, key=lambda c: c.error)
+    msg = (f"the choice, {best.label}, predicts the held-out samples inside scene {scene.name!r} to "
+           f"{best.error:.2%} relative RMSE of f cos cos, over the scene's error budget of {budget:.2%}"
+           + ("" if lowest is best else f" (the lowest of any method: {lowest.label} {lowest.error:.2%})")
+           + (f"; the samples' own noise amounts to {noise:.2%}" if noise > 0.5 * budget else "")
+           + "; measure more incidences inside the scene's ranges"
+           + (" or with less noise" if noise > 0.5 * budget else "") + ", or loosen the budget")
+    return {"error_budget": budget, "over_budget": True, "over_budget_warning": msg}

@@ -55,7 +55,8 @@ from .base import Reconstruction, ReconstructionError
 
 Array = NDArray[np.float64]
 
-__all__ = ["SCHEMA", "add_arguments", "check_arguments", "wants_outputs", "write_outputs", "parameters",
+__all__ = ["SCHEMA", "add_arguments", "check_arguments", "wants_outputs", "asks_output", "OTHER_OUTPUTS",
+           "write_outputs", "parameters",
            "mitsuba_fragment", "render_mitsuba_preview", "MitsubaMissing", "require_mitsuba"]
 
 SCHEMA = "gonio-brdf/parameters/1"
@@ -125,8 +126,19 @@ def _check_file(path: str, suffix: str, flag: str) -> None:
 
 def wants_outputs(args: Any) -> bool:
     """True if any format field (``rgl``, ``zemax``, ``export_mitsuba``, ``export_json`` of a
-    :class:`~reconstruction.pipeline.Job` or parsed command line) asks for a file (then --out is optional)."""
+    :class:`~reconstruction.pipeline.Job` or parsed command line) asks for a file."""
     return any(getattr(args, k, None) for k in ("rgl", "zemax", "export_mitsuba", "export_json"))
+
+
+#: the outputs besides the MERL table (flags without the dashes): asking for any makes --out optional
+OTHER_OUTPUTS = ("preview", "html", "report", "rgl", "zemax", "export_mitsuba", "export_json")
+
+
+def asks_output(args: Any) -> bool:
+    """True if a :class:`~reconstruction.pipeline.Job` or parsed command line asks for any file besides the MERL
+    table (:data:`OTHER_OUTPUTS`, each a file name: a bare ``--html`` is the batch's): then ``--out`` is
+    optional, the table being computed for them either way."""
+    return any(isinstance(getattr(args, k, None), str) and getattr(args, k) for k in OTHER_OUTPUTS)
 
 
 def zemax_grid(args: Any) -> tuple[Array, Array, Array]:

@@ -5,7 +5,8 @@ measured samples with error bars, the blind spot and the skipped samples marked,
 same angles, the chosen one highlighted, cross-validation's held-out predictions), ``polar`` (the slice as the
 thesis draws it: the polar curve, its sub-curves and their axes), ``coverage`` (a (theta_h, theta_d) map of the
 table with the measured lines on it: where the table rests on data and where it extrapolates), ``spheres`` (the
-sphere under three light directions and under a sky-and-ground environment), ``cuts`` (in-plane cuts of the table
+sphere under three point lights, and under a sky-and-ground environment alone, with a sun in front and with a sun
+behind: :mod:`reconstruction.render`), ``cuts`` (in-plane cuts of the table
 at other incidences), ``albedo`` (directional albedo against theta_i with the limit 1), ``checks``,
 ``parameters`` (with uncertainties), ``choice`` (cross-validation), ``timings``. Plots with matplotlib; the page
 with the standard library. Written atomically.
@@ -17,7 +18,6 @@ import base64
 import html
 import io
 import json
-import math
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 from . import merl
 from .atomic import atomic_open
 from .base import Reconstruction
-from .geometry import inplane_to_dirs, normalize, thesis_points_from_slice
+from .geometry import inplane_to_dirs, thesis_points_from_slice
 from .slicefile import Slice
 
 Array = NDArray[np.float64]
@@ -162,6 +162,12 @@ def _polar_figure(s: Slice) -> str:
 
 
 def _coverage_figure(table: Array, s: Slice) -> str:
+    return _png(_coverage_plot(table, s))
+
+
+def _coverage_plot(table: Array, s: Slice) -> Any:
+    """The figure of the coverage section: the in-plane sheet of the table with the measured samples on it
+    (white dots edged in black, so the legend's marker shows on its grey frame)."""
     plt = _pyplot()
     th, td, _ = merl.cell_angles()
     cc = np.cos(td[0, :, 0])[None, :] ** 2 - np.sin(th[:, 0, 0])[:, None] ** 2  # in-plane cos_i cos_o
@@ -172,69 +178,68 @@ def _coverage_figure(table: Array, s: Slice) -> str:
     fig.colorbar(im, ax=ax, label="log10 f cos(theta_i) cos(theta_o), in-plane")
     hh = np.abs(s.theta_o_deg - s.theta_i_deg) / 2.0
     dd = np.abs(s.theta_o_deg + s.theta_i_deg) / 2.0
-    ax.plot(np.sqrt(hh / 90.0) * 90.0, dd, ".", color="w", ms=2.5, label="measured samples")
+    ax.plot(np.sqrt(hh / 90.0) * 90.0, dd, "o", ms=2.5, mfc="w", mec="k", mew=0.4, label="measured samples")
     ax.set_xlabel("theta_h index (sqrt-spaced bins, as in the table)")
     ax.set_ylabel("theta_d (deg)")
     ax.set_title("where the table rests on data")
-    ax.legend(fontsize=7, loc="upper right")
+    ax.legend(fontsize=7, loc="upper right", markerscale=2.0, facecolor="0.75", framealpha=0.9)
     fig.tight_layout()
-    return _png(fig)
+    return fig
 
 
-def environment_render(f: Callable[[Array, Array], ArrayLike], size: int = 112, n_dirs: int = 192,
-                       radius: float = 0.8) -> NDArray[np.float32]:
-    """The sphere under a sky-and-ground environment (radiance 1 above the horizon, 0.2 below, seen along -z),
-    (size, size, 3) float32 linear RGB: the integral over ``n_dirs`` Fibonacci directions of the environment."""
-    k = np.arange(n_dirs) + 0.5
-    z = 1.0 - 2.0 * k / n_dirs
-    phi = math.pi * (1.0 + math.sqrt(5.0)) * k
-    rr = np.sqrt(1.0 - z * z)
-    dirs = np.stack([rr * np.cos(phi), z, rr * np.sin(phi)], axis=-1)  # world: y up
-    radiance = np.where(dirs[:, 1] > 0, 1.0, 0.2)
-    d_omega = 4.0 * math.pi / n_dirs
-    c = ((np.arange(size) + 0.5) / size * 2.0 - 1.0) / radius
-    x, y = np.meshgrid(c, -c)
-    r2 = x * x + y * y
-    inside = r2 < 1.0
-    n = np.stack([x[inside], y[inside], np.sqrt(1.0 - r2[inside])], axis=-1)
-    t = normalize(np.cross(np.array([0.0, 1.0, 0.0]), n))
-    t[np.linalg.norm(t, axis=-1) < 0.5] = (1.0, 0.0, 0.0)
-    b = np.cross(n, t)
-    wo = np.stack([t[:, 2], b[:, 2], n[:, 2]], axis=-1)  # the view (0, 0, 1) in the local frame
-    # every (pixel, direction) pair at once: wi in each pixel's local frame
-    wi = np.stack([t @ dirs.T, b @ dirs.T, n @ dirs.T], axis=-1)  # (pixels, n_dirs, 3)
-    lit = wi[..., 2] > 0
-    pix, dj = np.nonzero(lit)
-    v = np.asarray(f(wi[pix, dj], wo[pix]), dtype=np.float64).reshape(pix.size, -1)
-    v = np.repeat(v, 3, axis=1) if v.shape[1] == 1 else v
-    w = wi[pix, dj, 2] * radiance[dj] * d_omega
-    out = np.zeros((n.shape[0], 3))
-    np.add.at(out, pix, np.nan_to_num(v) * w[:, None])
-    img = np.zeros((size, size, 3))
-    img[inside] = out
-    img[~inside] = np.where(y[~inside] > 0, 1.0, 0.2)[:, None] * 0.35  # the environment behind, dimmed
-    return img.astype(np.float32)
+def environment_render(f: Callable[[Array, Array], ArrayLike], size: int = 112, radius: float = 0.8,
+                       lighting: str = "environment") -> NDArray[np.float32]:
+    """The sphere under the sky-and-ground environment of :mod:`reconstruction.render` (``lighting``: one of its
+    presets: the environment alone, or with the ``key`` or ``rim`` sun), anti-aliased, over the environment as a
+    dimmed backdrop (sky above, ground below): (size, size, 3) float32 linear RGB."""
+    from .render import SkyGround, render_sphere
+
+    img = render_sphere(f, size, lighting, radius, antialias=True)
+    return (_rgb(img) + _backdrop(size, radius, SkyGround())).astype(np.float32)
+
+
+def _rgb(img: Array) -> Array:
+    return np.repeat(img, 3, axis=2) if img.shape[2] == 1 else img
+
+
+def _backdrop(size: int, radius: float, env: Any) -> Array:
+    """The environment behind the sphere, dimmed (sky above the frame's middle, ground below), times the part of
+    each pixel the sphere leaves uncovered."""
+    from .render import sphere_coverage
+
+    y = -(((np.arange(size) + 0.5) / size) * 2.0 - 1.0)
+    back = 0.35 * env.radiance(np.clip(y, -1.0, 1.0))[:, None] * np.ones(size)[None, :]
+    return (back * (1.0 - sphere_coverage(size, radius, antialias=True)))[..., None] * np.ones(3)
 
 
 def _spheres(table: Array) -> str:
-    from .preview import AMBIENT, PREVIEW_RADIUS, albedo_at_view, render_sphere, srgb_encode
+    from .preview import AMBIENT, PREVIEW_RADIUS, albedo_at_view, srgb_encode
+    from .render import PRESETS, Lighting, PointLight, SkyGround, render_sphere, sphere_coverage, sphere_normals
 
     plt = _pyplot()
     brdf = merl.brdf_of(table)
-    size = 144
-    c = ((np.arange(size) + 0.5) / size * 2.0 - 1.0) / PREVIEW_RADIUS
-    x, y = np.meshgrid(c, -c)
-    inside = x * x + y * y < 1.0
-    ambient = np.full((size, size, 3), AMBIENT)  # the preview's environment term, shared by the three lights
-    ambient[inside] = AMBIENT * albedo_at_view(brdf, np.sqrt(1.0 - (x * x + y * y)[inside]))
-    imgs = [(f"point light, {name}", render_sphere(brdf, size, pos, PREVIEW_RADIUS) + ambient)
-            for name, pos in LIGHTS.items()]
-    imgs.append(("sky and ground environment", environment_render(brdf)))
-    fig, axes = plt.subplots(1, len(imgs), figsize=(3.2 * len(imgs), 3.4))
-    for ax, (name, im) in zip(axes, imgs, strict=True):
-        lum = im @ np.array([0.2126, 0.7152, 0.0722])
+    size, radius = 128, PREVIEW_RADIUS
+    cov = sphere_coverage(size, radius, antialias=True)
+    mask, n = sphere_normals(size, radius, antialias=True)
+    ambient = np.zeros((size, size, 3))  # the preview's uniform environment, shared by the three point lights
+    ambient[mask] = AMBIENT * albedo_at_view(brdf, n[:, 2]) * cov[mask][:, None]
+    uniform = np.full((size, size, 3), AMBIENT) * (1.0 - cov)[..., None]  # ... seen behind the sphere
+    # (title, the sphere's linear radiance, the background as radiance or None: the environment's backdrop)
+    imgs: list[tuple[str, Array, Array | None]] = [
+        (f"point light, {name}", _rgb(render_sphere(brdf, size, Lighting(points=(PointLight(pos, float(
+            np.dot(pos, pos))),)), radius, antialias=True)) + ambient, uniform) for name, pos in LIGHTS.items()]
+    env = _rgb(render_sphere(brdf, size, Lighting(SkyGround()), radius, antialias=True))  # integrated once
+    imgs.append(("sky and ground environment", env, None))
+    for key, label in (("key", "environment + key sun (front)"), ("rim", "environment + rim sun (behind)")):
+        sun = _rgb(render_sphere(brdf, size, Lighting(suns=PRESETS[key].suns), radius, antialias=True))
+        imgs.append((label, env + sun, None))
+    backdrop = _backdrop(size, radius, SkyGround()) / SkyGround().zenith  # display values: sky at 0.35
+    fig, axes = plt.subplots(2, 3, figsize=(9.6, 6.8))
+    for ax, (name, im, bg) in zip(axes.ravel(), imgs, strict=True):
+        lum = (im @ np.array([0.2126, 0.7152, 0.0722]))[cov > 0.5]  # exposed on the sphere, as the preview
         p = float(np.percentile(lum[lum > 0], 99.5)) if np.any(lum > 0) else 1.0
-        ax.imshow(srgb_encode(im / (p if p > 0 else 1.0)))
+        e = 1.0 / p if p > 0 else 1.0
+        ax.imshow(srgb_encode(im * e + (bg * e if bg is not None else backdrop)))
         ax.set_title(name, fontsize=9)
         ax.axis("off")
     fig.tight_layout()
@@ -262,20 +267,28 @@ def _cuts_figure(table: Array, s: Slice) -> str:
 
 
 def _albedo_figure(checks: Mapping[str, Any]) -> str:
+    return _png(_albedo_plot(checks))
+
+
+def _albedo_plot(checks: Mapping[str, Any]) -> Any:
+    """The figure of the albedo section: one curve per channel (one for grey data) and the limit 1."""
     plt = _pyplot()
     a = checks["albedo"]
     alb = np.asarray(a["albedo"], dtype=np.float64)
     fig, ax = plt.subplots(figsize=(6.0, 3.6))
-    for k in range(alb.shape[1]):
-        ax.plot(a["theta_i_deg"], alb[:, k], "o-", ms=3, color=("tab:red", "tab:green", "tab:blue")[k % 3]
-                if alb.shape[1] == 3 else "k", label=("R", "G", "B")[k] if alb.shape[1] == 3 else "value")
+    grey = alb.shape[1] == 1 or bool(np.allclose(alb, alb[:, :1], rtol=1e-9, atol=0.0))
+    if grey:  # one curve for grey data (the table holds the same value in its three channels)
+        ax.plot(a["theta_i_deg"], alb[:, 0], "o-", ms=3, color="k", label="grey (every channel)")
+    for k in range(0 if grey else alb.shape[1]):
+        ax.plot(a["theta_i_deg"], alb[:, k], "o-", ms=3, color=("tab:red", "tab:green", "tab:blue")[k % 3],
+                label=("R", "G", "B")[k % 3])
     ax.axhline(1.0, color="k", ls="--", lw=1, label="limit 1 (energy conservation)")
     ax.set_xlabel("theta_i (deg)")
     ax.set_ylabel("directional albedo")
     ax.set_ylim(0, max(1.1, float(alb.max()) * 1.1))
     ax.legend(fontsize=7)
     fig.tight_layout()
-    return _png(fig)
+    return fig
 
 
 def _kv_table(d: Mapping[str, Any]) -> str:
@@ -355,7 +368,11 @@ def build_html(*, report: Mapping[str, Any], working: Slice, rec: Reconstruction
                          "lines and from its phi_d-independent approximation.</p>")
     sec["spheres"] = (_img(_spheres(t), "sphere renders")
                       + '<p class="note">The written table on a sphere (linear radiance, each image exposed on its '
-                        "own 99.5th percentile, sRGB).</p>")
+                        "own 99.5th percentile, sRGB). Top: a point light and a dim uniform environment, as the "
+                        "preview. Bottom: a sky-and-ground environment (integrated over a fixed set of 275 "
+                        "directions per pixel, importance-sampled around the mirror direction, so the grazing "
+                        "rim is resolved), alone, with a sun in front and with a sun behind the sphere (grazing "
+                        "light): reconstruction.render.</p>")
     sec["cuts"] = _img(_cuts_figure(t, working), "in-plane cuts of the table")
     sec["albedo"] = _img(_albedo_figure(checks), "directional albedo")
     rows = []

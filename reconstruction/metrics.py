@@ -14,7 +14,9 @@ BRDF = Callable[[Array, Array], ArrayLike]
 
 __all__ = ["hemisphere_quadrature", "directional_albedo", "reciprocity_error", "relative_rmse_cos",
            "relative_rmse_cos_by_theta_d", "log_rmse", "sphere_relative_error", "albedo_error", "table_errors",
-           "relative_rmse_cos_dirs", "within_angle_mask", "median_relative_error", "halfvector_albedo"]
+           "relative_rmse_cos_dirs", "within_angle_mask", "median_relative_error", "halfvector_albedo",
+           "IMAGE_MAX_VIEW_DEG", "IMAGE_GAMMA", "IMAGE_EXPOSURE_PERCENTILE", "image_exposure", "tone_map",
+           "image_psnr", "image_relative_rmse", "image_errors"]
 
 
 def hemisphere_quadrature(n_theta: int = 128, n_phi: int = 256) -> tuple[Array, Array]:
@@ -227,3 +229,66 @@ def table_errors(table: ArrayLike, truth_table: ArrayLike) -> dict[str, float]:
         "sphere_rel_error": sphere_relative_error(table, truth_table),
         "albedo_max_abs_error": float(albedo_error(table, truth_table)["max_abs_error"]),
     }
+
+
+# --- images: a BRDF as a renderer sees it (reconstruction.render) --------------------------------------------
+
+#: pixels of the sphere seen at a view angle above this (degrees) are left out of the image metrics
+IMAGE_MAX_VIEW_DEG = 80.0
+#: the display gamma of the tone-mapped images, and the percentile of the truth exposed to 1
+IMAGE_GAMMA = 2.2
+IMAGE_EXPOSURE_PERCENTILE = 99.5
+
+
+def _pixels(img: ArrayLike, mask: NDArray[np.bool_] | None) -> Array:
+    a = np.asarray(img, dtype=np.float64)
+    a = a[..., None] if a.ndim == 2 else a
+    return a[mask] if mask is not None else a.reshape(-1, a.shape[-1])
+
+
+def image_exposure(truth: ArrayLike, mask: NDArray[np.bool_] | None = None) -> float:
+    """The linear multiplier that maps the :data:`IMAGE_EXPOSURE_PERCENTILE` th percentile of the ``truth``
+    image's values (every channel of the pixels in ``mask``, (H, W) bool; all pixels when None) to 1 (1 for a
+    black image)."""
+    v = _pixels(truth, mask)
+    p = float(np.percentile(v, IMAGE_EXPOSURE_PERCENTILE)) if v.size else 0.0
+    return 1.0 / p if p > 0 else 1.0
+
+
+def tone_map(img: ArrayLike, exposure: float) -> Array:
+    """Display values in [0, 1]: (linear ``img`` x ``exposure``), clipped to [0, 1], to the power 1 / 2.2."""
+    return np.clip(np.asarray(img, dtype=np.float64) * exposure, 0.0, 1.0) ** (1.0 / IMAGE_GAMMA)
+
+
+def image_psnr(img: ArrayLike, truth: ArrayLike, mask: NDArray[np.bool_] | None = None) -> float:
+    """PSNR (dB) of the tone-mapped ``img`` against the tone-mapped ``truth`` (both linear (H, W, C); the
+    exposure of :func:`image_exposure` from the truth), over the pixels of ``mask`` and every channel: 10 log10(1 /
+    mean squared difference); inf for identical images."""
+    e = image_exposure(truth, mask)
+    a, b = _pixels(tone_map(img, e), mask), _pixels(tone_map(truth, e), mask)
+    a, b = np.broadcast_arrays(a, b)
+    mse = float(np.mean((a - b) ** 2)) if a.size else 0.0
+    return 10.0 * float(np.log10(1.0 / mse)) if mse > 0 else float("inf")
+
+
+def image_relative_rmse(img: ArrayLike, truth: ArrayLike, mask: NDArray[np.bool_] | None = None) -> float:
+    """Relative RMSE of the linear images: sqrt(sum (img - truth)^2 / sum truth^2) over the pixels of ``mask``
+    and every channel. Dimensionless (inf for a black truth)."""
+    a, b = np.broadcast_arrays(_pixels(img, mask), _pixels(truth, mask))
+    den = float(np.sum(b * b))
+    return float(np.sqrt(np.sum((a - b) ** 2) / den)) if den > 0 else float("inf")
+
+
+def image_errors(f: BRDF, truth: BRDF, size: int = 128, lightings: tuple[str, ...] = ("key", "rim"),
+                 max_view_deg: float = IMAGE_MAX_VIEW_DEG) -> dict[str, dict[str, float]]:
+    """``f`` against ``truth`` (BRDFs of local unit vectors) as :func:`reconstruction.render.render_sphere` shows
+    them: per lighting preset, ``psnr_db`` of the tone-mapped images and ``relative_rmse`` of the linear ones over
+    the pixels seen at a view angle <= ``max_view_deg``."""
+    from .render import render_sphere, view_angle_mask
+
+    mask = view_angle_mask(size, 1.0, max_view_deg)
+    out = {}
+    for name in lightings:  # two presets
+        a, b = render_sphere(f, size, name), render_sphere(truth, size, name)
+        out[name] = {"psnr_db": image_psnr(a, b, mask), "relative_rmse": image_relative_rmse(a, b, mask)}
+    return out

@@ -7,7 +7,10 @@ result, and :func:`run`, the whole way from input files to a table, a preview an
 1. ``fit`` is run on all samples (its model is chosen by BIC, honouring ``--scene``);
 2. every registered method (``fit`` with that model structure, ``microfacet``, ``revolve``, ``bivariate``) is
    cross-validated on the measured samples (:mod:`reconstruction.crossval`: leave-one-incidence-out with several
-   incidences, held-out contiguous blocks of theta_o with one);
+   incidences, held-out contiguous blocks of theta_o with one). With ``--scene`` only the held-out samples inside
+   the scene's ranges count; when the scene's budget replaced the BIC choice by a simpler model (fitted to the
+   scene's samples, and so refitted in every fold), the BIC choice competes too, so that a scene never makes the
+   choice worse, and a choice whose held-out error exceeds the budget is said (``over_budget``, a warning);
 3. the method with the lowest held-out relative RMSE of f cos cos whose BRDF is physically plausible (directional
    albedo <= 1 + tolerance at every incidence) is used. With a single incidence, held-out samples of the same
    slice cannot show how a method extrapolates to other incidences (its Fresnel rise or shadowing towards
@@ -32,6 +35,7 @@ import dataclasses
 import math
 import os
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,7 +46,16 @@ from numpy.typing import NDArray
 
 from . import merl, sharprows
 from .base import Reconstruction, ReconstructionError
-from .crossval import CVScore, cross_validate, folds, noise_level, scene_mask, score_predictions
+from .crossval import (
+    CVScore,
+    SceneBudgetWarning,
+    budget_check,
+    cross_validate,
+    folds,
+    noise_level,
+    scene_mask,
+    score_predictions,
+)
 from .inputs import check_slice
 from .methods import REGISTRY, Options, get
 from .report import ALBEDO_INCIDENCES_DEG, ALBEDO_TOLERANCE, checked_albedo
@@ -156,7 +169,7 @@ def _finite_aperture(s: Slice) -> bool:
 
 
 def _auto(s: Slice, opts: Options, progress: Callable[[str], None] | None) -> tuple[Reconstruction, dict[str, Any]]:
-    from .fit import FitReconstruction, reconstruct_fit
+    from .fit import FitReconstruction, model_name, reconstruct_fit
 
     fit_rec = get("fit").build(s, opts, progress)
     assert isinstance(fit_rec, FitReconstruction)
@@ -164,29 +177,37 @@ def _auto(s: Slice, opts: Options, progress: Callable[[str], None] | None) -> tu
     full = s
     s = thin_for_cv(full)  # cross-validation of a large input on a subsample; the chosen method uses every sample
     scheme, masks = folds(s)
-    builders: dict[str, Callable[[Slice], Reconstruction]] = {}
+    # (method, variant, builder of a training slice): fit refitted in every fold as it was fitted to all samples
+    # (to a scene's samples when its budget chose a simpler model), and then the BIC choice competes too
+    builders: list[tuple[str, str | None, Callable[[Slice], Reconstruction]]] = []
     for name, m in REGISTRY.items():
         if not m.usable(opts):
             continue
         if name == "fit":
-            builders[name] = lambda tr: reconstruct_fit(tr, scene=opts.scene, lobes=opts.lobes, specs=specs)
+            builders.append((name, None, lambda tr: reconstruct_fit(tr, scene=opts.scene, lobes=opts.lobes,
+                                                                    specs=specs, fit_to_scene=fit_rec.fitted_to_scene)))
+            if fit_rec.bic_specs is not None:
+                builders.append((name, f"BIC choice {model_name(fit_rec.bic_specs)}", lambda tr: reconstruct_fit(
+                    tr, scene=opts.scene, lobes=opts.lobes, specs=fit_rec.bic_specs)))
         elif name == "prior":  # its anchored variants are scored from its and bivariate's held-out predictions
-            builders[name] = lambda tr, m=m: m.build(tr, dataclasses.replace(opts, prior_anchor=0.0), None)
+            builders.append((name, None, lambda tr, m=m: m.build(tr, dataclasses.replace(opts, prior_anchor=0.0),
+                                                                 None)))
         else:
-            builders[name] = lambda tr, m=m: m.build(tr, opts, None)
+            builders.append((name, None, lambda tr, m=m: m.build(tr, opts, None)))
     inside = scene_mask(s, opts.scene)
     if inside is not None and not inside.any():
         inside = None  # no sample inside the scene: judge on all of them
     scores: list[CVScore] = []
-    for name, build in builders.items():  # a handful of methods
+    for name, variant, build in builders:  # a handful of methods
         if progress:
-            progress(f"cross-validating {name}")
+            progress(f"cross-validating {name}" + (f" ({variant})" if variant else ""))
         sc = cross_validate(s, name, build, masks, inside)
         sc.anchor = 0.0 if name == "prior" else None  # built with anchor 0 (above)
+        sc.variant = variant
         scores.append(sc)
     scores += _anchored_scores(s, scores, masks, inside)
     single = np.unique(s.theta_i_deg).size == 1
-    preferred, margin = preference(list(builders), single, _finite_aperture(s))
+    preferred, margin = preference([b[0] for b in builders], single, _finite_aperture(s))
     noise = noise_level(s, inside)
     ranked = rank(scores, preferred, margin, noise)
     at_noise = at_noise_level(scores, preferred, noise)
@@ -196,7 +217,8 @@ def _auto(s: Slice, opts: Options, progress: Callable[[str], None] | None) -> tu
     for sc in ranked:
         if not np.isfinite(sc.error):
             continue
-        rec = fit_rec if sc.method == "fit" else REGISTRY[sc.method].build(full, _options_of(sc, opts), progress)
+        rec = (fit_rec if sc.method == "fit" and not sc.variant else _bic_fit(full, opts, fit_rec, progress)
+               if sc.method == "fit" else REGISTRY[sc.method].build(full, _options_of(sc, opts), progress))
         alb, at = max_albedo(rec)
         if alb > 1.0 + ALBEDO_TOLERANCE:
             rejected.append(f"{sc.label} (held-out {sc.error:.2%}) reflects more than it receives: directional "
@@ -208,7 +230,7 @@ def _auto(s: Slice, opts: Options, progress: Callable[[str], None] | None) -> tu
         raise ReconstructionError(f"{s.source}: no method gives a physically plausible BRDF from these samples ("
                                   + "; ".join(rejected or [f"{c.method}: {c.failure}" for c in scores]) + ")")
     others = ", ".join(f"{c.label} {c.error:.2%}" for c in ranked if c is not best and np.isfinite(c.error))
-    model = f" ({fit_rec.result.name})" if chosen.method == "fit" else ""
+    model = f" ({chosen.result.name})" if isinstance(chosen, FitReconstruction) and not best.variant else ""
     reason = (f"lowest held-out error ({scheme}): {best.label}{model} predicts the samples it did not see to "
               f"{best.error:.2%} relative RMSE of f cos cos" + (f" (then {others})" if others else ""))
     if at_noise:
@@ -225,21 +247,41 @@ def _auto(s: Slice, opts: Options, progress: Callable[[str], None] | None) -> tu
                    "better")
     if rejected:
         reason += "; not used: " + "; ".join(rejected)
+    budget = budget_check(opts.scene, best, scores, noise)
+    if budget.get("over_budget"):
+        reason += "; " + budget["over_budget_warning"]
+        warnings.warn(SceneBudgetWarning(f"{s.source}: {budget['over_budget_warning']}"), stacklevel=2)
     if s is not full:
         scheme += f", on {len(s)} of the {len(full)} samples"
     cv = {"scheme": scheme, "folds": len(masks), "metric": "relative RMSE of f cos(theta_i) cos(theta_o) over the "
           "held-out samples" + (" inside the scene's ranges" if inside is not None else ""),
           "scores": [c.as_dict() for c in sorted(scores, key=lambda c: c.error)], "chosen": chosen.method,
           "chosen_label": best.label, **({"prior_anchor": best.anchor or 0.0} if best.method == "prior" else {}),
-          "fit_model": fit_rec.result.name, "rejected": rejected,
+          "fit_model": fit_rec.result.name, "rejected": rejected, **budget,
           "single_incidence_preference": ({"method": preferred[0], "methods": preferred, "margin": margin}
                                           if single and preferred else None),
           "preference": ({"methods": preferred, "margin": margin, "noise_level": noise, "applied": not at_noise}
                          if preferred else None)}
     return chosen, {"requested": "auto", "used": chosen.method, "reason": reason, "cross_validation": cv,
                     "held_out_predictions": ({} if s is not full else  # per sample of the input (none when thinned)
-                                             {c.method: c.predictions for c in scores if c.predictions is not None
-                                              and (c.method != best.method or c is best)})}
+                                             {c.method: c.predictions for c in reversed(scores)
+                                              if c.predictions is not None and (c.method != best.method or c is best)})}
+
+
+def _bic_fit(s: Slice, opts: Options, fit_rec: Any, progress: Callable[[str], None] | None) -> Reconstruction:
+    """``fit`` with the BIC choice that a scene's budget replaced by a simpler model, fitted to every sample:
+    auto's choice when it predicts the scene's held-out samples better."""
+    from .fit import reconstruct_fit
+    from .samples import everywhere
+
+    rec = reconstruct_fit(everywhere(s), scene=opts.scene, lobes=opts.lobes, specs=fit_rec.bic_specs,
+                          progress=progress)
+    rec.info["selection"]["reason"] = (f"the BIC choice, {rec.result.name}, which the scene's budget replaced by "
+                                       f"{fit_rec.result.name}: auto found it predicts the scene's held-out "
+                                       "samples better")
+    if "scene" in fit_rec.info:
+        rec.info["scene"] = fit_rec.info["scene"]
+    return rec
 
 
 def _anchored_scores(s: Slice, scores: list[CVScore], masks: list[NDArray[np.bool_]],
@@ -419,8 +461,9 @@ def _check_outputs(job: Job) -> None:
 
     if job.out:
         check_output(Path(job.out), ".binary", "--out")
-    elif not exports.wants_outputs(job):
-        raise ReconstructionError("give --out MATERIAL.binary (or --rgl, --zemax, --export-mitsuba, --export-json)")
+    elif not exports.asks_output(job):
+        raise ReconstructionError("give --out MATERIAL.binary (or another output: --preview, --html, --report, --rgl, "
+                                  "--zemax, --export-mitsuba, --export-json)")
     exports.check_arguments(job)
     if job.preview:
         check_output(Path(job.preview), ".exr", "--preview")

@@ -31,7 +31,6 @@ from numpy.typing import ArrayLike, NDArray
 
 from . import merl
 from .atomic import atomic_open, atomic_path
-from .geometry import normalize
 
 Array = NDArray[np.float64]
 
@@ -45,41 +44,19 @@ PREVIEW_RADIUS = 0.8
 
 def render_sphere(f: Callable[[Array, Array], ArrayLike], size: int = 256,
                   light_position: ArrayLike = LIGHT_POSITION, radius: float = 1.0) -> NDArray[np.float32]:
-    """Render the sphere with BRDF ``f(wi, wo) -> (N, 1 | 3)`` (1/sr) under the point light.
+    """Render the sphere with BRDF ``f(wi, wo) -> (N, 1 | 3)`` (1/sr) under the point light, with the project's
+    renderer (:func:`reconstruction.render.render_sphere`, a :class:`~reconstruction.render.PointLight`).
 
     ``radius``: the sphere's radius as a fraction of the half frame (1 fills the frame). Returns (size, size, 3)
     float32 linear RGB, row 0 on top, 0 outside the sphere.
     """
+    from .render import Lighting, PointLight
+    from .render import render_sphere as render
+
     lp = np.asarray(light_position, dtype=np.float64)
-    c = ((np.arange(size) + 0.5) / size * 2.0 - 1.0) / radius
-    x, y = np.meshgrid(c, -c)  # y up, row 0 on top
-    r2 = x * x + y * y
-    inside = r2 < 1.0
-    n = np.stack([x[inside], y[inside], np.sqrt(1.0 - r2[inside])], axis=-1)  # normal = position on the sphere
-    to_light = lp[None, :] - n
-    dist2 = np.sum(to_light * to_light, axis=-1)
-    light = to_light / np.sqrt(dist2)[:, None]
-    view = np.broadcast_to(np.array([0.0, 0.0, 1.0]), n.shape)
-    # shading frame: t = normalize(up x n) (fallback x), b = n x t; isotropy makes the choice of t irrelevant
-    up = np.array([0.0, 1.0, 0.0])
-    t = normalize(np.cross(up, n))
-    bad = np.linalg.norm(t, axis=-1) < 0.5
-    t[bad] = (1.0, 0.0, 0.0)
-    b = np.cross(n, t)
-
-    def local(v: Array) -> Array:
-        return np.stack([np.sum(v * t, -1), np.sum(v * b, -1), np.sum(v * n, -1)], axis=-1)
-
-    wi, wo = local(light), local(view)
-    vals = np.asarray(f(wi, wo), dtype=np.float64).reshape(n.shape[0], -1)
-    if vals.shape[1] == 1:
-        vals = np.repeat(vals, 3, axis=1)
-    cos_i = np.clip(wi[:, 2], 0.0, None)
-    radiance = np.nan_to_num(vals, nan=0.0) * (cos_i * float(lp @ lp) / dist2)[:, None]
-    radiance = np.where((wi[:, 2] > 0)[:, None] & (wo[:, 2] > 0)[:, None], radiance, 0.0)
-    img = np.zeros((size, size, 3), dtype=np.float32)
-    img[inside] = np.maximum(radiance, 0.0).astype(np.float32)
-    return img
+    img = render(f, size, Lighting(points=(PointLight((float(lp[0]), float(lp[1]), float(lp[2])),
+                                                      float(lp @ lp)),)), radius)
+    return (np.repeat(img, 3, axis=2) if img.shape[2] == 1 else img).astype(np.float32)
 
 
 def albedo_at_view(f: Callable[[Array, Array], ArrayLike], cos_o: ArrayLike, n_nodes: int = 24) -> Array:

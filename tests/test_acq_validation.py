@@ -7,7 +7,6 @@ from __future__ import annotations
 import shutil
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -21,12 +20,10 @@ from tests.helpers import unprivileged
 from tests.test_acq_support import REPO, make_raw, run_capture, write_config
 
 
-def check(capsys, cfg: Path) -> tuple[int, str, str, float]:
-    t0 = time.perf_counter()
+def check(capsys, cfg: Path) -> tuple[int, str, str]:
     code = main(["--config", str(cfg), "--check"])
-    dt = time.perf_counter() - t0
     cap = capsys.readouterr()
-    return code, cap.out, cap.err, dt
+    return code, cap.out, cap.err
 
 
 @pytest.mark.parametrize("over, key", [
@@ -49,9 +46,9 @@ def test_unbounded_plans_are_config_errors_at_once(tmp_path, capsys, over, key):
     if raw["plan"].get("theta_i_deg") is None:
         raw["plan"].pop("theta_i_deg", None)
     cfg = write_config(tmp_path / "c.toml", raw)
-    code, out, err, dt = check(capsys, cfg)
+    code, out, err = check(capsys, cfg)  # at once: benchmarks/bench_test_timings.py times these refusals
     assert code == 2 and f"{cfg}: {key}" in err and "nothing was moved" in err, err
-    assert dt < 1.0 and out == ""
+    assert out == ""
 
 
 def test_check_of_the_largest_plan_prints_its_size_and_time(tmp_path):
@@ -64,27 +61,21 @@ def test_check_of_the_largest_plan_prints_its_size_and_time(tmp_path):
     points = ",".join(f"[{a:g},{b:.3f}]" for a, b in zip(ti, to, strict=True))
     cfg = tmp_path / "big.toml"
     cfg.write_text(tomli_w.dumps(raw) + f"\n[plan]\nrepeats = 4\npoints = [{points}]\n")
-    t0 = time.perf_counter()
     r = run_capture("--config", str(cfg), "--check")
-    wall = time.perf_counter() - t0
     assert r.returncode == 0, r.stderr
     assert f"plan size: {MAX_PLAN_POINTS} points, limit {MAX_PLAN_POINTS}" in r.stdout
     # the total, also in minutes, and what it is made of
     assert "estimated bench time: " in r.stdout and " min)" in r.stdout and "= motion " in r.stdout
-    # bounded work: a check that grew worse than linear in the points (20,000 of them, each interpreted by the dry
-    # run) would take minutes. How fast it is (the README's "about a second") is benchmarks/bench_check.py's
-    # figure, not a timed unit test: 0.95-1.1 s on a slow 2-core machine, interpreter start included.
-    assert wall < 10.0, wall
+    # how fast it is (the README's "about a second") is benchmarks/bench_check.py's figure, not a timed unit test:
+    # 0.95-1.1 s on a slow 2-core machine, interpreter start included
 
 
 def test_python_api_and_scene_plans_are_bounded_too(tmp_path):
     bench = Bench.from_config(write_config(tmp_path / "c.toml", make_raw()))
-    t0 = time.perf_counter()
     with pytest.raises(PlanError, match=r"theta_o step of 1e-07 deg is finer than the detector axis resolution"):
         Plan.grid([30.0], -80.0, 80.0, 1e-7).validate(bench.geometry)
     with pytest.raises(PlanError, match=rf"more than the {MAX_PLAN_POINTS} a plan may hold"):
         Plan.grid(np.arange(0.0, 80.0, 0.2), -80.0, 80.0, 0.1).validate(bench.geometry)
-    assert time.perf_counter() - t0 < 1.0
     scene = tmp_path / "fine.toml"
     scene.write_text('[scene]\nname = "fine"\nangular_resolution_deg = 0.001\n')
     with pytest.raises(PlanError, match=r"\(from scene 'fine'\) is finer than the detector axis resolution"):
@@ -118,7 +109,7 @@ def test_python_api_and_scene_plans_are_bounded_too(tmp_path):
 ])
 def test_numbers_that_would_overflow_later_are_refused_by_check(tmp_path, capsys, motion, over, key):
     cfg = write_config(tmp_path / "c.toml", make_raw({"bench": {"motion": motion}}, over))
-    code, _, err, _ = check(capsys, cfg)
+    code, _, err = check(capsys, cfg)
     assert code == 2 and f"{cfg}: {key}" in err and "nothing was moved" in err, err
     assert len(err) < 400 and err.count("\n") == 2, err
 
@@ -130,7 +121,7 @@ def test_a_tabulated_lobe_of_garbage_fails_check_and_the_simulator_refuses_to_se
     for name, what in (("garbage.binary", "header says"), ("wild.binary", "4374000 cell(s) (r[0,0,0]")):
         raw = make_raw({"material": {"lobes": [{"type": "tabulated", "path": name}]}})
         cfg = write_config(tmp_path / f"{name}.toml", raw)
-        code, _, err, _ = check(capsys, cfg)
+        code, _, err = check(capsys, cfg)
         assert code == 2 and f"{cfg}: [material].lobes[0].path: {tmp_path / name}: {what}" in err, err
         assert name == "garbage.binary" or "above 1e+08 1/sr, far beyond any physical BRDF" in err
         r = subprocess.run([sys.executable, "-m", "simulator.cli", "serve", "--config", str(cfg)], cwd=REPO,
@@ -145,9 +136,8 @@ def test_config_files_that_are_not_utf8_text_or_not_files(tmp_path, capsys):
     (tmp_path / "dir.toml").mkdir()
     for path, what in ((bad, ": not a UTF-8 text file"), (tmp_path / "dir.toml", ": is a directory"),
                        (Path("/dev/zero"), ": not a regular file")):
-        code, _, err, dt = check(capsys, path)
+        code, _, err = check(capsys, path)  # /dev/zero: refused, never read
         assert code == 2 and f"gonio-capture: {path}" in err and what in err and err.count("\n") == 2, err
-        assert dt < 1.0
     scene = tmp_path / "scene.toml"
     scene.write_bytes(b"name = '\xff'\n")
     assert main(["--config", str(REPO / "configs" / "simulated.toml"), "--check", "--scene", str(scene)]) == 2

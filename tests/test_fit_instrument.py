@@ -1,7 +1,5 @@
 """fit with the instrument's angular response: synthetic slices read through a 1e-3 sr cone (instrument_average)."""
 
-import time
-
 import numpy as np
 import pytest
 
@@ -43,9 +41,7 @@ def _ggx(rec):
 
 def test_alpha_0_005_through_a_1e3_sr_cone_comes_back_within_25_percent():
     mat, s = _capture(0.005, Instrument(1e-3))
-    t0 = time.perf_counter()
-    rec = reconstruct_fit(s)
-    assert time.perf_counter() - t0 < 3.0  # about 1 s with the cone averages' table (0.7 s once it exists)
+    rec = reconstruct_fit(s)  # its time is benchmarks/bench_test_timings.py's figure (0.4 s)
     p = _ggx(rec)
     assert abs(p["alpha"] / 0.005 - 1) < 0.25
     assert p["alpha_std"] is not None and abs(p["alpha"] - 0.005) < 4 * p["alpha_std"] + 0.0005

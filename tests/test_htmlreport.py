@@ -6,6 +6,7 @@ import re
 from html.parser import HTMLParser
 
 import numpy as np
+import pytest
 
 from reconstruction import cli
 from reconstruction.htmlreport import SECTIONS
@@ -85,3 +86,96 @@ def test_html_needs_a_file_name_outside_batch(tmp_path, capsys):
     assert not (tmp_path / "m.binary").exists()
     assert cli.main([str(src), "--out", str(tmp_path / "m.binary"), "--html", str(tmp_path / "m.txt")]) == 2
     assert np.all([not (tmp_path / f).exists() for f in ("m.binary", "m.txt")])
+
+
+# --- the figures: the environment sphere, the coverage legend, the albedo of grey data ---------------------------
+
+
+def test_the_environment_sphere_is_the_integral_of_the_environment_at_the_rim_too():
+    """The page's sky-and-ground sphere (a glossy lobe, GGX alpha 0.05): each pixel, the grazing views at the rim
+    included, is the environment's integral (the old render summed 192 fixed world directions, so a glossy lobe
+    at grazing views met one or none of them: blotches of several times the right value)."""
+    from reconstruction.htmlreport import _backdrop, environment_render
+    from reconstruction.models import Material
+    from reconstruction.render import SkyGround, sphere_coverage
+    from tests.test_render import brute_force
+
+    mat = Material.from_dict({"name": "m", "lobes": [{"type": "lambert", "albedo": 0.1},
+                                                      {"type": "ggx", "alpha": 0.05, "specular": 0.9, "f0": 0.04}]})
+    size, radius = 112, 0.8
+    img = environment_render(mat.eval, size, radius)
+    assert img.shape == (size, size, 3)
+    cover, back = sphere_coverage(size, radius, antialias=True), _backdrop(size, radius, SkyGround())
+    assert np.any((cover > 0) & (cover < 1))  # the edge is anti-aliased
+    for view_deg, azimuth_deg in [(0, 0), (60, 30), (75, 200), (82, 120), (84, 300), (85, 170)]:
+        r = np.sin(np.radians(view_deg)) * radius * size / 2  # pixels from the centre
+        col = int(size / 2 + r * np.cos(np.radians(azimuth_deg)))
+        row = int(size / 2 - r * np.sin(np.radians(azimuth_deg)))
+        x = ((col + 0.5) / size * 2 - 1) / radius
+        y = -((row + 0.5) / size * 2 - 1) / radius
+        n = np.array([x, y, np.sqrt(1 - x * x - y * y)])
+        ref = brute_force(mat.eval, SkyGround(), n, 600, 1200)[0]
+        sphere = (img[row, col, 0] - back[row, col, 0]) / cover[row, col]  # the edge pixels are anti-aliased
+        assert abs(sphere / ref - 1) < 0.04, (row, col, np.degrees(np.arccos(n[2])))
+
+
+def test_the_coverage_legend_marker_shows_on_its_frame():
+    from matplotlib.colors import to_rgb
+
+    from reconstruction import merl
+    from reconstruction.htmlreport import _coverage_plot
+    from reconstruction.slicefile import Slice
+
+    s = Slice(np.array([30.0, 30.0]), np.array([-20.0, 40.0]), np.array([[0.1], [0.3]]), ["value"])
+    table = np.full(merl.SHAPE, 0.1)
+    fig = _coverage_plot(table, s)
+    leg = fig.axes[0].get_legend()
+    frame = np.array(to_rgb(leg.get_frame().get_facecolor()))
+    handle = leg.legend_handles[0]
+    assert leg.texts[0].get_text() == "measured samples"
+    colours = [np.array(to_rgb(c)) for c in (handle.get_markerfacecolor(), handle.get_markeredgecolor())]
+    assert max(np.abs(c - frame).max() for c in colours) > 0.3  # one of them stands out from the frame
+    assert handle.get_markersize() * leg.markerscale >= 4
+
+
+def test_grey_data_have_one_albedo_curve():
+    from reconstruction.htmlreport import _albedo_plot
+
+    ti = [0.0, 30.0, 60.0]
+    grey = {"albedo": {"theta_i_deg": ti, "albedo": [[0.2, 0.2, 0.2], [0.21, 0.21, 0.21], [0.3, 0.3, 0.3]]}}
+    colour = {"albedo": {"theta_i_deg": ti, "albedo": [[0.1, 0.2, 0.3], [0.1, 0.2, 0.3], [0.2, 0.3, 0.4]]}}
+
+    def curves(checks):
+        ax = _albedo_plot(checks).axes[0]
+        return [ln.get_label() for ln in ax.get_lines() if not ln.get_label().startswith("limit")]
+
+    assert curves(grey) == ["grey (every channel)"]
+    assert curves(colour) == ["R", "G", "B"]
+
+
+def test_an_html_report_a_preview_or_a_report_alone_is_an_output(tmp_path, capsys):
+    """--out is optional once another output is asked: the HTML page (or the preview, or the JSON report) alone
+    is written, and no table."""
+    src = slice_file(tmp_path / "slice.csv", BLUE_PLASTIC, step=4.0)
+    assert cli.main([str(src), "--html", str(tmp_path / "r.html"), "--quiet"]) == 0
+    assert parse(tmp_path / "r.html").sections == list(SECTIONS)
+    assert cli.main([str(src), "--preview", str(tmp_path / "p.exr"), "--report", str(tmp_path / "p.json")]) == 0
+    assert (tmp_path / "p.exr").exists() and (tmp_path / "p.png").exists()
+    rep = json.loads((tmp_path / "p.json").read_text())
+    assert "table" not in rep["outputs"] and rep["outputs"]["preview"]["exr"] == str(tmp_path / "p.exr")
+    assert "wrote " + str(tmp_path / "p.exr") in capsys.readouterr().err
+    assert not list(tmp_path.glob("*.binary"))
+    # nothing asked: still one line pointing at the flags
+    with pytest.raises(SystemExit) as e:
+        cli.main([str(src)])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and "--out MATERIAL.binary or another output (--preview, --html" in err
+
+
+def test_the_help_of_out_names_every_other_output():
+    from reconstruction.exports import OTHER_OUTPUTS
+
+    out = next(a for a in cli.build_parser()._actions if "--out" in a.option_strings)
+    assert "optional once another output is asked" in out.help
+    for flag in OTHER_OUTPUTS:
+        assert "--" + flag.replace("_", "-") in out.help, flag

@@ -165,18 +165,19 @@ def _big_table(path: Path, target_bytes: int) -> None:
         np.savetxt(fh, np.column_stack([ti, to, v, 0.01 * v]), delimiter=",", fmt="%.12g")
 
 
-def test_a_100_mb_table_is_read_in_seconds_and_bounded_memory(tmp_path):
+def test_a_100_mb_table_is_read_in_bounded_memory(tmp_path):
     big = tmp_path / "big.csv"
     _big_table(big, 100_000_000)
     assert big.stat().st_size > 95_000_000
-    code = ("import resource, sys, time; from reconstruction.inputs import load_inputs; t = time.perf_counter(); "
+    code = ("import resource, sys; from reconstruction.inputs import load_inputs; "
             "s = load_inputs([sys.argv[1]], quantity='brdf').slice; "
-            "print(len(s), time.perf_counter() - t, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)")
+            "print(len(s), resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)")
     r = subprocess.run([sys.executable, "-c", code, str(big)], capture_output=True, text=True, timeout=120, cwd=REPO)
     assert r.returncode == 0, r.stderr
-    n, seconds, max_rss_kb = r.stdout.split()
+    n, max_rss_kb = r.stdout.split()
     assert int(n) > 750_000
-    assert float(seconds) < 20.0 and int(max_rss_kb) < 1_000_000, r.stdout  # issue 11: < 20 s and < 1 GB
+    # issue 11: < 1 GB (and < 20 s: a benchmark's figure, benchmarks/bench_test_timings.py, not a unit test's)
+    assert int(max_rss_kb) < 1_000_000, r.stdout
 
 
 def _garbage_merl(path: Path, values: np.ndarray) -> None:

@@ -1,7 +1,6 @@
 """The instrument's angular response (reconstruction.instrument): readings against a brute-force cone integral."""
 
 import math
-import time
 
 import numpy as np
 import pytest
@@ -89,17 +88,14 @@ def test_vectorised_channels_broadcast_and_the_material_or_lobes_forms():
     assert many[5, 0] < mat.eval(*inplane_to_dirs(np.radians(30.0), np.radians(30.0)))[0] / 3
 
 
-def test_fast_for_500_samples_of_a_sharp_lobe():
+def test_500_samples_of_a_sharp_lobe_through_a_cone():
     mat = _mat(Lambert(Colour(np.array([0.02]))), Microfacet(Colour(np.array([0.97, 0.95, 0.9])), alpha=1e-3))
     inst = Instrument.from_half_angle(1.0)
     ti = np.repeat(np.linspace(0.0, 80.0, 10), 50)
     to = ti + np.tile(np.linspace(-3.0, 3.0, 50), 10)
-    instrument_average(mat.eval, ti[:5], to[:5], inst)  # warm up
-    t0 = time.perf_counter()
     r = instrument_average(mat.eval, ti, to, inst)
-    # a guard against a quadrature that scales badly (a dense grid per sample takes minutes), with room for a
-    # loaded machine; the speed itself is measured by benchmarks/bench_instrument.py (about 0.1 s idle)
-    assert time.perf_counter() - t0 < 2.0
+    # its speed is a benchmark's figure, not a unit test's: benchmarks/bench_instrument.py and
+    # benchmarks/bench_test_timings.py (this case: 0.05 s)
     assert r.shape == (500, 3) and np.all(np.isfinite(r)) and np.all(r > 0)
 
 

@@ -74,8 +74,8 @@ def test_a_real_simulated_capture_is_reconstructed_by_every_method(tiny_study):
     fit = rows[0]
     assert fit["status"] == "ok", fit
     assert fit["rel_rmse_cos"] < 0.05  # a Lambertian is easy for the analytic fit
-    assert fit["capture_time_s"] > 1.0  # bench time, not the wall time of the fast simulation
-    assert fit["capture_wall_s"] < fit["capture_time_s"]
+    assert fit["capture_time_s"] > 1.0  # bench time (the time model's, below), not the fast simulation's wall time
+    assert fit["capture_wall_s"] > 0.0
     # plans are chosen by the time model's estimate, which is the simulated bench time of the capture
     # (less what auto-ranging cost, which depends on the sample and is its own column)
     assert 0.0 <= fit["auto_range_s"] < 0.5 * fit["bench_time_s"]

@@ -4,7 +4,6 @@ the slices and points handed to the methods, writing, and the round trip through
 from __future__ import annotations
 
 import json
-import time
 from pathlib import Path
 
 import numpy as np
@@ -228,12 +227,9 @@ def test_points_are_capped_with_every_in_plane_point_kept():
 
 
 @pytest.mark.skipif(not REAL.exists(), reason="needs ../shared/realdata (real data, not part of the project)")
-def test_the_real_converted_file_reads_fast_and_matches_our_angle_convention():
-    t0 = time.perf_counter()
-    z = zemax.read(REAL)
-    elapsed = time.perf_counter() - t0
+def test_the_real_converted_file_matches_our_angle_convention():
+    z = zemax.read(REAL)  # its read time (0.05 s on the development machine): benchmarks/bench_formats.py
     assert z.values.shape == (1, 1, 4, 361, 181) and z.symmetry == "Asymmetrical"
-    assert elapsed < 5.0  # 0.05 s on the development machine; benchmarks/bench_formats.py prints it
     _, wo = zemax.scatter_directions(z.incidence_deg[:, None, None], z.azimuth_deg[None, :, None],
                                      z.radial_deg[None, None, :])
     v = z.values[0, 0]

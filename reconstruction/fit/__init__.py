@@ -49,7 +49,7 @@ from ..base import ReconstructionError
 from ..scene import LOBE_KINDS, Scene
 from ..slicefile import Slice
 from .aperture import instrument_info
-from .budget import SCENE_DEFAULT_RANGE_DEG, apply_budget, scene_alpha_min, scene_directions
+from .budget import SCENE_DEFAULT_RANGE_DEG, apply_budget, scene_alpha_min, scene_directions, scene_inside
 from .model import (
     REFIT_MAX_VALUES,
     SELECTION_MAX_VALUES,
@@ -108,10 +108,15 @@ def reconstruct_fit(
     relative_sigma: float | None = None,
     progress: Callable[[str], None] | None = None,
     specs: Sequence[LobeSpec] | None = None,
+    fit_to_scene: bool = False,
 ) -> FitReconstruction:
     """Fit analytic lobes to ``slices`` (f_r, 1 or 3 channels) and choose the model by BIC (and the scene).
 
     ``specs``: fit this model structure only (no search), e.g. to refit a chosen model to a subset of samples.
+    ``fit_to_scene`` (with ``specs`` and ``scene``): fit it to the samples inside the scene's ranges, as a
+    scene's budget fits the simpler model it chooses (:attr:`FitReconstruction.fitted_to_scene`), so that
+    cross-validation refits in every fold the model that was used (all samples when none or every sample is
+    inside, or too few for the model's parameters).
 
     ``lobes``: the lobe kinds allowed (subset of :data:`LOBE_KINDS`; default all, or the scene's list).
     ``relative_sigma``: relative uncertainty added to the samples' std (default the scene's, else 0.01).
@@ -135,13 +140,24 @@ def reconstruct_fit(
     pick[order[::stride]] = True
     prob = full.take(pick) if stride > 1 else full
 
-    sel = select_model(prob, allowed, n_c, slices.source, len(slices), loss=loss, f_scale=f_scale,
-                       progress=progress, specs=specs)
-    chosen, why = sel.chosen, sel.reason
-    scene_info: dict[str, Any] | None = None
     fit_mask: NDArray[np.bool_] | None = None  # the samples the chosen model is fitted to, if not all
+    if specs is not None and scene is not None and fit_to_scene:
+        inside = scene_inside(scene, slices)
+        k = sum(len(sp.nonlinear) for sp in specs) + len(specs) * n_c
+        if k < int(inside.sum()) * n_c and not inside.all():
+            fit_mask = inside
+    sel = select_model(prob.take(fit_mask[pick] if stride > 1 else fit_mask) if fit_mask is not None else prob,
+                       allowed, n_c, slices.source, len(slices), loss=loss, f_scale=f_scale, progress=progress,
+                       specs=specs)
+    chosen, why = sel.chosen, sel.reason
+    if fit_mask is not None:
+        why += f"; fitted to the {int(fit_mask.sum())} samples inside the scene's ranges"
+    scene_info: dict[str, Any] | None = None
+    bic_specs: tuple[LobeSpec, ...] | None = None
     if scene is not None and specs is None:
         budget = apply_budget(scene, slices, sel.fitted, chosen, why, prob, pick, stride, loss, f_scale)
+        if budget.chosen is not chosen:
+            bic_specs = chosen.specs
         chosen, why, fit_mask, scene_info = budget.chosen, budget.reason, budget.fit_mask, budget.info
 
     notes: list[str] = []
@@ -163,4 +179,5 @@ def reconstruct_fit(
     if notes:
         info["notes"] = notes
     channels = ["value"] if n_c == 1 else ["R", "G", "B"]
-    return FitReconstruction(material, channels, chosen, info)
+    return FitReconstruction(material, channels, chosen, info, fitted_to_scene=fit_mask is not None,
+                             bic_specs=bic_specs)

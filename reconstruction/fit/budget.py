@@ -16,7 +16,7 @@ from ..scene import RECONSTRUCTION_DEFAULT_RANGE_DEG, Scene
 from ..slicefile import Slice
 from .model import ALPHA_MIN, Array, FitResult, _Problem, fit_model
 
-__all__ = ["SCENE_DEFAULT_RANGE_DEG", "scene_alpha_min", "scene_directions", "Budget", "apply_budget"]
+__all__ = ["SCENE_DEFAULT_RANGE_DEG", "scene_alpha_min", "scene_directions", "scene_inside", "Budget", "apply_budget"]
 
 #: theta_i and theta_o range (degrees) of a scene whose file gives none, for the fit (the capture's default differs:
 #: :data:`reconstruction.scene.CAPTURE_DEFAULT_RANGE_DEG`).
@@ -47,6 +47,14 @@ def scene_directions(scene: Scene, max_pairs: int = 200_000) -> tuple[Array, Arr
     return wi, wo
 
 
+def scene_inside(scene: Scene, slices: Slice) -> NDArray[np.bool_]:
+    """(N,) True for the samples of ``slices`` inside the scene's theta_i and |theta_o| ranges (what the scene
+    needs; a range the file does not give is :data:`SCENE_DEFAULT_RANGE_DEG`)."""
+    (ti_lo, ti_hi), (to_lo, to_hi) = scene.ranges(SCENE_DEFAULT_RANGE_DEG)
+    ti, to = slices.theta_i_deg, np.abs(slices.theta_o_deg)
+    return (ti >= ti_lo - 1e-9) & (ti <= ti_hi + 1e-9) & (to >= to_lo - 1e-9) & (to <= to_hi + 1e-9)
+
+
 def _scene_report(scene: Scene) -> dict[str, Any]:
     ti, to = scene.ranges(SCENE_DEFAULT_RANGE_DEG)
     return {"name": scene.name, "source": scene.source, "theta_i_deg": list(ti), "theta_o_deg": list(to),
@@ -73,11 +81,9 @@ def apply_budget(scene: Scene, slices: Slice, fitted: dict[str, FitResult], chos
     budget (``relative_rmse``) is used. ``prob`` holds the samples ``pick`` of ``slices`` (1 in ``stride``)."""
     info: dict[str, Any] = {"scene": _scene_report(scene)}
     fit_mask: NDArray[np.bool_] | None = None
-    (ti_lo, ti_hi), (to_lo, to_hi) = scene.ranges(SCENE_DEFAULT_RANGE_DEG)
+    (ti_lo, ti_hi), _ = scene.ranges(SCENE_DEFAULT_RANGE_DEG)
     if scene.relative_rmse is not None:
-        ti_d, to_d = slices.theta_i_deg, np.abs(slices.theta_o_deg)
-        inside = ((ti_d >= ti_lo - 1e-9) & (ti_d <= ti_hi + 1e-9)
-                  & (to_d >= to_lo - 1e-9) & (to_d <= to_hi + 1e-9))
+        inside = scene_inside(scene, slices)
         in_prob = inside[pick] if stride > 1 else inside
         sub = prob.take(in_prob) if 0 < in_prob.sum() < prob.f.shape[0] else prob
         swi, swo = scene_directions(scene)

@@ -12,7 +12,7 @@ from numpy.typing import NDArray
 from ..metrics import relative_rmse_cos_dirs
 from ..models import Material, Microfacet
 from ..slicefile import Slice
-from .model import FLOOR, IOR_MAX, IOR_MIN, Array, FitResult, _Problem
+from .model import FLOOR, IOR_MAX, IOR_MIN, Array, FitResult, LobeSpec, _Problem
 
 #: a fitted microfacet alpha below this makes the table hold theta_h cell averages near the mirror direction
 SHARP_ALPHA = 0.01
@@ -30,6 +30,10 @@ class FitReconstruction:
     result: FitResult
     info: dict[str, Any] = field(default_factory=dict)
     method: str = "fit"
+    #: fitted to the samples inside a scene's ranges only (a scene's budget chose a simpler model than BIC)
+    fitted_to_scene: bool = False
+    #: the BIC choice's structure when a scene's budget replaced it by a simpler model (None otherwise)
+    bic_specs: tuple[LobeSpec, ...] | None = None
 
     def eval(self, wi: Array, wo: Array) -> Array:
         """f_r (N, C) in 1/sr at unit direction pairs (N, 3); 0 below the horizon."""
