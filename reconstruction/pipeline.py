@@ -98,7 +98,6 @@ NOISE_LEVEL_FACTOR = 1.5
 #: 16.8 -> 18.0 %, 15.4 -> 16.4 % from 20/50/75, 17.2 -> 15.4 % from 40/70; README: Real materials).
 PRIOR_ANCHORS = (0.25, 0.5)
 
-
 def max_albedo(rec: Reconstruction) -> tuple[float, float]:
     """(largest directional albedo over channels and theta_i = 0-85 deg, the theta_i in degrees where it is).
 
@@ -108,7 +107,6 @@ def max_albedo(rec: Reconstruction) -> tuple[float, float]:
     alb, _ = checked_albedo(rec.eval, 48, 96)
     k = int(np.argmax(alb.max(axis=1)))
     return float(alb.max()), float(ALBEDO_INCIDENCES_DEG[k])
-
 
 def thin_for_cv(s: Slice, max_samples: int = CV_MAX_SAMPLES, max_incidences: int = CV_MAX_INCIDENCES) -> Slice:
     """A subsample of a large ``s`` (sorted) to cross-validate on: at most ``max_incidences`` evenly spread
