@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from reconstruction.atomic import is_no_space
-from reconstruction.slicefile import Slice, SliceWriter
+from reconstruction.formats.slicefile import Slice, SliceWriter
 
 from .calibration import Calibration, Reading, reference_rho
 from .dryrun import estimate, estimate_points

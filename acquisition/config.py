@@ -3,7 +3,7 @@
 A bench file has the sections ``[bench]``, ``[axes.light]``, ``[axes.detector]`` (and optional
 ``[axes.stage]``), ``[motion]``, ``[detector]``, ``[calibration]`` and ``[plan]`` (see ``configs/*.toml``, whose
 comments document each key). ``[material]`` (the simulated sample) is validated with
-``reconstruction.models.Material.from_dict``; ``[simulator]`` and its sub-tables belong to ``gonio-sim``,
+``reconstruction.core.models.Material.from_dict``; ``[simulator]`` and its sub-tables belong to ``gonio-sim``,
 which validates them (``gonio-sim check``, run by ``gonio-capture --check``; ``gonio-sim serve`` refuses a bad
 file with exit status 2 when a capture starts it); here they only have to be tables. Any other section or key is
 an error.
@@ -328,7 +328,7 @@ def config_from_dict(raw: Mapping[str, Any], path: str | Path = "<config>") -> B
     plan = read_plan(src, raw["plan"], detector, axes)
     material = None
     if "material" in raw:
-        from reconstruction.models import Material, MaterialError
+        from reconstruction.core.models import Material, MaterialError
 
         try:
             mat = Material.from_dict(raw["material"], path.resolve().parent, source=f"{src}: [material]")
@@ -351,8 +351,8 @@ def _check_material(src: str, mat: Any, raw: Mapping[str, Any]) -> None:
     :data:`MAX_MATERIAL_BRDF` over the in-plane geometries a capture can measure."""
     import numpy as np
 
-    from reconstruction import merl
-    from reconstruction.geometry import inplane_to_dirs
+    from reconstruction.core.geometry import inplane_to_dirs
+    from reconstruction.formats import merl
 
     lobes_raw = raw.get("lobes", [])
     if mat.n_channels > MAX_MATERIAL_CHANNELS:

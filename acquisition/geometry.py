@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from reconstruction.benchtime import (
+from reconstruction.bench.timing import (
     DXL_ACC_UNIT_REV_S2,
     DXL_UNITS_PER_REV,
     DXL_VEL_UNIT_REV_S,
@@ -81,7 +81,7 @@ def point_key(p: Point) -> tuple[float, float]:
 class Geometry:
     """What the bench can reach and how fast; angles in degrees, speeds in deg/s, accelerations in deg/s^2.
 
-    Move times are the shared time model (:mod:`reconstruction.benchtime`, the one the simulator's axes move by):
+    Move times are the shared time model (:mod:`reconstruction.bench.timing`, the one the simulator's axes move by):
     trapezoidal profiles of both arms at once between whole controller units, plus ``arrive_s`` during which the
     arms still report moving; the drivers poll for that every ``poll_s`` (bench time: ``[motion].poll_interval_s``
     plus a query, times the simulator's time scale; 0 when simulated time jumps), so a move is over at the first
@@ -125,7 +125,7 @@ class Geometry:
 
     @cached_property
     def timing(self) -> MoveTiming:
-        """The shared move-time model of the two arms (:class:`reconstruction.benchtime.MoveTiming`)."""
+        """The shared move-time model of the two arms (:class:`reconstruction.bench.timing.MoveTiming`)."""
         def axis(ax: AxisConfig, speed: tuple[float, float]) -> AxisTiming:
             upd = abs(ax.units_per_deg)
             return AxisTiming(ax.units_per_deg, ax.zero_offset, ax.direction, speed[0] * upd, speed[1] * upd)

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from reconstruction.slicefile import Slice, SliceError, read_slice
+from reconstruction.formats.slicefile import Slice, SliceError, read_slice
 
 from .config import BenchConfig
 from .errors import PlanError

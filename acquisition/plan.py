@@ -9,7 +9,7 @@ unmeasurable ones, each with its reason (a :class:`Why`: the text and a :class:`
 silently. :func:`order_points` (:mod:`acquisition.ordering`) orders them to minimise travel time. What a capture
 does with a plan is itself a plan, a generator of messages: :mod:`acquisition.plans`.
 
-Scenes (``configs/scenes/*.toml``, :mod:`reconstruction.scene`) restrict a plan to what a scene needs: see
+Scenes (``configs/scenes/*.toml``, :mod:`reconstruction.core.scene`) restrict a plan to what a scene needs: see
 :meth:`Plan.restrict`.
 """
 
@@ -24,8 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from reconstruction.scene import CAPTURE_DEFAULT_RANGE_DEG, Scene, SceneError
-from reconstruction.scene import load_scene as _load_scene
+from reconstruction.core.scene import CAPTURE_DEFAULT_RANGE_DEG, Scene, SceneError
+from reconstruction.core.scene import load_scene as _load_scene
 
 from .config import (
     MAX_PLAN_POINTS,
@@ -56,12 +56,12 @@ __all__ = ["Point", "Geometry", "Plan", "PlanCheck", "Reason", "Why", "Scene", "
 # --- scenes ----------------------------------------------------------------------------------------------------
 
 #: theta_i and theta_o range (degrees) of a scene whose file gives none, for a capture: the whole hemisphere (one
-#: definition beside the reconstruction's, which differs on purpose: reconstruction.scene).
+#: definition beside the reconstruction's, which differs on purpose: reconstruction.core.scene).
 SCENE_DEFAULT_RANGE_DEG = CAPTURE_DEFAULT_RANGE_DEG
 
 
 def load_scene(path: str | Path) -> Scene:
-    """Read and validate a scene file (:func:`reconstruction.scene.load_scene`); errors are :class:`ConfigError`
+    """Read and validate a scene file (:func:`reconstruction.core.scene.load_scene`); errors are :class:`ConfigError`
     (the message names the file and the key), as for bench configs."""
     p = Path(path)
     if p.exists() and not p.is_file():  # a directory, a device or a pipe (which would block the read)

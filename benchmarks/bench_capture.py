@@ -43,7 +43,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from acquisition import Bench, Plan, order_points  # noqa: E402
-from reconstruction.slicefile import read_slice  # noqa: E402
+from reconstruction.formats.slicefile import read_slice  # noqa: E402
 
 
 def _forget_orders() -> None:

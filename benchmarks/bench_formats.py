@@ -29,10 +29,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from reconstruction import pipeline, rgl, zemax  # noqa: E402
-from reconstruction.metrics import directional_albedo  # noqa: E402
-from reconstruction.models import Material  # noqa: E402
-from reconstruction.slicefile import write_slice  # noqa: E402
+from reconstruction import pipeline  # noqa: E402
+from reconstruction.core.metrics import directional_albedo  # noqa: E402
+from reconstruction.core.models import Material  # noqa: E402
+from reconstruction.formats import rgl, zemax  # noqa: E402
+from reconstruction.formats.slicefile import write_slice  # noqa: E402
 from reconstruction.synthetic import synthetic_slice  # noqa: E402
 
 REAL = ROOT.parent / "shared" / "realdata" / "zemax" / "speos-converted-550nm.bsdf"

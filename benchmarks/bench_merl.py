@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from reconstruction import merl
+from reconstruction.formats import merl
 
 
 def main() -> None:

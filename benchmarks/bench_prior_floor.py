@@ -1,7 +1,7 @@
 """How far can slices go? Floors of the prior's model on real materials, each chosen with the truth.
 
 The ``prior`` method completes a material from a basis of other materials: a linear model in the mapped space
-``log(f cos theta_i cos theta_o / s + EPS)`` on the reduced grid (:mod:`reconstruction.prior`). This benchmark
+``log(f cos theta_i cos theta_o / s + EPS)`` on the reduced grid (:mod:`reconstruction.methods.prior`). This benchmark
 fits that model, for every material of ``../shared/realdata/nbrdf-merl`` with a basis of the other 47
 (leave-one-out), not to a slice's samples but to the material's **own exact values** on a set of grid cells,
 with the number of components K and the ridge weight chosen per material **with the truth** (the lowest error
@@ -31,8 +31,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from reconstruction import prior as P  # noqa: E402
-from reconstruction.slicefile import Slice  # noqa: E402
+from reconstruction.formats.slicefile import Slice  # noqa: E402
+from reconstruction.methods import prior as P  # noqa: E402
 
 K_GRID = (3, 5, 10, 20, 30)
 LAM_GRID = (0.01, 0.1, 1.0, 10.0, 100.0)

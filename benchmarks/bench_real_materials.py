@@ -36,17 +36,19 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from reconstruction import merl, pipeline, report  # noqa: E402
-from reconstruction.geometry import inplane_to_dirs  # noqa: E402
-from reconstruction.metrics import (  # noqa: E402
+from reconstruction import pipeline  # noqa: E402
+from reconstruction.core.geometry import inplane_to_dirs  # noqa: E402
+from reconstruction.core.metrics import (  # noqa: E402
     _table_cosines,
     median_relative_error,
     relative_rmse_cos,
     relative_rmse_cos_by_theta_d,
     within_angle_mask,
 )
-from reconstruction.models import NBRDF_SUFFIXES, Material  # noqa: E402
-from reconstruction.slicefile import Slice  # noqa: E402
+from reconstruction.core.models import NBRDF_SUFFIXES, Material  # noqa: E402
+from reconstruction.formats import merl  # noqa: E402
+from reconstruction.formats.slicefile import Slice  # noqa: E402
+from reconstruction.report import summary as report  # noqa: E402
 
 MODES = {"1": (40.0,), "3": (20.0, 40.0, 60.0)}
 STEP_DEG, BLIND_DEG, MAX_DEG = 2.0, 4.0, 80.0
@@ -355,7 +357,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"bench_real_materials: --slices: {e}", file=sys.stderr)
         return 2
     if prior:
-        from reconstruction.prior import load_prior
+        from reconstruction.methods.prior import load_prior
 
         load_prior(prior)  # tabulated once (and cached) before the workers start
     jobs = [(n, str(folder), methods, args.cache or None, modes, prior) for n in names]

@@ -7,7 +7,7 @@ six incidences. The targets (2-core development machine) are for a full table fr
 bivariate and microfacet < 1 s, fit < 3 s; auto (cross-validation of every method, then the chosen method's
 table) < 10 s; only the one-slice rows are compared with them (ok / SLOW), the six-slice rows are information.
 The load average is printed: other jobs on the machine slow every figure down.
-Error = relative RMSE of f cos(theta_i) cos(theta_o) over the table (reconstruction.metrics.relative_rmse_cos).
+Error = relative RMSE of f cos(theta_i) cos(theta_o) over the table (reconstruction.core.metrics.relative_rmse_cos).
 
 Run: .venv/bin/python benchmarks/bench_reconstruct.py [--repeats N] [--material configs/simulated.toml]
 """
@@ -22,9 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
-from reconstruction import merl, pipeline
-from reconstruction.metrics import relative_rmse_cos
-from reconstruction.models import Material
+from reconstruction import pipeline
+from reconstruction.core.metrics import relative_rmse_cos
+from reconstruction.core.models import Material
+from reconstruction.formats import merl
 from reconstruction.synthetic import synthetic_slice
 
 REPO = Path(__file__).resolve().parents[1]

@@ -1,4 +1,4 @@
-"""Benchmark: the sphere renderer (reconstruction.render) on one core; prints seconds per image and its accuracy.
+"""Benchmark: the sphere renderer (reconstruction.core.render) on one core; prints seconds per image and its accuracy.
 
 For a 128 x 128 image (the sphere filling the frame) of an analytic BRDF (lambert + GGX alpha 0.15 + Schlick
 f0 0.04, the blue-plastic material) and of its MERL table (interpolated lookups), under the ``key`` and ``rim``
@@ -18,9 +18,9 @@ import time
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from reconstruction import merl
-from reconstruction.models import Material
-from reconstruction.render import Lighting, Quadrature, SkyGround, render_sphere, view_angle_deg
+from reconstruction.core.models import Material
+from reconstruction.core.render import Lighting, Quadrature, SkyGround, render_sphere, view_angle_deg
+from reconstruction.formats import merl
 
 MATERIAL = {"name": "blue-plastic", "lobes": [{"type": "lambert", "albedo": [0.05, 0.1, 0.4]},
                                               {"type": "ggx", "alpha": 0.15, "specular": 0.9, "f0": 0.04}]}

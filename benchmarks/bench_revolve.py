@@ -19,11 +19,11 @@ from typing import Any
 
 import numpy as np
 
-from reconstruction import merl
-from reconstruction import revolve as rv
-from reconstruction.geometry import inplane_to_dirs, sph_to_vec
-from reconstruction.models import Material
-from reconstruction.slicefile import Slice
+from reconstruction.core.geometry import inplane_to_dirs, sph_to_vec
+from reconstruction.core.models import Material
+from reconstruction.formats import merl
+from reconstruction.formats.slicefile import Slice
+from reconstruction.methods import revolve as rv
 
 BLUE = Material.from_dict({"name": "blue-plastic", "lobes": [
     {"type": "lambert", "albedo": [0.05, 0.10, 0.40]},

@@ -1,7 +1,8 @@
 """Benchmark: the energy of a lobe narrower than the MERL cells in the default table, and what keeping it costs.
 
 For lambert + ggx materials from a mirror (alpha 1e-4) to a glossy lobe (1e-2), the table pipeline.tabulate writes
-for the exact BRDF (cell averages over theta_h where the lobe is sub-cell, then reconstruction.sharprows), read both
+for the exact BRDF (cell averages over theta_h where the lobe is sub-cell, then reconstruction.core.sharprows), read
+both
 ways: interpolating between bin centres (the plausibility check, previews) and snapping to cells (the MERL reference
 reader, renderers). Prints the exact albedo, each reader's albedo before and after the renormalisation at
 theta_i = 0 / 60 / 80 / 85 deg, and the seconds of the renormalisation (the readers' matrices come from the disk
@@ -17,9 +18,10 @@ import time
 
 import numpy as np
 
-from reconstruction import merl, sharprows
-from reconstruction.metrics import halfvector_albedo
-from reconstruction.models import Material
+from reconstruction.core import sharprows
+from reconstruction.core.metrics import halfvector_albedo
+from reconstruction.core.models import Material
+from reconstruction.formats import merl
 
 CASES = [(0.0, 1e-4, 1.0), (0.02, 1e-3, 0.95), (0.0, 1e-3, 1.0), (0.1, 5e-3, 0.9), (0.05, 1e-2, 0.95)]
 THETA_I_DEG = np.array([0.0, 60.0, 80.0, 85.0])

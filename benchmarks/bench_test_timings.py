@@ -36,10 +36,10 @@ import tomli_w
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from reconstruction.fit import reconstruct_fit  # noqa: E402
-from reconstruction.instrument import Instrument, instrument_average  # noqa: E402
-from reconstruction.models import Colour, Lambert, Material, Microfacet  # noqa: E402
-from reconstruction.slicefile import Slice  # noqa: E402
+from reconstruction.bench.instrument import Instrument, instrument_average  # noqa: E402
+from reconstruction.core.models import Colour, Lambert, Material, Microfacet  # noqa: E402
+from reconstruction.formats.slicefile import Slice  # noqa: E402
+from reconstruction.methods.fit import reconstruct_fit  # noqa: E402
 
 
 def timed(fn: Callable[[], object], repeats: int) -> tuple[float, float, float]:
@@ -124,8 +124,9 @@ def big_table() -> None:
         with open(big, "w") as fh:
             fh.write("theta_i_deg,theta_o_deg,R,G,B,R_std,G_std,B_std\n")
             np.savetxt(fh, np.column_stack([ti, to, v, 0.01 * v]), delimiter=",", fmt="%.12g")
-        code = ("import resource, sys, time; from reconstruction.inputs import load_inputs; t = time.perf_counter(); "
-                "c = time.process_time(); s = load_inputs([sys.argv[1]], quantity='brdf').slice; "
+        code = ("import resource, sys, time; from reconstruction.formats.inputs import load_inputs; "
+                "t = time.perf_counter(); c = time.process_time(); s = load_inputs([sys.argv[1]],"
+                " quantity='brdf').slice; "
                 "print(len(s), time.perf_counter() - t, time.process_time() - c, "
                 "resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)")
         r = subprocess.run([sys.executable, "-c", code, str(big)], capture_output=True, text=True, cwd=ROOT,

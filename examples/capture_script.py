@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from acquisition import Bench
-from reconstruction.slicefile import read_slice
+from reconstruction.formats.slicefile import read_slice
 
 
 def main() -> int:

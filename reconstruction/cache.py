@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from .atomic import atomic_open
+from reconstruction.atomic import atomic_open
 
 __all__ = ["cache_dir", "cached_arrays"]
 

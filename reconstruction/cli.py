@@ -23,13 +23,13 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from .atomic import is_no_space
-from .base import ReconstructionError
-from .merl import FILE_SIZE, MerlError
-from .models import MaterialError
-from .pipeline import ImplausibleError, Job, implausible_message
-from .pipeline import run as pipeline_run
-from .slicefile import QUANTITIES, SliceError
+from reconstruction.atomic import is_no_space
+from reconstruction.base import ReconstructionError
+from reconstruction.core.models import MaterialError
+from reconstruction.formats.merl import FILE_SIZE, MerlError
+from reconstruction.formats.slicefile import QUANTITIES, SliceError
+from reconstruction.pipeline import ImplausibleError, Job, implausible_message
+from reconstruction.pipeline import run as pipeline_run
 
 __all__ = ["main", "build_parser", "run", "run_batch", "batch_files", "job_from_args", "ImplausibleError",
            "implausible_message", "EXIT_IMPLAUSIBLE"]
@@ -74,7 +74,7 @@ def _supersample(text: str) -> tuple[int, int, int] | str:
 def _illuminant(text: str) -> str:
     if text == "D65":
         return text  # the default: no need to load colour-science to check it
-    from .colour import illuminant_names
+    from reconstruction.core.colour import illuminant_names
 
     names = illuminant_names()
     if text not in names:
@@ -103,9 +103,9 @@ _unit_float = _number(float, lambda v: 0 <= v <= 1, "a number from 0 to 1")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .cliutil import OneLineParser
-    from .methods import REGISTRY
-    from .pipeline import METHODS
+    from reconstruction.cliutil import OneLineParser
+    from reconstruction.methods import REGISTRY
+    from reconstruction.pipeline import METHODS
 
     ap = OneLineParser(prog=PROG, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("inputs", nargs="*", metavar="INPUT",
@@ -161,7 +161,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--allow-implausible", action="store_true",
                     help="write the table even if it fails a plausibility check (the report and the console say so)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar and no summary line")
-    from .exports import add_arguments as add_format_arguments
+    from reconstruction.formats.exports import add_arguments as add_format_arguments
 
     add_format_arguments(ap)
     b = ap.add_argument_group("batch reconstruction of a folder of slices")
@@ -245,7 +245,7 @@ def batch_files(folder: Path) -> list[tuple[str, Path]]:
 def _batch_one(job: tuple[Job, str, Path]) -> dict[str, Any]:
     """Worker: reconstruct one file of a batch (its :class:`Job`); never raises (the result says)."""
     one, name, path = job
-    from .cliutil import plain_warnings
+    from reconstruction.cliutil import plain_warnings
 
     try:
         with plain_warnings(PROG), np_quiet():
@@ -264,7 +264,7 @@ def _batch_one(job: tuple[Job, str, Path]) -> dict[str, Any]:
 
 def run_batch(args: argparse.Namespace) -> int:
     """Reconstruct every slice of ``args.batch`` through the executor; print one line per file."""
-    from .executor import make_executor, run_all
+    from reconstruction.executor import make_executor, run_all
 
     folder = Path(args.batch)
     if not folder.is_dir():
@@ -301,7 +301,7 @@ def run_batch(args: argparse.Namespace) -> int:
             print(f"{PROG}: error: {e}", file=sys.stderr)
             return 2
     if args.html:
-        from .htmlreport import write_index
+        from reconstruction.report.html import write_index
 
         write_index(out_dir / "index.html", sorted(results, key=lambda r: r["name"]))
         print(f"{PROG}: HTML reports indexed in {out_dir / 'index.html'}", file=sys.stderr)
@@ -337,7 +337,7 @@ def _os_error(e: OSError) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
-    from .cliutil import plain_warnings
+    from reconstruction.cliutil import plain_warnings
 
     try:
         with plain_warnings(PROG), np_quiet():
@@ -348,7 +348,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(ap: argparse.ArgumentParser, args: argparse.Namespace) -> int:
-    from .exports import asks_output, wants_outputs
+    from reconstruction.formats.exports import asks_output, wants_outputs
 
     if args.batch:
         if args.inputs or args.out or args.preview or args.report or wants_outputs(args):

@@ -3,9 +3,10 @@
 For checking a reconstruction against ground truth (which method suits a material, how much noise or how few
 incidences it tolerates), as the tests and ``benchmarks/bench_reconstruct.py`` do::
 
-    from reconstruction import merl, pipeline
-    from reconstruction.metrics import relative_rmse_cos
-    from reconstruction.models import Material
+    from reconstruction.formats import merl
+    from reconstruction import pipeline
+    from reconstruction.core.metrics import relative_rmse_cos
+    from reconstruction.core.models import Material
     from reconstruction.synthetic import synthetic_slice
 
     mat = Material.from_toml("configs/simulated.toml")
@@ -25,9 +26,9 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .geometry import inplane_to_dirs
-from .models import Material
-from .slicefile import Slice
+from reconstruction.core.geometry import inplane_to_dirs
+from reconstruction.core.models import Material
+from reconstruction.formats.slicefile import Slice
 
 __all__ = ["synthetic_slice"]
 

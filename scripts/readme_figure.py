@@ -10,7 +10,7 @@ It reads what the README's first command writes (the capture, then ``gonio-recon
 
 The prediction is read from the written MERL table (trilinear between bin centres, as ``merl.lookup`` does), so
 the figure shows the file a renderer gets, not the method's internal model; the sphere is
-``reconstruction.preview.render_preview`` of that table (a point light and a dim uniform environment), exposed as
+``reconstruction.report.preview.render_preview`` of that table (a point light and a dim uniform environment), exposed as
 ``gonio-reconstruct --preview`` exposes its PNG. Bad or missing input: exit 2 and one line.
 """
 
@@ -26,10 +26,10 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from reconstruction import merl  # noqa: E402
-from reconstruction.geometry import inplane_to_dirs  # noqa: E402
-from reconstruction.preview import PREVIEW_RADIUS, render_preview, srgb_encode  # noqa: E402
-from reconstruction.slicefile import SliceError, read_slice  # noqa: E402
+from reconstruction.core.geometry import inplane_to_dirs  # noqa: E402
+from reconstruction.formats import merl  # noqa: E402
+from reconstruction.formats.slicefile import SliceError, read_slice  # noqa: E402
+from reconstruction.report.preview import PREVIEW_RADIUS, render_preview, srgb_encode  # noqa: E402
 
 COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown")
 

@@ -1,7 +1,7 @@
 """Regenerate the accuracy table and the two figures of docs/revolve.md.
 
 Prints, as markdown, the table of docs/revolve.md's "Accuracy" section: the relative RMSE of
-f cos(theta_i) cos(theta_o) over the whole MERL table at bin centres (reconstruction.metrics.relative_rmse_cos)
+f cos(theta_i) cos(theta_o) over the whole MERL table at bin centres (reconstruction.core.metrics.relative_rmse_cos)
 of `reconstruct_revolve` against the material it was sampled from, for 1, 4 and 7 incidences, with the default
 options and the plain revolution (excess=False, forward_frame="mirror"). Slices: theta_o -80..80 deg every
 2 deg, noise-free, without the blind spot (synthetic_slice's blind_spot_deg = 4: on the 2 deg grid, the five
@@ -30,10 +30,11 @@ from pathlib import Path
 
 import numpy as np
 
-from reconstruction import merl, metrics
-from reconstruction import revolve as rv
-from reconstruction.geometry import inplane_to_dirs, thesis_points_from_slice
-from reconstruction.models import Material
+from reconstruction.core import metrics
+from reconstruction.core.geometry import inplane_to_dirs, thesis_points_from_slice
+from reconstruction.core.models import Material
+from reconstruction.formats import merl
+from reconstruction.methods import revolve as rv
 from reconstruction.synthetic import synthetic_slice
 
 REPO = Path(__file__).resolve().parents[1]

@@ -6,7 +6,7 @@ Signal model (counts at gain 1, before noise)::
 
 with ``Omega_d`` the detector cone (``[detector].solid_angle_sr``), ``t_int_ref`` = ``[detector].integration_time_s``
 (so ``source_power`` is "counts per (1/sr * sr) at gain 1 and the configured integration time"). ``R`` is the
-physical reading (:func:`reconstruction.instrument.instrument_average`): the integral of f cos(theta_o) over the
+physical reading (:func:`reconstruction.bench.instrument.instrument_average`): the integral of f cos(theta_o) over the
 detector's cone and the source's divergence (``[bench].source_divergence_deg``), over ``Omega_d cos(theta_o)``,
 so f at the centre for a smooth BRDF and the lobe's energy for a mirror. ``frac`` is the part of the illuminated
 spot that falls on the sample (:func:`reconstruction.schema.optics.footprint_fraction`): the light lost where
@@ -61,7 +61,7 @@ def _srgb_basis(grid: np.ndarray) -> np.ndarray:
 
 
 class BRDF(Protocol):
-    """What the physics needs from a material (``reconstruction.models.Material`` satisfies it)."""
+    """What the physics needs from a material (``reconstruction.core.models.Material`` satisfies it)."""
 
     n_channels: int
     wavelengths_nm: Any
@@ -73,8 +73,8 @@ def load_material(cfg: BenchConfig) -> BRDF:
     """The ground-truth material of the config's ``[material]`` table; the tables of ``tabulated`` lobes are read
     now (a simulator that cannot load its material refuses the config before serving, rather than answering
     ``error:1`` to a reading later). Raises ValueError naming the lobe."""
-    from reconstruction import merl
-    from reconstruction.models import Material
+    from reconstruction.core.models import Material
+    from reconstruction.formats import merl
 
     mat = Material.from_dict(cfg.material, cfg.base_dir)
     for i, lobe in enumerate(mat.lobes):
@@ -89,7 +89,7 @@ def load_material(cfg: BenchConfig) -> BRDF:
 def white_reference(cfg: BenchConfig) -> BRDF:
     """Lambertian white reference: ``reference_reflectance`` (grey) or ``reference_spectrum`` (CSV
     ``wavelength_nm,reflectance``, relative to the config file)."""
-    from reconstruction.models import Material
+    from reconstruction.core.models import Material
 
     if cfg.reference_spectrum:
         path = Path(cfg.reference_spectrum)
@@ -158,7 +158,7 @@ class BenchPhysics:
         self.shot_noise = bool(s.shot_noise)
         self.blind_half_width = float(cfg.blind_spot_half_width_deg)
         self.gains = cfg.detector.gains
-        from reconstruction.instrument import Instrument
+        from reconstruction.bench.instrument import Instrument
 
         self.instrument = Instrument(self.solid_angle, float(cfg.source_divergence_deg), cfg.beam_diameter_mm,
                                      cfg.sample_diameter_mm)
@@ -228,7 +228,7 @@ class BenchPhysics:
         """The physical reading R(theta_i, theta_o) * cos(theta_o) (1/sr; see the module docstring) on the
         detector channels: (..., n_det). Angles in degrees; each angle pair is integrated once and remembered
         (the arms stop at whole controller units, so a capture reads the same pairs again)."""
-        from reconstruction.instrument import instrument_average
+        from reconstruction.bench.instrument import instrument_average
 
         mat = mat if mat is not None else self.active_material
         ti, to = np.broadcast_arrays(np.asarray(theta_i_deg, dtype=float), np.asarray(theta_o_deg, dtype=float))

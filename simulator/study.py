@@ -5,9 +5,9 @@ noise), ``gonio-capture`` runs it as a child process against ``gonio-sim serve``
 simulated time as fast as possible), and every reconstruction method is run on the captured slice. A case
 records the capture time (``capture_time_s``: the time model's estimate, what ``gonio-capture --check`` tells
 for that plan, with adaptive refinement's rounds as they were planned; the study chooses plans by it), the
-simulated bench time it took (``bench_time_s``; the two are one model, :mod:`reconstruction.benchtime`, and a
+simulated bench time it took (``bench_time_s``; the two are one model, :mod:`reconstruction.bench.timing`, and a
 case where they differ by more than 5 % is logged), the reconstruction time and the errors of the full table
-against the material's own table (``reconstruction.metrics.table_errors``).
+against the material's own table (``reconstruction.core.metrics.table_errors``).
 
 Cases run through a ``concurrent.futures`` executor (``reconstruction.executor``): local processes by default,
 a Dask cluster with ``--scheduler``. Results go to ``OUT/<name>.csv``, ``OUT/<name>.md`` (table, Pareto fronts
@@ -105,7 +105,7 @@ def materials_from_dir(folder: str | Path) -> dict[str, dict[str, Any]]:
     ../shared/realdata/nbrdf-merl) as an ``nbrdf`` material named NAME, and every ``*.toml`` with a ``[material]``
     table (named after its ``name`` or the file). Paths become absolute, so the case configs work anywhere.
     Raises ValueError naming the file for a bad material, or when the folder holds none."""
-    from reconstruction.models import NBRDF_SUFFIXES, Material, MaterialError
+    from reconstruction.core.models import NBRDF_SUFFIXES, Material, MaterialError
 
     d = Path(folder)
     if not d.is_dir():
@@ -220,8 +220,8 @@ def case_config(base: dict[str, Any], case: Case, material: dict[str, Any] | Non
 
 @lru_cache(maxsize=8)
 def _truth(material_json: str) -> Any:
-    from reconstruction import merl
-    from reconstruction.models import Material
+    from reconstruction.core.models import Material
+    from reconstruction.formats import merl
 
     return merl.tabulate(Material.from_dict(json.loads(material_json)).eval, supersample="adaptive")
 
@@ -322,8 +322,9 @@ def run_case(job: tuple[Case, str, str]) -> list[dict[str, Any]]:
                     row0["bench_time_s"], row0["auto_range_s"])
     row0["samples"] = int(summary["samples_total"])
 
-    from reconstruction import metrics, pipeline
-    from reconstruction.inputs import load_inputs
+    from reconstruction import pipeline
+    from reconstruction.core import metrics
+    from reconstruction.formats.inputs import load_inputs
 
     s = load_inputs([cap_dir / "slice.csv"]).slice
     truth = truth_table(material)

@@ -125,7 +125,7 @@ def _complete(path: Path) -> str | None:
     data = path.read_bytes()
     suffix = path.suffix.lower()
     if suffix == ".binary":
-        from reconstruction import merl
+        from reconstruction.formats import merl
 
         if len(data) != merl.FILE_SIZE:
             return f"half-written table {path} ({len(data)} bytes)"
@@ -201,8 +201,8 @@ def run_all(cases: list[Case], workers: int | None = None) -> list[Outcome]:
 
 
 def _good_slice(path: Path) -> Path:
-    from reconstruction.models import Material
-    from reconstruction.slicefile import Slice, write_slice
+    from reconstruction.core.models import Material
+    from reconstruction.formats.slicefile import Slice, write_slice
     from reconstruction.synthetic import synthetic_slice
 
     mat = Material.from_dict({"name": "grey", "lobes": [{"type": "lambert", "albedo": 0.5},
@@ -317,7 +317,7 @@ def reconstruct_cases(work: Path) -> list[Case]:
     add("many-columns.csv", "theta_i,theta_o," + ",".join(f"{400 + k}nm" for k in range(20000)) + "\n"
         + "30,0," + ",".join("0.1" for _ in range(20000)) + "\n", q, ok=False)
     # a MERL table as a CSV
-    from reconstruction import merl
+    from reconstruction.formats import merl
 
     merl.write(work / "merl-as.csv", np.full(merl.SHAPE, 0.1))
     files["merl-as.csv"] = (None, q, False, [])

@@ -15,7 +15,7 @@ from acquisition.calibration import Calibration, Reading, reference_rho
 from acquisition.config import config_from_dict
 from acquisition.plan import Geometry, _trapezoid_time, order_points, path_time, refine_points
 from acquisition.plan import load_scene as acq_load_scene
-from reconstruction.scene import Scene, load_scene
+from reconstruction.core.scene import Scene, load_scene
 from tests.test_acq_support import REPO, make_raw
 
 
@@ -124,7 +124,7 @@ def test_scene_restricts_plan(tmp_path):
     assert len(p.requested_points()) == 4 * 33
     with pytest.raises(PlanError, match="keeps none"):
         Plan.grid([70.0], -80, 80, 2).restrict(glossy)
-    # acquisition reads scene files through reconstruction.scene; its errors are ConfigErrors there
+    # acquisition reads scene files through reconstruction.core.scene; its errors are ConfigErrors there
     (tmp_path / "s.toml").write_text("[scene]\nname = 'x'\nangular_resolution_deg = 'fine'\n")
     with pytest.raises(ConfigError, match=r"s.toml: \[scene\].angular_resolution_deg: expected a positive number"):
         acq_load_scene(tmp_path / "s.toml")
@@ -140,7 +140,7 @@ def test_scene_restricts_plan(tmp_path):
 
 
 def test_scene_without_ranges_keeps_the_whole_hemisphere():
-    # the capture's default range is the whole hemisphere (the fit's is 0-85 deg: reconstruction.fit)
+    # the capture's default range is the whole hemisphere (the fit's is 0-85 deg: reconstruction.methods.fit)
     p = Plan.grid([10.0, 88.0], -89.5, 89.5, 0.5).restrict(Scene(name="all"))
     pts = p.requested_points()
     assert {ti for ti, _ in pts} == {10.0, 88.0}

@@ -14,8 +14,8 @@ from typing import Any
 import numpy as np
 import tomli_w
 
-from reconstruction.models import Material
-from reconstruction.slicefile import Slice, read_slice
+from reconstruction.core.models import Material
+from reconstruction.formats.slicefile import Slice, read_slice
 from tests.helpers import deep_merge
 
 if sys.version_info >= (3, 11):
@@ -91,7 +91,7 @@ def band_vector(n_channels: int, wl: Any = None) -> np.ndarray:
 
 
 def _instrument(raw: dict[str, Any]) -> Any:
-    from reconstruction.instrument import Instrument
+    from reconstruction.bench.instrument import Instrument
 
     det, b, sim = raw["detector"], raw["bench"], raw.get("simulator", {})
     omega = det.get("solid_angle_sr", sim.get("detector_solid_angle_sr", 1e-3))
@@ -100,9 +100,9 @@ def _instrument(raw: dict[str, Any]) -> Any:
 
 def ground_truth(raw: dict[str, Any], s: Slice) -> np.ndarray:
     """f_r on the slice's channels from the config's [material], as the simulator's detector sees it: averaged
-    over the detector's cone and the source's divergence (reconstruction.instrument, tested on its own against a
+    over the detector's cone and the source's divergence (reconstruction.bench.instrument, tested on its own against a
     brute-force integral), the photodiode's band, and the footprint (the calibration corrects for it)."""
-    from reconstruction.instrument import instrument_average
+    from reconstruction.bench.instrument import instrument_average
 
     mat = Material.from_dict(raw["material"])
     ti = quantised(raw, "light", s.theta_i_deg)

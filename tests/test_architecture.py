@@ -66,7 +66,8 @@ def test_no_unit_test_bounds_the_wall_clock():
 def test_every_public_function_of_geometry_and_merl_has_a_doctest_that_pytest_runs():
     import inspect
 
-    from reconstruction import geometry, merl
+    from reconstruction.core import geometry
+    from reconstruction.formats import merl
 
     if sys.version_info >= (3, 11):
         import tomllib
@@ -74,7 +75,7 @@ def test_every_public_function_of_geometry_and_merl_has_a_doctest_that_pytest_ru
         import tomli as tomllib
 
     paths = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["pytest"]["ini_options"]["testpaths"]
-    assert {"reconstruction/geometry.py", "reconstruction/merl.py"} <= set(paths)
+    assert {"reconstruction/core/geometry.py", "reconstruction/formats/merl.py"} <= set(paths)
     for mod in (geometry, merl):
         funcs = [n for n in mod.__all__ if inspect.isfunction(getattr(mod, n))]
         missing = [n for n in funcs if ">>> " not in (getattr(mod, n).__doc__ or "")]
@@ -153,7 +154,7 @@ def describe_cycle(package: str, component: list[str]) -> str:
     return f"{len(component)} modules ({', '.join(component)}), e.g. {'; '.join(steps)}"
 
 
-@pytest.mark.parametrize("package", ["acquisition", "simulator"])
+@pytest.mark.parametrize("package", ["acquisition", "simulator", "reconstruction"])
 def test_no_import_cycles(package):
     """No module of the package imports, directly or through others, a module that imports it back."""
     cycles = import_cycles(package)

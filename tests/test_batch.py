@@ -5,8 +5,9 @@ import json
 import numpy as np
 import pytest
 
-from reconstruction import cli, merl
-from reconstruction.metrics import relative_rmse_cos
+from reconstruction import cli
+from reconstruction.core.metrics import relative_rmse_cos
+from reconstruction.formats import merl
 from tests.test_cli_reconstruct import BLUE_PLASTIC, slice_file
 
 

@@ -92,7 +92,7 @@ def test_the_prior_floor_benchmark_runs_on_a_data_folder(tmp_path, capsys, monke
     out = capsys.readouterr().out
     for case in ("all", "theta_d<60", "slice 40", "slices 20/40/60", "slices 40/70"):
         assert f"  {case} " in out
-    from reconstruction.prior import load_prior
+    from reconstruction.methods.prior import load_prior
 
     ps = load_prior(data / "nbrdf-merl")
     f = floor.floors(ps, 0, floor.cell_sets())

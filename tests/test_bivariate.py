@@ -3,13 +3,13 @@
 import numpy as np
 import pytest
 
-from reconstruction import merl
 from reconstruction.base import Reconstruction, ReconstructionError
-from reconstruction.bivariate import inplane_half_diff, reconstruct_bivariate
-from reconstruction.geometry import half_diff_from_dirs, inplane_to_dirs
-from reconstruction.metrics import relative_rmse_cos
-from reconstruction.models import Material
-from reconstruction.slicefile import Slice
+from reconstruction.core.geometry import half_diff_from_dirs, inplane_to_dirs
+from reconstruction.core.metrics import relative_rmse_cos
+from reconstruction.core.models import Material
+from reconstruction.formats import merl
+from reconstruction.formats.slicefile import Slice
+from reconstruction.methods.bivariate import inplane_half_diff, reconstruct_bivariate
 from reconstruction.synthetic import synthetic_slice
 
 

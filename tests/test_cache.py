@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from reconstruction import energy
 from reconstruction.cache import cache_dir, cached_arrays
+from reconstruction.core import energy
 
 
 def test_arrays_are_built_once_read_after_and_a_damaged_file_is_rebuilt(tmp_path, monkeypatch):

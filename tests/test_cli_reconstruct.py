@@ -8,11 +8,13 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from reconstruction import cli, merl, pipeline
+from reconstruction import cli, pipeline
 from reconstruction.base import ReconstructionError
-from reconstruction.metrics import relative_rmse_cos
-from reconstruction.models import Material
-from reconstruction.slicefile import Slice, write_slice
+from reconstruction.core.metrics import relative_rmse_cos
+from reconstruction.core.models import Material
+from reconstruction.formats import merl
+from reconstruction.formats.slicefile import Slice, write_slice
+from reconstruction.methods import auto
 from reconstruction.synthetic import synthetic_slice
 
 BLUE_PLASTIC = Material.from_dict({"name": "blue-plastic", "lobes": [
@@ -190,9 +192,9 @@ def test_auto_never_uses_an_implausible_method(monkeypatch):
             return {"method": "bivariate"}
 
     monkeypatch.setitem(methods.REGISTRY, "bivariate", methods.Method("bivariate", "bright", lambda s, o, p: Bright()))
-    from reconstruction.crossval import CVScore
+    from reconstruction.methods.crossval import CVScore
 
-    monkeypatch.setattr(pipeline, "cross_validate", lambda s, name, build, masks, inside=None: CVScore(
+    monkeypatch.setattr(auto, "cross_validate", lambda s, name, build, masks, inside=None: CVScore(
         name, 0.0 if name == "bivariate" else 0.1 + 0.01 * len(name), [], 0.0))
     rec, choice = pipeline.reconstruct(synthetic_slice(BLUE_PLASTIC, (30.0,)), "auto")
     assert rec.method != "bivariate"
@@ -216,7 +218,7 @@ def test_options_reach_the_method_and_samples_arrive_sorted(monkeypatch):
         calls.append((slices, kw))
         return Fake()
 
-    monkeypatch.setattr("reconstruction.revolve.reconstruct_revolve", fake_revolve)
+    monkeypatch.setattr("reconstruction.methods.revolve.reconstruct_revolve", fake_revolve)
     s = synthetic_slice(PHONG, (30.0,))
     order = np.random.default_rng(0).permutation(len(s))
     rec, choice = pipeline.reconstruct(s.take(order), "revolve", pipeline.Options(fill="zero", revolve_axis="pca"))
@@ -311,8 +313,8 @@ def test_the_fit_cannot_reflect_more_light_than_it_receives_on_a_hostile_capture
     # a real simulated capture (study case back-scatter, 1 slice, 5 deg adaptive, 4 repeats, high noise) whose
     # best-fitting unconstrained lobes reached a directional albedo of ~39 at grazing incidence, outside the
     # measured slice: the energy-constrained fit stays <= 1 at every incidence, and so does its table
-    from reconstruction.inputs import load_inputs
-    from reconstruction.metrics import directional_albedo
+    from reconstruction.core.metrics import directional_albedo
+    from reconstruction.formats.inputs import load_inputs
 
     s = load_inputs(["tests/data/implausible-fit-slice.csv"]).slice
     fit = pipeline.reconstruct(s, "fit")[0]

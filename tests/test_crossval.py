@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 
 from reconstruction.base import ReconstructionError
-from reconstruction.crossval import cross_validate, folds, scene_mask
-from reconstruction.models import Material
-from reconstruction.scene import scene_from_dict
-from reconstruction.slicefile import Slice
+from reconstruction.core.models import Material
+from reconstruction.core.scene import scene_from_dict
+from reconstruction.formats.slicefile import Slice
+from reconstruction.methods import auto
+from reconstruction.methods.crossval import cross_validate, folds, scene_mask
 from reconstruction.synthetic import synthetic_slice
 
 MAT = Material.from_dict({"lobes": [{"type": "lambert", "albedo": 0.3},
@@ -48,7 +49,7 @@ def test_scores_pool_the_held_out_samples_and_honour_a_scene():
 
     sc = cross_validate(s, "const", lambda tr: Const(), masks)
     f = s.values
-    from reconstruction.geometry import inplane_to_dirs
+    from reconstruction.core.geometry import inplane_to_dirs
 
     wi, wo = inplane_to_dirs(np.radians(s.theta_i_deg), np.radians(s.theta_o_deg))
     c = (wi[:, 2] * wo[:, 2])[:, None]
@@ -76,7 +77,7 @@ def test_a_failing_method_scores_infinity_with_the_reason():
 
 
 def test_a_large_input_is_cross_validated_on_a_bounded_subsample():
-    from reconstruction.pipeline import CV_MAX_INCIDENCES, CV_MAX_SAMPLES, thin_for_cv
+    from reconstruction.methods.auto import CV_MAX_INCIDENCES, CV_MAX_SAMPLES, thin_for_cv
 
     s = synthetic_slice(MAT, tuple(np.arange(0.0, 85.0, 1.0)), step_deg=0.5).sorted()
     assert len(s) > 8 * CV_MAX_SAMPLES
@@ -93,20 +94,20 @@ def test_a_large_input_is_cross_validated_on_a_bounded_subsample():
 
 def test_one_slice_through_a_finite_cone_prefers_microfacet():
     from reconstruction import pipeline
-    from reconstruction.crossval import CVScore
-    from reconstruction.instrument import Instrument, instrument_average
-    from reconstruction.models import Colour, Lambert, Material, Microfacet
+    from reconstruction.bench.instrument import Instrument, instrument_average
+    from reconstruction.core.models import Colour, Lambert, Material, Microfacet
+    from reconstruction.methods.crossval import CVScore
 
     methods = ["fit", "microfacet", "bivariate", "revolve"]
-    assert pipeline.preference(methods, True, aperture=True) == (["microfacet"],
-                                                                 pipeline.SINGLE_SLICE_APERTURE_MARGIN)
-    assert pipeline.preference(methods, True) == (["bivariate"], pipeline.SINGLE_SLICE_MARGIN)
-    assert pipeline.preference(methods, False, aperture=True) == ([], 1.0)
+    assert auto.preference(methods, True, aperture=True) == (["microfacet"],
+                                                                 auto.SINGLE_SLICE_APERTURE_MARGIN)
+    assert auto.preference(methods, True) == (["bivariate"], auto.SINGLE_SLICE_MARGIN)
+    assert auto.preference(methods, False, aperture=True) == ([], 1.0)
     sc = [CVScore("bivariate", 0.01, [], 0.0), CVScore("microfacet", 0.025, [], 0.0), CVScore("fit", 0.02, [], 0.0)]
-    assert pipeline.rank(sc, *pipeline.preference(methods, True, aperture=True))[0].method == "microfacet"
-    assert pipeline.rank(sc, *pipeline.preference(methods, True))[0].method == "bivariate"
+    assert auto.rank(sc, *auto.preference(methods, True, aperture=True))[0].method == "microfacet"
+    assert auto.rank(sc, *auto.preference(methods, True))[0].method == "bivariate"
     # the best within 1.5 x the samples' noise: no preference, whichever method is preferred
-    assert pipeline.rank(sc, ["microfacet"], 3.0, noise=0.008)[0].method == "bivariate"
+    assert auto.rank(sc, ["microfacet"], 3.0, noise=0.008)[0].method == "bivariate"
     # auto reads the aperture from the slice's instrument
     mat = Material("m", [Lambert(Colour(np.array([0.3]))), Microfacet(Colour(np.array([0.4])), alpha=0.15)])
     to = np.arange(-80.0, 81.0, 2.0)
@@ -126,20 +127,19 @@ def test_a_mirror_like_lobe_is_not_refused_for_aliasing_on_the_albedo_grid():
     alpha 3e-3); auto's check then integrates over the half vector, as the written table's check does."""
     from types import SimpleNamespace
 
-    from reconstruction import pipeline
-    from reconstruction.metrics import directional_albedo
-    from reconstruction.models import Colour, Lambert, Material, Microfacet
+    from reconstruction.core.metrics import directional_albedo
+    from reconstruction.core.models import Colour, Lambert, Material, Microfacet
 
     mirror = Material("mirror", [Lambert(Colour(np.array([0.02]))),
                                  Microfacet(Colour(np.array([0.9])), alpha=3e-3)])
     rec = SimpleNamespace(eval=mirror.eval, method="test")
-    grid = directional_albedo(mirror.eval, np.radians(pipeline.ALBEDO_INCIDENCES_DEG), 48, 96)
+    grid = directional_albedo(mirror.eval, np.radians(auto.ALBEDO_INCIDENCES_DEG), 48, 96)
     assert grid.max() > 1.5  # the aliasing this guards against
-    alb, _ = pipeline.max_albedo(rec)
-    assert 0.85 < alb <= 1.0 + pipeline.ALBEDO_TOLERANCE
+    alb, _ = auto.max_albedo(rec)
+    assert 0.85 < alb <= 1.0 + auto.ALBEDO_TOLERANCE
     # a BRDF that really reflects more than it receives is still caught
     bright = Material("bright", [Lambert(Colour(np.array([1.3])))])
-    alb, _ = pipeline.max_albedo(SimpleNamespace(eval=bright.eval, method="test"))
+    alb, _ = auto.max_albedo(SimpleNamespace(eval=bright.eval, method="test"))
     assert alb > 1.2
 
 
@@ -161,8 +161,8 @@ def test_a_scene_budget_fit_is_refitted_in_the_folds_to_the_scene_samples(repo_r
     """The scene's budget fits its simpler model (lambert + ggx, no Fresnel) to the samples inside the scene;
     with that structure given, the fit must fit the same samples again, else every fold refits it to the 60 deg
     incidence too and predicts the scene's samples 10 times worse than the model that is used."""
-    from reconstruction.fit import reconstruct_fit
-    from reconstruction.scene import load_scene
+    from reconstruction.core.scene import load_scene
+    from reconstruction.methods.fit import reconstruct_fit
 
     s = _captured(GREY_PLASTIC)
     scene = load_scene(repo_root / "configs" / "scenes" / "glossy-product.toml")
@@ -179,11 +179,11 @@ def test_a_scene_budget_fit_is_refitted_in_the_folds_to_the_scene_samples(repo_r
 
 def test_auto_with_a_scene_scores_fit_as_by_hand_and_chooses_at_least_as_well(repo_root):
     from reconstruction import pipeline
-    from reconstruction.fit import scene_directions
-    from reconstruction.geometry import inplane_to_dirs
+    from reconstruction.core.geometry import inplane_to_dirs
+    from reconstruction.core.metrics import relative_rmse_cos_dirs
+    from reconstruction.core.scene import load_scene
     from reconstruction.methods import Options
-    from reconstruction.metrics import relative_rmse_cos_dirs
-    from reconstruction.scene import load_scene
+    from reconstruction.methods.fit import scene_directions
 
     s = _captured(GREY_PLASTIC).sorted()
     scene = load_scene(repo_root / "configs" / "scenes" / "glossy-product.toml")
@@ -219,7 +219,7 @@ def test_a_choice_over_the_scene_budget_is_said_in_the_report_and_the_console(tm
     import json
 
     from reconstruction import cli
-    from reconstruction.slicefile import write_slice
+    from reconstruction.formats.slicefile import write_slice
 
     s = _captured(GREY_PLASTIC)
     src = tmp_path / "slice.csv"

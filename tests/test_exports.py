@@ -10,11 +10,12 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from reconstruction import cli, exports, pipeline, zemax
-from reconstruction.fit import reconstruct_fit
-from reconstruction.microfacet import MicrofacetReconstruction
-from reconstruction.models import Colour, Lambert, Material, Microfacet
-from reconstruction.slicefile import write_slice
+from reconstruction import cli, pipeline
+from reconstruction.core.models import Colour, Lambert, Material, Microfacet
+from reconstruction.formats import exports, zemax
+from reconstruction.formats.slicefile import write_slice
+from reconstruction.methods.fit import reconstruct_fit
+from reconstruction.methods.microfacet import MicrofacetReconstruction
 from reconstruction.synthetic import synthetic_slice
 
 

@@ -7,11 +7,12 @@ import math
 import numpy as np
 import pytest
 
-from reconstruction import merl, pipeline
+from reconstruction import pipeline
 from reconstruction.base import ReconstructionError
-from reconstruction.geometry import half_diff_from_dirs, inplane_to_dirs
-from reconstruction.models import Material
-from reconstruction.slicefile import Slice
+from reconstruction.core.geometry import half_diff_from_dirs, inplane_to_dirs
+from reconstruction.core.models import Material
+from reconstruction.formats import merl
+from reconstruction.formats.slicefile import Slice
 
 METHODS = ["fit", "bivariate", "revolve", "auto"]
 SHARP = Material.from_dict({"name": "sharp", "lobes": [{"type": "lambert", "albedo": 1e-8},
@@ -120,7 +121,7 @@ class _EvalOnly:
 def test_tabulate_without_a_table_averages_a_sharp_lobe_over_its_cells():
     """pipeline.tabulate's fallback for a method without table(): bin-centre values, and where the method names a
     lobe sharper than the cells (sharp_theta_h_rad), theta_h cell averages there, each theta_d row scaled to the
-    lobe's energy (reconstruction.sharprows); negative values refused."""
+    lobe's energy (reconstruction.core.sharprows); negative values refused."""
     point = merl.tabulate(SHARP.eval)
     plain = pipeline.tabulate(_EvalOnly(SHARP, None))
     np.testing.assert_array_equal(plain, point)

@@ -3,13 +3,13 @@
 import numpy as np
 import pytest
 
-from reconstruction import merl
 from reconstruction.base import Reconstruction, ReconstructionError
-from reconstruction.fit import reconstruct_fit
-from reconstruction.metrics import relative_rmse_cos
-from reconstruction.models import Material
-from reconstruction.scene import load_scene
-from reconstruction.slicefile import Slice
+from reconstruction.core.metrics import relative_rmse_cos
+from reconstruction.core.models import Material
+from reconstruction.core.scene import load_scene
+from reconstruction.formats import merl
+from reconstruction.formats.slicefile import Slice
+from reconstruction.methods.fit import reconstruct_fit
 from reconstruction.synthetic import synthetic_slice
 
 
@@ -179,7 +179,7 @@ def test_fit_runs_with_one_blas_thread():
 from hypothesis import HealthCheck, example, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
-from reconstruction.metrics import halfvector_albedo  # noqa: E402
+from reconstruction.core.metrics import halfvector_albedo  # noqa: E402
 
 
 def _max_albedo(rec):
@@ -246,9 +246,11 @@ def test_a_mirror_direction_in_a_gap_bounds_the_lobe_width():
 def test_fit_table_is_the_tabulated_eval_with_theta_h_averages(n_channels):
     # FitReconstruction.table averages its sharp microfacet lobes in the half-diff angles: the same table as
     # tabulating eval and averaging every lobe over theta_h (merl.average_theta_h_cells)
-    from reconstruction import merl, pipeline, sharprows
-    from reconstruction.fit.report import FitReconstruction
-    from reconstruction.models import Colour, Lambert, Material, Microfacet, Retro
+    from reconstruction import pipeline
+    from reconstruction.core import sharprows
+    from reconstruction.core.models import Colour, Lambert, Material, Microfacet, Retro
+    from reconstruction.formats import merl
+    from reconstruction.methods.fit.report import FitReconstruction
 
     def col(*v: float) -> Colour:
         return Colour(np.array(v[:n_channels]))
@@ -260,7 +262,7 @@ def test_fit_table_is_the_tabulated_eval_with_theta_h_averages(n_channels):
     assert rec.sharp_theta_h_rad == pytest.approx(0.01)
     slow, rows = merl.average_theta_h_cells(rec.eval, merl.tabulate(rec.eval), rec.sharp_theta_h_rad, n=8)
     fast = rec.table()
-    # what gonio-reconstruct writes: those rows then renormalised to the lobe's energy (reconstruction.sharprows)
+    # what gonio-reconstruct writes: those rows then renormalised to the lobe's energy (reconstruction.core.sharprows)
     written, _ = sharprows.renormalise(rec.eval, fast, rec.sharp_theta_h_rad)
     np.testing.assert_array_equal(pipeline.tabulate(rec), written)
     assert np.array_equal(np.isnan(fast), np.isnan(slow))

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from reconstruction.energy import microfacet_albedo
-from reconstruction.fit import reconstruct_fit
-from reconstruction.instrument import Instrument, instrument_average
-from reconstruction.models import Colour, Lambert, Material, Microfacet
-from reconstruction.slicefile import Slice
+from reconstruction.bench.instrument import Instrument, instrument_average
+from reconstruction.core.energy import microfacet_albedo
+from reconstruction.core.models import Colour, Lambert, Material, Microfacet
+from reconstruction.formats.slicefile import Slice
+from reconstruction.methods.fit import reconstruct_fit
 
 
 def _capture(alpha: float, inst: Instrument, seed: int = 1) -> tuple[Material, Slice]:

@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from reconstruction import geometry as g
+from reconstruction.core import geometry as g
 
 RNG = np.random.default_rng(7)
 

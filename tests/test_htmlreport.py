@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from reconstruction import cli
-from reconstruction.htmlreport import SECTIONS
+from reconstruction.report.html import SECTIONS
 from tests.test_cli_reconstruct import BLUE_PLASTIC, slice_file
 
 
@@ -95,9 +95,9 @@ def test_the_environment_sphere_is_the_integral_of_the_environment_at_the_rim_to
     """The page's sky-and-ground sphere (a glossy lobe, GGX alpha 0.05): each pixel, the grazing views at the rim
     included, is the environment's integral (the old render summed 192 fixed world directions, so a glossy lobe
     at grazing views met one or none of them: blotches of several times the right value)."""
-    from reconstruction.htmlreport import _backdrop, environment_render
-    from reconstruction.models import Material
-    from reconstruction.render import SkyGround, sphere_coverage
+    from reconstruction.core.models import Material
+    from reconstruction.core.render import SkyGround, sphere_coverage
+    from reconstruction.report.html import _backdrop, environment_render
     from tests.test_render import brute_force
 
     mat = Material.from_dict({"name": "m", "lobes": [{"type": "lambert", "albedo": 0.1},
@@ -122,9 +122,9 @@ def test_the_environment_sphere_is_the_integral_of_the_environment_at_the_rim_to
 def test_the_coverage_legend_marker_shows_on_its_frame():
     from matplotlib.colors import to_rgb
 
-    from reconstruction import merl
-    from reconstruction.htmlreport import _coverage_plot
-    from reconstruction.slicefile import Slice
+    from reconstruction.formats import merl
+    from reconstruction.formats.slicefile import Slice
+    from reconstruction.report.html import _coverage_plot
 
     s = Slice(np.array([30.0, 30.0]), np.array([-20.0, 40.0]), np.array([[0.1], [0.3]]), ["value"])
     table = np.full(merl.SHAPE, 0.1)
@@ -139,7 +139,7 @@ def test_the_coverage_legend_marker_shows_on_its_frame():
 
 
 def test_grey_data_have_one_albedo_curve():
-    from reconstruction.htmlreport import _albedo_plot
+    from reconstruction.report.html import _albedo_plot
 
     ti = [0.0, 30.0, 60.0]
     grey = {"albedo": {"theta_i_deg": ti, "albedo": [[0.2, 0.2, 0.2], [0.21, 0.21, 0.21], [0.3, 0.3, 0.3]]}}
@@ -173,7 +173,7 @@ def test_an_html_report_a_preview_or_a_report_alone_is_an_output(tmp_path, capsy
 
 
 def test_the_help_of_out_names_every_other_output():
-    from reconstruction.exports import OTHER_OUTPUTS
+    from reconstruction.formats.exports import OTHER_OUTPUTS
 
     out = next(a for a in cli.build_parser()._actions if "--out" in a.option_strings)
     assert "optional once another output is asked" in out.help

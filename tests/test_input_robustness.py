@@ -16,10 +16,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from reconstruction import cli, merl, preview
-from reconstruction.inputs import InputError, load_inputs, read_table
-from reconstruction.models import Material
-from reconstruction.slicefile import MAX_INPUT_BYTES, Slice, SliceError, SliceWriter, read_slice, write_slice
+from reconstruction import cli
+from reconstruction.core.models import Material
+from reconstruction.formats import merl
+from reconstruction.formats.inputs import InputError, load_inputs, read_table
+from reconstruction.formats.slicefile import MAX_INPUT_BYTES, Slice, SliceError, SliceWriter, read_slice, write_slice
+from reconstruction.report import preview
 from reconstruction.synthetic import synthetic_slice
 
 REPO = Path(__file__).resolve().parents[1]
@@ -169,7 +171,7 @@ def test_a_100_mb_table_is_read_in_bounded_memory(tmp_path):
     big = tmp_path / "big.csv"
     _big_table(big, 100_000_000)
     assert big.stat().st_size > 95_000_000
-    code = ("import resource, sys; from reconstruction.inputs import load_inputs; "
+    code = ("import resource, sys; from reconstruction.formats.inputs import load_inputs; "
             "s = load_inputs([sys.argv[1]], quantity='brdf').slice; "
             "print(len(s), resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)")
     r = subprocess.run([sys.executable, "-c", code, str(big)], capture_output=True, text=True, timeout=120, cwd=REPO)

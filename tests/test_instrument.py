@@ -1,13 +1,13 @@
-"""The instrument's angular response (reconstruction.instrument): readings against a brute-force cone integral."""
+"""The instrument's angular response (reconstruction.bench.instrument): readings against a brute-force cone integral."""
 
 import math
 
 import numpy as np
 import pytest
 
-from reconstruction.geometry import inplane_to_dirs
-from reconstruction.instrument import Instrument, InstrumentError, instrument_average
-from reconstruction.models import Colour, Lambert, Material, Microfacet
+from reconstruction.bench.instrument import Instrument, InstrumentError, instrument_average
+from reconstruction.core.geometry import inplane_to_dirs
+from reconstruction.core.models import Colour, Lambert, Material, Microfacet
 
 
 def _mat(*lobes) -> Material:
@@ -128,7 +128,7 @@ def test_meta_round_trip_and_clear_errors():
 
 
 def test_slice_files_carry_the_instrument_and_refuse_a_malformed_one(tmp_path):
-    from reconstruction.slicefile import Slice, SliceError, read_slice, write_slice
+    from reconstruction.formats.slicefile import Slice, SliceError, read_slice, write_slice
 
     inst = Instrument(1e-3, band="silicon x halogen-3000K")
     p = tmp_path / "s.csv"

@@ -6,8 +6,8 @@ import struct
 import numpy as np
 import pytest
 
-from reconstruction import merl
-from reconstruction.geometry import dirs_from_half_diff
+from reconstruction.core.geometry import dirs_from_half_diff
+from reconstruction.formats import merl
 
 RNG = np.random.default_rng(3)
 
@@ -240,8 +240,8 @@ def test_written_file_has_ordinary_permissions(tmp_path):
 def test_half_diff_cosines_and_theta_h_averages_match_the_direction_pairs():
     # the closed-form cosines are the z of the cells' direction pairs, and the half-diff theta_h averages are
     # merl.average_theta_h_cells of the same function evaluated on direction pairs
-    from reconstruction import halfdiff
-    from reconstruction.models import Microfacet
+    from reconstruction.core import halfdiff
+    from reconstruction.core.models import Microfacet
 
     ci, co = halfdiff.cell_cosines()
     wi, wo = merl._cell_dirs()

@@ -3,8 +3,9 @@
 import numpy as np
 import pytest
 
-from reconstruction import merl, metrics
-from reconstruction.models import Material
+from reconstruction.core import metrics
+from reconstruction.core.models import Material
+from reconstruction.formats import merl
 
 MAT = Material.from_dict({"name": "m", "lobes": [{"type": "lambert", "albedo": [0.2, 0.4, 0.6]},
                                                  {"type": "ggx", "alpha": 0.2, "specular": 0.5}]})

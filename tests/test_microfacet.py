@@ -3,13 +3,13 @@
 import numpy as np
 import pytest
 
-from reconstruction import merl
 from reconstruction.base import Reconstruction, ReconstructionError
-from reconstruction.geometry import sph_to_vec
-from reconstruction.metrics import directional_albedo, reciprocity_error, relative_rmse_cos
-from reconstruction.microfacet import fresnel, reconstruct_microfacet
-from reconstruction.models import Colour, Lambert, Material, Microfacet, ggx_d
-from reconstruction.slicefile import Slice
+from reconstruction.core.geometry import sph_to_vec
+from reconstruction.core.metrics import directional_albedo, reciprocity_error, relative_rmse_cos
+from reconstruction.core.models import Colour, Lambert, Material, Microfacet, ggx_d
+from reconstruction.formats import merl
+from reconstruction.formats.slicefile import Slice
+from reconstruction.methods.microfacet import fresnel, reconstruct_microfacet
 from reconstruction.synthetic import synthetic_slice
 
 
@@ -111,8 +111,9 @@ def test_bad_input():
 ])
 def test_table_is_the_tabulated_eval(alphas, kind, channels):
     # the half-diff table must hold what tabulating eval gives (and, with a sharp term, its theta_h averages)
-    from reconstruction import pipeline, sharprows
-    from reconstruction.microfacet import MicrofacetReconstruction
+    from reconstruction import pipeline
+    from reconstruction.core import sharprows
+    from reconstruction.methods.microfacet import MicrofacetReconstruction
 
     a = np.array(alphas)
     rec = MicrofacetReconstruction(a, np.full(a.size, 1.0 / a.size), kind, 1.6, 2.5 if kind == "conductor" else 0.0,

@@ -5,9 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from reconstruction.geometry import inplane_to_dirs
-from reconstruction.metrics import directional_albedo, reciprocity_error
-from reconstruction.models import Material, MaterialError
+from reconstruction.core.geometry import inplane_to_dirs
+from reconstruction.core.metrics import directional_albedo, reciprocity_error
+from reconstruction.core.models import Material, MaterialError
 
 
 def mat(*lobes, name="m"):
@@ -159,7 +159,7 @@ f0 = 0.04
 
 
 def test_tabulated_lobe_reads_a_merl_table(tmp_path):
-    from reconstruction import merl
+    from reconstruction.formats import merl
 
     src = mat({"type": "lambert", "albedo": [0.2, 0.4, 0.6]}, {"type": "ggx", "alpha": 0.3, "specular": 0.5})
     merl.write(tmp_path / "t.binary", merl.tabulate(src.eval))

@@ -1,14 +1,15 @@
-"""The nbrdf lobe (neural BRDFs in the published npy layout) and the tabulated lobe albedos of reconstruction.energy."""
+"""The nbrdf lobe (neural BRDFs in the published npy layout) and the tabulated lobe albedos of
+reconstruction.core.energy."""
 
 import math
 
 import numpy as np
 import pytest
 
-from reconstruction.energy import microfacet_albedo, retro_albedo
-from reconstruction.geometry import half_diff_from_dirs, sph_to_vec
-from reconstruction.metrics import directional_albedo
-from reconstruction.models import Colour, Material, MaterialError, Microfacet, Retro
+from reconstruction.core.energy import microfacet_albedo, retro_albedo
+from reconstruction.core.geometry import half_diff_from_dirs, sph_to_vec
+from reconstruction.core.metrics import directional_albedo
+from reconstruction.core.models import Colour, Material, MaterialError, Microfacet, Retro
 from reconstruction.synthetic import synthetic_slice
 
 SHAPES = {"fc1": (6, 21), "b1": (21,), "fc2": (21, 21), "b2": (21,), "fc3": (21, 3), "b3": (3,)}

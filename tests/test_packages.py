@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from reconstruction import fit, merl, revolve
+from reconstruction.formats import merl
+from reconstruction.methods import fit, revolve
 from reconstruction.synthetic import synthetic_slice
 from tests.test_cli_reconstruct import BLUE_PLASTIC
 

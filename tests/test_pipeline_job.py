@@ -6,8 +6,9 @@ import json
 
 import pytest
 
-from reconstruction import merl, methods, pipeline
+from reconstruction import methods, pipeline
 from reconstruction.base import ReconstructionError
+from reconstruction.formats import merl
 from tests.test_cli_reconstruct import BLUE_PLASTIC, slice_file
 
 

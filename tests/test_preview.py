@@ -7,9 +7,9 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from reconstruction import merl
-from reconstruction.models import Material
-from reconstruction.preview import (
+from reconstruction.core.models import Material
+from reconstruction.formats import merl
+from reconstruction.report.preview import (
     AMBIENT,
     LIGHT_POSITION,
     PREVIEW_RADIUS,

@@ -9,11 +9,13 @@ import sys
 import numpy as np
 import pytest
 
-from reconstruction import merl, pipeline, prior
+from reconstruction import pipeline
 from reconstruction.base import ReconstructionError
-from reconstruction.metrics import relative_rmse_cos
-from reconstruction.models import Material
-from reconstruction.slicefile import Slice, write_slice
+from reconstruction.core.metrics import relative_rmse_cos
+from reconstruction.core.models import Material
+from reconstruction.formats import merl
+from reconstruction.formats.slicefile import Slice, write_slice
+from reconstruction.methods import auto, prior
 from reconstruction.synthetic import synthetic_slice
 
 TARGET = Material.from_dict({"name": "target", "lobes": [
@@ -155,34 +157,34 @@ def test_gonio_reconstruct_with_a_prior_and_auto_trying_it(family, tmp_path):
     cv = json.loads((tmp_path / "a.json").read_text())["cross_validation"]
     assert "prior" in {c["method"] for c in cv["scores"]}
     assert cv["single_incidence_preference"] == {"method": "prior", "methods": ["prior"],
-                                                 "margin": pipeline.PRIOR_MARGIN_SINGLE}
+                                                 "margin": auto.PRIOR_MARGIN_SINGLE}
     assert cv["chosen"] == "fit"  # the family's exact lambert + ggx predicts the held-out samples ~1e-9
 
 
 def test_auto_prefers_the_prior_by_its_margins_and_an_exact_model_still_wins():
-    from reconstruction.crossval import CVScore
+    from reconstruction.methods.crossval import CVScore
 
     sc = [CVScore("fit", 0.01, [], 0.0), CVScore("bivariate", 0.019, [], 0.0), CVScore("prior", 0.035, [], 0.0)]
-    order = lambda pref: [c.method for c in pipeline.rank(sc, *pref)]  # noqa: E731
+    order = lambda pref: [c.method for c in auto.rank(sc, *pref)]  # noqa: E731
     with_prior = ["fit", "microfacet", "bivariate", "revolve", "prior"]
     # one slice: prior within 4x of the best is chosen; several: within 2x only (so it passes bivariate, 1.9x)
-    assert pipeline.preference(with_prior, True) == (["prior"], pipeline.PRIOR_MARGIN_SINGLE)
-    assert order(pipeline.preference(with_prior, True))[0] == "prior"
-    assert pipeline.preference(with_prior, False) == (["prior"], pipeline.PRIOR_MARGIN_SEVERAL)
-    assert order(pipeline.preference(with_prior, False)) == ["fit", "prior", "bivariate"]
+    assert auto.preference(with_prior, True) == (["prior"], auto.PRIOR_MARGIN_SINGLE)
+    assert order(auto.preference(with_prior, True))[0] == "prior"
+    assert auto.preference(with_prior, False) == (["prior"], auto.PRIOR_MARGIN_SEVERAL)
+    assert order(auto.preference(with_prior, False)) == ["fit", "prior", "bivariate"]
     # without a prior: bivariate within 2x from one slice, the plain held-out order from several
-    assert order(pipeline.preference(with_prior[:4], True))[0] == "bivariate"
-    assert order(pipeline.preference(with_prior[:4], False)) == ["fit", "bivariate", "prior"]
+    assert order(auto.preference(with_prior[:4], True))[0] == "bivariate"
+    assert order(auto.preference(with_prior[:4], False)) == ["fit", "bivariate", "prior"]
     # an exact model predicts far better than any margin (the CLI test below: fit is chosen with the prior there)
     exact = [CVScore("fit", 1e-9, [], 0.0), CVScore("prior", 0.02, [], 0.0)]
-    assert pipeline.rank(exact, *pipeline.preference(with_prior, True))[0].method == "fit"
+    assert auto.rank(exact, *auto.preference(with_prior, True))[0].method == "fit"
     # ... unless the best predicts to within NOISE_LEVEL_FACTOR of the samples' own noise: then the plain order
-    assert pipeline.rank(sc, ["prior"], 4.0, noise=0.008)[0].method == "fit"  # 0.01 <= 1.5 x 0.008
-    assert pipeline.rank(sc, ["prior"], 4.0, noise=0.005)[0].method == "prior"
+    assert auto.rank(sc, ["prior"], 4.0, noise=0.008)[0].method == "fit"  # 0.01 <= 1.5 x 0.008
+    assert auto.rank(sc, ["prior"], 4.0, noise=0.005)[0].method == "prior"
 
 
 def test_the_noise_level_is_what_the_samples_std_amounts_to():
-    from reconstruction.crossval import noise_level
+    from reconstruction.methods.crossval import noise_level
 
     assert noise_level(synthetic_slice(TARGET, (40.0,))) == 0.0
     assert 0.009 < noise_level(synthetic_slice(TARGET, (40.0,), noise=0.01, seed=3)) < 0.011
@@ -198,8 +200,9 @@ def test_auto_with_a_prior_keeps_an_exact_model_of_a_noisy_slice(family, truth):
 
 
 def test_an_anchored_prior_is_the_weighted_geometric_mean_of_prior_and_bivariate(family):
-    from reconstruction import methods, report
-    from reconstruction.geometry import inplane_to_dirs
+    from reconstruction import methods
+    from reconstruction.core.geometry import inplane_to_dirs
+    from reconstruction.report import summary as report
 
     folder, _ = family
     s = synthetic_slice(TARGET, (40.0,))
@@ -229,8 +232,8 @@ def test_an_anchored_prior_is_the_weighted_geometric_mean_of_prior_and_bivariate
 
 
 def test_held_out_predictions_are_scored_as_the_relative_rmse_of_f_cos_cos():
-    from reconstruction.crossval import folds, score_predictions
-    from reconstruction.geometry import inplane_to_dirs
+    from reconstruction.core.geometry import inplane_to_dirs
+    from reconstruction.methods.crossval import folds, score_predictions
 
     s = synthetic_slice(TARGET, (20.0, 40.0, 60.0)).sorted()
     _, masks = folds(s)
@@ -256,15 +259,15 @@ def test_auto_anchors_the_prior_on_a_material_outside_its_family(family):
     slice; auto scores the anchored variants from held-out predictions and takes the best of them."""
     from test_cli_reconstruct import PHONG
 
-    from reconstruction.crossval import folds, score_predictions
-    from reconstruction.prior import anchored
+    from reconstruction.methods.crossval import folds, score_predictions
+    from reconstruction.methods.prior import anchored
 
     folder, _ = family
     s = synthetic_slice(PHONG, (40.0,))
     rec, choice = pipeline.reconstruct(s, "auto", pipeline.Options(prior=str(folder)))
     cv = choice["cross_validation"]
     variants = {c["label"]: c for c in cv["scores"] if c["method"] == "prior"}
-    assert set(variants) == {"prior"} | {f"prior (anchor {a:g})" for a in pipeline.PRIOR_ANCHORS}
+    assert set(variants) == {"prior"} | {f"prior (anchor {a:g})" for a in auto.PRIOR_ANCHORS}
     best = min(variants.values(), key=lambda c: c["held_out_relative_rmse_cos"])
     assert choice["used"] == "prior" and cv["chosen_label"] == best["label"] != "prior"
     assert cv["prior_anchor"] == best["prior_anchor"] > 0 and best["label"] in choice["reason"]
@@ -276,13 +279,13 @@ def test_auto_anchors_the_prior_on_a_material_outside_its_family(family):
     assert rec1.report()["anchor"]["weight"] == best["prior_anchor"]
     # the variants' scores are those of the blend of prior's and bivariate's own held-out predictions
     from reconstruction import methods
-    from reconstruction.crossval import cross_validate
+    from reconstruction.methods.crossval import cross_validate
 
     ss = s.sorted()
     _, masks = folds(ss)
     cvs = {m: cross_validate(ss, m, lambda tr, m=m: methods.get(m).build(tr, pipeline.Options(prior=str(folder)),
                                                                           None), masks) for m in ("prior", "bivariate")}
-    for a in pipeline.PRIOR_ANCHORS:
+    for a in auto.PRIOR_ANCHORS:
         blend = score_predictions(ss, "prior", anchored(cvs["prior"].predictions, cvs["bivariate"].predictions, a),
                                   masks)
         assert blend.error == pytest.approx(variants[f"prior (anchor {a:g})"]["held_out_relative_rmse_cos"], rel=1e-9)

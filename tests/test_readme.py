@@ -172,7 +172,7 @@ def demo(tmp_path_factory, request) -> Demo:
 
 
 def test_the_demo_capture_is_deterministic(demo):
-    from reconstruction.slicefile import read_slice
+    from reconstruction.formats.slicefile import read_slice
 
     a, b = read_slice(demo.folder / "slice.csv"), read_slice(demo.folder.parent / "demo-again" / "slice.csv")
     for column in ("theta_i_deg", "theta_o_deg", "values", "std", "repeats"):
@@ -339,7 +339,7 @@ def test_the_command_line_parses(source, argv, capsys):
     except SystemExit:
         pytest.fail(f"{source}: `{shlex.join(argv)}` is refused by {argv[0]}: {capsys.readouterr().err.strip()}")
     if argv[0] == "gonio-reconstruct":  # what _main checks before any work
-        from reconstruction.exports import wants_outputs
+        from reconstruction.formats.exports import wants_outputs
 
         ok = (args.batch and not args.inputs and not args.out) or (args.inputs and (args.out or wants_outputs(args)))
         assert ok, f"{source}: `{shlex.join(argv)}`: gonio-reconstruct needs INPUT and an output, or --batch alone"

@@ -1,14 +1,14 @@
-"""The sphere renderer (reconstruction.render) against brute-force integrals, and the image metrics built on it."""
+"""The sphere renderer (reconstruction.core.render) against brute-force integrals, and the image metrics built on it."""
 
 import math
 
 import numpy as np
 import pytest
 
-from reconstruction import render
-from reconstruction.metrics import image_errors, image_exposure, image_psnr, image_relative_rmse, tone_map
-from reconstruction.models import Material
-from reconstruction.render import Lighting, PointLight, SkyGround, Sun, render_sphere
+from reconstruction.core import render
+from reconstruction.core.metrics import image_errors, image_exposure, image_psnr, image_relative_rmse, tone_map
+from reconstruction.core.models import Material
+from reconstruction.core.render import Lighting, PointLight, SkyGround, Sun, render_sphere
 
 
 def material(*lobes):

@@ -9,12 +9,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from reconstruction import merl, metrics
-from reconstruction import revolve as rv
 from reconstruction.base import Reconstruction, ReconstructionError
-from reconstruction.geometry import inplane_to_dirs, sph_to_vec, thesis_points_from_slice
-from reconstruction.models import Material
-from reconstruction.slicefile import Slice
+from reconstruction.core import metrics
+from reconstruction.core.geometry import inplane_to_dirs, sph_to_vec, thesis_points_from_slice
+from reconstruction.core.models import Material
+from reconstruction.formats import merl
+from reconstruction.formats.slicefile import Slice
+from reconstruction.methods import revolve as rv
 
 RNG = np.random.default_rng(11)
 TO = np.arange(-80.0, 80.5, 2.0)  # the bench's default plan: -80..80 deg every 2 deg

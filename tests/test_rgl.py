@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from reconstruction import pipeline, rgl
-from reconstruction.metrics import directional_albedo
-from reconstruction.models import Material, Microfacet, ggx_d
+from reconstruction import pipeline
+from reconstruction.core.metrics import directional_albedo
+from reconstruction.core.models import Material, Microfacet, ggx_d
+from reconstruction.formats import rgl
 from reconstruction.synthetic import synthetic_slice
 
 

@@ -1,11 +1,11 @@
-"""Scene files (reconstruction.scene): parsing, defaults, and errors that name the file and the key."""
+"""Scene files (reconstruction.core.scene): parsing, defaults, and errors that name the file and the key."""
 
 import math
 
 import pytest
 
 from reconstruction.base import ReconstructionError
-from reconstruction.scene import LOBE_KINDS, Scene, SceneError, load_scene, scene_from_dict
+from reconstruction.core.scene import LOBE_KINDS, Scene, SceneError, load_scene, scene_from_dict
 
 
 def test_repository_scene_file(repo_root):

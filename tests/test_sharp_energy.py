@@ -14,12 +14,14 @@ import json
 import numpy as np
 import pytest
 
-from reconstruction import merl, pipeline, report
-from reconstruction.energy import microfacet_albedo
-from reconstruction.instrument import Instrument, instrument_average
-from reconstruction.metrics import halfvector_albedo
-from reconstruction.models import Colour, Lambert, Material, Microfacet
-from reconstruction.slicefile import Slice, write_slice
+from reconstruction import pipeline
+from reconstruction.bench.instrument import Instrument, instrument_average
+from reconstruction.core.energy import microfacet_albedo
+from reconstruction.core.metrics import halfvector_albedo
+from reconstruction.core.models import Colour, Lambert, Material, Microfacet
+from reconstruction.formats import merl
+from reconstruction.formats.slicefile import Slice, write_slice
+from reconstruction.report import summary as report
 
 THETA_I_DEG = np.array([0.0, 30.0, 60.0, 70.0, 80.0])
 CONE = Instrument.from_half_angle(1.025)  # the simulated bench's detector: 1e-3 sr
@@ -107,7 +109,7 @@ def test_revolve_leaves_a_broad_lobe_beyond_its_last_incidence_as_it_was():
     """The grazing extrapolation is for narrow lobes only: a rough lobe keeps the divisor held at the smallest
     product measured (its shadowing towards the horizon), so its values at 80 deg stay at most those at 60 deg's
     geometry, cos cos included."""
-    from reconstruction.geometry import inplane_to_dirs
+    from reconstruction.core.geometry import inplane_to_dirs
 
     mat = _material(0.2, 0.3, 0.8)
     rec, _ = pipeline.reconstruct(_capture(mat), "revolve")

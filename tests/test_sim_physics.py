@@ -37,7 +37,7 @@ def test_noiseless_reading_equals_formula(config_dict):
     b = bench_from(config_dict)
     ti, to = b.arm_angles()
     assert (ti, to) == (0.0, 45.0)
-    from reconstruction.geometry import inplane_to_dirs
+    from reconstruction.core.geometry import inplane_to_dirs
 
     wi, wo = inplane_to_dirs(math.radians(ti), math.radians(to))
     f = b.physics.material.eval(wi, wo)  # alpha 0.15: smooth over the 1e-3 sr cone (cone average = f to 1e-4)
@@ -154,7 +154,7 @@ def test_a_mirror_reads_its_reflectance_not_its_peak(config_dict):
     b = bench_from(config_dict, spec)
     s = b.physics.expected_signal(30.0, 30.0)[0]
     assert s == pytest.approx(1e6 * 0.95, rel=0.02)
-    from reconstruction.geometry import inplane_to_dirs
+    from reconstruction.core.geometry import inplane_to_dirs
 
     wi, wo = inplane_to_dirs(math.radians(30.0), math.radians(30.0))
     point = 1e6 * float(b.physics.material.eval(wi, wo)[0]) * math.cos(math.radians(30.0)) * 1e-3
@@ -240,7 +240,7 @@ def test_spectrometer_sees_an_rgb_material_as_spectra_that_convert_back_to_its_r
     wl = b.physics.detector.wavelengths_nm
     spectra = b.physics.to_detector_channels(np.array([albedo]), b.physics.material)
     assert spectra.shape == (1, wl.size) and np.all(spectra > 0)
-    from reconstruction.colour import spectra_to_rgb
+    from reconstruction.core.colour import spectra_to_rgb
 
     rgb, _ = spectra_to_rgb(spectra, wl)
     np.testing.assert_allclose(rgb[0], albedo, rtol=0.02, atol=1e-3)

@@ -125,7 +125,7 @@ def test_a_case_is_recaptured_when_its_config_changed_and_resumed_when_not(tmp_p
     study.truth_table.cache_clear()  # the cached truth belongs to the old material
     changed = study.run_case((case, base, str(tmp_path)))[0]  # another material: captured again
     assert changed["status"] == "ok" and changed["rel_rmse_cos"] < 0.05
-    from reconstruction.slicefile import read_slice
+    from reconstruction.formats.slicefile import read_slice
 
     assert read_slice(slice_csv).values.mean() < 0.7 * 0.6 / np.pi  # the new, darker material's samples
 

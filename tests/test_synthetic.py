@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from reconstruction.geometry import inplane_to_dirs
-from reconstruction.models import Material
+from reconstruction.core.geometry import inplane_to_dirs
+from reconstruction.core.models import Material
 from reconstruction.synthetic import synthetic_slice
 
 GREY = Material.from_dict({"name": "grey", "lobes": [{"type": "lambert", "albedo": 0.5},

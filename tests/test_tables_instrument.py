@@ -3,13 +3,13 @@
 import numpy as np
 import pytest
 
-from reconstruction import merl
-from reconstruction.bivariate import reconstruct_bivariate
-from reconstruction.energy import microfacet_albedo
-from reconstruction.instrument import Instrument, instrument_average
-from reconstruction.metrics import halfvector_albedo
-from reconstruction.models import Colour, Lambert, Material, Microfacet
-from reconstruction.slicefile import Slice
+from reconstruction.bench.instrument import Instrument, instrument_average
+from reconstruction.core.energy import microfacet_albedo
+from reconstruction.core.metrics import halfvector_albedo
+from reconstruction.core.models import Colour, Lambert, Material, Microfacet
+from reconstruction.formats import merl
+from reconstruction.formats.slicefile import Slice
+from reconstruction.methods.bivariate import reconstruct_bivariate
 
 THETA_I = np.radians([0.0, 30.0, 60.0, 80.0])
 
@@ -59,7 +59,7 @@ def test_microfacet_table_of_a_mirror_keeps_its_albedo_within_5_percent(mirror):
     assert rec.table_values.startswith("cell averages over theta_h")
     np.testing.assert_allclose(_table_albedo(tabulate(rec)), exact, rtol=0.05)
     # alpha 1e-3 is below what a 1 deg cone resolves: the lobe is written at the resolution, its energy kept
-    from reconstruction.fit.aperture import resolution_alpha
+    from reconstruction.methods.fit.aperture import resolution_alpha
 
     merged = rec.report()["instrument"]["below_resolution"]
     assert merged["resolution_alpha"] == pytest.approx(resolution_alpha(1.0)) and merged["weight"] > 0.5
@@ -103,7 +103,7 @@ def test_gonio_reconstruct_carries_the_instrument_to_the_methods(mirror, tmp_pat
     import json
 
     from reconstruction import cli
-    from reconstruction.slicefile import write_slice
+    from reconstruction.formats.slicefile import write_slice
 
     mat, exact = mirror
     src = tmp_path / "mirror.csv"

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from reconstruction import merl
-from reconstruction.geometry import inplane_to_dirs, sph_to_vec
-from reconstruction.models import Material
+from reconstruction.core.geometry import inplane_to_dirs, sph_to_vec
+from reconstruction.core.models import Material
+from reconstruction.formats import merl
 
 SHARP = Material.from_dict({"name": "sharp", "lobes": [{"type": "ggx", "alpha": 1e-3, "specular": 1.0}]})
 INCIDENCES_DEG = [0.0, 30.0, 60.0, 80.0]

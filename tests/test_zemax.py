@@ -9,11 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from reconstruction import cli, zemax
-from reconstruction.geometry import inplane_to_dirs
-from reconstruction.metrics import directional_albedo
-from reconstruction.models import Colour, Lambert, Material, Microfacet
-from reconstruction.samples import DirectionalSlice, everywhere
+from reconstruction import cli
+from reconstruction.core.geometry import inplane_to_dirs
+from reconstruction.core.metrics import directional_albedo
+from reconstruction.core.models import Colour, Lambert, Material, Microfacet
+from reconstruction.core.samples import DirectionalSlice, everywhere
+from reconstruction.formats import zemax
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "zemax" / "speos-converted-550nm.bsdf"
 
@@ -211,7 +212,7 @@ def test_points_are_capped_with_every_in_plane_point_kept():
     wo[:, 2] = np.abs(wo[:, 2]) + 0.1
     wo[:40, 1] = 0.0  # in the plane of incidence
     wo /= np.linalg.norm(wo, axis=1, keepdims=True)
-    from reconstruction.samples import SliceWithPoints, directional_slice
+    from reconstruction.core.samples import SliceWithPoints, directional_slice
 
     pts = directional_slice(wi, wo, np.ones((n, 1)), ["value"])
     s = SliceWithPoints(np.array([30.0, 30.0, 30.0]), np.array([0.0, 10.0, 20.0]), np.ones((3, 1)), ["value"],

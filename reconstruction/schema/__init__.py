@@ -7,6 +7,6 @@ the key path and what was expected; ``python scripts/write_schemas.py`` writes t
 This is the base layer: acquisition, the simulator and the reconstruction all read their files through it.
 """
 
-from .core import SchemaError, Table, describe, json_schema, read_table
+from reconstruction.schema.core import SchemaError, Table, describe, json_schema, read_table
 
 __all__ = ["SchemaError", "Table", "describe", "json_schema", "read_table"]

@@ -11,7 +11,7 @@ from typing import Annotated, Any, Literal
 import msgspec
 from msgspec import Meta
 
-from .simulator import SimulatorSection
+from reconstruction.schema.simulator import SimulatorSection
 
 __all__ = ["DXL_MODELS", "DXL_BAUDRATES", "AXIS_LETTERS", "MIN_INTEGRATION_TIME_S", "MAX_INTEGRATION_TIME_S",
            "BenchTable", "AxisTable", "MotionTable", "DetectorTable", "CalibrationTable", "AdaptiveTable",

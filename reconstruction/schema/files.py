@@ -9,7 +9,7 @@ import math
 import stat
 from pathlib import Path
 
-from .core import SchemaError
+from reconstruction.schema.core import SchemaError
 
 __all__ = ["MAX_TEXT_BYTES", "open_text", "read_spectrum_csv"]
 

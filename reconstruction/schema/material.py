@@ -1,5 +1,5 @@
 """A material (``[material]`` of a simulated bench, a material TOML file), declared once: a name and a list of
-lobes, each a table with ``type`` and that type's keys. :mod:`reconstruction.models` reads it (the keys of each
+lobes, each a table with ``type`` and that type's keys. :mod:`reconstruction.core.models` reads it (the keys of each
 lobe type and what they are come from here). Colours are a number, 1 or 3 numbers, a list matching
 ``wavelengths_nm``, or ``{wavelengths_nm = [...], values = [...]}``."""
 

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .core import SchemaError
+from reconstruction.schema.core import SchemaError
 
 __all__ = ["BAND_NM", "SILICON_RESPONSIVITY", "spectrum_of", "band_weights", "band_name", "footprint_fraction",
            "footprint_limit_deg"]
@@ -63,7 +63,7 @@ def spectrum_of(name: str, kind: str, base_dir: Path | str = ".", where: str = "
         builtin = '"silicon"' if kind == "responsivity" else '"halogen-3000K" (or "halogen-<T>K"), "D65"'
         raise SchemaError(f"{where}: unknown {kind} {name!r}; expected {builtin} or a path to a "
                           "wavelength_nm,value CSV file")
-    from .files import read_spectrum_csv
+    from reconstruction.schema.files import read_spectrum_csv
 
     p = Path(name)
     if not p.is_absolute():

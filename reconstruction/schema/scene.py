@@ -1,5 +1,5 @@
 """The scene file (``configs/scenes/*.toml``), declared once: what a reconstruction is for. Read by
-:mod:`reconstruction.scene` (its keys come from here). Angles in degrees."""
+:mod:`reconstruction.core.scene` (its keys come from here). Angles in degrees."""
 
 from typing import Annotated, Literal
 

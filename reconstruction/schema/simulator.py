@@ -12,7 +12,7 @@ from typing import Annotated, Any
 import msgspec
 from msgspec import Meta
 
-from .core import describe
+from reconstruction.schema.core import describe
 
 __all__ = ["FaultsSection", "SpectrometerSection", "SimulatorSection"]
 

@@ -1,0 +1,1 @@
+"""The numerical core: geometry, BRDF models, energy, colour, metrics, the renderer, scenes."""

@@ -1,0 +1,57 @@
+"""The plausibility checks of a written table: finite and non-negative, directional albedo <= 1 (+ tolerance) at
+every checked incidence, and the reconstruction's reciprocity. The report's ``checks`` section, ``auto``'s
+rejection of a method that reflects more than it receives, and the refusal to write an implausible table (exit 3)
+all use these."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from reconstruction.base import Reconstruction
+from reconstruction.core.metrics import directional_albedo, halfvector_albedo, reciprocity_error
+from reconstruction.formats import merl
+
+Array = NDArray[np.float64]
+
+__all__ = ["ALBEDO_TOLERANCE", "RECIPROCITY_TOLERANCE", "ALBEDO_INCIDENCES_DEG", "checked_albedo", "plausibility"]
+
+ALBEDO_TOLERANCE = 0.01
+RECIPROCITY_TOLERANCE = 1e-6
+ALBEDO_INCIDENCES_DEG = np.arange(0.0, 86.0, 5.0)
+
+
+def checked_albedo(f: Callable[[Array, Array], ArrayLike], n_theta: int, n_phi: int) -> tuple[Array, str]:
+    """Directional albedo (len(ALBEDO_INCIDENCES_DEG), C) of the BRDF ``f`` at the checked incidences, and how it
+    was integrated: on an ``n_theta`` x ``n_phi`` hemisphere grid, or, when that exceeds 1 + ALBEDO_TOLERANCE, over
+    the half vector (a peak narrower than the grid, a mirror-like lobe, aliases on it)."""
+    ti = np.radians(ALBEDO_INCIDENCES_DEG)
+    alb = directional_albedo(f, ti, n_theta, n_phi)
+    if np.all(alb <= 1.0 + ALBEDO_TOLERANCE):
+        return alb, f"hemisphere, {n_theta} x {n_phi}"
+    return halfvector_albedo(f, ti), "half vector (a peak narrower than the hemisphere grid)"
+
+
+def plausibility(rec: Reconstruction, table: ArrayLike) -> dict[str, Any]:
+    """The three checks of the module docstring on ``table`` (3, 90, 90, 180) and ``rec.eval``."""
+    t = np.asarray(table, dtype=np.float64)
+    valid = merl.valid_mask()[None]
+    vals = np.where(valid, t, 0.0)
+    missing = int(np.sum(valid & ~np.isfinite(t)))
+    vmin = float(np.nanmin(np.where(valid, t, np.nan)))
+    non_neg = {"pass": bool(missing == 0 and vmin >= 0.0), "min_1_per_sr": vmin, "missing_cells": missing,
+               "max_1_per_sr": float(np.nanmax(vals))}
+    look = lambda wi, wo: np.nan_to_num(merl.lookup(t, wi, wo, interpolate=True), nan=0.0)  # noqa: E731
+    alb, quadrature = checked_albedo(look, 64, 128)
+    albedo = {"pass": bool(np.all(alb <= 1.0 + ALBEDO_TOLERANCE)), "max": float(alb.max()),
+              "theta_i_deg": ALBEDO_INCIDENCES_DEG.tolist(), "albedo": np.round(alb, 5).tolist(),
+              "tolerance": ALBEDO_TOLERANCE, "of": "the written table", "quadrature": quadrature}
+    err = reciprocity_error(rec.eval)
+    recip = {"pass": bool(err <= RECIPROCITY_TOLERANCE), "relative_error": err,
+             "tolerance": RECIPROCITY_TOLERANCE, "of": f"the {rec.method} BRDF; the table is reciprocal by "
+                                                       f"construction (phi_d folded)"}
+    return {"non_negative": non_neg, "albedo": albedo, "reciprocity": recip,
+            "all_pass": bool(non_neg["pass"] and albedo["pass"] and recip["pass"])}

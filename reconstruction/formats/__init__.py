@@ -1,0 +1,1 @@
+"""File formats: MERL, RGL, Zemax, slice files, generic tables, exports."""

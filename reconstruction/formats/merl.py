@@ -1,0 +1,592 @@
+"""MERL binary BRDF tables (Matusik et al. 2003): read, write, index, look up and tabulate.
+
+A table in memory is a float64 array ``f`` of shape (3, 90, 90, 180) holding the BRDF f_r in 1/sr, indexed
+``[channel, i_theta_h, j_theta_d, k_phi_d]``; NaN marks an invalid (unmeasured or below-horizon) cell.
+On disk (see ../shared/reference/merl-format.md): an int32 header ``90 90 180``, then all red, all green,
+all blue as little-endian float64, each divided by its channel scale; invalid cells are stored as -1.
+
+A cell stands for its bin centre: theta_h = ((i + 0.5) / 90)^2 * 90 deg, theta_d = (j + 0.5) deg,
+phi_d = (k + 0.5) deg, with phi_h = 0.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from collections.abc import Callable
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from reconstruction.atomic import atomic_open
+from reconstruction.core.geometry import dirs_from_half_diff, half_diff_from_dirs
+
+Array = NDArray[np.float64]
+
+N_TH, N_TD, N_PD = 90, 90, 180
+SHAPE = (3, N_TH, N_TD, N_PD)
+N_CELLS = N_TH * N_TD * N_PD  # 1,458,000
+FILE_SIZE = 12 + 3 * N_CELLS * 8  # 34,992,012 bytes
+SCALES = np.array([1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0])  # stored * scale = f_r
+_HEADER = np.array([N_TH, N_TD, N_PD], dtype="<i4").tobytes()
+
+__all__ = [
+    "SHAPE",
+    "N_CELLS",
+    "FILE_SIZE",
+    "SCALES",
+    "MerlError",
+    "MerlWarning",
+    "MAX_CELL_VALUE",
+    "read",
+    "write",
+    "theta_h_index",
+    "theta_d_index",
+    "phi_d_index",
+    "cell_angles",
+    "cell_to_dirs",
+    "dirs_to_cell",
+    "valid_mask",
+    "lookup",
+    "brdf_of",
+    "tabulate",
+]
+
+
+class MerlError(ValueError):
+    """A MERL file or table is invalid; the message names the file and the problem."""
+
+
+# --- index functions (the reference reader's) ------------------------------------------------------------
+
+
+def theta_h_index(theta_h: ArrayLike) -> NDArray[np.intp]:
+    """Cell index of theta_h (radians): int(sqrt(theta_h / (pi/2)) * 90), 0 for theta_h <= 0, in [0, 89].
+
+    Examples
+    --------
+    >>> theta_h_index(np.radians([0.0, 1.0, 45.0, 89.9])).tolist()
+    [0, 9, 63, 89]
+    """
+    th = np.asarray(theta_h, dtype=np.float64)
+    u = np.sqrt(np.maximum(th, 0.0) / (np.pi / 2)) * N_TH
+    return np.clip(np.floor(u), 0, N_TH - 1).astype(np.intp)
+
+
+def theta_d_index(theta_d: ArrayLike) -> NDArray[np.intp]:
+    """Cell index of theta_d (radians): int(theta_d / (pi/2) * 90) in [0, 89].
+
+    Examples
+    --------
+    >>> theta_d_index(np.radians([0.0, 30.5, 89.9])).tolist()
+    [0, 30, 89]
+    """
+    td = np.asarray(theta_d, dtype=np.float64)
+    return np.clip(np.floor(td / (np.pi / 2) * N_TD), 0, N_TD - 1).astype(np.intp)
+
+
+def phi_d_index(phi_d: ArrayLike) -> NDArray[np.intp]:
+    """Cell index of phi_d (radians): fold phi_d < 0 by +pi, then int(phi_d / pi * 180) in [0, 179].
+
+    Examples
+    --------
+    >>> phi_d_index(np.radians([0.0, 90.0, -90.0, 179.9])).tolist()  # phi_d < 0 folds by +180 deg
+    [0, 90, 90, 179]
+    """
+    pd = np.asarray(phi_d, dtype=np.float64)
+    pd = np.where(pd < 0, pd + np.pi, pd)
+    return np.clip(np.floor(pd / np.pi * N_PD), 0, N_PD - 1).astype(np.intp)
+
+
+def _continuous_index(theta_h: Array, theta_d: Array, phi_d: Array) -> tuple[Array, Array, Array]:
+    """Fractional cell coordinates whose integer values are bin centres (x = index + 0.5 at the centre)."""
+    xh = np.sqrt(np.maximum(theta_h, 0.0) / (np.pi / 2)) * N_TH - 0.5
+    xd = theta_d / (np.pi / 2) * N_TD - 0.5
+    pd = np.mod(phi_d, np.pi)  # reciprocity: phi_d and phi_d + pi are the same cell
+    xp = pd / np.pi * N_PD - 0.5
+    return xh, xd, xp
+
+
+@lru_cache(maxsize=1)
+def cell_angles() -> tuple[Array, Array, Array]:
+    """Bin-centre angles (theta_h, theta_d, phi_d) in radians, each broadcastable to (90, 90, 180).
+
+    Examples
+    --------
+    >>> th, td, pd = cell_angles()
+    >>> th.shape, td.shape, pd.shape
+    ((90, 1, 1), (1, 90, 1), (1, 1, 180))
+    >>> round(float(np.degrees(td[0, 0, 0])), 6), round(float(np.degrees(pd[0, 0, 1])), 6)
+    (0.5, 1.5)
+    """
+    i = np.arange(N_TH, dtype=np.float64)
+    th = ((i + 0.5) / N_TH) ** 2 * (np.pi / 2)
+    td = (np.arange(N_TD) + 0.5) / N_TD * (np.pi / 2)
+    pd = (np.arange(N_PD) + 0.5) / N_PD * np.pi
+    return th[:, None, None], td[None, :, None], pd[None, None, :]
+
+
+def cell_to_dirs(i: ArrayLike, j: ArrayLike, k: ArrayLike) -> tuple[Array, Array]:
+    """Direction pairs (wi, wo), (..., 3), standing for cells (i, j, k): their bin centres with phi_h = 0.
+
+    Examples
+    --------
+    >>> wi, wo = cell_to_dirs(0, 30, 90)
+    >>> wi.shape, bool(wi[2] > 0 and wo[2] > 0)
+    ((3,), True)
+    """
+    i = np.asarray(i, dtype=np.float64)
+    j = np.asarray(j, dtype=np.float64)
+    k = np.asarray(k, dtype=np.float64)
+    th = ((i + 0.5) / N_TH) ** 2 * (np.pi / 2)
+    td = (j + 0.5) / N_TD * (np.pi / 2)
+    pd = (k + 0.5) / N_PD * np.pi
+    return dirs_from_half_diff(th, np.zeros_like(th), td, pd)
+
+
+def dirs_to_cell(wi: ArrayLike, wo: ArrayLike) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp]]:
+    """Cell indices (i, j, k) of direction pairs (..., 3), with the reference reader's index functions.
+
+    Examples
+    --------
+    >>> wi, wo = cell_to_dirs(10, 30, 90)
+    >>> [int(x) for x in dirs_to_cell(wi, wo)]
+    [10, 30, 90]
+    """
+    th, _, td, pd = half_diff_from_dirs(wi, wo)
+    return theta_h_index(th), theta_d_index(td), phi_d_index(pd)
+
+
+def _grid_dirs(th: Array, td: Array, pd: Array) -> tuple[Array, Array]:
+    """Direction pairs (len(th), len(td), len(pd), 3) on a grid of 1-D angle arrays (radians), phi_h = 0.
+
+    Separable: d depends on (theta_d, phi_d) only, and wi is d rotated by theta_h about y.
+    """
+    th = np.asarray(th, dtype=np.float64).reshape(-1, 1, 1, 1)
+    td = np.asarray(td, dtype=np.float64).reshape(1, -1, 1)
+    pd = np.asarray(pd, dtype=np.float64).reshape(1, 1, -1)
+    st, ct = np.sin(td), np.cos(td)
+    dx, dy, dz = st * np.cos(pd), np.broadcast_to(st * np.sin(pd), (1, td.shape[1], pd.shape[2])), ct
+    c, s = np.cos(th), np.sin(th)
+    shape = (th.shape[0], td.shape[1], pd.shape[2], 3)
+    wi = np.empty(shape)
+    wi[..., 0] = c[..., 0] * dx + s[..., 0] * dz
+    wi[..., 1] = dy
+    wi[..., 2] = -s[..., 0] * dx + c[..., 0] * dz
+    # wo = 2 (wi . h) h - wi with h = (sin th, 0, cos th) and wi . h = d_z = cos theta_d
+    h = np.concatenate([s, np.zeros_like(s), c], axis=-1)
+    wo = 2.0 * np.broadcast_to(dz, (1,) + dz.shape[1:])[..., None] * h - wi
+    return wi, wo
+
+
+@lru_cache(maxsize=1)
+def _cell_dirs() -> tuple[Array, Array]:
+    """Bin-centre direction pairs (90, 90, 180, 3), read-only and cached."""
+    th, td, pd = cell_angles()
+    wi, wo = _grid_dirs(th.ravel(), td.ravel(), pd.ravel())
+    wi.setflags(write=False)
+    wo.setflags(write=False)
+    return wi, wo
+
+
+def valid_mask() -> NDArray[np.bool_]:
+    """(90, 90, 180) bool: cells whose bin-centre directions both lie above the horizon.
+
+    Examples
+    --------
+    >>> m = valid_mask()
+    >>> m.shape, bool(m[0, 0, 0]), bool(m[89, 89, 0])
+    ((90, 90, 180), True, False)
+    """
+    wi, wo = _cell_dirs()
+    return (wi[..., 2] > 0) & (wo[..., 2] > 0)
+
+
+# --- lookups ---------------------------------------------------------------------------------------------
+
+
+def lookup(table: ArrayLike, wi: ArrayLike, wo: ArrayLike, interpolate: bool = False) -> Array:
+    """f_r (..., 3) of ``table`` (3, 90, 90, 180) at direction pairs (..., 3).
+
+    ``interpolate=False``: the nearest cell, as the reference reader does. ``interpolate=True``: trilinear
+    between bin centres (phi_d wraps with period pi; theta_h and theta_d clamp at the ends), ignoring NaN
+    neighbours; NaN only where every neighbour is NaN. Directions below the horizon give NaN.
+
+    Examples
+    --------
+    >>> t = np.full(SHAPE, 1.0 / np.pi)  # a white Lambertian table
+    >>> from reconstruction.core.geometry import inplane_to_dirs
+    >>> wi, wo = inplane_to_dirs(np.radians([30.0, 60.0]), np.radians([10.0, -20.0]))
+    >>> (lookup(t, wi, wo) * np.pi).round(12).tolist()
+    [[1.0, 1.0, 1.0], [1.0, 1.0, 1.0]]
+    """
+    t = np.asarray(table, dtype=np.float64)
+    if t.shape != SHAPE:
+        raise MerlError(f"table has shape {t.shape}, expected {SHAPE}")
+    wi = np.asarray(wi, dtype=np.float64)
+    wo = np.asarray(wo, dtype=np.float64)
+    th, _, td, pd = half_diff_from_dirs(wi, wo)
+    below = (wi[..., 2] <= 0) | (wo[..., 2] <= 0)
+    if not interpolate:
+        out = t[:, theta_h_index(th), theta_d_index(td), phi_d_index(pd)]
+        out = np.moveaxis(out, 0, -1)
+        out[below] = np.nan
+        return out
+    xh, xd, xp = _continuous_index(th, td, pd)
+    xh = np.clip(xh, 0.0, N_TH - 1.0)
+    xd = np.clip(xd, 0.0, N_TD - 1.0)
+    ih = np.minimum(np.floor(xh).astype(np.intp), N_TH - 2)
+    idd = np.minimum(np.floor(xd).astype(np.intp), N_TD - 2)
+    ip = np.floor(xp).astype(np.intp)  # in [-1, 179]
+    fh, fd, fp = xh - ih, xd - idd, xp - ip
+    acc = np.zeros(th.shape + (3,))
+    wsum = np.zeros(th.shape + (3,))
+    for a in (0, 1):  # the 8 corners of the interpolation cube
+        wa = fh if a else 1.0 - fh
+        for b in (0, 1):
+            wb = fd if b else 1.0 - fd
+            for c in (0, 1):
+                wc = fp if c else 1.0 - fp
+                v = np.moveaxis(t[:, ih + a, idd + b, (ip + c) % N_PD], 0, -1)
+                w = (wa * wb * wc)[..., None] * np.isfinite(v)
+                acc += w * np.nan_to_num(v, nan=0.0)
+                wsum += w
+    out = np.divide(acc, wsum, out=np.full_like(acc, np.nan), where=wsum > 1e-12)
+    out[below] = np.nan
+    return out
+
+
+def brdf_of(table: ArrayLike, interpolate: bool = True) -> Callable[[Array, Array], Array]:
+    """The table as a vectorised BRDF ``f(wi, wo) -> (N, 3)`` (1/sr), 0 where it has no value.
+
+    ``interpolate=False`` reads the nearest cell, as renderers that load MERL files do.
+
+    Examples
+    --------
+    >>> f = brdf_of(np.full(SHAPE, 0.25))
+    >>> from reconstruction.core.geometry import inplane_to_dirs
+    >>> wi, wo = inplane_to_dirs(np.radians([30.0]), np.radians([-70.0]))
+    >>> f(wi, wo).round(12).tolist()
+    [[0.25, 0.25, 0.25]]
+    """
+    t = np.asarray(table, dtype=np.float64)
+
+    def f(wi: Array, wo: Array) -> Array:
+        return np.nan_to_num(lookup(t, wi, wo, interpolate=interpolate), nan=0.0)
+
+    return f
+
+
+# --- tabulation ------------------------------------------------------------------------------------------
+
+
+def _as_rgb(v: ArrayLike, n: int) -> Array:
+    v = np.asarray(v, dtype=np.float64)
+    if v.ndim == 1:
+        v = v[:, None]
+    if v.shape != (n, 1) and v.shape != (n, 3):
+        raise MerlError(f"the BRDF function returned shape {v.shape}, expected ({n}, 1) or ({n}, 3)")
+    return np.broadcast_to(v, (n, 3))
+
+
+def _threads() -> int:
+    """Threads for a tabulation: the cores this process may use, at most 4 (numpy releases the GIL in the
+    vectorised work of each chunk; ``GONIO_THREADS`` overrides)."""
+    env = os.environ.get("GONIO_THREADS", "")
+    if env.isdigit() and int(env) > 0:
+        return int(env)
+    try:
+        n = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        n = os.cpu_count() or 1
+    return max(1, min(4, n))
+
+
+def _eval(f: Callable[[Array, Array], ArrayLike], wi: Array, wo: Array, chunk: int) -> Array:
+    """f at flat direction pairs (M, 3) -> (M, 3), in chunks that bound memory (each chunk vectorised), the
+    chunks spread over :func:`_threads` threads (``f`` must not keep state between calls)."""
+    out = np.empty((wi.shape[0], 3))
+
+    def one(s: int) -> None:
+        out[s:s + chunk] = _as_rgb(f(wi[s:s + chunk], wo[s:s + chunk]), min(chunk, wi.shape[0] - s))
+
+    _map_chunks(one, range(0, wi.shape[0], chunk))
+    return out
+
+
+def _map_chunks(one: Callable[[int], None], starts: range) -> None:
+    """``one(s)`` for every chunk start, spread over :func:`_threads` threads (numpy releases the GIL)."""
+    n = min(_threads(), len(starts))
+    if n <= 1:
+        for s in starts:
+            one(s)
+        return
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max_workers=n) as ex:
+        list(ex.map(one, starts))  # re-raises the first exception of any chunk
+
+
+def _cell_average(f: Callable[[Array, Array], ArrayLike], cells: NDArray[np.intp], ns: tuple[int, int, int],
+                  chunk: int) -> Array:
+    """Measure-weighted average of f over each cell (M, 3 indices) from nh x nd x np stratified sub-samples.
+
+    Sub-samples are uniform in (sqrt theta_h, theta_d, phi_d) and weighted by the measure of the direction
+    pairs they stand for, sin theta_h (d theta_h / du) sin theta_d cos theta_d; sub-samples below the horizon
+    get no weight (a renderer never asks for them), so a constant BRDF tabulates to itself. Chunks of cells are
+    spread over :func:`_threads` threads, as :func:`_eval`'s (``f`` must not keep state between calls).
+    """
+    oh = (np.arange(ns[0]) + 0.5) / ns[0]
+    od = (np.arange(ns[1]) + 0.5) / ns[1]
+    op = (np.arange(ns[2]) + 0.5) / ns[2]
+    oh, od, op = (x.ravel() for x in np.meshgrid(oh, od, op, indexing="ij"))
+    n_sub = oh.size
+    per_chunk = max(1, chunk // n_sub)
+    vals = np.empty((cells.shape[0], 3))
+
+    def one(s: int) -> None:  # a chunk of cells, vectorised over cells x sub-samples
+        c = cells[s:s + per_chunk]
+        u = (c[:, 0:1] + oh[None, :]) / N_TH  # sqrt(theta_h / (pi/2))
+        th = u * u * (np.pi / 2)
+        td = (c[:, 1:2] + od[None, :]) / N_TD * (np.pi / 2)
+        pd = (c[:, 2:3] + op[None, :]) / N_PD * np.pi
+        wi, wo = dirs_from_half_diff(th, np.zeros_like(th), td, pd)
+        up = (wi[..., 2] > 0) & (wo[..., 2] > 0)
+        w = np.sin(th) * u * np.sin(td) * np.cos(td) * up
+        fv = _as_rgb(f(wi.reshape(-1, 3), wo.reshape(-1, 3)), c.shape[0] * n_sub).reshape(c.shape[0], n_sub, 3)
+        fv = np.where(up[..., None], fv, 0.0)
+        wsum = w.sum(axis=1)
+        vals[s:s + per_chunk] = np.einsum("cs,csk->ck", w, fv) / np.maximum(wsum, 1e-300)[:, None]
+
+    _map_chunks(one, range(0, cells.shape[0], per_chunk))
+    return vals
+
+
+def _edge_curvature(f: Callable[[Array, Array], ArrayLike], centre: Array, axis: int, chunk: int) -> Array:
+    """|mean of f at a cell's two edges along ``axis`` - f at its centre|, (90, 90, 180, 3).
+
+    This second difference is what the centre value misses of the cell average (it is 0 where f is linear
+    across the cell). Where an edge is below the horizon, the other edge's difference is used.
+    """
+    th, td, pd = (a.ravel() for a in cell_angles())
+    n = (N_TH, N_TD, N_PD)[axis]
+    e = np.arange(n + 1) / n
+    edges = [e * e * (np.pi / 2), e * (np.pi / 2), e * np.pi][axis]
+    grid = [th, td, pd]
+    grid[axis] = edges
+    wi, wo = _grid_dirs(*grid)
+    up = (wi[..., 2] > 0) & (wo[..., 2] > 0)
+    ev = _eval(f, wi.reshape(-1, 3), wo.reshape(-1, 3), chunk).reshape(up.shape + (3,))
+    ev[~up] = np.nan
+    lo = ev[(slice(None),) * axis + (slice(0, n),)]
+    hi = ev[(slice(None),) * axis + (slice(1, n + 1),)]
+    mid = np.where(np.isnan(lo), hi, np.where(np.isnan(hi), lo, 0.5 * (lo + hi)))
+    return np.abs(mid - centre)
+
+
+def tabulate(
+    f: Callable[[Array, Array], ArrayLike],
+    supersample: tuple[int, int, int] | int | str | None = None,
+    chunk_cells: int = 200_000,
+    adaptive_rtol: float = 0.02,
+    adaptive_n: tuple[int, int, int] = (8, 4, 4),
+) -> Array:
+    """Fill a (3, 90, 90, 180) table from a vectorised BRDF ``f(wi, wo) -> (N, 1 | 3)`` (1/sr).
+
+    ``supersample=None``: the value at each cell's bin centre.
+    ``supersample=(nh, nd, np)`` (or one int for all three): every cell holds the average of f over the cell
+    (see :func:`_cell_average`), so a lobe narrower than a cell keeps its energy.
+    ``supersample="adaptive"``: f is also evaluated on the cell edges; a cell is averaged with
+    ``adaptive_n`` sub-samples along each axis where the mean of its two edge values differs from its centre
+    value by more than ``adaptive_rtol`` (relative: f is far from linear across the cell, as inside a lobe
+    narrower than a few cells), and keeps its centre value elsewhere: cell averages where they matter
+    (sharp lobes) at a fraction of the cost.
+    Cells whose bin-centre directions lie below the horizon are NaN.
+
+    Examples
+    --------
+    >>> t = tabulate(lambda wi, wo: np.full((len(wi), 3), 0.5 / np.pi))
+    >>> t.shape, float(np.nanmax(t) * np.pi), int(np.isnan(t).sum() // 3)  # NaN below the horizon
+    ((3, 90, 90, 180), 0.5, 361784)
+    """
+    valid = valid_mask()
+    wi, wo = _cell_dirs()
+    if supersample is None or supersample == "adaptive":
+        # f is evaluated at every cell (below-horizon results are discarded): cheaper than gathering valid cells
+        centre = _eval(f, wi.reshape(-1, 3), wo.reshape(-1, 3), chunk_cells).reshape(wi.shape)
+        centre[~valid] = np.nan
+    if supersample is None:
+        return np.ascontiguousarray(np.moveaxis(centre, -1, 0))
+    if supersample == "adaptive":
+        scale = np.nanmax(np.abs(centre)) if np.isfinite(centre).any() else 0.0
+        need = []
+        for axis in range(3):
+            var = _edge_curvature(f, centre, axis, chunk_cells)
+            tol = adaptive_rtol * np.abs(centre) + 1e-9 * scale
+            need.append(np.any(var > tol, axis=-1) & valid)
+        vals = centre.copy()
+        flags = need[0].astype(np.int8) + 2 * need[1] + 4 * need[2]
+        for pattern in range(1, 8):  # cells grouped by which axes need sub-samples
+            cells = np.argwhere(flags == pattern)
+            if cells.size == 0:
+                continue
+            ns = tuple(adaptive_n[a] if pattern >> a & 1 else 1 for a in range(3))
+            vals[tuple(cells.T)] = _cell_average(f, cells, ns, chunk_cells)  # type: ignore[arg-type]
+        return np.ascontiguousarray(np.moveaxis(vals, -1, 0))
+    if isinstance(supersample, str):
+        raise MerlError(f"supersample must be None, 'adaptive', an int or three ints, got {supersample!r}")
+    ns = (supersample,) * 3 if isinstance(supersample, int) else tuple(supersample)
+    if len(ns) != 3 or min(ns) < 1:
+        raise MerlError(f"supersample must be a positive int or three positive ints, got {supersample!r}")
+    out = np.full(SHAPE, np.nan)
+    out[:, valid] = _cell_average(f, np.argwhere(valid), ns, chunk_cells).T  # type: ignore[arg-type]
+    return out
+
+
+def tabulate_reciprocal(g: Callable[[Array, Array], ArrayLike]) -> Array:
+    """The bin-centre table of 0.5 (g(wi, wo) + g(wo, wi)) from one evaluation of ``g`` per cell, for a ``g``
+    symmetric under reflection in the plane of incidence: the swapped pair of cell phi_d is the mirror image of
+    cell pi - phi_d (bin k of 180 <-> bin 179 - k), so the reciprocal table is the average of g's table and
+    its phi_d-reversed self. (3, 90, 90, 180), NaN below the horizon as :func:`tabulate`."""
+    t = tabulate(g)
+    return 0.5 * (t + t[..., ::-1])
+
+
+def average_theta_h_cells(f: Callable[[Array, Array], ArrayLike], table: ArrayLike, theta_h_max: float,
+                          n: int = 16, chunk_cells: int = 200_000) -> tuple[Array, int]:
+    """``table`` with its cells below ``theta_h_max`` (radians) replaced by f's cell averages over theta_h.
+
+    For a lobe narrower than the table's cells near the mirror direction (a fitted ggx alpha of 1e-3 spans the
+    first two theta_h cells): ``n`` sub-samples per cell in theta_h (one in theta_d and phi_d, where such a lobe
+    hardly changes), weighted as :func:`tabulate`'s cell averages. Returns (table, number of theta_h rows).
+    """
+    out = np.array(table, dtype=np.float64, copy=True)
+    rows = int(min(N_TH, theta_h_index(theta_h_max) + 1))
+    valid = valid_mask()
+    cells = np.argwhere(valid[:rows])
+    if cells.size:
+        out[:, cells[:, 0], cells[:, 1], cells[:, 2]] = _cell_average(f, cells, (n, 1, 1), chunk_cells).T
+    return out, rows
+
+
+# --- file I/O --------------------------------------------------------------------------------------------
+
+
+def _describe_cells(mask: NDArray[np.bool_], limit: int = 5) -> str:
+    where = np.argwhere(mask)
+    names = "rgb"
+    shown = ", ".join(f"{names[c]}[{i},{j},{k}]" for c, i, j, k in where[:limit])
+    more = f" and {len(where) - limit} more" if len(where) > limit else ""
+    return f"{len(where)} cell(s) ({shown}{more})"
+
+
+def write(path: str | Path, f: ArrayLike, require_above_horizon: bool = False) -> None:
+    """Write a table (3, 90, 90, 180) of f_r in 1/sr to ``path`` in the MERL binary layout, atomically.
+
+    NaN cells are written as -1 (invalid). Infinite or negative values raise :class:`MerlError`; with
+    ``require_above_horizon`` so does a NaN in any cell above the horizon. The file is written to a temporary
+    name in the same folder, fsynced, then renamed, so a failure never leaves a half-written file.
+
+    Examples
+    --------
+    >>> import tempfile, os
+    >>> path = os.path.join(tempfile.mkdtemp(), "grey.binary")
+    >>> write(path, np.full(SHAPE, 0.1))
+    >>> os.path.getsize(path) == FILE_SIZE
+    True
+    """
+    path = Path(path)
+    t = np.asarray(f)
+    if t.shape != SHAPE:
+        raise MerlError(f"{path}: table has shape {t.shape}, expected {SHAPE} [channel, theta_h, theta_d, phi_d]")
+    t = t.astype(np.float64, copy=False)
+    bad = np.isinf(t)
+    if bad.any():
+        raise MerlError(f"{path}: infinite value in {_describe_cells(bad)}")
+    neg = t < 0
+    if neg.any():
+        raise MerlError(f"{path}: negative BRDF value in {_describe_cells(neg)}; a BRDF is >= 0")
+    if require_above_horizon:
+        missing = np.isnan(t) & valid_mask()[None]
+        if missing.any():
+            raise MerlError(f"{path}: no value (NaN) above the horizon in {_describe_cells(missing)}")
+    stored = t / SCALES[:, None, None, None]
+    stored = np.where(np.isnan(stored), -1.0, stored).astype("<f8", copy=False)
+    with atomic_open(path, "wb") as fh:
+        fh.write(_HEADER)
+        fh.write(memoryview(np.ascontiguousarray(stored)).cast("B"))
+
+
+#: Physical bound of a stored cell that :func:`read` accepts by default (1/sr): a real BRDF, even a mirror seen by a
+#: detector of a few square millidegrees, stays far below it; random bytes after a valid header do not.
+MAX_CELL_VALUE = 1e8
+
+
+class MerlWarning(UserWarning):
+    """A MERL file was read, but something in it was taken as invalid (the message says how many cells)."""
+
+
+def read(path: str | Path, max_value: float | None = MAX_CELL_VALUE) -> Array:
+    """Read a MERL binary file -> (3, 90, 90, 180) float64 f_r in 1/sr; negative (invalid) cells -> NaN.
+
+    Cells stored as -1 are the format's invalid marker; other negative cells are also read as NaN, with a
+    :class:`MerlWarning` saying how many. A cell above ``max_value`` (1/sr; default :data:`MAX_CELL_VALUE`) is a
+    :class:`MerlError` (the file is not a BRDF table); ``max_value=None`` accepts any finite value.
+
+    Examples
+    --------
+    >>> import tempfile, os
+    >>> path = os.path.join(tempfile.mkdtemp(), "grey.binary")
+    >>> write(path, np.where(valid_mask(), 0.1, np.nan)[None].repeat(3, axis=0))
+    >>> t = read(path)
+    >>> t.shape, round(float(np.nanmax(t)), 12), bool(np.isnan(t[0, 89, 89, 0]))
+    ((3, 90, 90, 180), 0.1, True)
+    """
+    path = Path(path)
+    try:
+        if path.exists() and not path.is_file() and not path.is_dir():
+            raise MerlError(f"{path}: not a regular file (a device or a pipe), expected a .binary file")
+        with open(path, "rb") as fh:
+            data = fh.read(FILE_SIZE + 1)
+    except FileNotFoundError:
+        raise MerlError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise MerlError(f"{path}: is a directory, expected a .binary file") from None
+    except OSError as e:
+        raise MerlError(f"{path}: cannot read ({e.strerror or e})") from None
+    if len(data) < 12:
+        raise MerlError(f"{path}: {len(data)} bytes, too short for the 12-byte header")
+    dims = np.frombuffer(data[:12], dtype="<i4")
+    if tuple(dims) != (N_TH, N_TD, N_PD):
+        raise MerlError(f"{path}: header says {tuple(int(x) for x in dims)}, expected (90, 90, 180)")
+    if len(data) < FILE_SIZE:
+        raise MerlError(f"{path}: truncated: {len(data)} bytes, expected {FILE_SIZE}")
+    if len(data) > FILE_SIZE:
+        try:
+            size = path.stat().st_size
+        except OSError:  # pragma: no cover - vanished in between
+            size = len(data)
+        raise MerlError(f"{path}: oversized: {size} bytes, expected {FILE_SIZE}")
+    stored = np.frombuffer(data, dtype="<f8", offset=12).reshape(SHAPE)
+    bad = ~np.isfinite(stored)
+    if bad.any():
+        raise MerlError(f"{path}: NaN or infinite value stored in {_describe_cells(bad)}")
+    scales = SCALES[:, None, None, None]
+    if max_value is not None:
+        big = stored > max_value / scales
+        if big.any():
+            with np.errstate(over="ignore"):
+                largest = float(np.max(stored * scales))
+            raise MerlError(f"{path}: {_describe_cells(big)} above {max_value:g} 1/sr, far beyond any physical "
+                            f"BRDF (largest {largest:.3g}); not a BRDF table")
+    negative = stored < 0
+    odd = negative & (stored != -1.0)
+    with np.errstate(over="ignore"):  # only with max_value=None: huge values become inf, as asked
+        t = stored.astype(np.float64) * scales
+    t[negative] = np.nan
+    if odd.any():
+        warnings.warn(MerlWarning(f"{path}: {int(odd.sum())} negative cell(s) other than the invalid marker -1 "
+                                  "read as invalid (NaN)"), stacklevel=2)
+    return t

@@ -1,0 +1,543 @@
+"""Slice files: the versioned CSV format in which captured in-plane slices travel.
+
+The contract between acquisition (which writes them, one durable row per sample) and reconstruction (which
+reads them). Format version 1 (documented in docs/slice-format.md)::
+
+    # gonio-brdf slice
+    # meta: {"format_version": 1, "quantity": "brdf", "material": "blue-plastic", ...}
+    theta_i_deg,theta_o_deg,R,G,B,R_std,G_std,B_std,repeats,unix_time_s
+    30,-80,0.0123,0.0234,0.1012,0.0002,0.0003,0.0011,4,1795000000.25
+    ...
+
+Value columns are ``value`` (one channel), ``R,G,B``, or spectral columns named by wavelength (``550nm``);
+each has a ``<name>_std`` column (standard deviation of the mean of the repeats, same unit). Angles in
+degrees; theta_o is signed (+ = specular side). ``quantity`` says what the values are: ``brdf`` (f_r, 1/sr),
+``reflectance_factor`` (pi f_r) or ``brdf_cos`` (f_r cos theta_o).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import re
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from reconstruction.atomic import atomic_open
+from reconstruction.schema.slice_meta import FORMAT_VERSION, QUANTITIES, check_instrument  # the metadata's schema
+
+Array = NDArray[np.float64]
+
+MAGIC = "# gonio-brdf slice"
+META_PREFIX = "# meta: "
+_WAVELENGTH = re.compile(r"^(\d+(?:\.\d+)?)nm$")
+#: Largest input file (slice file or generic table) the readers accept, in bytes; a larger one is refused with a
+#: message (read in memory: a 100 MB table takes a few seconds and about 0.5 GB).
+MAX_INPUT_BYTES = 256 * 1024 * 1024
+#: Largest ``repeats`` a row may give (far above any detector's; beyond it the count is not one).
+MAX_REPEATS = 10**9
+#: Names and cells longer than this are cut in messages.
+SHOW_CHARS = 60
+
+__all__ = [
+    "FORMAT_VERSION",
+    "QUANTITIES",
+    "Slice",
+    "SliceError",
+    "SliceWriter",
+    "read_slice",
+    "write_slice",
+    "channel_kind",
+    "wavelengths_of",
+    "to_brdf",
+    "MAX_INPUT_BYTES",
+    "shorten",
+    "read_input_text",
+]
+
+
+class SliceError(ValueError):
+    """A slice file or slice is invalid; the message names file, line and column where it can."""
+
+
+def shorten(text: str, limit: int = SHOW_CHARS) -> str:
+    """``text`` for a message: as it is when short, else its start and end with the length (a 200 KB column name
+    must not fill the terminal)."""
+    if len(text) <= limit:
+        return text
+    return f"{text[:limit - 20]}...{text[-8:]} ({len(text)} characters)"
+
+
+def _show_list(names: Sequence[str], limit: int = 8) -> str:
+    shown = [repr(shorten(n)) for n in list(names)[:limit]]
+    more = f", ... ({len(names)} in all)" if len(names) > limit else ""
+    return f"[{', '.join(shown)}{more}]"
+
+
+def read_input_text(path: str | Path, error: type[ValueError] = ValueError, what: str = "a CSV file") -> str:
+    """The text of an input file, UTF-8 with an optional byte-order mark, line endings as they are.
+
+    Raises ``error`` naming the file for: no such file, a directory or other non-regular file, an unreadable
+    file, a file above :data:`MAX_INPUT_BYTES`, text that is not UTF-8.
+    """
+    path = Path(path)
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        raise error(f"{path}: no such file") from None
+    except OSError as e:
+        raise error(f"{path}: cannot read ({e.strerror or e})") from None
+    import stat
+
+    if stat.S_ISDIR(st.st_mode):
+        raise error(f"{path}: is a directory, expected {what}")
+    if not stat.S_ISREG(st.st_mode):
+        raise error(f"{path}: not a regular file (a device or a pipe), expected {what}")
+    if st.st_size > MAX_INPUT_BYTES:
+        raise error(f"{path}: {st.st_size / 1e6:.0f} MB is larger than the {MAX_INPUT_BYTES / 1e6:.0f} MB an "
+                    f"input may have; split it (e.g. one file per incidence)")
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read(MAX_INPUT_BYTES + 1)
+    except OSError as e:
+        raise error(f"{path}: cannot read ({e.strerror or e})") from None
+    if len(data) > MAX_INPUT_BYTES:  # grew since the stat
+        raise error(f"{path}: larger than the {MAX_INPUT_BYTES / 1e6:.0f} MB an input may have")
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        line = data.count(b"\n", 0, e.start) + 1
+        raise error(f"{path}:{line}: not a UTF-8 text file ({e.reason} at byte {e.start})") from None
+
+
+def _normalise_newlines(text: str) -> str:
+    """CRLF and CR-only line endings (other tools, old Mac exports) as LF."""
+    if "\r" not in text:
+        return text
+    return text.replace("\r\n", "\n").replace("\r", "\n")
+
+
+def parse_rows(lines: Sequence[str], n_cols: int, delimiter: str = ",", quotechar: str | None = None
+               ) -> NDArray[np.float64] | None:
+    """Fast, vectorised parse of data lines into an (N, n_cols) float array; None if any line does not hold
+    exactly ``n_cols`` numbers (the caller then finds the culprit line by line, for the message)."""
+    if not lines:
+        return np.empty((0, n_cols))
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            a = np.loadtxt(lines, delimiter=delimiter, dtype=np.float64, ndmin=2, comments=None,
+                           quotechar=quotechar)
+    except (ValueError, TypeError, OverflowError):
+        return None
+    if a.shape != (len(lines), n_cols):
+        return None
+    return a
+
+
+def channel_kind(channels: Sequence[str]) -> str:
+    """"grey" for ``["value"]``, "rgb" for ``["R", "G", "B"]``, "spectral" for wavelength names."""
+    ch = list(channels)
+    if ch == ["value"]:
+        return "grey"
+    if ch == ["R", "G", "B"]:
+        return "rgb"
+    if ch and all(_WAVELENGTH.match(c) for c in ch):
+        return "spectral"
+    raise SliceError(
+        f"value columns {_show_list(ch)} are not one of: value | R,G,B | wavelength columns such as 550nm"
+    )
+
+
+def wavelengths_of(channels: Sequence[str]) -> Array | None:
+    """Wavelengths in nm of spectral channel names, or None for grey/RGB."""
+    if channel_kind(channels) != "spectral":
+        return None
+    return np.array([float(_WAVELENGTH.match(c).group(1)) for c in channels])  # type: ignore[union-attr]
+
+
+def to_brdf(values: ArrayLike, theta_o_deg: ArrayLike, quantity: str) -> Array:
+    """Convert ``values`` (N, C) of ``quantity`` to f_r in 1/sr (theta_o in degrees)."""
+    v = np.asarray(values, dtype=np.float64)
+    if quantity == "brdf":
+        return v
+    if quantity == "reflectance_factor":
+        return v / np.pi
+    if quantity == "brdf_cos":
+        c = np.cos(np.radians(np.asarray(theta_o_deg, dtype=np.float64)))
+        return v / np.maximum(c, 1e-6)[:, None]
+    raise SliceError(f"unknown quantity {quantity!r}; expected one of {', '.join(QUANTITIES)}")
+
+
+@dataclass
+class Slice:
+    """One or more in-plane slices: N samples with C value channels.
+
+    ``theta_i_deg``, ``theta_o_deg``: (N,) degrees; ``values``, ``std``: (N, C) in the unit of
+    ``meta["quantity"]``; ``repeats``: (N,) ints; ``unix_time_s``: (N,) seconds since the epoch.
+    """
+
+    theta_i_deg: Array
+    theta_o_deg: Array
+    values: Array
+    channels: list[str]
+    std: Array | None = None
+    repeats: NDArray[np.int64] | None = None
+    unix_time_s: Array | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+    source: str = "<memory>"
+
+    def __post_init__(self) -> None:
+        self.theta_i_deg = np.asarray(self.theta_i_deg, dtype=np.float64).reshape(-1)
+        self.theta_o_deg = np.asarray(self.theta_o_deg, dtype=np.float64).reshape(-1)
+        n = self.theta_i_deg.size
+        channel_kind(self.channels)
+        values = np.asarray(self.values, dtype=np.float64)
+        if self.theta_o_deg.size != n or values.size != n * len(self.channels):
+            raise SliceError(f"{self.source}: {n} theta_i, {self.theta_o_deg.size} theta_o and {values.size} values "
+                             f"do not make {n} samples of channels {self.channels}")
+        self.values = values.reshape(n, len(self.channels))
+        self.std = (np.zeros_like(self.values) if self.std is None
+                    else np.asarray(self.std, dtype=np.float64).reshape(self.values.shape))
+        self.repeats = (np.ones(n, dtype=np.int64) if self.repeats is None
+                        else np.asarray(self.repeats, dtype=np.int64).reshape(n))
+        self.unix_time_s = (np.zeros(n) if self.unix_time_s is None
+                            else np.asarray(self.unix_time_s, dtype=np.float64).reshape(n))
+        self.meta = {"format_version": FORMAT_VERSION, "quantity": "brdf", **dict(self.meta)}
+        if self.meta["quantity"] not in QUANTITIES:
+            raise SliceError(f"{self.source}: unknown quantity {self.meta['quantity']!r}; "
+                             f"expected one of {', '.join(QUANTITIES)}")
+
+    def __len__(self) -> int:
+        return int(self.theta_i_deg.size)
+
+    @property
+    def quantity(self) -> str:
+        return str(self.meta["quantity"])
+
+    @property
+    def kind(self) -> str:
+        """"grey", "rgb" or "spectral"."""
+        return channel_kind(self.channels)
+
+    @property
+    def wavelengths_nm(self) -> Array | None:
+        return wavelengths_of(self.channels)
+
+    def brdf(self) -> tuple[Array, Array]:
+        """(f_r, std of f_r), each (N, C) in 1/sr, whatever quantity the file holds."""
+        return (to_brdf(self.values, self.theta_o_deg, self.quantity),
+                to_brdf(self.std, self.theta_o_deg, self.quantity))
+
+    def incidences(self) -> Array:
+        """Sorted distinct theta_i (degrees)."""
+        return np.unique(self.theta_i_deg)
+
+    def take(self, idx: ArrayLike) -> Slice:
+        """A new Slice holding the samples ``idx`` (index array or boolean mask)."""
+        idx = np.asarray(idx)
+        assert self.std is not None and self.repeats is not None and self.unix_time_s is not None
+        return Slice(self.theta_i_deg[idx], self.theta_o_deg[idx], self.values[idx], list(self.channels),
+                     self.std[idx], self.repeats[idx], self.unix_time_s[idx], dict(self.meta), self.source)
+
+    def sorted(self) -> Slice:
+        """Samples sorted by (theta_i, theta_o)."""
+        return self.take(np.lexsort((self.theta_o_deg, self.theta_i_deg)))
+
+    def validate(self) -> None:
+        """Raise :class:`SliceError` for non-finite values, angles outside (-90, 90) or duplicate samples."""
+        for name, arr in (("theta_i_deg", self.theta_i_deg), ("theta_o_deg", self.theta_o_deg)):
+            bad = ~np.isfinite(arr) | (np.abs(arr) >= 90.0)
+            if bad.any():
+                i = int(np.argmax(bad))
+                raise SliceError(f"{self.source}: sample {i}: {name} = {arr[i]} is outside (-90, 90) degrees")
+        bad_v = ~np.isfinite(self.values)
+        if bad_v.any():
+            i, c = (int(x) for x in np.argwhere(bad_v)[0])
+            raise SliceError(f"{self.source}: sample {i}, column {self.channels[c]}: value is {self.values[i, c]}")
+        key = np.stack([self.theta_i_deg, self.theta_o_deg], axis=1)
+        _, first, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
+        if (counts > 1).any():
+            i = int(first[np.argmax(counts > 1)])
+            raise SliceError(f"{self.source}: duplicate sample theta_i_deg = {self.theta_i_deg[i]}, "
+                             f"theta_o_deg = {self.theta_o_deg[i]}")
+
+
+# --- writing ---------------------------------------------------------------------------------------------
+
+
+def _columns(channels: Sequence[str]) -> list[str]:
+    return ["theta_i_deg", "theta_o_deg", *channels, *(f"{c}_std" for c in channels), "repeats", "unix_time_s"]
+
+
+def _header(channels: Sequence[str], meta: Mapping[str, Any]) -> str:
+    m = {"format_version": FORMAT_VERSION, "quantity": "brdf", **dict(meta)}
+    if m["quantity"] not in QUANTITIES:
+        raise SliceError(f"unknown quantity {m['quantity']!r}; expected one of {', '.join(QUANTITIES)}")
+    channel_kind(channels)
+    return f"{MAGIC}\n{META_PREFIX}{json.dumps(m, sort_keys=True)}\n{','.join(_columns(channels))}\n"
+
+
+def _fmt(x: float) -> str:
+    return repr(float(x))
+
+
+def _row(theta_i: float, theta_o: float, values: Sequence[float], std: Sequence[float], repeats: int,
+         t: float) -> str:
+    return ",".join([_fmt(theta_i), _fmt(theta_o), *map(_fmt, values), *map(_fmt, std), str(int(repeats)),
+                     _fmt(t)]) + "\n"
+
+
+def write_slice(path: str | Path, s: Slice) -> None:
+    """Write a whole slice to ``path`` atomically (temporary file, fsync, rename)."""
+    path = Path(path)
+    assert s.std is not None and s.repeats is not None and s.unix_time_s is not None
+    buf = io.StringIO()
+    buf.write(_header(s.channels, s.meta))
+    for k in range(len(s)):
+        buf.write(_row(s.theta_i_deg[k], s.theta_o_deg[k], s.values[k], s.std[k], s.repeats[k],
+                       s.unix_time_s[k]))
+    with atomic_open(path, "w", encoding="utf-8", newline="\n") as fh:
+        fh.write(buf.getvalue())
+
+
+class SliceWriter:
+    """Append samples to a slice file durably: each :meth:`append` writes one row, flushes and fsyncs.
+
+    Opening an existing file (a resumed capture) checks that it has exactly the columns of ``channels`` and cuts
+    off a torn last line left by a crash, so appending continues cleanly. Rows are appended in the file's own
+    column order and with its own line ending (a file whose columns another tool reordered, or whose line endings
+    it converted, stays consistent); a file with other columns is refused. Use as a context manager.
+    """
+
+    def __init__(self, path: str | Path, channels: Sequence[str], meta: Mapping[str, Any] | None = None
+                 ) -> None:
+        self.path = Path(path)
+        self.channels = list(channels)
+        header = _header(self.channels, meta or {})
+        self.columns = _columns(self.channels)
+        self.newline = "\n"
+        if self.path.exists() and self.path.stat().st_size > 0:
+            existing = read_slice(self.path)  # validates; warns on a torn last line
+            if sorted(existing.channels) != sorted(self.channels):
+                raise SliceError(f"{self.path}: has value columns {_show_list(existing.channels)}, "
+                                 f"cannot append {_show_list(self.channels)}")
+            file_columns, self.newline = self._file_layout()
+            if sorted(file_columns) != sorted(self.columns):
+                raise SliceError(f"{self.path}: its columns {_show_list(file_columns)} are not the columns "
+                                 f"{_show_list(self.columns)} of these samples; cannot append")
+            self.columns = file_columns
+            self._cut_torn_tail()
+            self._fh = open(self.path, "a", encoding="utf-8", newline="")
+        else:
+            self._fh = open(self.path, "w", encoding="utf-8", newline="\n")
+            self._fh.write(header)
+            self._sync()
+
+    def _file_layout(self) -> tuple[list[str], str]:
+        """(column names in the file's order, the file's line ending) from its header lines."""
+        with open(self.path, "rb") as fh:
+            head = fh.read(1 << 20)
+        newline = "\r\n" if b"\r\n" in head else ("\r" if b"\r" in head and b"\n" not in head else "\n")
+        text = _normalise_newlines(head.decode("utf-8-sig", errors="replace"))
+        for line in text.split("\n")[1:]:
+            if not line.startswith("#"):
+                return [c.strip() for c in line.split(",")], newline
+        raise SliceError(f"{self.path}: no column header line")  # pragma: no cover - read_slice checked it
+
+    def _cut_torn_tail(self) -> None:
+        with open(self.path, "rb+") as fh:
+            data = fh.read()
+            if data and not data.endswith((b"\n", b"\r")):
+                fh.truncate(max(data.rfind(b"\n"), data.rfind(b"\r")) + 1)
+                fh.flush()
+                os.fsync(fh.fileno())
+
+    def _sync(self) -> None:
+        self._fh.flush()
+        os.fsync(self._fh.fileno())
+
+    def append(self, theta_i_deg: float, theta_o_deg: float, values: Sequence[float],
+               std: Sequence[float], repeats: int, unix_time_s: float) -> None:
+        """Write one sample (in the file's column order) and make it durable before returning."""
+        if len(values) != len(self.channels) or len(std) != len(self.channels):
+            raise SliceError(f"{self.path}: expected {len(self.channels)} values and stds, "
+                             f"got {len(values)} and {len(std)}")
+        cells = {"theta_i_deg": _fmt(theta_i_deg), "theta_o_deg": _fmt(theta_o_deg), "repeats": str(int(repeats)),
+                 "unix_time_s": _fmt(unix_time_s)}
+        for c, v, e in zip(self.channels, values, std, strict=True):
+            cells[c] = _fmt(v)
+            cells[f"{c}_std"] = _fmt(e)
+        try:
+            self._fh.write(",".join(cells[c] for c in self.columns) + self.newline)
+            self._sync()
+        except OSError as e:  # a full disk: name the file (buffered writes do not)
+            raise OSError(e.errno, e.strerror or str(e), str(self.path)) from None
+
+    def close(self) -> None:
+        if not self._fh.closed:
+            try:
+                self._sync()
+            finally:
+                try:
+                    self._fh.close()
+                except OSError:  # the sync above already failed and said why
+                    pass
+
+    def __enter__(self) -> SliceWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+# --- reading ---------------------------------------------------------------------------------------------
+
+
+def _parse_float(text: str, where: str, column: str) -> float:
+    try:
+        x = float(text)
+    except ValueError:
+        raise SliceError(f"{where}, column {shorten(column)}: expected a number, got {shorten(text)!r}") from None
+    if not math.isfinite(x):
+        raise SliceError(f"{where}, column {shorten(column)}: value is {shorten(text)!r}; NaN and infinity are "
+                         "not allowed")
+    return x
+
+
+def _check_row(data: NDArray[np.float64], r: int, cells: list[str], header: list[str], col: dict[str, int],
+               std_cols: list[int], where: str) -> None:
+    """The per-row checks of a slice file (angles, repeats, standard deviations), raising the first failure."""
+    for name in ("theta_i_deg", "theta_o_deg"):
+        x = data[r, col[name]]
+        if not -90.0 < x < 90.0:
+            raise SliceError(f"{where}, column {name}: {x} is outside (-90, 90) degrees")
+    rep = data[r, col["repeats"]]
+    if not 1 <= rep <= MAX_REPEATS or rep != int(rep):
+        raise SliceError(f"{where}, column repeats: expected a positive integer, got "
+                         f"{shorten(cells[col['repeats']])!r}")
+    for k in std_cols:
+        if data[r, k] < 0:
+            raise SliceError(f"{where}, column {shorten(header[k])}: a standard deviation must be >= 0, got "
+                             f"{data[r, k]}")
+
+
+def _rows_ok(data: NDArray[np.float64], col: dict[str, int], std_cols: list[int]) -> bool:
+    """True if every row passes :func:`_check_row` and every value is finite (vectorised)."""
+    if not np.all(np.isfinite(data)):
+        return False
+    ang = data[:, [col["theta_i_deg"], col["theta_o_deg"]]]
+    rep = data[:, col["repeats"]]
+    rep_ok = (rep >= 1) & (rep <= MAX_REPEATS) & (rep == np.floor(rep))
+    return bool(np.all(np.abs(ang) < 90.0) and np.all(rep_ok)
+                and np.all(data[:, std_cols] >= 0))
+
+
+def read_slice(path: str | Path) -> Slice:
+    """Read and validate a slice file; a torn last line (from a crash) is dropped with a warning.
+
+    UTF-8 with or without a byte-order mark; LF, CRLF or CR-only line endings. Rows are parsed vectorised; a row
+    that fails is then found line by line for the message (``file:line, column NAME: what was expected``).
+    """
+    path = Path(path)
+    text = _normalise_newlines(read_input_text(path, SliceError, "a slice file"))
+    lines = text.split("\n")
+    torn = not text.endswith("\n") and bool(text)
+    del text
+    if lines and lines[-1] == "":
+        lines.pop()
+    if not lines or lines[0].strip() != MAGIC:
+        raise SliceError(f"{path}:1: expected the first line {MAGIC!r}, got "
+                         f"{lines[0][:60]!r}" if lines else f"{path}: empty file")
+    meta: dict[str, Any] = {}
+    lineno = 1
+    while lineno < len(lines) and lines[lineno].startswith("#"):
+        line = lines[lineno]
+        if line.startswith(META_PREFIX):
+            try:
+                meta = json.loads(line[len(META_PREFIX):])
+            except (json.JSONDecodeError, RecursionError) as e:
+                raise SliceError(f"{path}:{lineno + 1}: metadata is not valid JSON: {shorten(str(e), 200)}"
+                                 ) from None
+            if not isinstance(meta, dict):
+                raise SliceError(f"{path}:{lineno + 1}: metadata must be a JSON object")
+        lineno += 1
+    version = meta.get("format_version")
+    if isinstance(version, bool) or version != FORMAT_VERSION:
+        raise SliceError(f"{path}: unsupported format_version {shorten(repr(version))}; this reader supports "
+                         f"{FORMAT_VERSION}")
+    quantity = meta.get("quantity")
+    if not isinstance(quantity, str) or quantity not in QUANTITIES:
+        raise SliceError(f"{path}: unknown quantity {shorten(repr(quantity))}; expected one of "
+                         f"{', '.join(QUANTITIES)}")
+    if meta.get("instrument") is not None:
+        try:
+            check_instrument(meta["instrument"], "instrument")
+        except ValueError as e:
+            raise SliceError(f"{path}: metadata {shorten(str(e), 300)}") from None
+    if lineno >= len(lines):
+        raise SliceError(f"{path}: no column header line")
+    header = [c.strip() for c in lines[lineno].split(",")]
+    header_line = lineno + 1
+    for required in ("theta_i_deg", "theta_o_deg", "repeats", "unix_time_s"):
+        if required not in header:
+            raise SliceError(f"{path}:{header_line}: missing column {required!r}")
+    channels = [c for c in header if c not in ("theta_i_deg", "theta_o_deg", "repeats", "unix_time_s")
+                and not c.endswith("_std")]
+    try:
+        channel_kind(channels)
+    except SliceError as e:
+        raise SliceError(f"{path}:{header_line}: {e}") from None
+    for c in channels:
+        if f"{c}_std" not in header:
+            raise SliceError(f"{path}:{header_line}: missing column {shorten(c + '_std')!r}")
+    if len(set(header)) != len(header):
+        raise SliceError(f"{path}:{header_line}: repeated column names")
+    col = {c: k for k, c in enumerate(header)}
+    std_cols = [col[f"{c}_std"] for c in channels]
+    rows = lines[lineno + 1:]
+    del lines
+    if torn and rows:
+        warnings.warn(f"{path}:{lineno + 1 + len(rows)}: torn last line (interrupted write) dropped: "
+                      f"{rows[-1][:60]!r}", stacklevel=2)
+        rows = rows[:-1]
+    data = parse_rows(rows, len(header))
+    if data is None or not _rows_ok(data, col, std_cols):
+        data = np.empty((len(rows), len(header)))  # the slow path: finds the first bad line for the message
+        for r, line in enumerate(rows):
+            where = f"{path}:{lineno + 2 + r}"
+            cells = line.split(",")
+            if len(cells) != len(header):
+                raise SliceError(f"{where}: {len(cells)} fields, expected {len(header)} "
+                                 f"({shorten(','.join(header), 200)})")
+            for k, (name, cell) in enumerate(zip(header, cells, strict=True)):
+                data[r, k] = _parse_float(cell.strip(), where, name)
+            _check_row(data, r, cells, header, col, std_cols, where)
+    key = data[:, [col["theta_i_deg"], col["theta_o_deg"]]]
+    if len(rows):
+        _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        dup = np.nonzero(np.arange(len(rows)) != first[inverse.reshape(-1)])[0]
+        if dup.size:
+            r = int(dup[0])
+            raise SliceError(f"{path}:{lineno + 2 + r}: duplicate sample theta_i_deg = {key[r, 0]}, "
+                             f"theta_o_deg = {key[r, 1]} (first at line "
+                             f"{lineno + 2 + int(first[inverse.reshape(-1)[r]])})")
+    return Slice(
+        theta_i_deg=data[:, col["theta_i_deg"]],
+        theta_o_deg=data[:, col["theta_o_deg"]],
+        values=data[:, [col[c] for c in channels]],
+        channels=channels,
+        std=data[:, [col[f"{c}_std"] for c in channels]],
+        repeats=data[:, col["repeats"]].astype(np.int64),
+        unix_time_s=data[:, col["unix_time_s"]],
+        meta=meta,
+        source=str(path),
+    )

@@ -1,0 +1,195 @@
+"""Cross-validated prediction error of reconstruction methods on the measured samples (what ``auto`` chooses by).
+
+A method's residual on its own samples says nothing about the table (``bivariate`` interpolates its samples
+exactly and can still be far off elsewhere), so methods are compared on samples they did not see:
+
+* slices at several incidences: **leave-one-incidence-out**, each incidence predicted from the others (with more
+  than ``n_blocks`` incidences, ``n_blocks`` groups of neighbouring incidences, each predicted from the rest);
+* one incidence: **held-out contiguous blocks of theta_o**: the whole forward side beyond the specular peak as
+  one block (it lies on theta_d = theta_i + theta_h, so predicting it from the rest tests the extrapolation in
+  theta_d that the table needs at every other incidence) and the backward side in ``n_blocks`` - 1 blocks of
+  neighbouring outgoing angles (so interpolation between immediate neighbours cannot hide a bad model). The
+  samples within two steps of the mirror direction are never held out: every table is built on its measured
+  specular peak, and a peak predicted from its shoulders alone would rank the methods by a guess the table never
+  has to make.
+
+The error is the relative RMSE of f cos(theta_i) cos(theta_o) pooled over every held-out sample and channel (the
+same weighting as the table metric). ``fit`` is cross-validated with its model structure fixed to the one chosen
+on all samples (its lobes refitted in every fold to the samples it was fitted to: those inside a scene's ranges
+when the scene's budget chose a simpler model), so the score is of that model. With a scene, only the held-out
+samples inside its ranges count (:func:`scene_mask`), and :func:`budget_check` compares the choice's error with
+the scene's error budget.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from reconstruction.base import Reconstruction, ReconstructionError
+from reconstruction.core.geometry import inplane_to_dirs
+from reconstruction.formats.slicefile import Slice
+
+Array = NDArray[np.float64]
+
+__all__ = ["folds", "cross_validate", "score_predictions", "CVScore", "N_BLOCKS", "budget_check", "SceneBudgetWarning"]
+
+N_BLOCKS = 8
+
+
+def folds(s: Slice, n_blocks: int = N_BLOCKS) -> tuple[str, list[NDArray[np.bool_]]]:
+    """(scheme, held-out masks (N,) bool) for ``s``."""
+    inc = np.unique(s.theta_i_deg)
+    if 2 <= inc.size <= n_blocks:
+        return "leave-one-incidence-out", [s.theta_i_deg == t for t in inc]
+    if inc.size > n_blocks:
+        groups = np.array_split(inc, n_blocks)
+        return (f"leave-one-group-out ({n_blocks} groups of neighbouring incidences)",
+                [np.isin(s.theta_i_deg, g) for g in groups])
+    to = s.theta_o_deg
+    step = float(np.median(np.diff(np.unique(to)))) if np.unique(to).size > 1 else 1.0
+    keep = np.abs(to - inc[0]) <= 2.0 * step + 1e-9  # the specular peak stays in every training set
+    forward = ~keep & (to > inc[0])
+    masks = [forward] if forward.sum() >= 2 else []
+    back = ~keep & ~(forward if masks else np.zeros_like(keep))
+    order = np.argsort(np.where(back, to, np.inf), kind="stable")[: int(np.sum(back))]
+    k = max(1, min(n_blocks - len(masks), order.size // 3))
+    for block in np.array_split(order, k):  # contiguous runs of theta_o
+        m = np.zeros(len(s), dtype=bool)
+        m[block] = True
+        masks.append(m)
+    fwd = "the forward side beyond the peak and " if forward.sum() >= 2 else ""
+    return (f"{len(masks)} held-out contiguous blocks of theta_o ({fwd}{k} on the other side; the mirror direction "
+            f"+- {2 * step:g} deg always kept)"), masks
+
+
+@dataclass
+class CVScore:
+    """Held-out error of one method."""
+
+    method: str
+    error: float  # relative RMSE of f cos cos over all held-out samples; inf if a fold failed
+    fold_errors: list[float]
+    seconds: float
+    failure: str | None = None
+    predictions: Array | None = None  # (N, C) each sample predicted by the fold that held it out (NaN: never)
+    anchor: float | None = None  # prior: the weight of the bivariate interpolation (None: not a prior variant)
+    variant: str | None = None  # another variant of the method (e.g. fit's BIC choice beside a scene's budget's)
+
+    @property
+    def label(self) -> str:
+        """The method, with its anchor for a prior variant ("prior (anchor 0.25)") or its variant."""
+        if self.anchor:
+            return f"{self.method} (anchor {self.anchor:g})"
+        return f"{self.method} ({self.variant})" if self.variant else self.method
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"method": self.method, "label": self.label,
+                "held_out_relative_rmse_cos": self.error if math.isfinite(self.error) else None,
+                "fold_errors": [e if math.isfinite(e) else None for e in self.fold_errors],
+                "seconds": round(self.seconds, 3), **({"failure": self.failure} if self.failure else {}),
+                **({"prior_anchor": self.anchor} if self.anchor is not None else {}),
+                **({"variant": self.variant} if self.variant else {})}
+
+
+def _score(pred: Array, f: Array, c: Array) -> tuple[float, float]:
+    return float(np.sum(((pred - f) * c) ** 2)), float(np.sum((f * c) ** 2))
+
+
+def noise_level(s: Slice, score_mask: NDArray[np.bool_] | None = None) -> float:
+    """The held-out error a perfect model would have: the relative RMSE of f cos cos that the samples' own standard
+    deviations (of the mean) amount to, pooled as :func:`cross_validate` pools its error (0 without std)."""
+    f, sd = s.brdf()
+    if score_mask is not None:
+        f, sd, s = f[score_mask], sd[score_mask], s.take(score_mask)
+    wi, wo = inplane_to_dirs(np.radians(s.theta_i_deg), np.radians(s.theta_o_deg))
+    c = (np.clip(wi[:, 2], 0, None) * np.clip(wo[:, 2], 0, None))[:, None]
+    den = float(np.sum((f * c) ** 2))
+    return math.sqrt(float(np.sum((np.nan_to_num(sd) * c) ** 2)) / den) if den > 0 else 0.0
+
+
+def scene_mask(s: Slice, scene: Any) -> NDArray[np.bool_] | None:
+    """The samples inside a scene's theta_i and |theta_o| ranges (what the scene needs), or None for no scene."""
+    if scene is None:
+        return None
+    from reconstruction.methods.fit.budget import scene_inside
+
+    return scene_inside(scene, s)
+
+
+def cross_validate(s: Slice, name: str, build: Callable[[Slice], Reconstruction],
+                   masks: list[NDArray[np.bool_]], score_mask: NDArray[np.bool_] | None = None) -> CVScore:
+    """Held-out error of ``build`` (a function of the training slice) over the folds ``masks``; with
+    ``score_mask`` only the held-out samples inside it count (a scene's directions)."""
+    f, _ = s.brdf()
+    wi, wo = inplane_to_dirs(np.radians(s.theta_i_deg), np.radians(s.theta_o_deg))
+    t0 = time.perf_counter()
+    held_pred = np.full(f.shape, np.nan)
+    for k, held in enumerate(masks):  # a handful of folds
+        out = held & score_mask if score_mask is not None else held
+        if not out.any():
+            continue
+        train = s.take(~held)
+        try:
+            rec = build(train)
+            pred = np.asarray(rec.eval(wi[out], wo[out]), dtype=np.float64).reshape(int(out.sum()), -1)
+        except (ReconstructionError, ValueError, np.linalg.LinAlgError) as e:
+            return CVScore(name, math.inf, [], time.perf_counter() - t0, f"fold {k + 1}: {e}")
+        if not np.all(np.isfinite(pred)):
+            return CVScore(name, math.inf, [], time.perf_counter() - t0, f"fold {k + 1}: non-finite values")
+        held_pred[out] = np.broadcast_to(pred, f[out].shape)
+    return score_predictions(s, name, held_pred, masks, score_mask, time.perf_counter() - t0)
+
+
+def score_predictions(s: Slice, name: str, pred: Array, masks: list[NDArray[np.bool_]],
+                      score_mask: NDArray[np.bool_] | None = None, seconds: float = 0.0) -> CVScore:
+    """The :class:`CVScore` of held-out predictions ``pred`` (N, C) made by the folds ``masks`` (NaN where a
+    sample was never held out): pooled and per fold as :func:`cross_validate` scores them. Scores a combination
+    of methods (e.g. a blend of two methods' held-out predictions) without fitting again."""
+    f, _ = s.brdf()
+    wi, wo = inplane_to_dirs(np.radians(s.theta_i_deg), np.radians(s.theta_o_deg))
+    c = (np.clip(wi[:, 2], 0, None) * np.clip(wo[:, 2], 0, None))[:, None]
+    pred = np.broadcast_to(np.asarray(pred, dtype=np.float64), f.shape)
+    num = den = 0.0
+    per: list[float] = []
+    for held in masks:  # a handful of folds
+        out = held & score_mask if score_mask is not None else held
+        if not out.any():
+            continue
+        if not np.all(np.isfinite(pred[out])):
+            return CVScore(name, math.inf, per, seconds, f"fold {len(per) + 1}: no finite prediction")
+        a, b = _score(pred[out], f[out], c[out])
+        num += a
+        den += b
+        per.append(math.sqrt(a / b) if b > 0 else math.inf)
+    return CVScore(name, math.sqrt(num / den) if den > 0 else math.inf, per, seconds, predictions=np.array(pred))
+
+
+class SceneBudgetWarning(UserWarning):
+    """``auto`` chose a method whose held-out error over a scene's samples exceeds the scene's error budget."""
+
+
+def budget_check(scene: Any, best: CVScore, scores: list[CVScore], noise: float = 0.0) -> dict[str, Any]:
+    """The ``cross_validation`` keys ``error_budget`` and ``over_budget`` (and ``over_budget_warning``, what the
+    console shows) of the choice ``best`` against the ``scene``'s ``relative_rmse`` ({} without a budget): its
+    held-out error over the scene's samples is what the budget bounds. ``noise``: the error the samples' own
+    noise amounts to (:func:`noise_level`), said when it is a good part of the excess."""
+    if scene is None or scene.relative_rmse is None:
+        return {}
+    budget = float(scene.relative_rmse)
+    if best.error <= budget:
+        return {"error_budget": budget, "over_budget": False}
+    lowest = min(scores, key=lambda c: c.error)
+    msg = (f"the choice, {best.label}, predicts the held-out samples inside scene {scene.name!r} to "
+           f"{best.error:.2%} relative RMSE of f cos cos, over the scene's error budget of {budget:.2%}"
+           + ("" if lowest is best else f" (the lowest of any method: {lowest.label} {lowest.error:.2%})")
+           + (f"; the samples' own noise amounts to {noise:.2%}" if noise > 0.5 * budget else "")
+           + "; measure more incidences inside the scene's ranges"
+           + (" or with less noise" if noise > 0.5 * budget else "") + ", or loosen the budget")
+    return {"error_budget": budget, "over_budget": True, "over_budget_warning": msg}

@@ -1,0 +1,440 @@
+"""The HTML report of a reconstruction: one self-contained file (images inline, no network) per material.
+
+Sections (each a ``<section id=...>``): ``summary`` (method and why, checks, inputs, software), ``slices`` (the
+measured samples with error bars, the blind spot and the skipped samples marked, every method's prediction at the
+same angles, the chosen one highlighted, cross-validation's held-out predictions), ``polar`` (the slice as the
+thesis draws it: the polar curve, its sub-curves and their axes), ``coverage`` (a (theta_h, theta_d) map of the
+table with the measured lines on it: where the table rests on data and where it extrapolates), ``spheres`` (the
+sphere under three point lights, and under a sky-and-ground environment alone, with a sun in front and with a sun
+behind: :mod:`reconstruction.core.render`), ``cuts`` (in-plane cuts of the table
+at other incidences), ``albedo`` (directional albedo against theta_i with the limit 1), ``checks``,
+``parameters`` (with uncertainties), ``choice`` (cross-validation), ``timings``. Plots with matplotlib; the page
+with the standard library. Written atomically.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from reconstruction.atomic import atomic_open
+from reconstruction.base import Reconstruction
+from reconstruction.core.geometry import inplane_to_dirs, thesis_points_from_slice
+from reconstruction.formats import merl
+from reconstruction.formats.slicefile import Slice
+
+Array = NDArray[np.float64]
+
+__all__ = ["SECTIONS", "build_html", "write_html", "write_index", "environment_render"]
+
+SECTIONS = ("summary", "slices", "polar", "coverage", "spheres", "cuts", "albedo", "checks", "parameters",
+            "choice", "timings")
+LIGHTS = {"upper left": (-3.0, 3.0, 5.0), "overhead": (0.0, 6.0, 2.0), "grazing right": (6.0, 0.5, 1.0)}
+_CSS = """body{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;color:#222}
+h1{font-size:1.6em}h2{font-size:1.25em;border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:1.8em}
+table{border-collapse:collapse;font-size:.9em}td,th{border:1px solid #ddd;padding:.25em .6em;text-align:left}
+.pass{color:#176b2c;font-weight:bold}.fail{color:#a31515;font-weight:bold}img{max-width:100%}
+.note{color:#555;font-size:.9em}code{background:#f3f3f3;padding:0 .2em}"""
+
+
+def _version() -> str:
+    try:
+        from importlib.metadata import version
+
+        return version("gonio-brdf")
+    except Exception:  # noqa: BLE001 - a source checkout without metadata
+        return "unknown"
+
+
+def _png(fig: Any) -> str:
+    """A matplotlib figure as an inline data URI (PNG), closed afterwards."""
+    import matplotlib.pyplot as plt
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90)
+    plt.close(fig)
+    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def _img(uri: str, alt: str) -> str:
+    return f'<img src="{uri}" alt="{html.escape(alt)}">'
+
+
+def _pyplot() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _lum(v: ArrayLike) -> Array:
+    a = np.asarray(v, dtype=np.float64)
+    return a.mean(axis=-1) if a.ndim > 1 else a
+
+
+def _slices_figure(s: Slice, chosen: str, preds: Mapping[str, Callable[[Array, Array], ArrayLike]],
+                   held_out: Array | None, blind_deg: float) -> str:
+    plt = _pyplot()
+    inc = s.incidences()
+    fig, axes = plt.subplots(1, len(inc), figsize=(min(5.2 * len(inc), 16), 3.8), squeeze=False)
+    f, std = s.brdf()
+    lum, lstd = _lum(f), _lum(std)
+    for ax, t in zip(axes[0], inc, strict=True):
+        m = s.theta_i_deg == t
+        to = s.theta_o_deg[m]
+        ax.axvspan(-t - blind_deg, -t + blind_deg, color="0.85", label="blind spot")
+        dense = np.linspace(-89.0, 89.0, 357)
+        wi, wo = inplane_to_dirs(np.radians(np.full(dense.size, t)), np.radians(dense))
+        for name, fn in preds.items():
+            y = _lum(np.asarray(fn(wi, wo), dtype=np.float64))
+            ax.plot(dense, np.maximum(y, 1e-12), lw=2.6 if name == chosen else 1.0,
+                    color="k" if name == chosen else None, label=name + (" (chosen)" if name == chosen else ""),
+                    zorder=3 if name == chosen else 2)
+        ax.errorbar(to, lum[m], yerr=lstd[m], fmt="o", ms=3, color="tab:red", ecolor="tab:red", label="measured",
+                    zorder=4)
+        if held_out is not None:
+            h = _lum(held_out[m])
+            ok = np.isfinite(h)
+            ax.plot(to[ok], np.maximum(h[ok], 1e-12), "x", color="tab:purple", ms=5, label="held-out prediction",
+                    zorder=5)
+        gaps = np.nonzero(np.diff(np.sort(to)) > 2.5 * np.median(np.diff(np.sort(to))))[0] if to.size > 2 else []
+        srt = np.sort(to)
+        for g in gaps:
+            ax.axvspan(srt[g], srt[g + 1], color="gold", alpha=0.25, label="not measured" if g == gaps[0] else None)
+        ax.set_yscale("log")
+        ax.set_xlim(-90, 90)
+        ax.set_xlabel("theta_o (deg, + = specular side)")
+        ax.set_ylabel("f_r (1/sr), channel mean")
+        ax.set_title(f"theta_i = {t:g} deg")
+        ax.grid(True, which="both", alpha=0.2)
+    axes[0][0].legend(fontsize=7)
+    fig.tight_layout()
+    return _png(fig)
+
+
+def _polar_figure(s: Slice) -> str:
+    from reconstruction.methods.revolve import split_subcurves, subcurve_axis
+
+    plt = _pyplot()
+    inc = s.incidences()
+    fig, axes = plt.subplots(1, len(inc), figsize=(min(4.6 * len(inc), 16), 3.9), squeeze=False)
+    f, _ = s.brdf()
+    for ax, t in zip(axes[0], inc, strict=True):
+        m = s.theta_i_deg == t
+        order = np.argsort(s.theta_o_deg[m])
+        to = np.radians(s.theta_o_deg[m][order])
+        lum = np.maximum(_lum(f[m][order]), 0.0)
+        pts = thesis_points_from_slice(to, lum)
+        try:
+            ranges = split_subcurves(pts)
+        except ValueError:
+            ranges = [(0, pts.shape[0] - 1)]
+        for k, (a, b) in enumerate(ranges):
+            seg = pts[a:b + 1]
+            ax.plot(seg[:, 0], seg[:, 1], "-o", ms=2, lw=1.5, label=f"sub-curve {k + 1}")
+            try:
+                axis = subcurve_axis(seg)
+                d = np.asarray(axis.direction, dtype=np.float64)
+                p0 = np.asarray(axis.point, dtype=np.float64)
+                ext = 1.2 * float(np.max(np.linalg.norm(seg, axis=1)))
+                ax.plot([p0[0] - d[0] * ext, p0[0] + d[0] * ext], [p0[1] - d[1] * ext, p0[1] + d[1] * ext], "--",
+                        lw=0.8, color="0.3")
+            except ValueError:
+                pass
+        ax.axhline(0, color="k", lw=0.6)
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_title(f"theta_i = {t:g} deg: value x (sin, cos) theta_o")
+        ax.set_xlabel("x (specular side +)")
+        ax.set_ylabel("z (normal)")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    return _png(fig)
+
+
+def _coverage_figure(table: Array, s: Slice) -> str:
+    return _png(_coverage_plot(table, s))
+
+
+def _coverage_plot(table: Array, s: Slice) -> Any:
+    """The figure of the coverage section: the in-plane sheet of the table with the measured samples on it
+    (white dots edged in black, so the legend's marker shows on its grey frame)."""
+    plt = _pyplot()
+    th, td, _ = merl.cell_angles()
+    cc = np.cos(td[0, :, 0])[None, :] ** 2 - np.sin(th[:, 0, 0])[:, None] ** 2  # in-plane cos_i cos_o
+    g = np.nanmean(table, axis=0)[:, :, 0]  # phi_d ~ 0: the in-plane configurations
+    val = np.log10(np.maximum(g * np.clip(cc, 0, None), 1e-6))
+    fig, ax = plt.subplots(figsize=(6.4, 4.8))
+    im = ax.imshow(val.T, origin="lower", aspect="auto", extent=[0, 90, 0, 90], cmap="viridis")
+    fig.colorbar(im, ax=ax, label="log10 f cos(theta_i) cos(theta_o), in-plane")
+    hh = np.abs(s.theta_o_deg - s.theta_i_deg) / 2.0
+    dd = np.abs(s.theta_o_deg + s.theta_i_deg) / 2.0
+    ax.plot(np.sqrt(hh / 90.0) * 90.0, dd, "o", ms=2.5, mfc="w", mec="k", mew=0.4, label="measured samples")
+    ax.set_xlabel("theta_h index (sqrt-spaced bins, as in the table)")
+    ax.set_ylabel("theta_d (deg)")
+    ax.set_title("where the table rests on data")
+    ax.legend(fontsize=7, loc="upper right", markerscale=2.0, facecolor="0.75", framealpha=0.9)
+    fig.tight_layout()
+    return fig
+
+
+def environment_render(f: Callable[[Array, Array], ArrayLike], size: int = 112, radius: float = 0.8,
+                       lighting: str = "environment") -> NDArray[np.float32]:
+    """The sphere under the sky-and-ground environment of :mod:`reconstruction.core.render` (``lighting``: one of its
+    presets: the environment alone, or with the ``key`` or ``rim`` sun), anti-aliased, over the environment as a
+    dimmed backdrop (sky above, ground below): (size, size, 3) float32 linear RGB."""
+    from reconstruction.core.render import SkyGround, render_sphere
+
+    img = render_sphere(f, size, lighting, radius, antialias=True)
+    return (_rgb(img) + _backdrop(size, radius, SkyGround())).astype(np.float32)
+
+
+def _rgb(img: Array) -> Array:
+    return np.repeat(img, 3, axis=2) if img.shape[2] == 1 else img
+
+
+def _backdrop(size: int, radius: float, env: Any) -> Array:
+    """The environment behind the sphere, dimmed (sky above the frame's middle, ground below), times the part of
+    each pixel the sphere leaves uncovered."""
+    from reconstruction.core.render import sphere_coverage
+
+    y = -(((np.arange(size) + 0.5) / size) * 2.0 - 1.0)
+    back = 0.35 * env.radiance(np.clip(y, -1.0, 1.0))[:, None] * np.ones(size)[None, :]
+    return (back * (1.0 - sphere_coverage(size, radius, antialias=True)))[..., None] * np.ones(3)
+
+
+def _spheres(table: Array) -> str:
+    from reconstruction.core.render import (
+        PRESETS,
+        Lighting,
+        PointLight,
+        SkyGround,
+        render_sphere,
+        sphere_coverage,
+        sphere_normals,
+    )
+    from reconstruction.report.preview import AMBIENT, PREVIEW_RADIUS, albedo_at_view, srgb_encode
+
+    plt = _pyplot()
+    brdf = merl.brdf_of(table)
+    size, radius = 128, PREVIEW_RADIUS
+    cov = sphere_coverage(size, radius, antialias=True)
+    mask, n = sphere_normals(size, radius, antialias=True)
+    ambient = np.zeros((size, size, 3))  # the preview's uniform environment, shared by the three point lights
+    ambient[mask] = AMBIENT * albedo_at_view(brdf, n[:, 2]) * cov[mask][:, None]
+    uniform = np.full((size, size, 3), AMBIENT) * (1.0 - cov)[..., None]  # ... seen behind the sphere
+    # (title, the sphere's linear radiance, the background as radiance or None: the environment's backdrop)
+    imgs: list[tuple[str, Array, Array | None]] = [
+        (f"point light, {name}", _rgb(render_sphere(brdf, size, Lighting(points=(PointLight(pos, float(
+            np.dot(pos, pos))),)), radius, antialias=True)) + ambient, uniform) for name, pos in LIGHTS.items()]
+    env = _rgb(render_sphere(brdf, size, Lighting(SkyGround()), radius, antialias=True))  # integrated once
+    imgs.append(("sky and ground environment", env, None))
+    for key, label in (("key", "environment + key sun (front)"), ("rim", "environment + rim sun (behind)")):
+        sun = _rgb(render_sphere(brdf, size, Lighting(suns=PRESETS[key].suns), radius, antialias=True))
+        imgs.append((label, env + sun, None))
+    backdrop = _backdrop(size, radius, SkyGround()) / SkyGround().zenith  # display values: sky at 0.35
+    fig, axes = plt.subplots(2, 3, figsize=(9.6, 6.8))
+    for ax, (name, im, bg) in zip(axes.ravel(), imgs, strict=True):
+        lum = (im @ np.array([0.2126, 0.7152, 0.0722]))[cov > 0.5]  # exposed on the sphere, as the preview
+        p = float(np.percentile(lum[lum > 0], 99.5)) if np.any(lum > 0) else 1.0
+        e = 1.0 / p if p > 0 else 1.0
+        ax.imshow(srgb_encode(im * e + (bg * e if bg is not None else backdrop)))
+        ax.set_title(name, fontsize=9)
+        ax.axis("off")
+    fig.tight_layout()
+    return _png(fig)
+
+
+def _cuts_figure(table: Array, s: Slice) -> str:
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(8.5, 4.2))
+    to = np.linspace(-85.0, 85.0, 341)
+    measured = set(float(x) for x in s.incidences())
+    for t in sorted({0.0, 20.0, 40.0, 60.0, 75.0} | measured):
+        wi, wo = inplane_to_dirs(np.radians(np.full(to.size, t)), np.radians(to))
+        v = _lum(np.nan_to_num(merl.lookup(table, wi, wo, interpolate=True)))
+        ax.plot(to, np.maximum(v, 1e-9), lw=2.0 if t in measured else 1.0,
+                ls="-" if t in measured else "--", label=f"theta_i {t:g}" + (" (measured)" if t in measured else ""))
+    ax.set_yscale("log")
+    ax.set_xlabel("theta_o (deg)")
+    ax.set_ylabel("table f_r (1/sr), channel mean")
+    ax.set_title("in-plane cuts of the written table")
+    ax.grid(True, which="both", alpha=0.2)
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    return _png(fig)
+
+
+def _albedo_figure(checks: Mapping[str, Any]) -> str:
+    return _png(_albedo_plot(checks))
+
+
+def _albedo_plot(checks: Mapping[str, Any]) -> Any:
+    """The figure of the albedo section: one curve per channel (one for grey data) and the limit 1."""
+    plt = _pyplot()
+    a = checks["albedo"]
+    alb = np.asarray(a["albedo"], dtype=np.float64)
+    fig, ax = plt.subplots(figsize=(6.0, 3.6))
+    grey = alb.shape[1] == 1 or bool(np.allclose(alb, alb[:, :1], rtol=1e-9, atol=0.0))
+    if grey:  # one curve for grey data (the table holds the same value in its three channels)
+        ax.plot(a["theta_i_deg"], alb[:, 0], "o-", ms=3, color="k", label="grey (every channel)")
+    for k in range(0 if grey else alb.shape[1]):
+        ax.plot(a["theta_i_deg"], alb[:, k], "o-", ms=3, color=("tab:red", "tab:green", "tab:blue")[k % 3],
+                label=("R", "G", "B")[k % 3])
+    ax.axhline(1.0, color="k", ls="--", lw=1, label="limit 1 (energy conservation)")
+    ax.set_xlabel("theta_i (deg)")
+    ax.set_ylabel("directional albedo")
+    ax.set_ylim(0, max(1.1, float(alb.max()) * 1.1))
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def _kv_table(d: Mapping[str, Any]) -> str:
+    rows = "".join(f"<tr><th>{html.escape(str(k))}</th><td>{html.escape(_fmt(v))}</td></tr>" for k, v in d.items())
+    return f"<table>{rows}</table>"
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    if isinstance(v, (list, tuple)) and v and all(isinstance(x, (int, float)) or x is None for x in v):
+        return ", ".join("-" if x is None else (f"{x:.6g}" if isinstance(x, float) else str(x)) for x in v)
+    if isinstance(v, Mapping):
+        return "; ".join(f"{k} = {_fmt(x)}" for k, x in v.items())
+    if isinstance(v, list):
+        return json.dumps(v)[:400]
+    return str(v)
+
+
+def _with_std(p: Mapping[str, Any]) -> dict[str, Any]:
+    """Parameters with their ``*_std`` folded in: "value +- std" (per channel for lists)."""
+    out: dict[str, Any] = {}
+    for k, v in p.items():
+        if k.endswith("_std"):
+            continue
+        sd = p.get(f"{k}_std")
+        if isinstance(v, (int, float)) and isinstance(sd, (int, float)):
+            out[k] = f"{v:.6g} +- {sd:.2g}"
+        elif isinstance(v, list) and isinstance(sd, list) and len(v) == len(sd):
+            out[k] = ", ".join(f"{a:.6g}" + (f" +- {b:.2g}" if isinstance(b, (int, float)) else "")
+                               for a, b in zip(v, sd, strict=True))
+        else:
+            out[k] = v
+    return out
+
+
+def build_html(*, report: Mapping[str, Any], working: Slice, rec: Reconstruction, table: ArrayLike,
+               alternatives: Mapping[str, Reconstruction] | None = None, held_out: Array | None = None,
+               title: str | None = None) -> str:
+    """The page (a string). ``report`` is the JSON report; ``alternatives`` the other methods' reconstructions
+    of the same samples (their predictions are drawn); ``held_out`` (N, C), in the order of ``working``:
+    cross-validation's prediction of each sample from the fold that left it out (NaN where it was never held
+    out)."""
+    t = np.asarray(table, dtype=np.float64)
+    order = np.lexsort((working.theta_o_deg, working.theta_i_deg))
+    s = working.take(order)
+    held_out = None if held_out is None else np.asarray(held_out, dtype=np.float64)[order]
+    preds: dict[str, Callable[[Array, Array], ArrayLike]] = {rec.method: rec.eval}
+    for name, other in (alternatives or {}).items():
+        if name != rec.method:
+            preds[name] = other.eval
+    checks = report["checks"]
+    blind = float(report.get("inputs", {}).get("blind_spot_deg") or 4.0)
+    name = title or str(working.meta.get("material") or Path(str(working.source)).stem or "material")
+    sec: dict[str, str] = {}
+    status = "pass" if checks["all_pass"] else "fail"
+    summary = {"method used": report["method"], "method requested": report.get("method_requested"),
+               "why": report.get("method_reason", ""), "plausibility checks": "passed" if checks["all_pass"]
+               else "FAILED", "inputs": ", ".join(map(str, report.get("inputs", {}).get("files", []))),
+               "samples": len(working), "incidences (deg)": ", ".join(f"{x:g}" for x in working.incidences()),
+               "software": f"gonio-brdf {_version()}"}
+    sec["summary"] = (f'<p class="{status}">Checks {"passed" if checks["all_pass"] else "failed"}.</p>'
+                      + _kv_table(summary))
+    sec["slices"] = (_img(_slices_figure(s, rec.method, preds, held_out, blind), "measured slices and predictions")
+                     + '<p class="note">Points: the measured samples with their standard deviations; grey: the '
+                       "blind spot around the retro direction; gold: stretches with no samples; lines: each "
+                       "method's prediction at the same angles (the chosen one thick and black); crosses: "
+                       "cross-validation's prediction of each sample from the folds that left it out.</p>")
+    sec["polar"] = (_img(_polar_figure(s), "polar curve with sub-curves and axes")
+                    + '<p class="note">The slice as the thesis draws it: each sample as value x (sin, cos) '
+                      "theta_o, split into sub-curves where the curve's turning changes sign, each with its axis "
+                      "of revolution (dashed).</p>")
+    sec["coverage"] = (_img(_coverage_figure(t, working), "theta_h theta_d map of the table")
+                       + '<p class="note">The in-plane (phi_d = 0) sheet of the table; white dots are the '
+                         "measured samples. Away from them the table extrapolates; the rings and bands a "
+                         "data-driven method shows in previews come from these interpolations between measured "
+                         "lines and from its phi_d-independent approximation.</p>")
+    sec["spheres"] = (_img(_spheres(t), "sphere renders")
+                      + '<p class="note">The written table on a sphere (linear radiance, each image exposed on its '
+                        "own 99.5th percentile, sRGB). Top: a point light and a dim uniform environment, as the "
+                        "preview. Bottom: a sky-and-ground environment (integrated over a fixed set of 275 "
+                        "directions per pixel, importance-sampled around the mirror direction, so the grazing "
+                        "rim is resolved), alone, with a sun in front and with a sun behind the sphere (grazing "
+                        "light): reconstruction.core.render.</p>")
+    sec["cuts"] = _img(_cuts_figure(t, working), "in-plane cuts of the table")
+    sec["albedo"] = _img(_albedo_figure(checks), "directional albedo")
+    rows = []
+    for k in ("non_negative", "albedo", "reciprocity"):
+        c = checks[k]
+        figures = {kk: vv for kk, vv in c.items() if kk not in ("pass", "albedo", "theta_i_deg")}
+        rows.append(f'<tr><th>{k}</th><td class="{"pass" if c["pass"] else "fail"}">'
+                    f'{"pass" if c["pass"] else "FAIL"}</td><td>{html.escape(_fmt(figures))}</td></tr>')
+    sec["checks"] = "<table>" + "".join(rows) + "</table>"
+    params = report.get("parameters")
+    if isinstance(params, list):
+        sec["parameters"] = "".join(_kv_table(_with_std(p)) for p in params)
+    elif isinstance(params, Mapping):
+        sec["parameters"] = _kv_table(_with_std(params))
+    else:
+        sec["parameters"] = "<p>none</p>"
+    cv = report.get("cross_validation")
+    if cv:
+        rows = ""
+        for c in cv["scores"]:
+            err = c["held_out_relative_rmse_cos"]
+            label = c.get("label", c["method"])
+            cls = ' class="pass"' if label == cv.get("chosen_label", cv["chosen"]) else ""
+            rows += (f"<tr{cls}><td>{html.escape(label)}</td><td>{'-' if err is None else f'{err:.4%}'}</td>"
+                     f"<td>{c['seconds']:.2f}</td></tr>")
+        sec["choice"] = (f"<p>{html.escape(report.get('method_reason', ''))}</p><p>Scheme: "
+                         f"{html.escape(cv['scheme'])}; metric: {html.escape(cv['metric'])}.</p><table><tr><th>"
+                         "method</th><th>held-out error</th><th>seconds</th></tr>" + rows + "</table>")
+    else:
+        sec["choice"] = f"<p>{html.escape(report.get('method_reason', ''))}</p>"
+    sec["timings"] = _kv_table({k: f"{v:.3f} s" for k, v in report.get("timings_s", {}).items()})
+    body = "".join(f'<section id="{k}"><h2>{k.capitalize()}</h2>{sec[k]}</section>' for k in SECTIONS)
+    return (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8"><title>{html.escape(name)}: '
+            f'gonio-brdf report</title><style>{_CSS}</style></head><body><h1>{html.escape(name)}</h1>'
+            f"{body}</body></html>\n")
+
+
+def write_html(path: str | Path, **kwargs: Any) -> None:
+    """:func:`build_html` written to ``path`` atomically (temporary file, fsync, rename)."""
+    text = build_html(**kwargs)
+    with atomic_open(Path(path), "w", encoding="utf-8") as fh:
+        fh.write(text)
+
+
+def write_index(path: str | Path, entries: Sequence[Mapping[str, Any]]) -> None:
+    """An index page of a batch: one row per material (name, method, checks, link to its page or the error)."""
+    rows = []
+    for e in entries:
+        link = (f'<a href="{html.escape(Path(e["html"]).name)}">{html.escape(e["name"])}</a>' if e.get("html")
+                else html.escape(e["name"]))
+        rows.append(f"<tr><td>{link}</td><td>{html.escape(str(e.get('method', '-')))}</td>"
+                    f"<td>{html.escape(str(e.get('error', 'ok')))}</td></tr>")
+    text = (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8"><title>gonio-brdf batch</title>'
+            f"<style>{_CSS}</style></head><body><h1>Batch reconstruction</h1><table><tr><th>material</th><th>"
+            f"method</th><th>result</th></tr>{''.join(rows)}</table></body></html>\n")
+    with atomic_open(Path(path), "w", encoding="utf-8") as fh:
+        fh.write(text)

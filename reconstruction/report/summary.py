@@ -1,0 +1,150 @@
+"""Plausibility checks and the JSON report of a reconstruction.
+
+Checks (each ``{"pass": bool, ...figures}``):
+
+* ``non_negative``: every table cell above the horizon is finite and >= 0;
+* ``albedo``: the directional albedo a(theta_i) = integral of f cos(theta_o) d omega_o of the written table
+  (trilinear lookup, Gauss-Legendre 64 x 128 over the hemisphere) is <= 1 + 0.01 (quadrature tolerance) at
+  theta_i = 0, 5, ..., 85 deg, in every channel;
+* ``reciprocity``: max |f(wi, wo) - f(wo, wi)| / max |f| of the method's own BRDF over 4096 random pairs is
+  <= 1e-6 (the table itself is reciprocal by construction: phi_d and phi_d + pi share a cell).
+
+Top-level report keys: ``method`` (the method used), ``method_requested``, ``method_reason``, ``parameters``,
+``residuals``, ``coverage``, ``checks``, ``inputs``, ``colour``, ``table``, ``outputs``, ``timings_s``,
+``details`` (everything the method reported) and, for ``--method auto``, ``cross_validation`` (the scheme, every
+method's held-out error, the choice). The method's own ``residuals`` are on the samples it was built from: they
+are reported as such and never used to choose a method.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from reconstruction.atomic import atomic_open
+from reconstruction.base import Reconstruction
+from reconstruction.core.checks import (
+    ALBEDO_TOLERANCE,
+    RECIPROCITY_TOLERANCE,
+    checked_albedo,
+    plausibility,
+)
+from reconstruction.core.geometry import inplane_to_dirs
+from reconstruction.core.metrics import relative_rmse_cos_dirs
+from reconstruction.formats import merl
+from reconstruction.formats.slicefile import Slice
+
+Array = NDArray[np.float64]
+
+__all__ = ["ALBEDO_TOLERANCE", "RECIPROCITY_TOLERANCE", "sample_residuals", "checked_albedo", "plausibility",
+           "coverage", "build_report", "write_json"]
+
+def _json_safe(x: Any) -> Any:
+    """Recursively turn numpy values into plain Python and non-finite floats into None (strict JSON)."""
+    if isinstance(x, dict):
+        return {str(k): _json_safe(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_json_safe(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _json_safe(x.tolist())
+    if isinstance(x, (np.bool_, bool)):
+        return bool(x)
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    if isinstance(x, (float, np.floating)):
+        v = float(x)
+        return v if np.isfinite(v) else None
+    return x
+
+
+def sample_residuals(rec: Reconstruction, s: Slice, table: ArrayLike | None = None) -> dict[str, Any]:
+    """How the reconstruction (and the written table, if given) reproduce the samples ``s`` (f_r, 1/sr)."""
+    f, _ = s.brdf()
+    wi, wo = inplane_to_dirs(np.radians(s.theta_i_deg), np.radians(s.theta_o_deg))
+    model = np.asarray(rec.eval(wi, wo), dtype=np.float64).reshape(len(s), -1)
+    if model.shape[1] != f.shape[1]:
+        model = np.broadcast_to(model, f.shape)
+    r = model - f
+    out: dict[str, Any] = {
+        "samples": len(s),
+        "rms_1_per_sr": float(np.sqrt(np.mean(r * r))),
+        "max_abs_1_per_sr": float(np.max(np.abs(r))),
+        "relative_rmse_cos": relative_rmse_cos_dirs(model, f, wi, wo),
+    }
+    if table is not None:
+        tv = merl.lookup(table, wi, wo, interpolate=True)
+        tv = tv[:, :1] if f.shape[1] == 1 else tv
+        out["table_relative_rmse_cos"] = relative_rmse_cos_dirs(tv, f, wi, wo)
+    return out
+
+
+def coverage(s: Slice, dropped_blind_spot: int = 0) -> dict[str, Any]:
+    """What the samples cover: per incidence, the outgoing range and largest gap; the (theta_h, theta_d) bins hit."""
+    out: dict[str, Any] = {"samples": len(s), "missing_blind_spot_rows": dropped_blind_spot, "incidences": []}
+    for ti in s.incidences():  # one entry per incidence (a handful)
+        to = np.sort(s.theta_o_deg[s.theta_i_deg == ti])
+        out["incidences"].append({"theta_i_deg": float(ti), "samples": int(to.size),
+                                  "theta_o_min_deg": float(to[0]), "theta_o_max_deg": float(to[-1]),
+                                  "largest_gap_deg": float(np.max(np.diff(to))) if to.size > 1 else None})
+    th = np.radians(np.abs(s.theta_o_deg - s.theta_i_deg) / 2)
+    td = np.radians(np.abs(s.theta_o_deg + s.theta_i_deg) / 2)
+    hit = np.zeros((merl.N_TH, merl.N_TD), dtype=bool)
+    hit[merl.theta_h_index(th), merl.theta_d_index(td)] = True
+    out["half_diff_bins_with_samples"] = int(hit.sum())
+    out["half_diff_bins_total"] = merl.N_TH * merl.N_TD
+    return out
+
+
+def build_report(*, rec: Reconstruction, choice: dict[str, Any], working: Slice, table: ArrayLike,
+                 checks: dict[str, Any], inputs: dict[str, Any], colour: dict[str, Any], table_info: dict[str, Any],
+                 outputs: dict[str, Any], timings: dict[str, float], dropped_blind_spot: int = 0) -> dict[str, Any]:
+    """Assemble the JSON report (keys in the module docstring)."""
+    details = rec.report()
+    params = details.get("parameters", {})
+    own = details.get("residuals") if isinstance(details.get("residuals"), dict) else {}
+    # the method's own figures win (a fit to a scene's subset is judged on that subset); the rest is added
+    residuals = {**sample_residuals(rec, working, table), **own,
+                 "note": "on the samples the method was built from: how well it reproduces them, not how well it "
+                         "predicts (an interpolating method reproduces its samples exactly); see cross_validation"}
+    rep = {
+        "method": rec.method,
+        "method_requested": choice.get("requested", rec.method),
+        "method_reason": choice.get("reason", ""),
+        "parameters": params,
+        "residuals": residuals,
+        "coverage": coverage(working, dropped_blind_spot),
+        "checks": checks,
+        "inputs": inputs,
+        "colour": colour,
+        "table": table_info,
+        "outputs": outputs,
+        "timings_s": {k: round(v, 4) for k, v in timings.items()},
+        "details": {k: v for k, v in details.items() if k not in ("parameters", "residuals", "method")},
+    }
+    if "cross_validation" in choice:
+        rep["cross_validation"] = choice["cross_validation"]
+    return _json_safe(rep)
+
+
+_SCALAR = r"(?:-?[0-9][0-9eE.+-]*|null|true|false)"
+_FLAT_LIST = re.compile(rf"\[\s+({_SCALAR}(?:,\s+{_SCALAR})*)\s+\]")  # a list of numbers (no strings)
+
+
+def dumps_compact(report: dict[str, Any]) -> str:
+    """Indented, strict JSON in which every list of numbers (residuals, albedos, angles) takes one line."""
+    text = json.dumps(_json_safe(report), indent=2, allow_nan=False)
+    return _FLAT_LIST.sub(lambda m: "[" + " ".join(m.group(1).split()) + "]", text) + "\n"
+
+
+def write_json(path: str | Path, report: dict[str, Any]) -> None:
+    """Write ``report`` as indented, strict JSON (lists of scalars on one line), atomically (temporary file,
+    fsync, rename)."""
+    path = Path(path)
+    text = dumps_compact(report)
+    with atomic_open(path, "w", encoding="utf-8") as fh:
+        fh.write(text)
