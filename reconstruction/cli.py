@@ -115,7 +115,8 @@ def build_parser() -> argparse.ArgumentParser:
                          + "; ".join(f"{m.name}: {m.summary}" for m in REGISTRY.values()))
     ap.add_argument("--out", metavar="MATERIAL.binary",
                     help="MERL table to write; optional once another output is asked (--preview, --html, --report, "
-                         "--rgl, --zemax, --export-mitsuba, --export-json); not with --batch (--out-dir)")
+                         "--rgl, --zemax, --export-mitsuba, --export-json, --uncertainty); not with --batch "
+                         "(--out-dir)")
     ap.add_argument("--preview", metavar="MATERIAL.exr",
                     help="render a sphere under a point light: linear float OpenEXR, plus a PNG next to it")
     ap.add_argument("--html", metavar="REPORT.html", nargs="?", const=True, default=None,
@@ -158,6 +159,19 @@ def build_parser() -> argparse.ArgumentParser:
                     help="method prior: blend its completion with the samples' bivariate interpolation, f = "
                          "f_prior^(1-A) f_bivariate^A (0: the prior alone, the default; auto scores 0, 0.25 and "
                          "0.5 by cross-validation and reports the one it chose)")
+    u = ap.add_argument_group("how sure the table is, and which slice to measure next")
+    u.add_argument("--uncertainty", metavar="SIGMA.npy", default=None,
+                   help="write the standard deviation of ln f_r per cell, float32 (C, 90, 90, 180) in the MERL "
+                        "table's cell order; the report gets an 'uncertainty' section (median sigma over measured, "
+                        "interpolated and extrapolated cells; expected PSNR, linear image error and cosl2)")
+    u.add_argument("--advise", action="store_true",
+                   help="rank the incidences the bench can still measure (every 5 deg) by the errors to expect "
+                        "after measuring each, with its bench time, and recommend one (the report's 'advice')")
+    u.add_argument("--bench", metavar="CONFIG.toml", default=None,
+                   help="--advise: the bench file whose arm limits, blind spot and timing the candidates use "
+                        "(default: 0-80 deg, a 4 deg blind spot, 0.13 s per point)")
+    u.add_argument("--budget-s", type=_nonneg_float, default=None, metavar="T",
+                   help="--advise: also plan the best further slices that fit in T seconds of bench time")
     ap.add_argument("--allow-implausible", action="store_true",
                     help="write the table even if it fails a plausibility check (the report and the console say so)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar and no summary line")
@@ -196,7 +210,9 @@ def job_from_args(args: argparse.Namespace, **overrides: Any) -> Job:
         **{k: getattr(args, k, None) for k in ("rgl", "zemax", "zemax_incidences", "zemax_azimuths", "zemax_radials",
                                               "export_mitsuba", "export_json")},
         preview_renderer=getattr(args, "preview_renderer", None) or "builtin", prior=getattr(args, "prior", None),
-        prior_anchor=float(getattr(args, "prior_anchor", 0.0) or 0.0))
+        prior_anchor=float(getattr(args, "prior_anchor", 0.0) or 0.0),
+        uncertainty=getattr(args, "uncertainty", None), advise=bool(getattr(args, "advise", False)),
+        bench=getattr(args, "bench", None), budget_s=getattr(args, "budget_s", None))
     fields.update(overrides)
     return Job(**fields)
 
@@ -334,6 +350,10 @@ def _os_error(e: OSError) -> str:
     return f"{where}{what}"
 
 
+def _fmt(x: float | None) -> str:
+    return "-" if x is None else f"{x:.3f}"
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
@@ -387,6 +407,25 @@ def _main(ap: argparse.ArgumentParser, args: argparse.Namespace) -> int:
         print(f"{PROG}: method {rep['method']}{model}: wrote {', '.join(written)}"
               + (f"; IMPLAUSIBLE, written because of --allow-implausible: check(s) failed: {', '.join(failed)}"
                  if failed else "; checks passed"), file=sys.stderr)
+        if "uncertainty" in rep:
+            u = rep["uncertainty"]
+            ms = u["median_sigma"]
+            print(f"{PROG}: uncertainty: median sigma of ln f {_fmt(ms['measured'])} measured, "
+                  f"{_fmt(ms['interpolated'])} interpolated, {_fmt(ms['extrapolated'])} extrapolated cells; expect "
+                  f"PSNR {u['expected_psnr_db']:.1f} dB, linear image error {u['expected_linear_image_error']:.1%}, "
+                  f"cosl2 {u['expected_cosl2']:.1%}", file=sys.stderr)
+        if "advice" in rep:
+            a = rep["advice"]
+            print(f"{PROG}: advice: measure theta_i = {a['recommended_theta_i_deg']:g} deg next", file=sys.stderr)
+            for cand in a["candidates"]:
+                print(f"  theta_i {cand['theta_i_deg']:4g} deg: expected PSNR {cand['expected_psnr_db']:5.1f} dB, "
+                      f"cosl2 {cand['expected_cosl2']:6.1%}, bench time {cand['bench_time_s']:5.1f} s",
+                      file=sys.stderr)
+            if "plan" in a:
+                p = a["plan"]
+                print(f"{PROG}: within {a['budget_s']:g} s: measure "
+                      f"{', '.join(f'{x:g}' for x in p['theta_i_deg']) or 'nothing more'} deg "
+                      f"({p['bench_time_s']:g} s, expected PSNR {p['expected_psnr_db']:.1f} dB)", file=sys.stderr)
         if rep.get("colour", {}).get("working_channels") == ["value"]:
             print(f"{PROG}: note: the samples have one band (a photodiode sees one), so the table is grey; a "
                   f"spectrometer bench ([detector] type = \"spectrometer\") or R,G,B columns give colour",

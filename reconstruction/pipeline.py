@@ -125,12 +125,22 @@ class Job:
     preview_renderer: str = "builtin"
     prior: str | None = None  # --prior DIR: the folder of prior materials (method prior; auto tries it when given)
     prior_anchor: float = 0.0  # --prior-anchor A: method prior's blend with the bivariate interpolation (0..1)
+    uncertainty: str | None = None  # --uncertainty SIGMA.npy: sigma of ln f per cell (reconstruction.assess)
+    advise: bool = False  # --advise: rank the incidences to measure next
+    bench: str | None = None  # --bench CONFIG.toml: the bench whose limits and timing --advise uses
+    budget_s: float | None = None  # --budget-s T: --advise plans further slices within T s of bench time
 
     @property
     def steps(self) -> list[str]:
         """The steps :func:`run` reports to its ``progress`` (for a progress bar's total)."""
         return (["read", "colour", "reconstruct", "tabulate", "write", "checks"] + (["preview"] if self.preview else [])
+                + (["uncertainty"] if self.assesses else []) + (["advice"] if self.advise else [])
                 + (["html"] if self.html else []))
+
+    @property
+    def assesses(self) -> bool:
+        """Whether the run computes the per-cell uncertainty (asked for, for the advice or the HTML page)."""
+        return bool(self.uncertainty or self.advise or self.html)
 
 
 class Progress(Protocol):
@@ -184,7 +194,7 @@ def _check_outputs(job: Job) -> None:
         check_output(Path(job.out), ".binary", "--out")
     elif not exports.asks_output(job):
         raise ReconstructionError("give --out MATERIAL.binary (or another output: --preview, --html, --report, --rgl, "
-                                  "--zemax, --export-mitsuba, --export-json)")
+                                  "--zemax, --export-mitsuba, --export-json, --uncertainty)")
     exports.check_arguments(job)
     if job.preview:
         check_output(Path(job.preview), ".exr", "--preview")
@@ -195,6 +205,12 @@ def _check_outputs(job: Job) -> None:
         check_output(Path(job.report), None, "--report")
     if job.html:
         check_output(Path(job.html), ".html", "--html")
+    if job.uncertainty:
+        check_output(Path(job.uncertainty), ".npy", "--uncertainty")
+    if job.bench and not Path(job.bench).is_file():
+        raise ReconstructionError(f"--bench {job.bench}: no such file (expected a bench file, configs/*.toml)")
+    if (job.bench or job.budget_s is not None) and not job.advise:
+        raise ReconstructionError("--bench and --budget-s are for --advise")
 
 
 def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
@@ -260,6 +276,9 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
     done("tabulate", t0)
     t0 = begin("plausibility checks")
     checks = report.plausibility(rec, table)
+    fallbacks = choice.pop("fallbacks", None)
+    if not checks["all_pass"] and not job.allow_implausible and fallbacks is not None:
+        rec, table, checks, energy = _fall_back(job, (rec, table, checks, energy), choice, fallbacks, progress)
     done("checks", t0)
     if not checks["all_pass"] and not job.allow_implausible:
         raise ImplausibleError(implausible_message(rec.method, checks))
@@ -289,6 +308,11 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
                     "bin_centres": "theta_h = ((i + 0.5) / 90)^2 * 90 deg, theta_d = j + 0.5 deg, "
                                    "phi_d = k + 0.5 deg"},
         outputs=outputs, timings=timings, dropped_blind_spot=loaded.dropped_blind_spot)
+    sigma_table = None
+    if job.assesses:
+        t0 = begin("uncertainty")
+        sigma_table = _assess(job, rep, working, rec, opts, begin, done)
+        done("uncertainty", t0)
     if not checks["all_pass"]:
         rep["implausible_table_written"] = "written with --allow-implausible: " + implausible_message(rec.method,
                                                                                                       checks)
@@ -301,14 +325,65 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
         report.write_json(job.report, rep)
     if job.html:
         t0 = begin("html report")
-        _write_html(job, rep, working, rec, table, choice, opts)
+        _write_html(job, rep, working, rec, table, choice, opts, sigma_table)
         rep["timings_s"]["html"] = round(time.perf_counter() - t0, 4)
         done("html", t0)
     return rep
 
 
+def _fall_back(job: Job, first: tuple[Reconstruction, Array, dict[str, Any], dict[str, Any]], choice: dict[str, Any],
+               fallbacks: Callable[[], Any], progress: Progress | None
+               ) -> tuple[Reconstruction, Array, dict[str, Any], dict[str, Any]]:
+    """auto's chosen method wrote an implausible table (``first``: its reconstruction, table, checks and the
+    tabulation's notes): the next methods in auto's order, the first whose table passes every check (``choice``
+    says so); ``first`` when none does (then refused as before)."""
+    from reconstruction.report import summary as report
+
+    rec, checks = first[0], first[2]
+    failed = implausible_message(rec.method, checks)
+    for label, alt in fallbacks():
+        if progress is not None:
+            progress.begin(f"falling back to {label}")
+        energy: dict[str, Any] = {}
+        table = tabulate(alt, job.supersample, energy)
+        c = report.plausibility(alt, table)
+        if c["all_pass"]:
+            choice["used"] = alt.method
+            choice["reason"] += f"; not written: {failed}; written instead: {label}, the next in auto's order"
+            cv = choice.get("cross_validation", {})
+            cv.update({"chosen": alt.method, "chosen_label": label, "fell_back_from": rec.method})
+            return alt, table, c, energy
+    return first
+
+
+def _assess(job: Job, rep: dict[str, Any], working: Slice, rec: Reconstruction, opts: Options,
+            begin: Callable[[str], float], done: Callable[[str, float], None]) -> NDArray[np.float32]:
+    """The report's ``uncertainty`` (and the ``--uncertainty`` array) and, with ``--advise``, its ``advice``;
+    returns sigma of ln f per cell (3, 90, 90, 180)."""
+    from reconstruction.assess import advice, uncertainty
+    from reconstruction.atomic import atomic_path
+
+    s = working.sorted()
+    sigma, section, ref, sg, f_grid = uncertainty.assess_table(rec, s, opts.prior, tuple(opts.prior_exclude))
+    if job.uncertainty:
+        with atomic_path(job.uncertainty) as tmp:
+            with open(tmp, "wb") as fh:
+                np.save(fh, sigma)
+        section["file"] = str(job.uncertainty)
+        rep["outputs"]["uncertainty"] = str(job.uncertainty)
+    rep["uncertainty"] = section
+    if job.advise:
+        t0 = begin("advice")
+        rep["advice"] = advice.advise(s, ref, advice.bench_limits(job.bench), job.budget_s,
+                                      current={k: section[k] for k in ("expected_psnr_db", "expected_cosl2",
+                                                                       "expected_linear_image_error")},
+                                      sigma_now=sg, f_grid=f_grid)
+        done("advice", t0)
+    return sigma
+
+
 def _write_html(job: Job, rep: dict[str, Any], working: Slice, rec: Reconstruction, table: Array,
-                choice: dict[str, Any], opts: Options) -> None:
+                choice: dict[str, Any], opts: Options, sigma: NDArray[np.float32] | None = None) -> None:
     """The HTML report of ``job``: every other registered method is built on the same samples for comparison."""
     from reconstruction.report import html as htmlreport
 
@@ -323,4 +398,4 @@ def _write_html(job: Job, rep: dict[str, Any], working: Slice, rec: Reconstructi
     held = choice.get("held_out_predictions", {}).get(rec.method)
     title = str(working.meta.get("material") or Path(job.out or job.html or "material").stem)
     htmlreport.write_html(job.html, report=rep, working=ordered, rec=rec, table=table, alternatives=others,
-                          held_out=held, title=title)
+                          held_out=held, title=title, sigma=sigma)

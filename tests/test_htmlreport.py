@@ -45,7 +45,7 @@ def test_html_report_is_self_contained_and_matches_the_json_report(tmp_path):
     page = parse(html_path)
     assert page.sections == list(SECTIONS)
     assert not [x for x in page.links if re.match(r"https?:", x or "")]  # nothing fetched from the network
-    assert len(page.images) == 6  # slices, polar, coverage, spheres, cuts, albedo
+    assert len(page.images) == 7  # slices, polar, coverage, sigma, spheres, cuts, albedo
     for src_uri in page.images:  # every image is inline and decodes as a PNG
         head, data = src_uri.split(",", 1)
         assert head == "data:image/png;base64"

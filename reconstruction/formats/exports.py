@@ -131,7 +131,7 @@ def wants_outputs(args: Any) -> bool:
 
 
 #: the outputs besides the MERL table (flags without the dashes): asking for any makes --out optional
-OTHER_OUTPUTS = ("preview", "html", "report", "rgl", "zemax", "export_mitsuba", "export_json")
+OTHER_OUTPUTS = ("preview", "html", "report", "rgl", "zemax", "export_mitsuba", "export_json", "uncertainty")
 
 
 def asks_output(args: Any) -> bool:

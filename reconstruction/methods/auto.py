@@ -32,7 +32,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
@@ -218,6 +218,17 @@ def reconstruct_auto(s: Slice, opts: Options,
     if chosen is None:
         raise ReconstructionError(f"{s.source}: no method gives a physically plausible BRDF from these samples ("
                                   + "; ".join(rejected or [f"{c.method}: {c.failure}" for c in scores]) + ")")
+    rest = [c for c in ranked[ranked.index(best) + 1:] if np.isfinite(c.error)]
+
+    def fallbacks() -> Iterator[tuple[str, Reconstruction]]:
+        """The next methods in auto's order, built on all samples: what the pipeline writes instead when the
+        chosen method's table fails a plausibility check (the check of the written table is finer than
+        :func:`max_albedo`)."""
+        for sc in rest:  # a handful
+            yield sc.label, (_bic_fit(full, opts, fit_rec, progress) if sc.method == "fit" and sc.variant
+                             else fit_rec if sc.method == "fit"
+                             else REGISTRY[sc.method].build(full, _options_of(sc, opts), progress))
+
     others = ", ".join(f"{c.label} {c.error:.2%}" for c in ranked if c is not best and np.isfinite(c.error))
     model = f" ({chosen.result.name})" if isinstance(chosen, FitReconstruction) and not best.variant else ""
     reason = (f"lowest held-out error ({scheme}): {best.label}{model} predicts the samples it did not see to "
@@ -252,6 +263,7 @@ def reconstruct_auto(s: Slice, opts: Options,
           "preference": ({"methods": preferred, "margin": margin, "noise_level": noise, "applied": not at_noise}
                          if preferred else None)}
     return chosen, {"requested": "auto", "used": chosen.method, "reason": reason, "cross_validation": cv,
+                    "fallbacks": fallbacks,
                     "held_out_predictions": ({} if s is not full else  # per sample of the input (none when thinned)
                                              {c.method: c.predictions for c in reversed(scores)
                                               if c.predictions is not None and (c.method != best.method or c is best)})}

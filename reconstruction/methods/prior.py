@@ -57,6 +57,20 @@ CACHE_VERSION = 1
 INPLANE_MAX_DEG = 80.0
 
 
+#: A channel's scale is at least this fraction of its material's brightest channel's: the median of a channel that
+#: reflects almost nothing (a saturated red's blue) is noise-level, and dividing by it turned the mapped vector of a
+#: dark channel into a bright material's (rgl-cg_sunflower and the cc_* car paints reconstructed 1e8-1e11 times too
+#: bright from one slice, benchmarks/bench_real_materials.py).
+SCALE_FLOOR = 0.02
+
+
+def channel_scales(at: Array) -> Array:
+    """The scale of each channel (..., C) from its f cos cos at the samples ``at`` (..., C, n): the median, floored at
+    :data:`SCALE_FLOOR` times the largest channel's median (and at 1e-12)."""
+    med = np.median(np.asarray(at, dtype=np.float64), axis=-1)
+    return np.maximum(np.maximum(med, SCALE_FLOOR * med.max(axis=-1, keepdims=True)), 1e-12)
+
+
 # --- the reduced grid ------------------------------------------------------------------------------------------
 
 
@@ -173,13 +187,14 @@ class PriorSet:
                               * g["cos"][g["train"]].astype(np.float32))
         return self._fc_cache
 
-    def basis(self, idx: NDArray[np.intp], w: Array, exclude: tuple[str, ...] = ()
-              ) -> tuple[Array, Array, Array]:
+    def basis(self, idx: NDArray[np.intp], w: Array, exclude: tuple[str, ...] = (), residual: bool = False
+              ) -> tuple[Array, ...]:
         """(mean (M,), components (K, M), standard deviations (K,)) in the mapped space over the training cells
         (:func:`train_index`), from every material and channel except the materials named in ``exclude`` (a
         benchmark's leave-one-out). Each row's scale is the median of its f cos cos at the samples (``idx``,
         ``w``: their interpolation on the training cells), so the basis holds shapes relative to what a slice of
-        that geometry sees."""
+        that geometry sees. With ``residual``, a fourth array (M,): the variance per cell of the rows' part outside
+        the components (dof-corrected), what no coefficient can reach."""
         drop = set(exclude) & set(self.names)
         keep = [i for i, n in enumerate(self.names) if n not in drop]
         if len(keep) < 2:
@@ -187,7 +202,7 @@ class PriorSet:
         rows = (np.asarray(keep)[:, None] * 3 + np.arange(3)).ravel()
         fc = self._fc()[rows]
         at = np.einsum("nj,tnj->tn", w, fc[:, idx])  # (T, n) f cos cos at the samples
-        scales = np.maximum(np.median(at, axis=1), 1e-12).astype(np.float32)
+        scales = channel_scales(at.reshape(len(keep), 3, -1)).reshape(-1).astype(np.float32)
         y = np.divide(fc, scales[:, None], out=fc)  # in place: fc is this call's own copy (80 MB for 48 materials)
         y += np.float32(EPS)
         np.log(y, out=y)
@@ -197,7 +212,12 @@ class PriorSet:
         order = np.argsort(ev)[::-1][: min(MAX_COMPONENTS, len(ev) - 1)]
         sv = np.sqrt(np.maximum(ev[order], 1e-30))
         comps = (vec[:, order].T.astype(np.float32) @ y).astype(np.float64) / sv[:, None]
-        return mu.astype(np.float64), comps, sv / np.sqrt(max(y.shape[0] - 1, 1))
+        out = (mu.astype(np.float64), comps, sv / np.sqrt(max(y.shape[0] - 1, 1)))
+        if residual:  # y minus its projection on the components, in place (y is this call's own)
+            y -= (y @ comps.T.astype(np.float32)) @ comps.astype(np.float32)
+            dof = max(y.shape[0] - comps.shape[0] - 1, 1)
+            out += (np.einsum("tm,tm->m", y, y, dtype=np.float64) / dof,)
+        return out
 
 
 @lru_cache(maxsize=1)
@@ -264,6 +284,8 @@ class PriorReconstruction:
     values: Array
     info: dict[str, Any]
     method: str = "prior"
+    sigma_ln: NDArray[np.float32] | None = None  # (C, n_cells) sigma of ln f_r, see :data:`SIGMA_TAU`
+    posterior: dict[str, Any] | None = None  # what the capture advice needs: the basis, the scales, the misfit
 
     def eval(self, wi: Array, wo: Array) -> Array:
         wi = np.asarray(wi, dtype=np.float64).reshape(-1, 3)
@@ -275,24 +297,34 @@ class PriorReconstruction:
         return out
 
     def table(self) -> Array:
-        """The MERL table (3, 90, 90, 180): the grid interpolated to the MERL bin centres (linear in theta_d and
-        phi_d, separable: two small matrix products; theta_h bins are MERL's own)."""
-        from reconstruction.core.colour import _interp_matrix
+        """The MERL table (3, 90, 90, 180): the grid interpolated to the MERL bin centres (:func:`grid_to_merl`)."""
         from reconstruction.formats import merl
 
-        nh, nd, npd = GRID
-        v = self.values if self.values.shape[0] == 3 else self.values[:1]  # a grey BRDF: one channel, repeated
-        v = v.reshape(v.shape[0], nh, nd, npd)
-        v = np.concatenate([v, v[..., :1]], axis=-1)  # phi_d is periodic (pi)
-        # linear interpolation matrices in bin-index units, ends held (as map_coordinates' mode="nearest")
-        wd = _interp_matrix(np.arange(nd, dtype=np.float64), (np.arange(90) + 0.5) / 90 * nd - 0.5)  # (nd, 90)
-        wp = _interp_matrix(np.arange(npd + 1, dtype=np.float64), (np.arange(180) + 0.5) / 180 * npd)  # (npd+1, 180)
-        t = np.einsum("da,chdp,pb->chab", wd, v, wp, optimize=True)
-        t = np.broadcast_to(t, (3, *t.shape[1:]))  # the same numbers in every channel, not three roundings
-        return np.where(merl.valid_mask()[None], np.maximum(t, 0.0), 0.0)
+        return np.where(merl.valid_mask()[None], np.maximum(grid_to_merl(self.values), 0.0), 0.0)
+
+    def uncertainty_table(self) -> NDArray[np.float32]:
+        """sigma of ln f_r (3, 90, 90, 180) float32 in the MERL table's cells, interpolated as :meth:`table`."""
+        assert self.sigma_ln is not None
+        return grid_to_merl(self.sigma_ln.astype(np.float64)).astype(np.float32)
 
     def report(self) -> dict[str, Any]:
         return {"method": self.method, **self.info}
+
+
+def grid_to_merl(values: Array) -> Array:
+    """(C, n_cells) on the reduced grid -> (3, 90, 90, 180) at the MERL bin centres: linear in theta_d and phi_d,
+    separable (two small matrix products; theta_h bins are MERL's own); one channel is repeated."""
+    from reconstruction.core.colour import _interp_matrix
+
+    nh, nd, npd = GRID
+    v = values if values.shape[0] == 3 else values[:1]  # a grey BRDF: one channel, repeated
+    v = v.reshape(v.shape[0], nh, nd, npd)
+    v = np.concatenate([v, v[..., :1]], axis=-1)  # phi_d is periodic (pi)
+    # linear interpolation matrices in bin-index units, ends held (as map_coordinates' mode="nearest")
+    wd = _interp_matrix(np.arange(nd, dtype=np.float64), (np.arange(90) + 0.5) / 90 * nd - 0.5)  # (nd, 90)
+    wp = _interp_matrix(np.arange(npd + 1, dtype=np.float64), (np.arange(180) + 0.5) / 180 * npd)  # (npd+1, 180)
+    t = np.einsum("da,chdp,pb->chab", wd, v, wp, optimize=True)
+    return np.broadcast_to(t, (3, *t.shape[1:]))  # the same numbers in every channel, not three roundings
 
 
 def _extend(f: Array) -> Array:
@@ -314,11 +346,11 @@ def reconstruct_prior(s: Slice, prior: PriorSet | str | Path, exclude: tuple[str
     ps = prior if isinstance(prior, PriorSet) else load_prior(prior)
     g = _grid()
     idx, w, cs = _design(s)
-    mu, comps, sig = ps.basis(idx, w, exclude)
+    mu, comps, sig, resvar = ps.basis(idx, w, exclude, residual=True)
     sb = np.einsum("nj,knj->nk", w, comps[:, idx])  # (n, K): the basis at the samples
     smu = np.sum(w * mu[idx], axis=1)
     obs = np.maximum(np.asarray(s.values, dtype=np.float64), 0.0) * cs[:, None]  # f cos cos, (n, C)
-    scale = np.maximum(np.median(obs, axis=0), 1e-12)  # as the basis's rows: the median at the samples
+    scale = channel_scales(obs.T)  # as the basis's rows: the median at the samples (floored per channel)
     y = np.log(obs / scale + EPS) - smu[:, None]
     kmax = sb.shape[1]
     cfgs = [(min(a, kmax), b) for a in (K_CHOICES if k is None else (k,)) for b in (LAM_CHOICES if lam is None
@@ -335,6 +367,8 @@ def reconstruct_prior(s: Slice, prior: PriorSet | str | Path, exclude: tuple[str
     f = np.zeros((mapped.shape[0], g["cos"].size))
     f[:, g["train"]] = np.maximum(np.exp(mapped) - EPS, 0.0) * scale[:, None] / g["cos"][g["train"]]
     f = np.where(g["cos"] > 0, _extend(f), 0.0)
+    misfit = float(np.sqrt(np.mean((fitted - y) ** 2)))  # in the mapped space, over samples and channels
+    sigma_ln = _posterior_sigma(sb, sig, comps, resvar, misfit, f, scale)
     fitted = (np.exp(fitted + smu[:, None]) - EPS) * scale
     resid = float(np.sqrt(np.sum((fitted - obs) ** 2) / max(np.sum(obs**2), 1e-300)))
     used = [n for n in ps.names if n not in set(exclude)]
@@ -349,7 +383,56 @@ def reconstruct_prior(s: Slice, prior: PriorSet | str | Path, exclude: tuple[str
             "notes": [f"reconstructed from a basis of {len(used)} prior materials x 3 channels "
                       f"(up to {max(c[0] for c in cfgs)} components); beyond 81 deg the last value within it along "
                       f"theta_d"]}
-    return PriorReconstruction(list(s.channels), f, info)
+    info["uncertainty"] = {"model": f"posterior of the coefficients (K = {SIGMA_COMPONENTS}, lam = {SIGMA_LAM:g}) "
+                           f"+ the basis's residual variance + {SIGMA_KAPPA:g} x the misfit at the samples, times "
+                           f"{SIGMA_TAU:g}", "misfit_mapped": misfit}
+    return PriorReconstruction(list(s.channels), f, info, sigma_ln=sigma_ln,
+                               posterior={"basis": (mu, comps, sig, resvar), "scale": scale, "misfit": misfit,
+                                          "design": (idx, w)})
+
+
+#: The uncertainty of the prior's table: sigma of y = ln(f cos cos / s + EPS) is SIGMA_TAU x sqrt(the posterior
+#: variance of the coefficients' part (K = SIGMA_COMPONENTS, ridge SIGMA_LAM) + the basis's residual variance +
+#: SIGMA_KAPPA x the misfit at the samples squared). Calibrated leave-one-out on the 141 real materials
+#: (benchmarks/bench_uncertainty.py: the share of uniform direction pairs within 1 and 2 sigma).
+SIGMA_COMPONENTS, SIGMA_LAM, SIGMA_TAU, SIGMA_KAPPA = 20, 0.03, 0.75, 1.0
+#: sigma of ln f is at most this (a factor e^5 = 148): where f is 0 the log is undefined.
+SIGMA_LN_MAX = 5.0
+
+
+def posterior_covariance(sb: Array, sig: Array, k: int = SIGMA_COMPONENTS, lam: float = SIGMA_LAM) -> Array:
+    """The posterior covariance (k, k) of the first ``k`` coefficients given the samples' basis rows ``sb`` (n, K)
+    (Gaussian prior of variances ``sig**2``, noise variance ``lam``)."""
+    k = min(k, sb.shape[1])
+    a = sb[:, :k]
+    return np.linalg.inv(a.T @ a / lam + np.diag(1.0 / sig[:k] ** 2))
+
+
+def mapped_sigma(cov: Array, comps: Array, resvar: Array, misfit: float) -> Array:
+    """sigma of y over the training cells (M,) from the coefficients' covariance ``cov`` (k, k), the components
+    (K, M), the residual variance (M,) and the misfit (see :data:`SIGMA_TAU`)."""
+    k = cov.shape[0]
+    vpost = np.einsum("km,kl,lm->m", comps[:k], cov, comps[:k], optimize=True)
+    return SIGMA_TAU * np.sqrt(np.maximum(vpost, 0.0) + resvar + SIGMA_KAPPA * misfit**2)
+
+
+def sigma_ln_of(sigma_y: Array, f: Array, scale: Array) -> Array:
+    """sigma of ln f_r (C, n_cells) on the reduced grid from sigma of y over the training cells (M,), the BRDF ``f``
+    (C, n_cells) and the channels' scales (C,): d ln f = dy (x + EPS) / x with x = f cos cos / s; beyond the
+    training range the last value along theta_d, as :func:`_extend` completes f."""
+    g = _grid()
+    full = np.zeros((1, g["cos"].size))
+    full[0, g["train"]] = sigma_y
+    sy = _extend(full)
+    x = f * g["cos"][None] / scale[:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = sy * (x + EPS) / x
+    return np.where(x > 0, np.minimum(out, SIGMA_LN_MAX), SIGMA_LN_MAX).astype(np.float32)
+
+
+def _posterior_sigma(sb: Array, sig: Array, comps: Array, resvar: Array, misfit: float, f: Array,
+                     scale: Array) -> NDArray[np.float32]:
+    return sigma_ln_of(mapped_sigma(posterior_covariance(sb, sig), comps, resvar, misfit), f, scale)
 
 
 def anchored(f_prior: Array, f_anchor: Array, anchor: float) -> Array:

@@ -187,6 +187,33 @@ def _coverage_plot(table: Array, s: Slice) -> Any:
     return fig
 
 
+def _sigma_figure(sigma: Array, s: Slice) -> str:
+    """sigma of ln f over (theta_h, theta_d), the median over phi_d and channels, with the samples on it."""
+    plt = _pyplot()
+    sg = np.where(merl.valid_mask(), np.asarray(sigma, dtype=np.float64).mean(axis=0), np.nan)
+    with np.errstate(all="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # rows with no valid cell: NaN, drawn blank
+            val = np.nanmedian(sg, axis=2)
+    fig, ax = plt.subplots(figsize=(6.4, 4.8))
+    from matplotlib.colors import LogNorm
+
+    im = ax.imshow(np.clip(val.T, 0.01, 5.0), origin="lower", aspect="auto", extent=[0, 90, 0, 90], cmap="magma",
+                   norm=LogNorm(0.01, 5.0))
+    fig.colorbar(im, ax=ax, label="sigma of ln f_r (median over phi_d; 0.1 = 10 %, 1 = a factor e)")
+    hh = np.abs(s.theta_o_deg - s.theta_i_deg) / 2.0
+    dd = np.abs(s.theta_o_deg + s.theta_i_deg) / 2.0
+    ax.plot(np.sqrt(hh / 90.0) * 90.0, dd, "o", ms=2.5, mfc="w", mec="k", mew=0.4, label="measured samples")
+    ax.set_xlabel("theta_h index (sqrt-spaced bins, as in the table)")
+    ax.set_ylabel("theta_d (deg)")
+    ax.set_title("how sure the table is (sigma of ln f)")
+    ax.legend(fontsize=7, loc="upper right", markerscale=2.0, facecolor="0.75", framealpha=0.9)
+    fig.tight_layout()
+    return _png(fig)
+
+
 def environment_render(f: Callable[[Array, Array], ArrayLike], size: int = 112, radius: float = 0.8,
                        lighting: str = "environment") -> NDArray[np.float32]:
     """The sphere under the sky-and-ground environment of :mod:`reconstruction.core.render` (``lighting``: one of its
@@ -254,7 +281,7 @@ def _spheres(table: Array) -> str:
     return _png(fig)
 
 
-def _cuts_figure(table: Array, s: Slice) -> str:
+def _cuts_figure(table: Array, s: Slice, sigma: Array | None = None) -> str:
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(8.5, 4.2))
     to = np.linspace(-85.0, 85.0, 341)
@@ -262,8 +289,12 @@ def _cuts_figure(table: Array, s: Slice) -> str:
     for t in sorted({0.0, 20.0, 40.0, 60.0, 75.0} | measured):
         wi, wo = inplane_to_dirs(np.radians(np.full(to.size, t)), np.radians(to))
         v = _lum(np.nan_to_num(merl.lookup(table, wi, wo, interpolate=True)))
-        ax.plot(to, np.maximum(v, 1e-9), lw=2.0 if t in measured else 1.0,
-                ls="-" if t in measured else "--", label=f"theta_i {t:g}" + (" (measured)" if t in measured else ""))
+        line = ax.plot(to, np.maximum(v, 1e-9), lw=2.0 if t in measured else 1.0, ls="-" if t in measured else "--",
+                       label=f"theta_i {t:g}" + (" (measured)" if t in measured else ""))[0]
+        if sigma is not None and t not in measured:  # +- 1 sigma of ln f at the incidences not measured
+            sg = _lum(np.nan_to_num(merl.lookup(sigma, wi, wo, interpolate=True)))
+            ax.fill_between(to, np.maximum(v * np.exp(-sg), 1e-9), np.maximum(v * np.exp(sg), 1e-9),
+                            color=line.get_color(), alpha=0.12, lw=0)
     ax.set_yscale("log")
     ax.set_xlabel("theta_o (deg)")
     ax.set_ylabel("table f_r (1/sr), channel mean")
@@ -335,7 +366,7 @@ def _with_std(p: Mapping[str, Any]) -> dict[str, Any]:
 
 def build_html(*, report: Mapping[str, Any], working: Slice, rec: Reconstruction, table: ArrayLike,
                alternatives: Mapping[str, Reconstruction] | None = None, held_out: Array | None = None,
-               title: str | None = None) -> str:
+               title: str | None = None, sigma: ArrayLike | None = None) -> str:
     """The page (a string). ``report`` is the JSON report; ``alternatives`` the other methods' reconstructions
     of the same samples (their predictions are drawn); ``held_out`` (N, C), in the order of ``working``:
     cross-validation's prediction of each sample from the fold that left it out (NaN where it was never held
@@ -374,6 +405,17 @@ def build_html(*, report: Mapping[str, Any], working: Slice, rec: Reconstruction
                          "measured samples. Away from them the table extrapolates; the rings and bands a "
                          "data-driven method shows in previews come from these interpolations between measured "
                          "lines and from its phi_d-independent approximation.</p>")
+    sg = None if sigma is None else np.asarray(sigma, dtype=np.float64)
+    if sg is not None:
+        u = report.get("uncertainty", {})
+        ms = u.get("median_sigma", {})
+        sec["coverage"] += (_img(_sigma_figure(sg, working), "theta_h theta_d map of sigma")
+                            + '<p class="note">sigma of ln f_r per cell (the --uncertainty array): median '
+                              + ", ".join(f"{ms[k]:.3f} over {k}" for k in ms if ms[k] is not None)
+                              + " cells. Expected against the truth: PSNR "
+                              + f"{u.get('expected_psnr_db', float('nan')):.1f} dB, linear image error "
+                              + f"{u.get('expected_linear_image_error', float('nan')):.1%}, cosl2 "
+                              + f"{u.get('expected_cosl2', float('nan')):.1%}.</p>")
     sec["spheres"] = (_img(_spheres(t), "sphere renders")
                       + '<p class="note">The written table on a sphere (linear radiance, each image exposed on its '
                         "own 99.5th percentile, sRGB). Top: a point light and a dim uniform environment, as the "
@@ -381,7 +423,7 @@ def build_html(*, report: Mapping[str, Any], working: Slice, rec: Reconstruction
                         "directions per pixel, importance-sampled around the mirror direction, so the grazing "
                         "rim is resolved), alone, with a sun in front and with a sun behind the sphere (grazing "
                         "light): reconstruction.core.render.</p>")
-    sec["cuts"] = _img(_cuts_figure(t, working), "in-plane cuts of the table")
+    sec["cuts"] = _img(_cuts_figure(t, working, sg), "in-plane cuts of the table")
     sec["albedo"] = _img(_albedo_figure(checks), "directional albedo")
     rows = []
     for k in ("non_negative", "albedo", "reciprocity"):

@@ -21,8 +21,7 @@ INSTRUMENT_KEYS = ("detector_solid_angle_sr", "source_divergence_deg", "beam_dia
 
 
 class InstrumentMeta(msgspec.Struct):
-    """The instrument's optics (reconstruction.bench.instrument.Instrument); a missing ``instrument`` = a point
-    instrument."""
+    """The instrument's optics (reconstruction.bench.instrument.Instrument); no ``instrument``: a point one."""
 
     detector_solid_angle_sr: Annotated[float, Meta(ge=0.0, le=2 * math.pi, description="the detector cone's "
                                                    "acceptance, sr (0 = a point detector)")] = 0.0

@@ -1,0 +1,182 @@
+"""Which slice next: candidate incidences ranked by the errors to expect after measuring them.
+
+For each candidate incidence theta_i (every :data:`STEP_DEG` the bench can reach: its light arm's limits, the
+outgoing range and the blind spot of ``--bench``, defaults otherwise) the slice a bench would measure there
+(theta_o every 2 deg, the blind spot left out) is added to the reference posterior's design
+(:func:`reconstruction.assess.uncertainty.reference_posterior`): the posterior covariance after a measurement
+does not depend on the values measured, so sigma after that slice is known before it is measured. Each candidate's
+expected PSNR and cosl2 (:func:`reconstruction.assess.uncertainty.expected_errors`, all candidates in one stacked
+render) rank them; the bench time of each comes from the bench's time model (moves of 2 deg between points, the
+settling and the readings of ``--bench``). With a budget the best set of further slices whose total time fits is
+chosen greedily (each step adds the slice that gains the most expected PSNR per second).
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from reconstruction.assess.uncertainty import expected_errors
+from reconstruction.base import ReconstructionError
+from reconstruction.formats.slicefile import Slice
+from reconstruction.methods import prior as P
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+Array = NDArray[np.float64]
+
+__all__ = ["BenchLimits", "bench_limits", "candidate_slice", "advise"]
+
+STEP_DEG = 5.0
+OUT_STEP_DEG = 2.0
+
+
+@dataclass(frozen=True)
+class BenchLimits:
+    """What a bench can measure and how long a point takes (defaults: the shipped simulated bench)."""
+
+    light_min_deg: float = 0.0
+    light_max_deg: float = 80.0
+    detector_max_deg: float = 80.0
+    blind_spot_deg: float = 4.0
+    point_s: float = 0.05 + 4 * 0.01 + 0.04  # settling + repeats x integration + a 2 deg move
+    source: str = "defaults (no --bench)"
+
+
+def bench_limits(path: str | Path | None) -> BenchLimits:
+    """The :class:`BenchLimits` of a bench file (``[axes.light]``/``[axes.detector]`` limits,
+    ``[bench].blind_spot_half_width_deg``, ``[motion].settle_s``, ``[detector]`` integration and repeats,
+    ``[motion].velocity_deg_s``); the defaults without one. Bad file: :class:`ReconstructionError`."""
+    if path is None:
+        return BenchLimits()
+    p = Path(path)
+    try:
+        doc = tomllib.loads(p.read_text(encoding="utf-8"))
+    except OSError as e:
+        raise ReconstructionError(f"--bench {p}: cannot read ({e.strerror or e})") from None
+    except tomllib.TOMLDecodeError as e:
+        raise ReconstructionError(f"--bench {p}: invalid TOML: {e}") from None
+    try:
+        axes, motion, det = doc.get("axes", {}), doc.get("motion", {}), doc.get("detector", {})
+        light, detector = axes.get("light", {}), axes.get("detector", {})
+        speed = float(motion.get("velocity_deg_s", 60.0))
+        point = (float(motion.get("settle_s", 0.05)) + int(det.get("repeats", 4))
+                 * float(det.get("integration_time_s", 0.01)) + OUT_STEP_DEG / max(speed, 1e-3))
+        return BenchLimits(light_min_deg=max(0.0, float(light.get("min_deg", 0.0))),
+                           light_max_deg=min(85.0, float(light.get("max_deg", 80.0))),
+                           detector_max_deg=min(85.0, float(max(abs(detector.get("min_deg", -80.0)),
+                                                                abs(detector.get("max_deg", 80.0))))),
+                           blind_spot_deg=float(doc.get("bench", {}).get("blind_spot_half_width_deg", 4.0)),
+                           point_s=point, source=str(p))
+    except (TypeError, ValueError, AttributeError) as e:
+        raise ReconstructionError(f"--bench {p}: expected numbers in [axes.*], [motion], [detector] ({e})") from None
+
+
+def candidate_slice(theta_i_deg: float, limits: BenchLimits, channels: list[str]) -> Slice:
+    """The in-plane slice a bench measures at ``theta_i_deg`` (values 0: only its geometry is used)."""
+    m = min(limits.detector_max_deg, 80.0)
+    to = np.arange(-m, m + 1e-9, OUT_STEP_DEG)
+    to = to[np.abs(to + theta_i_deg) >= limits.blind_spot_deg]
+    z = np.zeros((to.size, len(channels)))
+    return Slice(np.full(to.size, theta_i_deg), to, z, list(channels), z.copy(), source="candidate")
+
+
+def _join(a: Slice, b: Slice) -> Slice:
+    """The samples of two candidate slices together (geometry only)."""
+    v = np.concatenate([a.values, b.values])
+    return Slice(np.concatenate([a.theta_i_deg, b.theta_i_deg]), np.concatenate([a.theta_o_deg, b.theta_o_deg]), v,
+                 list(a.channels), np.zeros_like(v), source="candidates")
+
+
+def _sigma_after(ref: P.PriorReconstruction, extra: Slice, sigma_now: Array | None = None) -> Array:
+    """sigma of ln f (C, n_cells) once the samples of ``extra`` are added: the reference posterior's, and, when the
+    table's sigma now (``sigma_now``, C x n_cells) holds more than the posterior (a table from another method, whose
+    disagreement with the posterior counts), that excess shrunk as the posterior's variance shrinks."""
+    assert ref.posterior is not None
+    mu, comps, sig, resvar = ref.posterior["basis"]
+    idx0, w0 = ref.posterior["design"]
+    idx1, w1, _ = P._design(extra)
+    idx, w = np.concatenate([idx0, idx1]), np.concatenate([w0, w1])
+    sb = np.einsum("nj,knj->nk", w, comps[:, idx])
+    sy = P.mapped_sigma(P.posterior_covariance(sb, sig), comps, resvar, ref.posterior["misfit"])
+    new = P.sigma_ln_of(sy, ref.values, ref.posterior["scale"]).astype(np.float64)
+    if sigma_now is None or ref.sigma_ln is None:
+        return new
+    old = ref.sigma_ln.astype(np.float64)
+    excess = np.maximum(sigma_now**2 - old**2, 0.0)
+    return np.minimum(np.sqrt(new**2 + excess * np.minimum(new**2 / np.maximum(old**2, 1e-12), 1.0)),
+                      P.SIGMA_LN_MAX)
+
+
+def advise(s: Slice, ref: P.PriorReconstruction, limits: BenchLimits, budget_s: float | None = None,
+           current: dict[str, Any] | None = None, sigma_now: Array | None = None,
+           f_grid: Array | None = None) -> dict[str, Any]:
+    """The report's ``advice``: ``candidates`` (each ``theta_i_deg``, ``expected_psnr_db``, ``expected_cosl2``,
+    ``bench_time_s``), best first, and ``recommended_theta_i_deg``; with ``budget_s``, ``plan``: the incidences of
+    the best further slices that fit in that many seconds of bench time. ``current``: the expected errors of the
+    table as it is (the report's ``uncertainty``), shown beside the candidates; ``sigma_now``: the table's sigma
+    on the reduced grid (:func:`reconstruction.assess.uncertainty.sigma_grid`); ``f_grid``: the table's f_r there
+    (C, n_cells), whose images the expected errors are of (the reference posterior's without it)."""
+    f = ref.values if f_grid is None else f_grid
+    lo = max(limits.light_min_deg, 0.0)
+    hi = min(limits.light_max_deg, 80.0)
+    thetas = [float(t) for t in np.arange(np.ceil(lo / STEP_DEG) * STEP_DEG, hi + 1e-9, STEP_DEG)]
+    measured = set(np.round(np.unique(s.theta_i_deg), 6).tolist())
+    thetas = [t for t in thetas if round(t, 6) not in measured]
+    if not thetas:
+        raise ReconstructionError("--advise: every incidence the bench can reach is measured already")
+    slices = [candidate_slice(t, limits, list(s.channels)) for t in thetas]
+    sig = np.stack([_sigma_after(ref, c, sigma_now) for c in slices])
+    exp = expected_errors(f, sig)
+    cands = [{"theta_i_deg": t, "expected_psnr_db": round(e["expected_psnr_db"], 2),
+              "expected_cosl2": round(e["expected_cosl2"], 4),
+              "expected_linear_image_error": round(e["expected_linear_image_error"], 4),
+              "bench_time_s": round(len(c) * limits.point_s, 1)}
+             for t, e, c in zip(thetas, exp, slices, strict=True)]
+    cands.sort(key=lambda c: (-c["expected_psnr_db"], c["expected_cosl2"]))
+    out: dict[str, Any] = {"recommended_theta_i_deg": cands[0]["theta_i_deg"], "candidates": cands,
+                           "bench": limits.source, "current": current,
+                           "method": "the reference posterior's sigma after each candidate slice (value-independent)"
+                                     ", its expected PSNR (key and rim lighting) and cosl2"}
+    if budget_s is not None:
+        out["budget_s"] = budget_s
+        now = (current or {}).get("expected_psnr_db")
+        out["plan"] = _plan(s, ref, limits, budget_s, thetas, float(now) if now is not None else 0.0, sigma_now, f)
+    return out
+
+
+def _plan(s: Slice, ref: P.PriorReconstruction, limits: BenchLimits, budget_s: float, thetas: list[float],
+          psnr_start: float, sigma_now: Array | None, f: Array) -> dict[str, Any]:
+    """Greedy: add the candidate with the largest expected PSNR gain per second until the budget is spent."""
+    chosen: list[float] = []
+    spent = 0.0
+    extra: Slice | None = None
+    psnr_now = psnr_start
+    left = list(thetas)
+    while left:
+        fits = [t for t in left
+                if spent + len(candidate_slice(t, limits, list(s.channels))) * limits.point_s <= budget_s]
+        if not fits:
+            break
+        tries = [candidate_slice(t, limits, list(s.channels)) for t in fits]
+        sig = np.stack([_sigma_after(ref, tr if extra is None else _join(extra, tr), sigma_now) for tr in tries])
+        exp = expected_errors(f, sig)
+        gains = [(e["expected_psnr_db"] - psnr_now) / (len(tr) * limits.point_s)
+                 for e, tr in zip(exp, tries, strict=True)]
+        k = int(np.argmax(gains))
+        if chosen and exp[k]["expected_psnr_db"] <= psnr_now + 0.05:
+            break  # nothing left gains anything
+        chosen.append(fits[k])
+        spent += len(tries[k]) * limits.point_s
+        extra = tries[k] if extra is None else _join(extra, tries[k])
+        psnr_now = exp[k]["expected_psnr_db"]
+        left.remove(fits[k])
+    return {"theta_i_deg": chosen, "bench_time_s": round(spent, 1), "expected_psnr_db": round(psnr_now, 2)}

@@ -1,0 +1,185 @@
+"""How sure a table is and which slice to measure next (reconstruction.assess), the prior's channel scales, and
+auto's fall-back when the chosen method's table fails a check. Synthetic data only."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from reconstruction import pipeline
+from reconstruction.assess import advice, uncertainty
+from reconstruction.core.models import Material
+from reconstruction.formats.slicefile import write_slice
+from reconstruction.methods import auto, prior
+from reconstruction.synthetic import synthetic_slice
+
+PLASTIC = Material.from_dict({"name": "plastic", "lobes": [
+    {"type": "lambert", "albedo": 0.2}, {"type": "ggx", "alpha": 0.12, "specular": 1.0, "f0": 0.04}]})
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory):
+    """A private cache folder, so the analytic prior is built here once and nothing else's cache is touched."""
+    mp = pytest.MonkeyPatch()
+    mp.setenv("XDG_CACHE_HOME", str(tmp_path_factory.mktemp("cache")))
+    uncertainty.analytic_prior.cache_clear()
+    yield
+    uncertainty.analytic_prior.cache_clear()
+    mp.undo()
+
+
+@pytest.fixture(scope="module")
+def one_slice(cache):
+    s = synthetic_slice(PLASTIC, (20.0,)).sorted()
+    rec, _ = pipeline.reconstruct(s, "bivariate")
+    return s, rec, uncertainty.assess_table(rec, s)
+
+
+def test_sigma_is_larger_where_the_table_is_extrapolated(one_slice):
+    s, rec, (sigma, section, ref, sg, f_grid) = one_slice
+    assert sigma.shape == (3, 90, 90, 180) and sigma.dtype == np.float32
+    ms = section["median_sigma"]
+    assert ms["extrapolated"] > 1.5 * ms["measured"], ms
+    assert section["cells"]["measured"] > 0 and section["cells"]["extrapolated"] > section["cells"]["measured"]
+    # cell by cell: the measured cells' sigma is below the extrapolated cells' in the same theta_d band
+    classes = uncertainty.cell_classes(s)
+    from reconstruction.formats import merl
+
+    valid = merl.valid_mask()
+    meas = np.median(sigma[0][valid & (classes == 0)])
+    grazing = np.median(sigma[0][:, 70:85][valid[:, 70:85] & (classes[:, 70:85] == 2)])
+    assert grazing > 2 * meas, (grazing, meas)
+    for k in ("expected_psnr_db", "expected_linear_image_error", "expected_cosl2"):
+        assert np.isfinite(section[k])
+
+
+def test_more_slices_lower_the_expected_error(one_slice):
+    s, rec, (_, section, *_) = one_slice
+    s3 = synthetic_slice(PLASTIC, (20.0, 45.0, 70.0)).sorted()
+    rec3, _ = pipeline.reconstruct(s3, "bivariate")
+    _, section3, *_ = uncertainty.assess_table(rec3, s3)
+    assert section3["expected_cosl2"] < section["expected_cosl2"]
+    assert section3["expected_psnr_db"] > section["expected_psnr_db"]
+    assert section3["median_sigma"]["extrapolated"] < section["median_sigma"]["extrapolated"]
+
+
+def test_the_advice_picks_an_incidence_that_reveals_the_grazing_peak(one_slice):
+    # from one slice at 20 deg, a glossy dielectric's grazing Fresnel peak is a guess: the advice goes high
+    s, rec, (_, section, ref, sg, f_grid) = one_slice
+    a = advice.advise(s, ref, advice.BenchLimits(), current=section, sigma_now=sg, f_grid=f_grid)
+    assert a["recommended_theta_i_deg"] >= 60.0, a["candidates"][:4]
+    thetas = [c["theta_i_deg"] for c in a["candidates"]]
+    assert 20.0 not in thetas and max(thetas) <= 80.0 and min(thetas) >= 0.0
+    best, worst = a["candidates"][0], a["candidates"][-1]
+    assert best["expected_psnr_db"] > worst["expected_psnr_db"]
+    assert all(c["bench_time_s"] > 0 for c in a["candidates"])
+
+
+def test_the_advice_follows_the_bench_limits_and_a_budget(one_slice, tmp_path):
+    s, rec, (_, section, ref, sg, f_grid) = one_slice
+    bench = tmp_path / "bench.toml"
+    bench.write_text("[bench]\nblind_spot_half_width_deg = 6.0\n[axes.light]\nmin_deg = 10.0\nmax_deg = 50.0\n"
+                     "[axes.detector]\nmin_deg = -80.0\nmax_deg = 80.0\n[motion]\nsettle_s = 0.5\n"
+                     "velocity_deg_s = 20.0\n[detector]\nintegration_time_s = 0.1\nrepeats = 2\n", encoding="utf-8")
+    lim = advice.bench_limits(bench)
+    assert (lim.light_min_deg, lim.light_max_deg, lim.blind_spot_deg) == (10.0, 50.0, 6.0)
+    assert lim.point_s == pytest.approx(0.5 + 0.2 + 0.1)
+    a = advice.advise(s, ref, lim, budget_s=150.0, current=section, sigma_now=sg, f_grid=f_grid)
+    thetas = [c["theta_i_deg"] for c in a["candidates"]]
+    assert min(thetas) >= 10.0 and max(thetas) <= 50.0
+    plan = a["plan"]
+    assert plan["bench_time_s"] <= 150.0 and 1 <= len(plan["theta_i_deg"]) <= 2  # ~62 s a slice
+    with pytest.raises(Exception, match="invalid TOML"):
+        bad = tmp_path / "bad.toml"
+        bad.write_text("[axes\n", encoding="utf-8")
+        advice.bench_limits(bad)
+
+
+def test_the_command_writes_the_sigma_array_and_the_report_sections(tmp_path, cache):
+    s = synthetic_slice(PLASTIC, (30.0,))
+    path = tmp_path / "s.csv"
+    write_slice(path, s)
+    r = subprocess.run([sys.executable, "-m", "reconstruction.cli", str(path), "--method", "bivariate",
+                        "--uncertainty", str(tmp_path / "sigma.npy"), "--advise", "--report", str(tmp_path / "r.json")],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    sig = np.load(tmp_path / "sigma.npy")
+    assert sig.shape == (3, 90, 90, 180) and sig.dtype == np.float32 and np.all(np.isfinite(sig))
+    rep = json.loads((tmp_path / "r.json").read_text())
+    assert set(rep["uncertainty"]["median_sigma"]) == {"measured", "interpolated", "extrapolated"}
+    adv = rep["advice"]
+    assert adv["recommended_theta_i_deg"] == adv["candidates"][0]["theta_i_deg"]
+    assert set(adv["candidates"][0]) >= {"theta_i_deg", "expected_psnr_db", "expected_cosl2", "bench_time_s"}
+    assert "advice: measure theta_i" in r.stderr and "uncertainty: median sigma" in r.stderr
+    # --budget-s without --advise, a sigma file with another suffix: exit 2, one line
+    for extra in (["--budget-s", "10"], ["--uncertainty", str(tmp_path / "x.txt")]):
+        r = subprocess.run([sys.executable, "-m", "reconstruction.cli", str(path), "--out", str(tmp_path / "m.binary"),
+                            *extra], capture_output=True, text=True, timeout=120)
+        assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+
+
+def test_a_dark_channel_does_not_blow_up_the_prior(tmp_path, monkeypatch):
+    # a saturated red: its blue reflects almost nothing; with the channel's own median as its scale the mapped
+    # vector of that channel became a bright material's (1e8 times too bright on real car paints)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    prior._load_cached.cache_clear()
+    folder = tmp_path / "prior"
+    folder.mkdir()
+    for k, (al, dark) in enumerate([(a, d) for a in (0.08, 0.15, 0.3, 0.5) for d in (1e-4, 0.3)]):
+        (folder / f"m{k}.toml").write_text(
+            f'[material]\nname = "m{k}"\n[[material.lobes]]\ntype = "lambert"\nalbedo = [0.6, 0.2, {dark}]\n'
+            f'[[material.lobes]]\ntype = "ggx"\nalpha = {al}\nspecular = [0.9, 0.3, {dark}]\nf0 = 0.04\n',
+            encoding="utf-8")
+    red = Material.from_dict({"name": "red", "lobes": [{"type": "lambert", "albedo": [0.55, 0.15, 2e-4]},
+                                                      {"type": "ggx", "alpha": 0.2, "specular": [0.9, 0.3, 2e-4],
+                                                       "f0": 0.04}]})
+    rec = prior.reconstruct_prior(synthetic_slice(red, (40.0,)), folder)
+    from reconstruction.core.geometry import inplane_to_dirs
+
+    wi, wo = inplane_to_dirs(np.radians(np.full(30, 60.0)), np.radians(np.linspace(-75, 75, 30)))
+    got, want = rec.eval(wi, wo), red.eval(wi, wo)
+    assert np.max(got[:, 2]) < 0.05 * np.max(want[:, 0]), (got[:, 2].max(), want[:, 0].max())
+    prior._load_cached.cache_clear()
+
+
+def test_auto_falls_back_when_the_chosen_table_fails_a_check(monkeypatch, tmp_path):
+    # the best-predicting method's BRDF passes auto's albedo screen but its written table does not (rows with a
+    # directional albedo above 1): the pipeline writes the next method's table instead of refusing (exit 3)
+    from reconstruction import methods
+    from reconstruction.methods.crossval import CVScore
+
+    real = methods.REGISTRY["bivariate"]
+
+    def build(s, o, p):
+        rec = real.build(s, o, p)
+        table = rec.table if hasattr(rec, "table") else None
+
+        class Broken:
+            method, channels = "bivariate", rec.channels
+
+            def eval(self, wi, wo):
+                return rec.eval(wi, wo)
+
+            def table(self):
+                t = np.array(table() if table else pipeline.tabulate(rec), copy=True)
+                t[:, :30] *= 40.0  # rows the BRDF does not have: the table reflects more than it receives
+                return t
+
+            def report(self):
+                return rec.report()
+
+        return Broken()
+
+    monkeypatch.setitem(methods.REGISTRY, "bivariate", methods.Method("bivariate", "broken", build))
+    monkeypatch.setattr(auto, "cross_validate", lambda s, name, build, masks, inside=None: CVScore(
+        name, 0.001 if name == "bivariate" else 0.1 + 0.01 * len(name), [], 0.0))
+    s = synthetic_slice(PLASTIC, (20.0, 40.0, 60.0))
+    path = tmp_path / "s.csv"
+    write_slice(path, s)
+    rep = pipeline.run(pipeline.Job(inputs=(str(path),), out=str(tmp_path / "m.binary"), method="auto"))
+    assert rep["checks"]["all_pass"] and rep["method"] != "bivariate"
+    assert rep["cross_validation"]["fell_back_from"] == "bivariate"
+    assert "written instead" in rep["method_reason"]
+    assert (tmp_path / "m.binary").is_file()
