@@ -174,3 +174,55 @@ def test_the_cycle_finder_finds_a_cycle(tmp_path, monkeypatch):
     monkeypatch.syspath_prepend(str(tmp_path))
     assert import_cycles("cyclepkg") == [["cyclepkg.a", "cyclepkg.b"], ["cyclepkg.c"]]
     assert "cyclepkg.a -> cyclepkg.b (line 1)" in describe_cycle("cyclepkg", ["cyclepkg.a", "cyclepkg.b"])
+
+
+# --- the layers of reconstruction/ ----------------------------------------------------------------------------------
+
+#: Each layer of reconstruction/ (docs/architecture.md) and what it may import besides its own layer and the ones
+#: below it: the base (core, formats, bench, schema and the small shared modules), methods, then assess and report,
+#: then pipeline and the command line. formats.exports writes a reconstruction's outputs (a method's parameters, a
+#: preview), so it sits with the report.
+LAYERS = [
+    ("base", ("core", "formats", "bench", "schema", "base", "atomic", "cache", "cliutil", "synthetic", "executor",
+              "geometry", "models", "merl", "slicefile")),
+    ("methods", ("methods",)),
+    ("assess and report", ("assess", "report", "formats.exports")),
+    ("pipeline and cli", ("pipeline", "cli")),
+]
+
+
+def _layer_of(module: str) -> int | None:
+    parts = module.split(".")
+    if len(parts) < 2:
+        return None
+    two = ".".join(parts[1:3])
+    exact = next((k for k, (_, heads) in enumerate(LAYERS) if two in heads), None)
+    return exact if exact is not None else next((k for k, (_, heads) in enumerate(LAYERS) if parts[1] in heads), None)
+
+
+def test_reconstruction_imports_only_downwards():
+    """No module of reconstruction/ imports a module of a layer above its own (every import counts, inside
+    functions too): the numerical core and the formats know no method, a method knows no report, nothing but the
+    pipeline and the command line knows the pipeline."""
+    import grimp
+
+    graph = grimp.build_graph("reconstruction", include_external_packages=False)
+    unplaced = sorted(m for m in graph.modules if m != "reconstruction" and _layer_of(m) is None)
+    assert unplaced == [], f"modules in no layer (add them to LAYERS and docs/architecture.md): {unplaced}"
+    upward = []
+    for m in sorted(graph.modules):
+        lm = _layer_of(m)
+        for i in graph.find_modules_directly_imported_by(m):
+            li = _layer_of(i)
+            if lm is not None and li is not None and li > lm:
+                lines = [d["line_number"] for d in graph.get_import_details(importer=m, imported=i)]
+                upward.append(f"{m} ({LAYERS[lm][0]}) -> {i} ({LAYERS[li][0]}), line {lines}")
+    assert upward == [], "imports up the layers:\n" + "\n".join(upward)
+
+
+def test_reconstruction_has_at_most_15_modules_at_its_top():
+    top = sorted(p.name for p in (REPO / "reconstruction").glob("*.py"))
+    assert len(top) <= 15, top
+    for pkg in ("formats", "methods", "report", "core", "bench", "assess"):
+        assert (REPO / "reconstruction" / pkg / "__init__.py").is_file(), pkg
+    assert (REPO / "reconstruction" / "methods" / "auto.py").is_file()
