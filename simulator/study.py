@@ -509,8 +509,8 @@ def merge_rows(rows: list[dict[str, Any]], earlier: Sequence[dict[str, Any]], ra
         return rows, ""
     mats = sorted({r["material"] for r in kept})
     methods = sorted({r["method"] for r in kept}, key=lambda m: METHODS.index(m) if m in METHODS else 99)
-    note = (f"Rows of {', '.join(mats)} ({len(kept)} rows, methods {', '.join(methods)}) are kept from an earlier "
-            f"run ({source})" + (f"; the rows of {', '.join(sorted(ran))} are from this run." if ran else "."))
+    note = (f"Rows of {', '.join(mats)} ({len(kept)} rows, methods {', '.join(methods)}) are taken from {source} "
+            "(--merge)" + (f"; the rows of {', '.join(sorted(ran))} are computed by this command." if ran else "."))
     return rows + kept, note
 
 

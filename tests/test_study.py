@@ -187,13 +187,13 @@ def test_merge_keeps_an_earlier_runs_rows_for_the_materials_not_rerun(tmp_path, 
     new = [{**row, "material": "mirror", "method": "auto", "rel_rmse_cos": 0.05}]
     merged, note = study.merge_rows(new, kept, {"mirror"}, "old.csv")
     assert [(r["material"], r["method"]) for r in merged] == [("mirror", "auto"), ("diffuse", "fit")]
-    assert note.endswith("the rows of mirror are from this run.")
+    assert note.endswith("the rows of mirror are computed by this command.")
     assert study.merge_rows(new, kept, {"mirror", "diffuse"}, "old.csv") == (new, "")
     rows = study.run_study([], "configs/simulated.toml", tmp_path / "w", tmp_path / "out", "s", "test", workers=1,
                            progress=False, merge=kept, merge_source=str(old))
     assert len(rows) == 2  # nothing ran: every earlier row kept
     md = (tmp_path / "out" / "s.md").read_text()
-    assert f"Rows of diffuse, mirror (2 rows, methods fit) are kept from an earlier run ({old})." in md
+    assert f"Rows of diffuse, mirror (2 rows, methods fit) are taken from {old} (--merge)." in md
     assert "| 5% | diffuse | 7.0 |" in md
     assert [r["material"] for r in study.read_rows(tmp_path / "out" / "s.csv")] == ["diffuse", "mirror"]
     bad = tmp_path / "bad.csv"
