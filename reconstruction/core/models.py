@@ -403,6 +403,28 @@ def _nbrdf_weights(prefix: str) -> dict[str, Array]:
     return out
 
 
+def nbrdf_features(wi: Array, wo: Array) -> Array:
+    """The neural BRDF's input (..., 6) at direction pairs (..., 3): x = (sin theta_h, 0, cos theta_h,
+    sin theta_d cos phi_d, sin theta_d sin phi_d, cos theta_d), phi_d folded into [0, pi)."""
+    from reconstruction.core.geometry import half_diff_from_dirs
+
+    th, _, td, pd = half_diff_from_dirs(wi, wo)
+    pd = np.mod(pd, np.pi)
+    sd = np.sin(td)
+    return np.stack([np.sin(th), np.zeros_like(th), np.cos(th), sd * np.cos(pd), sd * np.sin(pd), np.cos(td)], -1)
+
+
+def nbrdf_forward(x: NDArray[np.floating], w: Mapping[str, Array]) -> Array:
+    """f_r (..., 3) in 1/sr of the network ``w`` (:func:`_nbrdf_weights`) at the inputs ``x`` (...,
+    6) of :func:`nbrdf_features`: two ReLU layers and max(exp(a2 fc3 + b3) - 1, 0), in the dtype of ``x``."""
+    dt = x.dtype
+    a1 = np.maximum(x @ w["fc1"].astype(dt) + w["b1"].astype(dt), 0.0)
+    a2 = np.maximum(a1 @ w["fc2"].astype(dt) + w["b2"].astype(dt), 0.0)
+    with np.errstate(over="ignore"):
+        rgb = np.maximum(np.expm1(a2 @ w["fc3"].astype(dt) + w["b3"].astype(dt)), 0.0)
+    return np.nan_to_num(rgb, nan=0.0, posinf=np.finfo(dt).max).astype(np.float64)
+
+
 @dataclass
 class Nbrdf(Lobe):
     """A neural BRDF (Sztrajman et al. 2021, the published ``npy`` layout of asztr/Neural-BRDF), linear RGB.
@@ -428,22 +450,10 @@ class Nbrdf(Lobe):
 
     def eval(self, wi: ArrayLike, wo: ArrayLike, n_channels: int = 0, wavelengths_nm: Array | None = None
              ) -> Array:
-        from reconstruction.core.geometry import half_diff_from_dirs
-
-        w = self._weights()
         wi = np.asarray(wi, dtype=np.float64)
         wo = np.asarray(wo, dtype=np.float64)
         wi, wo = np.broadcast_arrays(wi, wo)
-        th, _, td, pd = half_diff_from_dirs(wi, wo)
-        pd = np.mod(pd, np.pi)
-        sd = np.sin(td)
-        x = np.stack([np.sin(th), np.zeros_like(th), np.cos(th), sd * np.cos(pd), sd * np.sin(pd), np.cos(td)],
-                     axis=-1)
-        a1 = np.maximum(x @ w["fc1"] + w["b1"], 0.0)
-        a2 = np.maximum(a1 @ w["fc2"] + w["b2"], 0.0)
-        with np.errstate(over="ignore"):
-            rgb = np.maximum(np.expm1(a2 @ w["fc3"] + w["b3"]), 0.0)
-        rgb = np.nan_to_num(rgb, nan=0.0, posinf=np.finfo(np.float64).max)
+        rgb = nbrdf_forward(nbrdf_features(wi, wo), self._weights())
         up = (wi[..., 2] > 0) & (wo[..., 2] > 0)
         return _rgb_on(np.where(up[..., None], rgb, 0.0) * self.colour.on(3, None), n_channels, "a neural BRDF")
 

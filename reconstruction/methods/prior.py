@@ -53,7 +53,7 @@ EPS = 1e-2
 K_CHOICES = (10, 20, 30)
 LAM_CHOICES = (0.01, 0.03, 0.1)
 MAX_COMPONENTS = max(K_CHOICES)
-CACHE_VERSION = 1
+CACHE_VERSION = 2
 INPLANE_MAX_DEG = 80.0
 
 
@@ -136,6 +136,15 @@ def _material_files(folder: Path) -> dict[str, Path]:
     return found
 
 
+@lru_cache(maxsize=1)
+def _grid_nbrdf_features() -> NDArray[np.float32]:
+    """The neural BRDFs' inputs at the grid's cells (n_cells, 6), float32 (computed once)."""
+    from reconstruction.core.models import nbrdf_features
+
+    g = _grid()
+    return nbrdf_features(g["wi"], g["wo"]).astype(np.float32)
+
+
 def _tabulate_material(path: Path) -> Array:
     """(3, n_cells) f_r of one prior material on the reduced grid (NaN and negative cells -> 0)."""
     from reconstruction.core.models import Material
@@ -147,14 +156,18 @@ def _tabulate_material(path: Path) -> Array:
         t = t.reshape(3, 90, 45, 2, 180).mean(axis=3)
         t = np.roll(t, 2, axis=3).reshape(3, 90, 45, 45, 4).mean(axis=4)  # phi_d bins centred on 0, 4, 8 ... deg
         f = t.reshape(3, -1)
-    else:
-        if path.suffix.lower() == ".toml":
-            mat = Material.from_toml(path)
-        else:
-            mat = Material.from_dict({"name": path.name, "lobes": [{"type": "nbrdf", "path": str(path)}]})
-        v = np.asarray(mat.eval(g["wi"], g["wo"]), dtype=np.float64)
+    elif path.suffix.lower() == ".toml":
+        v = np.asarray(Material.from_toml(path).eval(g["wi"], g["wo"]), dtype=np.float64)
         v = v.reshape(v.shape[0], -1)
         f = (np.repeat(v, 3, axis=1) if v.shape[1] == 1 else v[:, :3]).T
+    else:  # an NBRDF set: the network on the grid's inputs (the same for every material), in float32, on one
+        # BLAS thread (matrices of 21 columns: threads only contend, 5 times slower on a busy machine)
+        from threadpoolctl import threadpool_limits
+
+        from reconstruction.core.models import _nbrdf_weights, nbrdf_forward
+
+        with threadpool_limits(1):
+            f = nbrdf_forward(_grid_nbrdf_features(), _nbrdf_weights(str(path))).T
     f = np.nan_to_num(np.maximum(f, 0.0), nan=0.0, posinf=0.0)
     peak = np.max(np.where(g["within"], f, 0.0), axis=1, keepdims=True)  # fits blow up at grazing: bound them
     return np.minimum(f, np.maximum(peak, 1e-12))
