@@ -121,9 +121,7 @@ class Colour:
             return np.interp(wavelengths_nm, self.wavelengths_nm, self.values)
         return self.values
 
-
 # --- microfacet building blocks (Walter et al. 2007) -----------------------------------------------------
-
 
 def ggx_d(cos_h: ArrayLike, alpha: float) -> Array:
     """GGX / Trowbridge-Reitz normal distribution D(h) (1/sr) from cos(theta_h)."""
@@ -131,7 +129,6 @@ def ggx_d(cos_h: ArrayLike, alpha: float) -> Array:
     a2 = alpha * alpha
     den = c2 * (a2 - 1.0) + 1.0
     return np.where(c2 > 0, a2 / (np.pi * np.maximum(den * den, _TINY)), 0.0)
-
 
 def beckmann_d(cos_h: ArrayLike, alpha: float) -> Array:
     """Beckmann normal distribution D(h) (1/sr) from cos(theta_h)."""
@@ -142,7 +139,6 @@ def beckmann_d(cos_h: ArrayLike, alpha: float) -> Array:
         d = np.exp(-tan2 / (alpha * alpha)) / (np.pi * alpha * alpha * np.maximum(c2 * c2, _TINY))
     return np.where(c2 > 0, np.nan_to_num(d, nan=0.0, posinf=0.0), 0.0)
 
-
 def ggx_g1_over_cos(cos_v: ArrayLike, alpha: float) -> Array:
     """Smith G1(v) / cos(theta_v) for GGX, in a form that stays finite at grazing angles.
 
@@ -151,7 +147,6 @@ def ggx_g1_over_cos(cos_v: ArrayLike, alpha: float) -> Array:
     c = np.clip(np.asarray(cos_v, dtype=np.float64), 0.0, 1.0)
     a2 = alpha * alpha
     return 2.0 / np.maximum(c + np.sqrt(a2 + (1.0 - a2) * c * c), _TINY)
-
 
 def beckmann_g1_over_cos(cos_v: ArrayLike, alpha: float) -> Array:
     """Smith G1(v) / cos(theta_v) for Beckmann with Walter's rational approximation, finite at grazing."""
