@@ -29,17 +29,10 @@ import bench_uncertainty as B  # noqa: E402
 from reconstruction.assess import advice  # noqa: E402
 from reconstruction.core.metrics import image_psnr  # noqa: E402
 from reconstruction.core.render import render_sphere, view_angle_mask  # noqa: E402
-from reconstruction.formats.slicefile import Slice  # noqa: E402
 from reconstruction.methods import prior as P  # noqa: E402
 
 SIZE = 64
 _PS: P.PriorSet | None = None
-
-
-def _join(a: Slice, b: Slice) -> Slice:
-    v = np.concatenate([a.values, b.values])
-    return Slice(np.concatenate([a.theta_i_deg, b.theta_i_deg]), np.concatenate([a.theta_o_deg, b.theta_o_deg]),
-                 v, list(a.channels), np.zeros_like(v), source=a.source)
 
 
 def one(args: tuple[str, float]) -> tuple[str, dict[float, float], dict[float, float], float]:
@@ -61,7 +54,8 @@ def one(args: tuple[str, float]) -> tuple[str, dict[float, float], dict[float, f
     for t in np.arange(0.0, 80.0 + 1e-9, step):
         if abs(t - 40.0) < 1e-9:
             continue
-        rec = P.reconstruct_prior(_join(first, B.bench_slice(mat, (float(t),))).sorted(), _PS, exclude=(name,))
+        both = advice.join_slices(first, B.bench_slice(mat, (float(t),))).sorted()
+        rec = P.reconstruct_prior(both, _PS, exclude=(name,))
         mse = np.mean([10 ** (-image_psnr(render_sphere(rec.eval, SIZE, k), truth[k], mask) / 10) for k in truth])
         actual[float(t)] = float(-10 * np.log10(mse))
     advised = max((t for t in expected if t in actual), key=lambda t: expected[t])

@@ -33,7 +33,7 @@ else:  # pragma: no cover
 
 Array = NDArray[np.float64]
 
-__all__ = ["BenchLimits", "bench_limits", "candidate_slice", "advise"]
+__all__ = ["BenchLimits", "bench_limits", "candidate_slice", "join_slices", "advise"]
 
 STEP_DEG = 5.0
 OUT_STEP_DEG = 2.0
@@ -89,11 +89,11 @@ def candidate_slice(theta_i_deg: float, limits: BenchLimits, channels: list[str]
     return Slice(np.full(to.size, theta_i_deg), to, z, list(channels), z.copy(), source="candidate")
 
 
-def _join(a: Slice, b: Slice) -> Slice:
-    """The samples of two candidate slices together (geometry only)."""
+def join_slices(a: Slice, b: Slice) -> Slice:
+    """The samples of two slices together (their angles and values; the rest of a slice file is not kept)."""
     v = np.concatenate([a.values, b.values])
     return Slice(np.concatenate([a.theta_i_deg, b.theta_i_deg]), np.concatenate([a.theta_o_deg, b.theta_o_deg]), v,
-                 list(a.channels), np.zeros_like(v), source="candidates")
+                 list(a.channels), np.zeros_like(v), source=a.source)
 
 
 def _sigma_after(ref: P.PriorReconstruction, extra: Slice, sigma_now: Array | None = None) -> Array:
@@ -167,7 +167,7 @@ def _plan(s: Slice, ref: P.PriorReconstruction, limits: BenchLimits, budget_s: f
         if not fits:
             break
         tries = [candidate_slice(t, limits, list(s.channels)) for t in fits]
-        sig = np.stack([_sigma_after(ref, tr if extra is None else _join(extra, tr), sigma_now) for tr in tries])
+        sig = np.stack([_sigma_after(ref, tr if extra is None else join_slices(extra, tr), sigma_now) for tr in tries])
         exp = expected_errors(f, sig)
         gains = [(e["expected_psnr_db"] - psnr_now) / (len(tr) * limits.point_s)
                  for e, tr in zip(exp, tries, strict=True)]
@@ -176,7 +176,7 @@ def _plan(s: Slice, ref: P.PriorReconstruction, limits: BenchLimits, budget_s: f
             break  # nothing left gains anything
         chosen.append(fits[k])
         spent += len(tries[k]) * limits.point_s
-        extra = tries[k] if extra is None else _join(extra, tries[k])
+        extra = tries[k] if extra is None else join_slices(extra, tries[k])
         psnr_now = exp[k]["expected_psnr_db"]
         left.remove(fits[k])
     return {"theta_i_deg": chosen, "bench_time_s": round(spent, 1), "expected_psnr_db": round(psnr_now, 2)}

@@ -84,12 +84,21 @@ def reference_posterior(s: Slice, prior: Any = None, exclude: tuple[str, ...] = 
     return P.reconstruct_prior(s, analytic_prior())
 
 
+def _own_posterior(rec: Any) -> P.PriorReconstruction | None:
+    """The prior method's reconstruction inside ``rec`` (itself, or an anchored variant's) when it carries its
+    posterior: then it is the reference, fitted already."""
+    inner = rec.prior if isinstance(getattr(rec, "prior", None), P.PriorReconstruction) else rec
+    ok = isinstance(inner, P.PriorReconstruction) and inner.sigma_ln is not None and inner.posterior is not None
+    return inner if ok else None
+
+
 def sigma_grid(rec: Any, ref: P.PriorReconstruction) -> Array:
     """sigma of ln f (C, n_cells) on the prior's reduced grid for the reconstruction ``rec``: the posterior's own
     for the prior method (and its anchored variants), else with the two estimates' disagreement (module doc)."""
-    inner = getattr(rec, "prior", None) if isinstance(getattr(rec, "prior", None), P.PriorReconstruction) else rec
-    if isinstance(inner, P.PriorReconstruction) and inner.sigma_ln is not None:
-        return inner.sigma_ln.astype(np.float64)
+    own = _own_posterior(rec)
+    if own is not None:
+        assert own.sigma_ln is not None
+        return own.sigma_ln.astype(np.float64)
     g = P._grid()
     assert ref.sigma_ln is not None
     f_rec = np.asarray(rec.eval(g["wi"], g["wo"]), dtype=np.float64).reshape(g["cos"].size, -1).T
@@ -184,7 +193,8 @@ def assess_table(rec: Any, s: Slice, prior: Any = None, exclude: tuple[str, ...]
     """(sigma of ln f per MERL cell (3, 90, 90, 180) float32, the report's ``uncertainty`` section, the reference
     posterior, sigma (C, n_cells) and f_r (C, n_cells) of ``rec`` on the reduced grid) for the reconstruction
     ``rec`` of the samples ``s``."""
-    ref = reference_posterior(s, prior, exclude)
+    own = _own_posterior(rec)
+    ref = own if own is not None else reference_posterior(s, prior, exclude)
     sg = sigma_grid(rec, ref)
     table_sigma = P.grid_to_merl(sg).astype(np.float32)
     valid = merl.valid_mask()

@@ -18,6 +18,7 @@ import base64
 import html
 import io
 import json
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -176,40 +177,37 @@ def _coverage_plot(table: Array, s: Slice) -> Any:
     fig, ax = plt.subplots(figsize=(6.4, 4.8))
     im = ax.imshow(val.T, origin="lower", aspect="auto", extent=[0, 90, 0, 90], cmap="viridis")
     fig.colorbar(im, ax=ax, label="log10 f cos(theta_i) cos(theta_o), in-plane")
+    _samples_on_map(ax, s, "where the table rests on data")
+    fig.tight_layout()
+    return fig
+
+
+def _samples_on_map(ax: Any, s: Slice, title: str) -> None:
+    """The measured samples (white dots edged in black) on a (theta_h index, theta_d) map, its axes, title and
+    legend (its marker visible on a grey frame)."""
     hh = np.abs(s.theta_o_deg - s.theta_i_deg) / 2.0
     dd = np.abs(s.theta_o_deg + s.theta_i_deg) / 2.0
     ax.plot(np.sqrt(hh / 90.0) * 90.0, dd, "o", ms=2.5, mfc="w", mec="k", mew=0.4, label="measured samples")
     ax.set_xlabel("theta_h index (sqrt-spaced bins, as in the table)")
     ax.set_ylabel("theta_d (deg)")
-    ax.set_title("where the table rests on data")
+    ax.set_title(title)
     ax.legend(fontsize=7, loc="upper right", markerscale=2.0, facecolor="0.75", framealpha=0.9)
-    fig.tight_layout()
-    return fig
 
 
 def _sigma_figure(sigma: Array, s: Slice) -> str:
     """sigma of ln f over (theta_h, theta_d), the median over phi_d and channels, with the samples on it."""
     plt = _pyplot()
-    sg = np.where(merl.valid_mask(), np.asarray(sigma, dtype=np.float64).mean(axis=0), np.nan)
-    with np.errstate(all="ignore"):
-        import warnings
-
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # rows with no valid cell: NaN, drawn blank
-            val = np.nanmedian(sg, axis=2)
-    fig, ax = plt.subplots(figsize=(6.4, 4.8))
     from matplotlib.colors import LogNorm
 
+    sg = np.where(merl.valid_mask(), np.asarray(sigma, dtype=np.float64).mean(axis=0), np.nan)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # rows with no valid cell: NaN, drawn blank
+        val = np.nanmedian(sg, axis=2)
+    fig, ax = plt.subplots(figsize=(6.4, 4.8))
     im = ax.imshow(np.clip(val.T, 0.01, 5.0), origin="lower", aspect="auto", extent=[0, 90, 0, 90], cmap="magma",
                    norm=LogNorm(0.01, 5.0))
     fig.colorbar(im, ax=ax, label="sigma of ln f_r (median over phi_d; 0.1 = 10 %, 1 = a factor e)")
-    hh = np.abs(s.theta_o_deg - s.theta_i_deg) / 2.0
-    dd = np.abs(s.theta_o_deg + s.theta_i_deg) / 2.0
-    ax.plot(np.sqrt(hh / 90.0) * 90.0, dd, "o", ms=2.5, mfc="w", mec="k", mew=0.4, label="measured samples")
-    ax.set_xlabel("theta_h index (sqrt-spaced bins, as in the table)")
-    ax.set_ylabel("theta_d (deg)")
-    ax.set_title("how sure the table is (sigma of ln f)")
-    ax.legend(fontsize=7, loc="upper right", markerscale=2.0, facecolor="0.75", framealpha=0.9)
+    _samples_on_map(ax, s, "how sure the table is (sigma of ln f)")
     fig.tight_layout()
     return _png(fig)
 
