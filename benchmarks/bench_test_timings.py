@@ -124,11 +124,12 @@ def big_table() -> None:
         with open(big, "w") as fh:
             fh.write("theta_i_deg,theta_o_deg,R,G,B,R_std,G_std,B_std\n")
             np.savetxt(fh, np.column_stack([ti, to, v, 0.01 * v]), delimiter=",", fmt="%.12g")
-        code = ("import resource, sys, time; from reconstruction.formats.inputs import load_inputs; "
+        # the child's own peak (VmHWM): getrusage's ru_maxrss survives exec and can be the parent's size at the fork
+        code = ("import re, sys, time; from reconstruction.formats.inputs import load_inputs; "
                 "t = time.perf_counter(); c = time.process_time(); s = load_inputs([sys.argv[1]],"
                 " quantity='brdf').slice; "
                 "print(len(s), time.perf_counter() - t, time.process_time() - c, "
-                "resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)")
+                "re.search(r'VmHWM:\\s+(\\d+)', open('/proc/self/status').read()).group(1))")
         r = subprocess.run([sys.executable, "-c", code, str(big)], capture_output=True, text=True, cwd=ROOT,
                            check=True)
         n, wall, cpu, rss = r.stdout.split()
