@@ -29,7 +29,8 @@ class SignalGuard:
     """SIGINT/SIGTERM become flags, main thread only: the first asks the capture to stop after the current step
     (:meth:`check` raises :class:`CaptureInterrupted` there); a second also aborts the parking
     (:meth:`check_abort`). The handler itself never raises, logs, imports or writes (see the module docstring);
-    the exit status is the first signal's. Use as a context manager around the capture."""
+    the exit status is the first signal's. Use as a context manager around the capture. After a signal, leaving
+    the context ignores further SIGINT/SIGTERM (the caller is ending with the first one's status)."""
 
     def __init__(self, enabled: bool) -> None:
         self.enabled = enabled and threading.current_thread() is threading.main_thread()
@@ -94,7 +95,11 @@ class SignalGuard:
 
     def __exit__(self, *exc: object) -> None:
         for s, h in self._old.items():
-            signal.signal(s, h)
+            # once a signal stopped the capture, the process is winding down with the first signal's status: a
+            # second signal arriving after this point (20 ms later, while the caller prints where to resume) is
+            # ignored rather than handed to the default action, which would kill it (-15) or raise
+            # KeyboardInterrupt mid-message; without a signal the previous handlers come back as they were
+            signal.signal(s, signal.SIG_IGN if self.signum is not None else h)
         self.drain()
 
 

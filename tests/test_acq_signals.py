@@ -150,13 +150,27 @@ def test_a_signal_arriving_inside_a_log_record_does_not_log_from_the_handler():
             assert guard.signum == signal.SIGTERM and guard.abort
             with pytest.raises(Exception, match="interrupted by SIGTERM"):
                 guard.check()
+        # the capture is ending with SIGTERM's status: a third signal after the guard is ignored, not fatal
+        assert signal.getsignal(signal.SIGTERM) == signal.SIG_IGN
+        os.kill(os.getpid(), signal.SIGTERM)
     finally:
+        signal.signal(signal.SIGTERM, old_term)
+        signal.signal(signal.SIGINT, signal.default_int_handler)
         lg.removeHandler(h)
         lg.setLevel(old_level)
     assert nested == []
     assert seen == ["SIGTERM received: stopping after the current step (send it again to abort parking)",
                     "SIGTERM received again: not waiting for the arms to park"]
-    assert signal.getsignal(signal.SIGTERM) == old_term  # the handler before the guard is back
+
+
+def test_without_a_signal_the_guard_gives_the_previous_handlers_back():
+    """A capture that ends normally leaves SIGINT/SIGTERM as they were before it (a lab script goes on)."""
+    from acquisition.interrupts import SignalGuard
+
+    old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    with SignalGuard(True) as guard:
+        assert signal.getsignal(signal.SIGTERM) == guard._handler
+    assert {s: signal.getsignal(s) for s in old} == old
 
 
 def test_two_sigterms_at_any_moment_never_print_a_traceback(tmp_path):
