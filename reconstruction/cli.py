@@ -194,7 +194,8 @@ def job_from_args(args: argparse.Namespace, **overrides: Any) -> Job:
         allow_implausible=bool(getattr(args, "allow_implausible", False)),
         html=args.html if isinstance(getattr(args, "html", None), str) else None,
         **{k: getattr(args, k, None) for k in ("rgl", "zemax", "zemax_incidences", "zemax_azimuths", "zemax_radials",
-                                              "export_mitsuba", "export_json")},
+                                              "export_mitsuba", "export_json", "principled", "materialx", "gltf",
+                                              "blender")},
         preview_renderer=getattr(args, "preview_renderer", None) or "builtin", prior=getattr(args, "prior", None),
         prior_anchor=float(getattr(args, "prior_anchor", 0.0) or 0.0))
     fields.update(overrides)

@@ -1,16 +1,18 @@
 """Render a sphere in Blender (Cycles) as reconstruction.core.render.render_sphere does: run with a Python that has
-``bpy`` (tests/tools.py makes one), never imported by the suite itself.
+``bpy`` (tests/external_tools.py makes one), never imported by the suite itself.
 
-    python tests/blender_render.py MATERIAL.py OUT.npy --lighting key --size 64 --samples 512
+    python tests/blender_render.py MATERIAL.py OUT_PREFIX SCENE.json --size 64 --samples 512
 
-The scene is render_sphere's, in Blender's z-up world (ours: x right, y up, z towards the camera; Blender's:
-(x, -z, y)): a unit sphere at the origin seen by an orthographic camera whose frame the sphere fills, the
-sky-and-ground environment as a world shader of the world elevation (the sky rising linearly from 0.5 at the
-horizon to 1 at the zenith over a ground of 0.15, blended over +-10 deg by a smoothstep), and the preset's sun
-(irradiance 3, a delta light). Writes the linear RGB radiance (size, size, 3), row 0 on top, as .npy.
+The scene is render_sphere's (SCENE.json: the presets' suns and the sky's numbers, taken from
+reconstruction.core.render so that this follows the renderer), in Blender's z-up world (ours: x right, y up, z
+towards the camera; Blender's: (x, -z, y)): a unit sphere at the origin seen by an orthographic camera whose frame
+the sphere fills, the sky-and-ground environment as a world shader of the world elevation (the sky rising
+linearly from the horizon to the zenith over the ground, blended by a smoothstep), and each preset's sun (a
+delta light). Writes the linear RGB radiance (size, size, 3), row 0 on top, as OUT_PREFIX-NAME.npy per sun.
 """
 
 import argparse
+import json
 import math
 import runpy
 import sys
@@ -19,16 +21,12 @@ import bpy
 import numpy as np
 from mathutils import Vector
 
-SUNS = {"key": (-3.0, 3.0, 5.0), "rim": (2.0, 3.0, -4.0)}
-SKY = {"zenith": 1.0, "horizon": 0.5, "ground": 0.15, "blend_deg": 10.0}
-SUN_IRRADIANCE = 3.0
-
 
 def to_blender(v):
     return Vector((v[0], -v[2], v[1]))
 
 
-def world_shader(world):
+def world_shader(world, sky):
     world.use_nodes = True
     nt = world.node_tree
     nt.nodes.clear()
@@ -51,8 +49,8 @@ def world_shader(world):
         return n.outputs[0]
 
     y01 = math_node("ADD", up, 0.0, clamp=True)
-    sky = math_node("MULTIPLY_ADD", y01, SKY["zenith"] - SKY["horizon"], SKY["horizon"])
-    w = math.sin(math.radians(SKY["blend_deg"]))
+    sky_l = math_node("MULTIPLY_ADD", y01, sky["zenith"] - sky["horizon"], sky["horizon"])
+    w = math.sin(math.radians(sky["blend_deg"]))
     ramp = nt.nodes.new("ShaderNodeMapRange")
     ramp.interpolation_type = "SMOOTHSTEP"
     ramp.clamp = True
@@ -61,8 +59,8 @@ def world_shader(world):
     ramp.inputs["From Max"].default_value = w
     ramp.inputs["To Min"].default_value = 0.0
     ramp.inputs["To Max"].default_value = 1.0
-    diff = math_node("SUBTRACT", sky, SKY["ground"])
-    lum = math_node("MULTIPLY_ADD", diff, ramp.outputs["Result"], SKY["ground"])
+    diff = math_node("SUBTRACT", sky_l, sky["ground"])
+    lum = math_node("MULTIPLY_ADD", diff, ramp.outputs["Result"], sky["ground"])
     bg = nt.nodes.new("ShaderNodeBackground")
     comb = nt.nodes.new("ShaderNodeCombineXYZ")
     for k in range(3):
@@ -77,14 +75,16 @@ def main(argv):
     ap = argparse.ArgumentParser()
     ap.add_argument("material")
     ap.add_argument("out")
-    ap.add_argument("--lighting", choices=tuple(SUNS), default="key")
+    ap.add_argument("scene", help='{"suns": {"key": [[x, y, z], irradiance], ...}, "sky": {...}}')
     ap.add_argument("--size", type=int, default=64)
     ap.add_argument("--samples", type=int, default=512)
     a = ap.parse_args(argv)
+    with open(a.scene) as fh:
+        spec = json.load(fh)
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
     mat = runpy.run_path(a.material, run_name="gonio_material")["build_material"]()
-    bpy.ops.mesh.primitive_uv_sphere_add(segments=256, ring_count=128, radius=1.0)
+    bpy.ops.mesh.primitive_uv_sphere_add(segments=192, ring_count=96, radius=1.0)
     sphere = bpy.context.active_object
     bpy.ops.object.shade_smooth()
     sphere.data.materials.append(mat)
@@ -97,14 +97,11 @@ def main(argv):
     scene.collection.objects.link(cam)
     scene.camera = cam
     sun_data = bpy.data.lights.new("sun", "SUN")
-    sun_data.energy = SUN_IRRADIANCE
     sun_data.angle = 0.0
     sun = bpy.data.objects.new("sun", sun_data)
-    d = to_blender(SUNS[a.lighting]).normalized()
-    sun.rotation_euler = d.to_track_quat("Z", "Y").to_euler()
     scene.collection.objects.link(sun)
     world = bpy.data.worlds.new("sky")
-    world_shader(world)
+    world_shader(world, spec["sky"])
     scene.world = world
     scene.render.engine = "CYCLES"
     scene.cycles.device = "CPU"
@@ -119,12 +116,15 @@ def main(argv):
     scene.view_settings.view_transform = "Standard"
     scene.render.image_settings.file_format = "OPEN_EXR"
     scene.render.image_settings.color_depth = "32"
-    exr = a.out + ".exr"
-    scene.render.filepath = exr
-    bpy.ops.render.render(write_still=True)
-    img = bpy.data.images.load(exr)
-    px = np.array(img.pixels[:], dtype=np.float64).reshape(a.size, a.size, img.channels)[::-1, :, :3]
-    np.save(a.out, px)
+    for name, (direction, irradiance) in spec["suns"].items():  # one scene, a render per sun
+        sun_data.energy = irradiance
+        sun.rotation_euler = to_blender(direction).normalized().to_track_quat("Z", "Y").to_euler()
+        exr = f"{a.out}-{name}.exr"
+        scene.render.filepath = exr
+        bpy.ops.render.render(write_still=True)
+        img = bpy.data.images.load(exr)
+        px = np.array(img.pixels[:], dtype=np.float64).reshape(a.size, a.size, img.channels)[::-1, :, :3]
+        np.save(f"{a.out}-{name}.npy", px)
 
 
 if __name__ == "__main__":

@@ -36,7 +36,7 @@ __all__ = ["PrincipledFit", "fit_principled", "fit_pairs", "uniform_pairs", "cos
 
 MAX_THETA_DEG = 80.0
 IMAGE_SIZE = 96  # pixels of the judging renders (reconstruction.core.render), each of the two views
-_FIT_ALPHAS = (0.02, 0.08, 0.3)
+_FIT_ALPHAS = (0.005, 0.02, 0.08, 0.3)
 _COS_MAX = math.cos(math.radians(MAX_THETA_DEG))
 
 
@@ -115,6 +115,15 @@ _NAMES = ("base_r", "base_g", "base_b", "metalness", "diffuse_roughness", "specu
           "fuzz_roughness")
 
 
+#: a small pull of the secondary parameters (metalness, diffuse roughness, specular colour, fuzz) towards the
+#: simplest material, so that a parameter is used only where it earns its keep (in units of the relative L2)
+REGULARISATION = 0.01
+_SIMPLE = np.array([3, 4, 6, 7, 8, 13, 14, 15])
+_SIMPLE_VALUES = np.array([0.0, 0.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0])
+#: the full vector's entries from a grey fit's (colours as one value each)
+_GREY = np.array([0, 0, 0, 1, 2, 3, 4, 4, 4, 5, 6, 7, 8, 9, 9, 9, 10])
+
+
 def params_from_vector(x: ArrayLike) -> PrincipledParams:
     """The material of a fit vector (17 entries in [0, 1]): F0s scaled to [0, 0.25] (indices 1 to 3, specular
     weight 1), the fuzz colour split into weight = its largest channel and a colour of maximum 1."""
@@ -164,7 +173,9 @@ class PrincipledFit:
         """The ``--principled`` JSON (and the report's ``principled`` key)."""
         return {"model": MODEL, "model_version": MODEL_VERSION, "parameters": self.params.to_dict(),
                 "ranges": {k: list(v) for k, v in RANGES.items()},
-                "error": {"image_relative_rmse": self.image_relative_rmse, "image": self.image, "cosl2": self.cosl2,
+                "error": {"image_relative_rmse": _finite(self.image_relative_rmse),
+                          "image": {k: {kk: _finite(vv) for kk, vv in v.items()} for k, v in self.image.items()},
+                          "cosl2": _finite(self.cosl2),
                           "image_views": list(self.image), "image_size_px": IMAGE_SIZE,
                           "max_theta_deg": MAX_THETA_DEG},
                 "misses": self.misses, "miss_share": self.miss_share, "summary": self.sentence,
@@ -172,6 +183,11 @@ class PrincipledFit:
                 "units": "colours linear RGB in [0, 1] (the reconstruction's working space); roughness as each "
                          "format's user-facing roughness (alpha = roughness^2); indices of refraction relative "
                          "to air"}
+
+
+def _finite(v: float) -> float | None:
+    """JSON has no inf or NaN (an image identical to the truth has an infinite PSNR)."""
+    return float(v) if math.isfinite(v) else None
 
 
 def _misses(p: PrincipledParams, truth: BRDF) -> tuple[str, float]:
@@ -187,7 +203,7 @@ def _misses(p: PrincipledParams, truth: BRDF) -> tuple[str, float]:
     th = np.degrees(np.arccos(g.cos_h))
     td = np.degrees(np.arccos(g.cos_d))
     alpha = max(p.specular_roughness ** 2, 0.02)
-    peak = th < max(5.0, 2.0 * math.degrees(math.atan(alpha)))
+    peak = th < min(max(5.0, 2.0 * math.degrees(math.atan(alpha))), 15.0)
     grazing = ~peak & (td > 60.0)
     retro = ~peak & ~grazing & (td < 20.0) & (th > 20.0)
     body = ~(peak | grazing | retro)
@@ -207,12 +223,12 @@ def _misses(p: PrincipledParams, truth: BRDF) -> tuple[str, float]:
     return name, share
 
 
-def fit_principled(truth: BRDF, max_nfev: int = 40, image_size: int = IMAGE_SIZE,
+def fit_principled(truth: BRDF, max_nfev: int = 40, start_nfev: int = 12, image_size: int = IMAGE_SIZE,
                    judge: bool = True) -> PrincipledFit:
     """The OpenPBR parameters closest to ``truth`` (f(wi, wo) -> (N, C) in 1/sr, C = 1 or 3, local unit vectors)
     by the relative cosine-weighted L2 (bounded; see the module docstring), judged by the image error over the
-    default views and cosl2 (``judge``: False skips the images, for speed). ``max_nfev``: residual evaluations
-    per start (each with a finite-difference Jacobian)."""
+    default views and cosl2 (``judge``: False skips the images, for speed). ``start_nfev``: residual evaluations
+    (each with a finite-difference Jacobian) from each start; ``max_nfev``: from the best of them on."""
     from reconstruction.core.metrics import image_errors
 
     t0 = time.perf_counter()
@@ -224,15 +240,23 @@ def fit_principled(truth: BRDF, max_nfev: int = 40, image_size: int = IMAGE_SIZE
     norm = float(np.sqrt(np.sum((target * cw) ** 2))) or 1.0
     goal = (target * cw / norm).ravel()
 
+    raw = np.asarray(truth(wi[:1], wo[:1]))
+    grey = raw.reshape(1, -1).shape[1] == 1 or bool(np.allclose(target, target[:, :1], rtol=1e-9, atol=0.0))
+    tie = _GREY if grey else np.arange(len(_NAMES))  # a grey BRDF: one value per colour (no spurious hues)
+
     def residual(x: Array) -> Array:
-        return (evaluate(params_from_vector(x), g) * cw / norm).ravel() - goal
+        full = x[tie]
+        return np.concatenate([(evaluate(params_from_vector(full), g) * cw / norm).ravel() - goal,
+                               REGULARISATION * (full[_SIMPLE] - _SIMPLE_VALUES)])
 
     diffuse = g.cos_h < math.cos(math.radians(40.0))
     base = math.pi * np.median(target[diffuse], axis=0) if diffuse.any() else np.full(3, 0.5)
     best = None
     runs = []
+    untie = np.array([int(np.argmax(tie == k)) for k in range(int(tie.max()) + 1)])  # first full index of each
     for x0 in _starts(base):  # three starts
-        r = least_squares(residual, x0, bounds=(0.0, 1.0), method="trf", max_nfev=max_nfev, x_scale=1.0,
+        x0 = x0[untie]
+        r = least_squares(residual, x0, bounds=(0.0, 1.0), method="trf", max_nfev=start_nfev, x_scale=1.0,
                           diff_step=1e-3, tr_solver="lsmr")
         runs.append({"start": [round(float(v), 3) for v in x0], "cost": float(2 * r.cost), "nfev": int(r.nfev)})
         if best is None or r.cost < best.cost:
@@ -240,7 +264,7 @@ def fit_principled(truth: BRDF, max_nfev: int = 40, image_size: int = IMAGE_SIZE
     assert best is not None
     with threadpool_limits(1):  # a 17-column SVD per step: threads only contend
         best = least_squares(residual, best.x, bounds=(0.0, 1.0), method="trf", max_nfev=max_nfev, diff_step=1e-4)
-    params = params_from_vector(best.x)
+    params = params_from_vector(best.x[tie])
     image: dict[str, dict[str, float]] = {}
     mean_img = float("nan")
     if judge:

@@ -25,7 +25,7 @@ MATERIALX_VERSION = "1.39"
 def safe_name(name: str, default: str = "material") -> str:
     """A MaterialX / Blender / glTF friendly identifier: letters, digits and underscores, not starting with a
     digit."""
-    s = re.sub(r"[^A-Za-z0-9_]", "_", name).strip("_") or default
+    s = re.sub(r"_+", "_", re.sub(r"[^A-Za-z0-9_]", "_", name)).strip("_") or default
     return f"M_{s}" if s[0].isdigit() else s
 
 
