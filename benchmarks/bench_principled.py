@@ -91,7 +91,8 @@ def run_one(item: tuple[str, str, Path], from_slices: bool = False) -> dict[str,
         write_blender(Path(tmp) / "m.py", fit.params, name, fit.sentence)
     w2, c2 = time.perf_counter(), time.process_time()
     row = {"database": db, "name": name, "image": fit.image_relative_rmse, "cosl2": fit.cosl2,
-           "misses": fit.misses, "share": fit.miss_share, "fit_wall_s": fit.seconds, "judge_wall_s": fit.judge_seconds, "fit_cpu_s": c1 - c0,
+           "misses": fit.misses, "share": fit.miss_share, "fit_wall_s": fit.seconds, "judge_wall_s": fit.judge_seconds,
+           "fit_cpu_s": c1 - c0,
            "export_wall_s": w2 - w1, "wall_s": w2 - w0, "cpu_s": c2 - c0,
            "metal": fit.params.base_metalness, "roughness": fit.params.specular_roughness,
            "coat": fit.params.coat_weight, "fuzz": fit.params.fuzz_weight}
