@@ -353,8 +353,9 @@ def _main(ap: argparse.ArgumentParser, args: argparse.Namespace) -> int:
 
     if args.batch:
         if args.inputs or args.out or args.preview or args.report or wants_outputs(args):
-            ap.error("--batch takes no INPUT, --out, --preview, --report, --rgl, --zemax, --export-mitsuba or "
-                     "--export-json (outputs are named after the inputs)")
+            ap.error("--batch takes no INPUT, --out, --preview, --report, --rgl, --zemax, --export-mitsuba, "
+                     "--export-json, --principled, --materialx, --gltf or --blender (outputs are named after the "
+                     "inputs)")
         return run_batch(args)
     if not args.inputs or not (args.out or asks_output(args)):
         ap.error("give INPUT... and --out MATERIAL.binary or another output (--preview, --html, --report, --rgl, "
@@ -382,12 +383,16 @@ def _main(ap: argparse.ArgumentParser, args: argparse.Namespace) -> int:
         written = [f"{o['table']} ({FILE_SIZE:,} bytes)"] if "table" in o else []
         written += [o[k][f] for k, f in (("rgl", "rgl"), ("zemax", "zemax"), ("mitsuba", "xml")) if k in o]
         written += [o["parameters_json"]] if "parameters_json" in o else []
+        written += [o[k] if isinstance(o[k], str) else o[k]["file"] for k in ("principled", "materialx", "gltf",
+                                                                           "blender") if k in o]
         if "preview" in o:
             written += [o["preview"]["exr"], o["preview"]["png"]]
         written += [o[k] for k in ("report", "html") if k in o]
         print(f"{PROG}: method {rep['method']}{model}: wrote {', '.join(written)}"
               + (f"; IMPLAUSIBLE, written because of --allow-implausible: check(s) failed: {', '.join(failed)}"
                  if failed else "; checks passed"), file=sys.stderr)
+        if "principled" in rep:
+            print(f"{PROG}: {rep['principled']['summary']}", file=sys.stderr)
         if rep.get("colour", {}).get("working_channels") == ["value"]:
             print(f"{PROG}: note: the samples have one band (a photodiode sees one), so the table is grey; a "
                   f"spectrometer bench ([detector] type = \"spectrometer\") or R,G,B columns give colour",

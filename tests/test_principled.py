@@ -172,8 +172,9 @@ def test_cli_principled_json_report_and_html(tmp_path, capsys):
     out = {k: tmp_path / f"m.{k}" for k in ("json", "mtlx", "gltf", "py")}
     code = cli.main([str(src), "--method", "fit", "--principled", str(out["json"]), "--materialx", str(out["mtlx"]),
                      "--gltf", str(out["gltf"]), "--blender", str(out["py"]), "--report", str(tmp_path / "r.json"),
-                     "--html", str(tmp_path / "r.html"), "--quiet"])
+                     "--html", str(tmp_path / "r.html")])
     assert code == 0  # no --out: the principled outputs are enough
+    err = capsys.readouterr().err
     params = json.loads(out["json"].read_text())
     assert params["model"] == "OpenPBR Surface" and params["fitted_to"] == "the fit reconstruction"
     p = PrincipledParams.from_dict(params["parameters"])  # inside the documented ranges, or this raises
@@ -184,6 +185,7 @@ def test_cli_principled_json_report_and_html(tmp_path, capsys):
     assert report["principled"]["summary"] == params["summary"]
     assert set(report["outputs"]) >= {"principled", "materialx", "gltf", "blender"}
     assert html.escape(params["summary"]) in (tmp_path / "r.html").read_text()
+    assert params["summary"] in err and str(out["gltf"]) in err  # the console says it too
     assert all(out[k].stat().st_size > 0 for k in out)
 
 
@@ -194,6 +196,9 @@ def test_cli_principled_bad_outputs_exit_2(tmp_path, capsys):
         code = cli.main([str(src), "--method", "fit", flag, str(tmp_path / name), "--quiet"])
         err = capsys.readouterr().err
         assert code == 2 and what in err and flag in err and "Traceback" not in err
-    code = cli.main([str(src), "--method", "fit", "--principled", str(tmp_path / "x.json"), "--report",
+    code = cli.main([str(src), "--method", "fit", "--principled", str(tmp_path / "x.json"), "--materialx",
                      str(tmp_path / "x.json"), "--quiet"])
-    assert not (tmp_path / "m.mtlx").exists()
+    assert code == 2 and not (tmp_path / "x.json").exists()
+    with pytest.raises(SystemExit) as e:  # a batch names its outputs after its inputs
+        cli.main(["--batch", str(tmp_path), "--principled", str(tmp_path / "p.json")])
+    assert e.value.code == 2

@@ -129,8 +129,10 @@ def _check_file(path: str, suffix: str, flag: str) -> None:
 
 def wants_outputs(args: Any) -> bool:
     """True if any format field (``rgl``, ``zemax``, ``export_mitsuba``, ``export_json`` of a
-    :class:`~reconstruction.pipeline.Job` or parsed command line) asks for a file."""
-    return any(getattr(args, k, None) for k in ("rgl", "zemax", "export_mitsuba", "export_json"))
+    :class:`~reconstruction.pipeline.Job` or parsed command line, or a principled material's) asks for a file."""
+    from reconstruction.principled.outputs import wants
+
+    return any(getattr(args, k, None) for k in ("rgl", "zemax", "export_mitsuba", "export_json")) or wants(args)
 
 
 #: the outputs besides the MERL table (flags without the dashes): asking for any makes --out optional
