@@ -115,7 +115,8 @@ def build_parser() -> argparse.ArgumentParser:
                          + "; ".join(f"{m.name}: {m.summary}" for m in REGISTRY.values()))
     ap.add_argument("--out", metavar="MATERIAL.binary",
                     help="MERL table to write; optional once another output is asked (--preview, --html, --report, "
-                         "--rgl, --zemax, --export-mitsuba, --export-json); not with --batch (--out-dir)")
+                         "--rgl, --zemax, --export-mitsuba, --export-json, --principled, --materialx, --gltf, "
+                         "--blender); not with --batch (--out-dir)")
     ap.add_argument("--preview", metavar="MATERIAL.exr",
                     help="render a sphere under a point light: linear float OpenEXR, plus a PNG next to it")
     ap.add_argument("--html", metavar="REPORT.html", nargs="?", const=True, default=None,
@@ -359,7 +360,8 @@ def _main(ap: argparse.ArgumentParser, args: argparse.Namespace) -> int:
         return run_batch(args)
     if not args.inputs or not (args.out or asks_output(args)):
         ap.error("give INPUT... and --out MATERIAL.binary or another output (--preview, --html, --report, --rgl, "
-                 "--zemax, --export-mitsuba, --export-json); or --batch FOLDER")
+                 "--zemax, --export-mitsuba, --export-json, --principled, --materialx, --gltf, --blender); or "
+                 "--batch FOLDER")
     if args.html is True:
         print(f"{PROG}: error: --html: give the page to write, e.g. --html m.html (a bare --html is for --batch)",
               file=sys.stderr)
