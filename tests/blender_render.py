@@ -17,12 +17,13 @@ import math
 import runpy
 import sys
 
-import bpy
 import numpy as np
-from mathutils import Vector
 
 
 def to_blender(v):
+    from mathutils import Vector  # Blender's own (as bpy: imported here, so pytest's doctest collection can import
+    # this file without Blender)
+
     return Vector((v[0], -v[2], v[1]))
 
 
@@ -72,6 +73,8 @@ def world_shader(world, sky):
 
 
 def main(argv):
+    import bpy
+
     ap = argparse.ArgumentParser()
     ap.add_argument("material")
     ap.add_argument("out")
