@@ -115,8 +115,8 @@ def build_parser() -> argparse.ArgumentParser:
                          + "; ".join(f"{m.name}: {m.summary}" for m in REGISTRY.values()))
     ap.add_argument("--out", metavar="MATERIAL.binary",
                     help="MERL table to write; optional once another output is asked (--preview, --html, --report, "
-                         "--rgl, --zemax, --export-mitsuba, --export-json, --uncertainty); not with --batch "
-                         "(--out-dir)")
+                         "--rgl, --zemax, --export-mitsuba, --export-json, --uncertainty, --principled, "
+                         "--materialx, --gltf, --blender); not with --batch (--out-dir)")
     ap.add_argument("--preview", metavar="MATERIAL.exr",
                     help="render a sphere under a point light: linear float OpenEXR, plus a PNG next to it")
     ap.add_argument("--html", metavar="REPORT.html", nargs="?", const=True, default=None,
@@ -208,7 +208,8 @@ def job_from_args(args: argparse.Namespace, **overrides: Any) -> Job:
         allow_implausible=bool(getattr(args, "allow_implausible", False)),
         html=args.html if isinstance(getattr(args, "html", None), str) else None,
         **{k: getattr(args, k, None) for k in ("rgl", "zemax", "zemax_incidences", "zemax_azimuths", "zemax_radials",
-                                              "export_mitsuba", "export_json")},
+                                              "export_mitsuba", "export_json", "principled", "materialx", "gltf",
+                                              "blender")},
         preview_renderer=getattr(args, "preview_renderer", None) or "builtin", prior=getattr(args, "prior", None),
         prior_anchor=float(getattr(args, "prior_anchor", 0.0) or 0.0),
         uncertainty=getattr(args, "uncertainty", None), advise=bool(getattr(args, "advise", False)),
@@ -372,12 +373,14 @@ def _main(ap: argparse.ArgumentParser, args: argparse.Namespace) -> int:
 
     if args.batch:
         if args.inputs or args.out or args.preview or args.report or wants_outputs(args):
-            ap.error("--batch takes no INPUT, --out, --preview, --report, --rgl, --zemax, --export-mitsuba or "
-                     "--export-json (outputs are named after the inputs)")
+            ap.error("--batch takes no INPUT, --out, --preview, --report, --rgl, --zemax, --export-mitsuba, "
+                     "--export-json, --principled, --materialx, --gltf or --blender (outputs are named after the "
+                     "inputs)")
         return run_batch(args)
     if not args.inputs or not (args.out or asks_output(args)):
         ap.error("give INPUT... and --out MATERIAL.binary or another output (--preview, --html, --report, --rgl, "
-                 "--zemax, --export-mitsuba, --export-json); or --batch FOLDER")
+                 "--zemax, --export-mitsuba, --export-json, --principled, --materialx, --gltf, --blender); or "
+                 "--batch FOLDER")
     if args.html is True:
         print(f"{PROG}: error: --html: give the page to write, e.g. --html m.html (a bare --html is for --batch)",
               file=sys.stderr)
@@ -401,6 +404,8 @@ def _main(ap: argparse.ArgumentParser, args: argparse.Namespace) -> int:
         written = [f"{o['table']} ({FILE_SIZE:,} bytes)"] if "table" in o else []
         written += [o[k][f] for k, f in (("rgl", "rgl"), ("zemax", "zemax"), ("mitsuba", "xml")) if k in o]
         written += [o["parameters_json"]] if "parameters_json" in o else []
+        written += [o[k] if isinstance(o[k], str) else o[k]["file"] for k in ("principled", "materialx", "gltf",
+                                                                           "blender") if k in o]
         if "preview" in o:
             written += [o["preview"]["exr"], o["preview"]["png"]]
         written += [o[k] for k in ("report", "html") if k in o]
@@ -426,6 +431,8 @@ def _main(ap: argparse.ArgumentParser, args: argparse.Namespace) -> int:
                 print(f"{PROG}: within {a['budget_s']:g} s: measure "
                       f"{', '.join(f'{x:g}' for x in p['theta_i_deg']) or 'nothing more'} deg "
                       f"({p['bench_time_s']:g} s, expected PSNR {p['expected_psnr_db']:.1f} dB)", file=sys.stderr)
+        if "principled" in rep:
+            print(f"{PROG}: {rep['principled']['summary']}", file=sys.stderr)
         if rep.get("colour", {}).get("working_channels") == ["value"]:
             print(f"{PROG}: note: the samples have one band (a photodiode sees one), so the table is grey; a "
                   f"spectrometer bench ([detector] type = \"spectrometer\") or R,G,B columns give colour",

@@ -129,13 +129,20 @@ class Job:
     advise: bool = False  # --advise: rank the incidences to measure next
     bench: str | None = None  # --bench CONFIG.toml: the bench whose limits and timing --advise uses
     budget_s: float | None = None  # --budget-s T: --advise plans further slices within T s of bench time
+    # the closest principled material (reconstruction.principled; docs/formats.md)
+    principled: str | None = None
+    materialx: str | None = None
+    gltf: str | None = None
+    blender: str | None = None
 
     @property
     def steps(self) -> list[str]:
         """The steps :func:`run` reports to its ``progress`` (for a progress bar's total)."""
+        from reconstruction.principled.outputs import wants
+
         return (["read", "colour", "reconstruct", "tabulate", "write", "checks"] + (["preview"] if self.preview else [])
                 + (["uncertainty"] if self.assesses else []) + (["advice"] if self.advise else [])
-                + (["html"] if self.html else []))
+                + (["principled"] if wants(self) else []) + (["html"] if self.html else []))
 
     @property
     def assesses(self) -> bool:
@@ -194,7 +201,8 @@ def _check_outputs(job: Job) -> None:
         check_output(Path(job.out), ".binary", "--out")
     elif not exports.asks_output(job):
         raise ReconstructionError("give --out MATERIAL.binary (or another output: --preview, --html, --report, --rgl, "
-                                  "--zemax, --export-mitsuba, --export-json, --uncertainty)")
+                                  "--zemax, --export-mitsuba, --export-json, --uncertainty, --principled, "
+                                  "--materialx, --gltf, --blender)")
     exports.check_arguments(job)
     if job.preview:
         check_output(Path(job.preview), ".exr", "--preview")
@@ -222,6 +230,8 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
     from reconstruction.core import colour
     from reconstruction.core.scene import LOBE_KINDS, load_scene
     from reconstruction.formats import exports, inputs, merl, zemax
+    from reconstruction.principled.outputs import wants as wants_principled
+    from reconstruction.principled.outputs import write_outputs as write_principled
     from reconstruction.report import preview
     from reconstruction.report import summary as report
 
@@ -294,6 +304,12 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
         outputs["preview"] = (exports.mitsuba_preview(job, rec, outputs) if job.preview_renderer == "mitsuba"
                               else preview.write_preview(job.preview, table))
         done("preview", t0)
+    principled = None
+    if wants_principled(job):
+        t0 = begin("principled material")
+        files, principled = write_principled(job, rec, _name(job, working))
+        outputs.update(files)
+        done("principled", t0)
     rep = report.build_report(
         rec=rec, choice=choice, working=working, table=table, checks=checks,
         inputs={"files": loaded.files, "quantities": loaded.quantities, "notes": loaded.notes,
@@ -308,6 +324,8 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
                     "bin_centres": "theta_h = ((i + 0.5) / 90)^2 * 90 deg, theta_d = j + 0.5 deg, "
                                    "phi_d = k + 0.5 deg"},
         outputs=outputs, timings=timings, dropped_blind_spot=loaded.dropped_blind_spot)
+    if principled is not None:
+        rep["principled"] = principled
     sigma_table = None
     if job.assesses:
         t0 = begin("uncertainty")
@@ -382,6 +400,12 @@ def _assess(job: Job, rep: dict[str, Any], working: Slice, rec: Reconstruction, 
     return sigma
 
 
+def _name(job: Job, working: Slice) -> str:
+    """The material's name: the slice's, else the stem of the first output file."""
+    return str(working.meta.get("material") or Path(job.out or job.html or job.principled or job.materialx
+                                                    or job.gltf or job.blender or "material").stem)
+
+
 def _write_html(job: Job, rep: dict[str, Any], working: Slice, rec: Reconstruction, table: Array,
                 choice: dict[str, Any], opts: Options, sigma: NDArray[np.float32] | None = None) -> None:
     """The HTML report of ``job``: every other registered method is built on the same samples for comparison."""
@@ -396,6 +420,6 @@ def _write_html(job: Job, rep: dict[str, Any], working: Slice, rec: Reconstructi
             except (ReconstructionError, ValueError):
                 pass
     held = choice.get("held_out_predictions", {}).get(rec.method)
-    title = str(working.meta.get("material") or Path(job.out or job.html or "material").stem)
+    title = _name(job, working)
     htmlreport.write_html(job.html, report=rep, working=ordered, rec=rec, table=table, alternatives=others,
                           held_out=held, title=title, sigma=sigma)

@@ -186,7 +186,7 @@ LAYERS = [
     ("base", ("core", "formats", "bench", "schema", "base", "atomic", "cache", "cliutil", "synthetic", "executor",
               "geometry", "models", "merl", "slicefile")),
     ("methods", ("methods",)),
-    ("assess and report", ("assess", "report", "formats.exports")),
+    ("assess and report", ("assess", "report", "principled", "formats.exports")),
     ("pipeline and cli", ("pipeline", "cli")),
 ]
 

@@ -113,6 +113,9 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     g.add_argument("--preview-renderer", choices=("builtin", "mitsuba"), default="builtin",
                    help="--preview rendered by the built-in point-light renderer (default) or by Mitsuba 3 with "
                         "the RGL file under an environment map (pip install 'gonio-brdf[mitsuba]')")
+    from reconstruction.principled.outputs import add_arguments as add_principled_arguments
+
+    add_principled_arguments(ap)
 
 
 def _check_file(path: str, suffix: str, flag: str) -> None:
@@ -126,12 +129,15 @@ def _check_file(path: str, suffix: str, flag: str) -> None:
 
 def wants_outputs(args: Any) -> bool:
     """True if any format field (``rgl``, ``zemax``, ``export_mitsuba``, ``export_json`` of a
-    :class:`~reconstruction.pipeline.Job` or parsed command line) asks for a file."""
-    return any(getattr(args, k, None) for k in ("rgl", "zemax", "export_mitsuba", "export_json"))
+    :class:`~reconstruction.pipeline.Job` or parsed command line, or a principled material's) asks for a file."""
+    from reconstruction.principled.outputs import wants
+
+    return any(getattr(args, k, None) for k in ("rgl", "zemax", "export_mitsuba", "export_json")) or wants(args)
 
 
 #: the outputs besides the MERL table (flags without the dashes): asking for any makes --out optional
-OTHER_OUTPUTS = ("preview", "html", "report", "rgl", "zemax", "export_mitsuba", "export_json", "uncertainty")
+OTHER_OUTPUTS = ("preview", "html", "report", "rgl", "zemax", "export_mitsuba", "export_json", "uncertainty",
+                 "principled", "materialx", "gltf", "blender")
 
 
 def asks_output(args: Any) -> bool:
@@ -173,6 +179,9 @@ def check_arguments(args: Any) -> None:
     if getattr(args, "rgl", None) and getattr(args, "zemax", None) and Path(args.rgl) == Path(args.zemax):
         raise ReconstructionError(f"--rgl and --zemax name the same file {args.rgl}")
     zemax_grid(args)
+    from reconstruction.principled.outputs import check_arguments as check_principled
+
+    check_principled(args)
     if getattr(args, "preview_renderer", "builtin") == "mitsuba":
         if not getattr(args, "preview", None):
             raise ReconstructionError("--preview-renderer mitsuba renders --preview MATERIAL.exr; give --preview")

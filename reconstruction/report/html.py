@@ -387,6 +387,8 @@ def build_html(*, report: Mapping[str, Any], working: Slice, rec: Reconstruction
                else "FAILED", "inputs": ", ".join(map(str, report.get("inputs", {}).get("files", []))),
                "samples": len(working), "incidences (deg)": ", ".join(f"{x:g}" for x in working.incidences()),
                "software": f"gonio-brdf {_version()}"}
+    if isinstance(report.get("principled"), Mapping):  # --principled / --materialx / --gltf / --blender
+        summary["principled material"] = report["principled"].get("summary", "")
     sec["summary"] = (f'<p class="{status}">Checks {"passed" if checks["all_pass"] else "failed"}.</p>'
                       + _kv_table(summary))
     sec["slices"] = (_img(_slices_figure(s, rec.method, preds, held_out, blind), "measured slices and predictions")
