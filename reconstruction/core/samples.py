@@ -141,7 +141,7 @@ class PointFolds(DirectionalSlice):
                              return_index=True)
         base = Slice.take(sub, inplane[np.sort(first)])
         return SliceWithPoints(base.theta_i_deg, base.theta_o_deg, base.values, base.channels, base.std, base.repeats,
-                               base.unix_time_s, base.meta, base.source, sub)
+                               base.unix_time_s, base.meta, base.source, sub).sorted()  # as the methods expect
 
     @classmethod
     def of(cls, p: DirectionalSlice) -> PointFolds:
