@@ -229,7 +229,7 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
     naming the file, checked output paths before any work."""
     from reconstruction.core import colour
     from reconstruction.core.scene import LOBE_KINDS, load_scene
-    from reconstruction.formats import exports, inputs, merl, zemax
+    from reconstruction.formats import brdffile, exports, inputs, merl, zemax
     from reconstruction.principled.outputs import wants as wants_principled
     from reconstruction.principled.outputs import write_outputs as write_principled
     from reconstruction.report import preview
@@ -255,7 +255,8 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
             progress.done(step)
 
     t0 = begin("reading inputs")
-    loaded = zemax.load_inputs(list(job.inputs), job.quantity, job.columns) or inputs.load_inputs(
+    loaded = zemax.load_inputs(list(job.inputs), job.quantity, job.columns) or brdffile.load_inputs(
+        list(job.inputs), job.quantity, job.columns) or inputs.load_inputs(
         list(job.inputs), quantity=job.quantity, columns=inputs.parse_columns(job.columns),
         blind_spot_deg=job.blind_spot_deg)
     scene = None

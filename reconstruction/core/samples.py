@@ -20,7 +20,8 @@ from reconstruction.formats.slicefile import Slice
 
 Array = NDArray[np.float64]
 
-__all__ = ["DirectionalSlice", "SliceWithPoints", "sample_directions", "everywhere", "directional_slice"]
+__all__ = ["DirectionalSlice", "SliceWithPoints", "sample_directions", "everywhere", "directional_slice",
+           "out_of_plane", "points_anywhere", "PointFolds", "samples_used"]
 
 
 @dataclass
@@ -112,3 +113,55 @@ def sample_directions(s: Slice) -> tuple[Array, Array]:
     if isinstance(s, DirectionalSlice):
         return s.wi, s.wo
     return inplane_to_dirs(np.radians(s.theta_i_deg), np.radians(s.theta_o_deg))
+
+
+def out_of_plane(p: DirectionalSlice) -> NDArray[np.bool_]:
+    """(N,) True where wo does not lie in the plane of wi and the normal."""
+    return np.abs(p.wi[:, 0] * p.wo[:, 1] - p.wi[:, 1] * p.wo[:, 0]) > 1e-9
+
+
+def points_anywhere(s: Slice) -> DirectionalSlice | None:
+    """``s.points`` when ``s`` carries points of which some lie out of the plane of incidence, else None."""
+    pts = getattr(s, "points", None)
+    if isinstance(pts, DirectionalSlice) and len(pts) and bool(out_of_plane(pts).any()):
+        return pts
+    return None
+
+
+@dataclass
+class PointFolds(DirectionalSlice):
+    """Points anywhere, cross-validated as such: a subset (:meth:`take`, a fold's training set) is the methods'
+    input, its in-plane points as the slice and the subset itself as the points (nothing held out leaks back)."""
+
+    def take(self, idx: ArrayLike) -> Slice:  # type: ignore[override]
+        sub = DirectionalSlice.take(self, idx)
+        inplane = np.nonzero(~out_of_plane(sub))[0]
+        # one row per in-plane direction pair (a grid may reach one twice: radial 0 at every azimuth, 0 and 360)
+        _, first = np.unique(np.round(np.c_[sub.theta_i_deg[inplane], sub.theta_o_deg[inplane]], 6), axis=0,
+                             return_index=True)
+        base = Slice.take(sub, inplane[np.sort(first)])
+        return SliceWithPoints(base.theta_i_deg, base.theta_o_deg, base.values, base.channels, base.std, base.repeats,
+                               base.unix_time_s, base.meta, base.source, sub).sorted()  # as the methods expect
+
+    @classmethod
+    def of(cls, p: DirectionalSlice) -> PointFolds:
+        return cls(p.theta_i_deg, p.theta_o_deg, p.values, p.channels, p.std, p.repeats, p.unix_time_s, p.meta,
+                   p.source, p.wi, p.wo)
+
+
+def samples_used(s: Slice, used: Slice | None, method: str) -> dict[str, Any]:
+    """What a method built from ``s`` used and left out, for the report (``used``: the samples it fitted, None for
+    the in-plane rows only)."""
+    pts = points_anywhere(s)
+    if pts is None:
+        return {"used": len(s), "of": len(s), "left_out": 0, "why": "every sample used"}
+    if used is None:
+        n_out = int(out_of_plane(pts).sum())
+        return {"used": len(s), "of": len(s) + n_out, "left_out": n_out,
+                "why": f"{method} is built from in-plane slices: it used the {len(s)} in-plane samples (azimuths 0 "
+                       f"and 180) and left out the {n_out} points out of the plane of incidence"}
+    left = len(pts) - len(used)
+    return {"used": len(used), "of": len(pts), "left_out": left,
+            "why": ("every point used" if left == 0 else
+                    f"at most {MAX_POINTS} points (time): every in-plane point and an even random subset of the "
+                    f"rest (seed 0)")}

@@ -98,7 +98,7 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
                    help="also write a Zemax tabular BSDF (PlaneSymmetrical BRDF, TIS per incidence) on the grid of "
                         "--zemax-incidences / --zemax-azimuths / --zemax-radials")
     g.add_argument("--zemax-incidences", metavar="DEGREES", default=None,
-                   help="Zemax output incidences, e.g. 0:80:10 (the default) or 0,15,30,45,60,75")
+                   help="Zemax output incidences, e.g. 0,15,30,45,60,75 (default: 0:45:5,50:87.5:2.5)")
     g.add_argument("--zemax-azimuths", metavar="DEGREES", default=None,
                    help="Zemax output azimuths about the specular direction, 0 to 180 (default 0:180:5)")
     g.add_argument("--zemax-radials", metavar="DEGREES", default=None,

@@ -442,13 +442,21 @@ def _bilinear(grid: Array, pos: Array) -> Array:
 
 
 class RGLTable:
-    """An isotropic RGB measured-material file, evaluated with numpy as Mitsuba 3's ``measured`` plugin does."""
+    """An isotropic measured-material file, evaluated with numpy as Mitsuba 3's ``measured`` plugin does: RGB
+    (field ``rgb``, our writer and the database's ``*_rgb.bsdf``) or spectral (fields ``spectra`` (n_phi, n_i, W,
+    n, n) and ``wavelengths`` (W,) in nm, the database's spectral files; ``channels`` are then ``"<nm>nm"``)."""
 
     def __init__(self, fields: Mapping[str, NDArray[Any]], source: str = "<memory>") -> None:
-        need = ("theta_i", "phi_i", "ndf", "sigma", "vndf", "luminance", "rgb", "jacobian")
+        spectral = "rgb" not in fields and "spectra" in fields
+        need = ("theta_i", "phi_i", "ndf", "sigma", "vndf", "jacobian") + (("spectra", "wavelengths") if spectral
+                                                                            else ("rgb",))
         missing = [k for k in need if k not in fields]
         if missing:
-            raise RGLError(f"{source}: not an RGB measured material: no field(s) {', '.join(missing)}")
+            raise RGLError(f"{source}: not a measured material: no field(s) {', '.join(missing)}")
+        values = np.asarray(fields["spectra" if spectral else "rgb"])
+        if values.ndim != 5 or values.shape[1] != np.asarray(fields["theta_i"]).size:
+            raise RGLError(f"{source}: field {'spectra' if spectral else 'rgb'} has shape {values.shape}; expected "
+                           f"(phi_i, theta_i = {np.asarray(fields['theta_i']).size}, channels, n, n)")
         if fields["phi_i"].shape[0] > 2:
             raise RGLError(f"{source}: anisotropic ({fields['phi_i'].shape[0]} phi_i); only isotropic files are "
                            f"evaluated")
@@ -458,10 +466,12 @@ class RGLTable:
         self.sigma = np.asarray(fields["sigma"], dtype=np.float64)[0]
         v = np.asarray(fields["vndf"], dtype=np.float64)[0]
         self.vndf = v / np.maximum(_cumulative(_cumulative(v)[..., -1])[:, -1], 1e-300)[:, None, None]
-        self.rgb = np.asarray(fields["rgb"], dtype=np.float64)[0]  # (n_i, 3, n_s, n_s)
+        self.rgb = values.astype(np.float64)[0]  # (n_i, C, n_s, n_s): 3 (RGB) or one per wavelength
         self.jacobian = bool(np.asarray(fields["jacobian"])[0])
         self.method = "rgl"
-        self.channels = ["R", "G", "B"]
+        self.wavelengths_nm = np.asarray(fields["wavelengths"], dtype=np.float64).ravel() if spectral else None
+        self.channels = ([f"{w:g}nm" for w in self.wavelengths_nm] if self.wavelengths_nm is not None
+                         else ["R", "G", "B"])
 
     @classmethod
     def read(cls, path: str | Path) -> RGLTable:
@@ -476,7 +486,7 @@ class RGLTable:
         return k, t
 
     def eval(self, wi: ArrayLike, wo: ArrayLike) -> Array:
-        """f_r (N, 3) in 1/sr (the renderer's value divided by cos theta_o); 0 below the horizon."""
+        """f_r (N, C) in 1/sr (the renderer's value divided by cos theta_o); 0 below the horizon."""
         wi = np.asarray(wi, dtype=np.float64).reshape(-1, 3)
         wo = np.asarray(wo, dtype=np.float64).reshape(-1, 3)
         up = (wi[:, 2] > 0) & (wo[:, 2] > 0)

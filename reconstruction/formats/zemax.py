@@ -72,9 +72,12 @@ SYMMETRIES = {"planesymmetrical": "PlaneSymmetrical", "asymmetrical": "Asymmetri
 RGB_TO_XYZ = np.array([[0.4124, 0.3576, 0.1805], [0.2126, 0.7152, 0.0722], [0.0193, 0.1192, 0.9505]])
 XYZ_TO_RGB = np.linalg.inv(RGB_TO_XYZ)
 
-#: the default output grid: incidences 0-80 deg every 10, azimuths 0-180 every 5 (plane-symmetric), radial
-#: angles fine near the specular direction (0.25 deg) and every 5 deg beyond 20 deg, to 180
-DEFAULT_INCIDENCES_DEG = np.arange(0.0, 81.0, 10.0)
+#: the default output grid: incidences every 5 deg to 50 and every 2.5 deg from 50 to 87.5 (a reader interpolates
+#: between incidences at a fixed azimuth and radial angle, which a lobe near grazing outruns: every 10 deg to 80
+#: left 19 % relative RMSE of f cos cos on a ggx alpha 0.15 lobe, this grid 1.8 %; benchmarks/bench_zemax_real.py),
+#: azimuths 0-180 every 5 (plane-symmetric), radial angles fine near the specular direction (0.25 deg) and every 5
+#: deg beyond 20 deg, to 180
+DEFAULT_INCIDENCES_DEG = np.concatenate([np.arange(0.0, 50.0, 5.0), np.arange(50.0, 88.0, 2.5)])
 DEFAULT_AZIMUTHS_DEG = np.arange(0.0, 181.0, 5.0)
 DEFAULT_RADIALS_DEG = np.concatenate([[0.0, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0],
                                       np.arange(10.0, 20.0, 2.0), np.arange(20.0, 181.0, 5.0)])

@@ -152,19 +152,29 @@ def names() -> tuple[str, ...]:
     return tuple(REGISTRY)
 
 
+def _used(rec: Reconstruction, s: Slice, used: Slice | None, method: str) -> Reconstruction:
+    """``rec`` with ``samples_left_out`` (the report's key of that name: what it used and left out, and why)."""
+    from reconstruction.core.samples import samples_used
+
+    rec.samples_left_out = samples_used(s, used, method)  # type: ignore[attr-defined]
+    return rec
+
+
 def _fit(s: Slice, o: Options, progress: Callable[[str], None] | None) -> Reconstruction:
     from reconstruction.core.samples import everywhere
     from reconstruction.methods.fit import reconstruct_fit
 
     opt = FitOptions(lobes=o.lobes)  # type: ignore[arg-type] # checked by reconstruct_fit, with its own message
-    return reconstruct_fit(everywhere(s), scene=o.scene, lobes=opt.lobes, progress=progress)
+    pts = everywhere(s)
+    return _used(reconstruct_fit(pts, scene=o.scene, lobes=opt.lobes, progress=progress), s, pts, "fit")
 
 
 def _microfacet(s: Slice, o: Options, progress: Callable[[str], None] | None) -> Reconstruction:
     from reconstruction.core.samples import everywhere
     from reconstruction.methods.microfacet import reconstruct_microfacet
 
-    return reconstruct_microfacet(everywhere(s))
+    pts = everywhere(s)
+    return _used(reconstruct_microfacet(pts), s, pts, "microfacet")
 
 
 def _revolve(s: Slice, o: Options, progress: Callable[[str], None] | None) -> Reconstruction:
@@ -175,14 +185,25 @@ def _revolve(s: Slice, o: Options, progress: Callable[[str], None] | None) -> Re
     kw: dict[str, Any] = {"axis": opt.axis, "fill": opt.fill, "reciprocal": True}
     if opt.smoothing is not None:
         kw["smoothing"] = opt.smoothing
-    return reconstruct_revolve(s, **kw)
+    return _used(reconstruct_revolve(s, **kw), s, None, "revolve")
 
 
 def _bivariate(s: Slice, o: Options, progress: Callable[[str], None] | None) -> Reconstruction:
+    from reconstruction.core.samples import everywhere, points_anywhere
     from reconstruction.methods.bivariate import reconstruct_bivariate
 
     opt = BivariateOptions(fill=o.fill, cos_power=o.cos_power)  # type: ignore[arg-type]
-    return reconstruct_bivariate(s, fill=opt.fill, cos_power=opt.cos_power)
+    if points_anywhere(s) is not None:  # samples anywhere: placed by (theta_h, theta_d, phi_d) on a grid
+        from reconstruction.methods.scattered import reconstruct_scattered
+
+        pts = everywhere(s)
+        rec = reconstruct_scattered(pts)
+        ignored = [k for k, v in (("--fill zero", opt.fill == "zero"), ("--cos-power", opt.cos_power is not None))
+                   if v]
+        if ignored:
+            rec.info["notes"] = [f"{', '.join(ignored)}: for in-plane slices only; not used on points anywhere"]
+        return _used(rec, s, pts, "bivariate")
+    return _used(reconstruct_bivariate(s, fill=opt.fill, cos_power=opt.cos_power), s, None, "bivariate")
 
 
 def _prior(s: Slice, o: Options, progress: Callable[[str], None] | None) -> Reconstruction:
@@ -198,10 +219,10 @@ def _prior(s: Slice, o: Options, progress: Callable[[str], None] | None) -> Reco
                                   "completed with")
     rec = reconstruct_prior(s, opt.prior, exclude=tuple(o.prior_exclude))
     if opt.anchor <= 0.0:
-        return rec
+        return _used(rec, s, None, "prior")
     from reconstruction.methods.prior import AnchoredPrior
 
-    return AnchoredPrior(rec, _bivariate(s, o, None), opt.anchor)
+    return _used(AnchoredPrior(rec, _bivariate(s, o, None), opt.anchor), s, None, "prior")
 
 
 register(Method("fit", "analytic lobes (lambert, ggx/beckmann with Fresnel, retro) chosen by BIC, energy-constrained",

@@ -5,6 +5,9 @@ exactly and can still be far off elsewhere), so methods are compared on samples 
 
 * slices at several incidences: **leave-one-incidence-out**, each incidence predicted from the others (with more
   than ``n_blocks`` incidences, ``n_blocks`` groups of neighbouring incidences, each predicted from the rest);
+* points anywhere on the hemisphere (a Zemax or RGL file: :class:`~reconstruction.core.samples.PointFolds`, which
+  ``auto`` cross-validates on instead of the in-plane rows): the same folds over whole incidences, every point of
+  an incidence held out together and predicted from the points of the others;
 * one incidence: **held-out contiguous blocks of theta_o**: the whole forward side beyond the specular peak as
   one block (it lies on theta_d = theta_i + theta_h, so predicting it from the rest tests the extrapolation in
   theta_d that the table needs at every other incidence) and the backward side in ``n_blocks`` - 1 blocks of
@@ -33,7 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from reconstruction.base import Reconstruction, ReconstructionError
-from reconstruction.core.geometry import inplane_to_dirs
+from reconstruction.core.samples import sample_directions
 from reconstruction.formats.slicefile import Slice
 
 Array = NDArray[np.float64]
@@ -106,9 +109,9 @@ def noise_level(s: Slice, score_mask: NDArray[np.bool_] | None = None) -> float:
     """The held-out error a perfect model would have: the relative RMSE of f cos cos that the samples' own standard
     deviations (of the mean) amount to, pooled as :func:`cross_validate` pools its error (0 without std)."""
     f, sd = s.brdf()
+    wi, wo = sample_directions(s)
     if score_mask is not None:
-        f, sd, s = f[score_mask], sd[score_mask], s.take(score_mask)
-    wi, wo = inplane_to_dirs(np.radians(s.theta_i_deg), np.radians(s.theta_o_deg))
+        f, sd, wi, wo = f[score_mask], sd[score_mask], wi[score_mask], wo[score_mask]
     c = (np.clip(wi[:, 2], 0, None) * np.clip(wo[:, 2], 0, None))[:, None]
     den = float(np.sum((f * c) ** 2))
     return math.sqrt(float(np.sum((np.nan_to_num(sd) * c) ** 2)) / den) if den > 0 else 0.0
@@ -128,7 +131,7 @@ def cross_validate(s: Slice, name: str, build: Callable[[Slice], Reconstruction]
     """Held-out error of ``build`` (a function of the training slice) over the folds ``masks``; with
     ``score_mask`` only the held-out samples inside it count (a scene's directions)."""
     f, _ = s.brdf()
-    wi, wo = inplane_to_dirs(np.radians(s.theta_i_deg), np.radians(s.theta_o_deg))
+    wi, wo = sample_directions(s)  # in-plane, or anywhere for points (reconstruction.core.samples.PointFolds)
     t0 = time.perf_counter()
     held_pred = np.full(f.shape, np.nan)
     for k, held in enumerate(masks):  # a handful of folds
@@ -153,7 +156,7 @@ def score_predictions(s: Slice, name: str, pred: Array, masks: list[NDArray[np.b
     sample was never held out): pooled and per fold as :func:`cross_validate` scores them. Scores a combination
     of methods (e.g. a blend of two methods' held-out predictions) without fitting again."""
     f, _ = s.brdf()
-    wi, wo = inplane_to_dirs(np.radians(s.theta_i_deg), np.radians(s.theta_o_deg))
+    wi, wo = sample_directions(s)  # in-plane, or anywhere for points (reconstruction.core.samples.PointFolds)
     c = (np.clip(wi[:, 2], 0, None) * np.clip(wo[:, 2], 0, None))[:, None]
     pred = np.broadcast_to(np.asarray(pred, dtype=np.float64), f.shape)
     num = den = 0.0

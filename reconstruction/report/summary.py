@@ -126,6 +126,8 @@ def build_report(*, rec: Reconstruction, choice: dict[str, Any], working: Slice,
         "timings_s": {k: round(v, 4) for k, v in timings.items()},
         "details": {k: v for k, v in details.items() if k not in ("parameters", "residuals", "method")},
     }
+    if getattr(rec, "samples_left_out", None) is not None:  # what the method used of the input and left out, why
+        rep["samples_left_out"] = rec.samples_left_out  # type: ignore[attr-defined]
     if "cross_validation" in choice:
         rep["cross_validation"] = choice["cross_validation"]
     return _json_safe(rep)

@@ -36,6 +36,8 @@ def _extensions(best: tuple[LobeSpec, ...], allowed: set[str]) -> list[tuple[Lob
             out.append(with_f + (LobeSpec("retro"),))
     if "lambert" in allowed and not any(s.kind == "lambert" for s in best):
         out.append((LobeSpec("lambert"),) + best)
+        if has_mf and "fresnel" in allowed:  # a stage-1 lambert + lobe may have stopped short of a Fresnel rise
+            out.append((LobeSpec("lambert"),) + with_f)
     return out
 
 

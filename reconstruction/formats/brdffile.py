@@ -1,0 +1,221 @@
+"""Any BRDF file we read, as a function f(wi, wo) -> (N, C), and as samples for a reconstruction.
+
+:func:`load_brdf` recognises a file by its content (then its name):
+
+* an RGL ``.bsdf`` tensor file (the RGL material database's isotropic files, spectral or RGB, and our own
+  ``--rgl`` output): evaluated as Mitsuba 3's ``measured`` plugin does (:class:`~reconstruction.formats.rgl.RGLTable`);
+* a Zemax tabular BSDF text file: its grid interpolated (trilinear in incidence, azimuth and radial angle about
+  the specular direction, the incidence clamped to the file's range; :func:`zemax_brdf`);
+* a MERL table (``.binary``): trilinear interpolation between bin centres
+  (:func:`reconstruction.formats.merl.brdf_of`);
+* a neural BRDF (``NAME_fc1.npy`` ... ``NAME_b3.npy``, or the prefix ``NAME``):
+  :class:`~reconstruction.core.models.Nbrdf`;
+* a material file (``.toml``, :meth:`~reconstruction.core.models.Material.from_toml`).
+
+Directions are unit vectors (N, 3) in the local frame (z = normal), wi towards the light; values f_r in 1/sr, 0
+below the horizon. Spectral files give linear sRGB with ``rgb=True`` (the default: CIE 1931 2 deg, D65,
+:func:`reconstruction.core.colour.spectra_to_rgb`), their wavelengths as channels otherwise.
+
+:func:`load_inputs` makes an RGL file an input of ``gonio-reconstruct``: the BRDF sampled as a hemispherical
+instrument would (:data:`SAMPLE_INCIDENCES_DEG` x the Zemax default azimuths and radial angles), its in-plane rows
+for every method and every point for the methods that use points anywhere.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.interpolate import RegularGridInterpolator
+
+from reconstruction.base import ReconstructionError
+from reconstruction.core.geometry import inplane_to_dirs
+from reconstruction.core.samples import SliceWithPoints, directional_slice
+from reconstruction.formats import merl, rgl, zemax
+from reconstruction.formats.inputs import LoadedInput
+
+Array = NDArray[np.float64]
+
+__all__ = ["BRDFFileError", "LoadedBRDF", "load_brdf", "zemax_brdf", "is_rgl", "load_inputs", "sample_brdf",
+           "SAMPLE_INCIDENCES_DEG"]
+
+#: incidences (deg) at which an RGL input is sampled (azimuths and radial angles: the Zemax default grid)
+SAMPLE_INCIDENCES_DEG = np.arange(0.0, 81.0, 5.0)
+#: in-plane outgoing angles (deg) of an RGL input's slices
+SAMPLE_THETA_O_DEG = np.arange(-85.0, 85.5, 1.0)
+
+
+class BRDFFileError(ReconstructionError):
+    """A file is not a BRDF we read; the message names the file and what was expected."""
+
+
+@dataclass
+class LoadedBRDF:
+    """A BRDF read from a file: call it (or ``eval``) with wi, wo (N, 3) for f_r (N, C) in 1/sr."""
+
+    f: Callable[[Array, Array], ArrayLike]
+    channels: list[str]
+    source: str
+    kind: str  # "rgl", "zemax", "merl", "nbrdf" or "material"
+
+    def __call__(self, wi: ArrayLike, wo: ArrayLike) -> Array:
+        wi = np.asarray(wi, dtype=np.float64).reshape(-1, 3)
+        wo = np.asarray(wo, dtype=np.float64).reshape(-1, 3)
+        v = np.asarray(self.f(wi, wo), dtype=np.float64).reshape(wi.shape[0], -1)
+        up = (wi[:, 2] > 0) & (wo[:, 2] > 0)
+        return np.where(up[:, None], v, 0.0)
+
+    eval = __call__
+
+
+def is_rgl(path: str | Path) -> bool:
+    """True for a regular file that starts with the tensor-file header."""
+    p = Path(path)
+    if not p.is_file():
+        return False
+    try:
+        with open(p, "rb") as fh:
+            return fh.read(len(rgl.TENSOR_MAGIC)) == rgl.TENSOR_MAGIC
+    except OSError:
+        return False
+
+
+def _nbrdf_prefix(path: Path) -> str | None:
+    name = str(path)
+    for suffix in ("fc1", "b1", "fc2", "b2", "fc3", "b3"):
+        if name.endswith(f"_{suffix}.npy"):
+            return name[: -len(f"_{suffix}.npy")]
+    return name if Path(f"{name}_fc1.npy").is_file() else None
+
+
+def _to_rgb(f: Callable[[Array, Array], ArrayLike], wavelengths_nm: Array) -> Callable[[Array, Array], Array]:
+    from reconstruction.core.colour import spectral_to_rgb_matrix
+
+    m = spectral_to_rgb_matrix(wavelengths_nm)
+    return lambda wi, wo: np.asarray(f(wi, wo), dtype=np.float64) @ m
+
+
+def zemax_brdf(z: zemax.ZemaxBSDF) -> tuple[Callable[[Array, Array], Array], list[str]]:
+    """(f, channels) of a Zemax file's values: trilinear in (incidence, azimuth, radial) (degrees), azimuths closed
+    over 360 deg (plane-symmetric files mirrored), the incidence clamped to the file's range; grey or linear sRGB."""
+    az, v = z.full_azimuths()
+    vals, channels = zemax.ZemaxBSDF(z.symmetry, z.spectral_content, z.scatter_type, z.sample_rotation_deg,
+                                     z.incidence_deg, az, z.radial_deg, v, z.tis, z.channels).rgb_values()
+    if az[-1] - az[0] < 360.0 - 1e-9:  # close the circle
+        az = np.concatenate([az, [az[0] + 360.0]])
+        vals = np.concatenate([vals, vals[:, :, :1]], axis=2)
+    inc = z.incidence_deg
+    if inc.size == 1:  # a single incidence: constant in theta_i
+        inc = np.array([inc[0], inc[0] + 1e-6])
+        vals = np.concatenate([vals, vals], axis=1)
+    interp = RegularGridInterpolator((inc, az, z.radial_deg), np.moveaxis(vals, 0, -1), bounds_error=False,
+                                     fill_value=None)
+    lo, hi = float(inc[0]), float(inc[-1])
+
+    def f(wi: Array, wo: Array) -> Array:
+        phi = np.arctan2(wi[:, 1], wi[:, 0]) - np.pi  # rotate wi onto the -x side of the x-z plane
+        c, s = np.cos(-phi), np.sin(-phi)
+        rot = lambda w: np.stack([c * w[:, 0] - s * w[:, 1], s * w[:, 0] + c * w[:, 1], w[:, 2]], -1)  # noqa: E731
+        t, a, r = zemax.zemax_angles(rot(wi), rot(wo))
+        a = np.clip(a, az[0], az[-1])
+        return np.maximum(interp(np.stack([np.clip(t, lo, hi), a, r], -1)), 0.0)
+
+    return f, channels
+
+
+def load_brdf(path: str | Path, *, rgb: bool = True) -> LoadedBRDF:
+    """The BRDF of any file we read (module docstring) as a :class:`LoadedBRDF` f(wi, wo) -> (N, C) in 1/sr.
+
+    ``rgb``: spectral files in linear sRGB (default) or in their own wavelengths. :class:`BRDFFileError` (one line
+    naming the file) for anything else."""
+    from reconstruction.core.models import Material, MaterialError, Nbrdf
+
+    p = Path(path)
+    prefix = _nbrdf_prefix(p) if p.suffix in (".npy", "") else None
+    if prefix is not None:
+        try:
+            lobe = Nbrdf(path=prefix)
+            lobe._weights()
+        except MaterialError as e:
+            raise BRDFFileError(str(e)) from None
+        return LoadedBRDF(lambda wi, wo: lobe.eval(wi, wo, 3), ["R", "G", "B"], str(p), "nbrdf")
+    if not p.is_file():
+        raise BRDFFileError(f"{p}: no such file (expected a BRDF file: RGL .bsdf, Zemax .bsdf, MERL .binary, NBRDF "
+                            f".npy or material .toml)")
+    if is_rgl(p):
+        t = rgl.RGLTable.read(p)
+        if t.wavelengths_nm is not None and rgb:
+            return LoadedBRDF(_to_rgb(t.eval, t.wavelengths_nm), ["R", "G", "B"], str(p), "rgl")
+        return LoadedBRDF(t.eval, list(t.channels), str(p), "rgl")
+    if zemax.is_zemax(p):
+        f, channels = zemax_brdf(zemax.read(p))
+        return LoadedBRDF(f, channels, str(p), "zemax")
+    if p.suffix == ".toml":
+        try:
+            mat = Material.from_toml(p)
+        except MaterialError as e:
+            raise BRDFFileError(str(e)) from None
+        if mat.wavelengths_nm is not None and rgb:
+            return LoadedBRDF(_to_rgb(mat.eval, np.asarray(mat.wavelengths_nm)), ["R", "G", "B"], str(p),
+                              "material")
+        ch = (["value"] if mat.n_channels == 1 else ["R", "G", "B"] if mat.wavelengths_nm is None
+              else [f"{w:g}nm" for w in mat.wavelengths_nm])
+        return LoadedBRDF(mat.eval, ch, str(p), "material")
+    if p.stat().st_size == merl.FILE_SIZE:
+        try:
+            table = merl.read(p)
+        except (merl.MerlError, OSError) as e:
+            raise BRDFFileError(f"{p}: {e}") from None
+        return LoadedBRDF(merl.brdf_of(table, interpolate=True), ["R", "G", "B"], str(p), "merl")
+    raise BRDFFileError(f"{p}: not a BRDF file we read (expected an RGL tensor file, a Zemax tabular BSDF, a MERL "
+                        f"table of {merl.FILE_SIZE:,} bytes, an NBRDF NAME_fc1.npy set or a material .toml)")
+
+
+def sample_brdf(b: LoadedBRDF, incidence_deg: ArrayLike = SAMPLE_INCIDENCES_DEG,
+                azimuth_deg: ArrayLike = zemax.DEFAULT_AZIMUTHS_DEG, radial_deg: ArrayLike = zemax.DEFAULT_RADIALS_DEG,
+                theta_o_deg: ArrayLike = SAMPLE_THETA_O_DEG, max_theta_o_deg: float = 89.0) -> SliceWithPoints:
+    """The BRDF ``b`` sampled as an instrument would: in-plane slices at ``incidence_deg`` x ``theta_o_deg`` for
+    every method, carrying the points of a Zemax grid (incidence x azimuth x radial, degrees) above the horizon
+    (within ``max_theta_o_deg``) for the methods that use points anywhere."""
+    inc = np.asarray(incidence_deg, dtype=np.float64)
+    ti, to = np.meshgrid(inc, np.asarray(theta_o_deg, dtype=np.float64), indexing="ij")
+    ti, to = ti.ravel(), to.ravel()
+    meta = {"quantity": "brdf", "source_kind": f"{b.kind} file sampled"}
+    f_in = b(*inplane_to_dirs(np.radians(ti), np.radians(to)))
+    s = SliceWithPoints(ti, to, f_in, list(b.channels), meta=meta, source=b.source)
+    wi, wo = zemax.scatter_directions(inc[:, None, None], np.asarray(azimuth_deg)[None, :, None],
+                                      np.asarray(radial_deg)[None, None, :])
+    up = wo[..., 2] > np.cos(np.radians(max_theta_o_deg))
+    s.points = directional_slice(wi[up], wo[up], b(wi[up], wo[up]), list(b.channels), meta=meta, source=b.source)
+    return s
+
+
+def load_inputs(paths: Sequence[str | Path], quantity: str | None = None, columns: str | None = None
+                ) -> LoadedInput | None:
+    """The gonio-reconstruct inputs as a :class:`~reconstruction.formats.inputs.LoadedInput` if they are an RGL
+    tensor file (sampled by :func:`sample_brdf`, spectral files in their wavelengths), None if none of them is."""
+    found = [p for p in paths if is_rgl(p)]
+    if not found:
+        return None
+    if len(paths) > 1:
+        raise BRDFFileError(f"{found[0]}: an RGL file is read on its own (it holds every incidence); got "
+                            f"{len(paths)} inputs")
+    if quantity not in (None, "brdf"):
+        raise BRDFFileError(f"{found[0]}: an RGL file holds f_r (1/sr); --quantity {quantity} does not apply")
+    if columns:
+        raise BRDFFileError(f"{found[0]}: --columns applies to generic CSV tables, not to an RGL file")
+    try:
+        b = load_brdf(found[0], rgb=False)
+    except rgl.RGLError as e:
+        raise BRDFFileError(str(e)) from None
+    s = sample_brdf(b)
+    assert s.points is not None
+    note = (f"{found[0]}: RGL measured material ({len(b.channels)} channels), evaluated as Mitsuba 3's measured "
+            f"plugin does and sampled at incidences {SAMPLE_INCIDENCES_DEG[0]:g}-{SAMPLE_INCIDENCES_DEG[-1]:g} deg "
+            f"every {SAMPLE_INCIDENCES_DEG[1] - SAMPLE_INCIDENCES_DEG[0]:g}: {len(s)} in-plane samples for every "
+            f"method, {len(s.points)} points above the horizon (Zemax default azimuths and radial angles) for the "
+            f"methods that use points anywhere")
+    return LoadedInput(s, [str(found[0])], ["brdf"], 0, [note])
