@@ -421,7 +421,8 @@ def _main(ap: argparse.ArgumentParser, args: argparse.Namespace) -> int:
                   f"cosl2 {u['expected_cosl2']:.1%}", file=sys.stderr)
         if "advice" in rep:
             a = rep["advice"]
-            print(f"{PROG}: advice: measure theta_i = {a['recommended_theta_i_deg']:g} deg next", file=sys.stderr)
+            print(f"{PROG}: advice: " + (f"measure theta_i = {a['recommended_theta_i_deg']:g} deg next"
+                                         if a["recommended_theta_i_deg"] is not None else a["note"]), file=sys.stderr)
             for cand in a["candidates"]:
                 print(f"  theta_i {cand['theta_i_deg']:4g} deg: expected PSNR {cand['expected_psnr_db']:5.1f} dB, "
                       f"cosl2 {cand['expected_cosl2']:6.1%}, bench time {cand['bench_time_s']:5.1f} s",

@@ -97,6 +97,34 @@ def test_the_advice_follows_the_bench_limits_and_a_budget(one_slice, tmp_path):
         advice.bench_limits(bad)
 
 
+def test_the_advice_says_when_every_reachable_incidence_is_measured(one_slice, tmp_path):
+    # a hemispherical file, or slices at every step the bench reaches: a note, not a refusal of the whole run
+    s, rec, (_, section, ref, sg, f_grid) = one_slice
+    bench = tmp_path / "bench.toml"
+    bench.write_text("[axes.light]\nmin_deg = 15.0\nmax_deg = 25.0\n", encoding="utf-8")
+    lim = advice.bench_limits(bench)
+    s2 = synthetic_slice(PLASTIC, (15.0, 20.0, 25.0)).sorted()
+    a = advice.advise(s2, ref, lim, current=section, sigma_now=sg, f_grid=f_grid)
+    assert a["recommended_theta_i_deg"] is None and a["candidates"] == []
+    assert "measured already" in a["note"] and "15 to 25 deg" in a["note"]
+
+
+def test_the_prior_leaves_out_samples_beyond_its_cells(cache):
+    # samples at 87.5 deg read as the 81 deg cells' f cos cos put the misfit (and so sigma) at about 1 in ln; the
+    # prior fits what its basis holds and says how many it left out
+    near = synthetic_slice(PLASTIC, (20.0, 45.0)).sorted()
+    grazing = synthetic_slice(PLASTIC, (20.0, 45.0, 87.5)).sorted()
+    r_near = prior.reconstruct_prior(near, uncertainty.analytic_prior())
+    r_all = prior.reconstruct_prior(grazing, uncertainty.analytic_prior())
+    n_beyond = int(np.sum((grazing.theta_i_deg > 81.0) | (np.abs(grazing.theta_o_deg) > 81.0)))
+    assert n_beyond > 0
+    assert any(f"{n_beyond} samples beyond 81 deg" in n for n in r_all.info["notes"]), r_all.info["notes"]
+    assert r_all.posterior["misfit"] < 2.0 * r_near.posterior["misfit"] + 0.02, (r_all.posterior["misfit"],
+                                                                                r_near.posterior["misfit"])
+    with pytest.raises(Exception, match="beyond 81 deg"):
+        prior.reconstruct_prior(synthetic_slice(PLASTIC, (85.0,)).sorted(), uncertainty.analytic_prior())
+
+
 def test_the_command_writes_the_sigma_array_and_the_report_sections(tmp_path, cache):
     s = synthetic_slice(PLASTIC, (30.0,))
     path = tmp_path / "s.csv"

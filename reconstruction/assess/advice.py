@@ -131,8 +131,10 @@ def advise(s: Slice, ref: P.PriorReconstruction, limits: BenchLimits, budget_s: 
     thetas = [float(t) for t in np.arange(np.ceil(lo / STEP_DEG) * STEP_DEG, hi + 1e-9, STEP_DEG)]
     measured = set(np.round(np.unique(s.theta_i_deg), 6).tolist())
     thetas = [t for t in thetas if round(t, 6) not in measured]
-    if not thetas:
-        raise ReconstructionError("--advise: every incidence the bench can reach is measured already")
+    if not thetas:  # a hemispherical file, or slices at every step: nothing to advise, said rather than refused
+        return {"recommended_theta_i_deg": None, "candidates": [], "bench": limits.source, "current": current,
+                "note": f"every incidence the bench can reach ({lo:g} to {hi:g} deg, every {STEP_DEG:g} deg) is "
+                        "measured already"}
     slices = [candidate_slice(t, limits, list(s.channels)) for t in thetas]
     sig = np.stack([_sigma_after(ref, c, sigma_now) for c in slices])
     exp = expected_errors(f, sig)

@@ -113,10 +113,11 @@ def sigma_grid(rec: Any, ref: P.PriorReconstruction) -> Array:
 
 def cell_classes(s: Slice) -> NDArray[np.int8]:
     """(90, 90, 180) MERL cells: 0 measured, 1 interpolated, 2 extrapolated (module doc), from the samples of
-    ``s`` (any sample set with theta_i_deg, theta_o_deg, in-plane)."""
-    from reconstruction.core.geometry import half_diff_from_dirs, inplane_to_dirs
+    ``s`` (in-plane rows, or every point it carries: :func:`~reconstruction.core.samples.everywhere`)."""
+    from reconstruction.core.geometry import half_diff_from_dirs
+    from reconstruction.core.samples import everywhere, sample_directions
 
-    wi, wo = inplane_to_dirs(np.radians(s.theta_i_deg), np.radians(s.theta_o_deg))
+    wi, wo = sample_directions(everywhere(s))
     th, _, td, pd = half_diff_from_dirs(wi, wo)
     ih = merl.theta_h_index(th)
     idd = np.clip((np.degrees(td)).astype(int), 0, 89)

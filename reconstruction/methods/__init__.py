@@ -217,12 +217,14 @@ def _prior(s: Slice, o: Options, progress: Callable[[str], None] | None) -> Reco
         raise ReconstructionError("method prior needs --prior DIR: a folder of measured materials (NBRDF npy sets, "
                                   "MERL .binary tables or material TOML files) whose structure the slice is "
                                   "completed with")
-    rec = reconstruct_prior(s, opt.prior, exclude=tuple(o.prior_exclude))
+    from reconstruction.core.samples import everywhere
+
+    rec = reconstruct_prior(s, opt.prior, exclude=tuple(o.prior_exclude))  # on every point (everywhere(s))
     if opt.anchor <= 0.0:
-        return _used(rec, s, None, "prior")
+        return _used(rec, s, everywhere(s), "prior")
     from reconstruction.methods.prior import AnchoredPrior
 
-    return _used(AnchoredPrior(rec, _bivariate(s, o, None), opt.anchor), s, None, "prior")
+    return _used(AnchoredPrior(rec, _bivariate(s, o, None), opt.anchor), s, everywhere(s), "prior")
 
 
 register(Method("fit", "analytic lobes (lambert, ggx/beckmann with Fresnel, retro) chosen by BIC, energy-constrained",
