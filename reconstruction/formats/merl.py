@@ -51,6 +51,7 @@ __all__ = [
     "valid_mask",
     "lookup",
     "brdf_of",
+    "lookup_cells",
     "tabulate",
 ]
 
@@ -276,7 +277,43 @@ def brdf_of(table: ArrayLike, interpolate: bool = True) -> Callable[[Array, Arra
     def f(wi: Array, wo: Array) -> Array:
         return np.nan_to_num(lookup(t, wi, wo, interpolate=interpolate), nan=0.0)
 
+    # what the renderer needs to render the table as one sparse product (reconstruction.core.render): the table,
+    # and each pair's cells and weights, the same lookup as ``f``
+    f.table = t  # type: ignore[attr-defined]
+    f.table_cells = lambda wi, wo: lookup_cells(wi, wo, interpolate)  # type: ignore[attr-defined]
+    f.table_lookup = "merl-interpolated" if interpolate else "merl-nearest"  # type: ignore[attr-defined]
     return f
+
+
+def lookup_cells(wi: ArrayLike, wo: ArrayLike, interpolate: bool = True) -> tuple[NDArray[np.intp], Array]:
+    """The cells and weights of :func:`lookup` at direction pairs (N, 3): flat indices into a channel of the
+    table ((90, 90, 180) raveled) and their weights, both (N, 8) (trilinear; (N, 1) and weight 1 for the
+    nearest cell). :func:`lookup` is sum(w t[idx]) / sum(w) over the finite cells; pairs below the horizon have
+    weight 0."""
+    wi = np.asarray(wi, dtype=np.float64).reshape(-1, 3)
+    wo = np.asarray(wo, dtype=np.float64).reshape(-1, 3)
+    th, _, td, pd = half_diff_from_dirs(wi, wo)
+    above = ((wi[:, 2] > 0) & (wo[:, 2] > 0)).astype(np.float64)
+    if not interpolate:
+        idx = (theta_h_index(th) * N_TD + theta_d_index(td)) * N_PD + phi_d_index(pd)
+        return idx[:, None], above[:, None]
+    xh, xd, xp = _continuous_index(th, td, pd)
+    xh = np.clip(xh, 0.0, N_TH - 1.0)
+    xd = np.clip(xd, 0.0, N_TD - 1.0)
+    ih = np.minimum(np.floor(xh).astype(np.intp), N_TH - 2)
+    idd = np.minimum(np.floor(xd).astype(np.intp), N_TD - 2)
+    ip = np.floor(xp).astype(np.intp)  # in [-1, 179]
+    fh, fd, fp = xh - ih, xd - idd, xp - ip
+    idx = np.empty((th.size, 8), dtype=np.intp)
+    w = np.empty((th.size, 8))
+    k = 0
+    for a in (0, 1):  # the 8 corners of the interpolation cube, in lookup's order
+        for b in (0, 1):
+            for c in (0, 1):
+                idx[:, k] = ((ih + a) * N_TD + idd + b) * N_PD + (ip + c) % N_PD
+                w[:, k] = (fh if a else 1.0 - fh) * (fd if b else 1.0 - fd) * (fp if c else 1.0 - fp) * above
+                k += 1
+    return idx, w
 
 
 # --- tabulation ------------------------------------------------------------------------------------------
