@@ -151,9 +151,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="revolve: axis of each sub-curve, vertical through its highest point or its first principal "
                          "component (auto: chosen per sub-curve)")
     ap.add_argument("--smoothing", type=_nonneg_float, default=None, help="revolve: smoothing (passed through)")
-    ap.add_argument("--prior", metavar="DIR", default=None,
+    ap.add_argument("--prior", metavar="DIR", default=None, action="append",
                     help="folder of measured materials (NBRDF npy sets, MERL .binary tables or material TOML files): "
-                         "--method prior completes the slices from their structure; auto also tries it")
+                         "--method prior completes the slices from their structure; auto also tries it. Repeat it, "
+                         f"or join folders with '{os.pathsep}', for a prior of several folders")
     ap.add_argument("--prior-anchor", type=_unit_float, default=0.0, metavar="A",
                     help="method prior: blend its completion with the samples' bivariate interpolation, f = "
                          "f_prior^(1-A) f_bivariate^A (0: the prior alone, the default; auto scores 0, 0.25 and "
@@ -195,7 +196,7 @@ def job_from_args(args: argparse.Namespace, **overrides: Any) -> Job:
         html=args.html if isinstance(getattr(args, "html", None), str) else None,
         **{k: getattr(args, k, None) for k in ("rgl", "zemax", "zemax_incidences", "zemax_azimuths", "zemax_radials",
                                               "export_mitsuba", "export_json")},
-        preview_renderer=getattr(args, "preview_renderer", None) or "builtin", prior=getattr(args, "prior", None),
+        preview_renderer=getattr(args, "preview_renderer", None) or "builtin", prior=_prior_arg(args),
         prior_anchor=float(getattr(args, "prior_anchor", 0.0) or 0.0))
     fields.update(overrides)
     return Job(**fields)
@@ -332,6 +333,12 @@ def _os_error(e: OSError) -> str:
     if is_no_space(e):
         what += " (the disk is full: free some space and run again; nothing was left half-written)"
     return f"{where}{what}"
+
+
+def _prior_arg(args: argparse.Namespace) -> str | None:
+    """--prior's folders (repeated, or already joined by os.pathsep) as one os.pathsep-joined string."""
+    p = getattr(args, "prior", None)
+    return os.pathsep.join(p) if isinstance(p, list) else p
 
 
 def main(argv: list[str] | None = None) -> int:
