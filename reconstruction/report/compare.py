@@ -63,6 +63,7 @@ LIGHTINGS = ("key", "rim")
 N_PAIRS = 200_000  # direction pairs of cosl2 and the log error (their sampling noise is far below 1 %)
 MAX_THETA_DEG = 80.0
 GRAZING_THETA_D_DEG = 60.0
+RGL_CHUNK = 4096  # pairs per evaluation of an RGL file (each holds its incidence's grid: a few MB per pair block)
 EXPECTED = ("expected a MERL .binary table, an RGL .bsdf file, a material .toml or a neural-BRDF npy set "
             f"(PREFIX, PREFIX_fc1.npy or a folder holding one set of PREFIX_{{{','.join(NBRDF_SUFFIXES)}}}.npy)")
 
@@ -105,6 +106,20 @@ class Brdf:
         return self._tabulated
 
 
+def _chunked(f: BRDF, n: int) -> BRDF:
+    """``f`` evaluated ``n`` pairs at a time (a BRDF whose evaluation holds per-pair grids in memory)."""
+
+    def g(wi: Array, wo: Array) -> Array:
+        wi = np.asarray(wi, dtype=np.float64).reshape(-1, 3)
+        wo = np.asarray(wo, dtype=np.float64).reshape(-1, 3)
+        if wi.shape[0] <= n:
+            return np.asarray(f(wi, wo), dtype=np.float64).reshape(wi.shape[0], -1)
+        return np.concatenate([np.asarray(f(wi[k:k + n], wo[k:k + n]), dtype=np.float64).reshape(-1, 3)
+                               for k in range(0, wi.shape[0], n)])  # blocks, for memory
+
+    return g
+
+
 def _nbrdf_prefix(p: Path) -> Path | None:
     """The prefix of the neural-BRDF set that ``p`` names (the prefix, one of its files, or a folder holding one
     set), or None."""
@@ -133,7 +148,7 @@ def load_brdf(path: str | Path) -> Brdf:
             from reconstruction.formats.rgl import RGLTable
 
             rgl = RGLTable.read(p)
-            return Brdf(p.name, "rgl", rgl.eval)
+            return Brdf(p.name, "rgl", _chunked(rgl.eval, RGL_CHUNK))
         if suffix == ".toml":
             mat = Material.from_toml(p)
             if mat.n_channels not in (1, 3):
