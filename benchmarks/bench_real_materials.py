@@ -321,7 +321,7 @@ def write_sheet(path: Path, images: dict[str, dict[str, dict[str, np.ndarray]]],
                 fig_txt = (f"{r[f'psnr_{light}_db']:.1f} dB, {r[f'linear_{light}'] * 100:.0f} %" if r else "")
                 ax.set_title(f"{what} slice(s) ({light})\n{fig_txt}", fontsize=6)
     fig.suptitle(f"{method}: truth and reconstruction from 1 slice (40 deg) and 2 slices (40/70 deg)", fontsize=9)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0.0, 0.0, 1.0, 1.0 - 0.4 / fig.get_figheight()))  # room for the title
     fig.savefig(path, dpi=90)
     plt.close(fig)
 
