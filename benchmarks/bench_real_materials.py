@@ -393,8 +393,8 @@ images (the energy errors that tone mapping clips). `gonio-compare A B` prints t
 {n_mat} materials of `../shared/realdata` (neural-BRDF fits of MERL, RGL-EPFL and Nielsen measurements), sliced
 as a bench measures them: theta_o from -80 to 80 deg every 2 deg, the blind spot |theta_i + theta_o| < 4 deg
 left out. `prior` and `auto+prior` complete each material from a prior of the **other** materials of the run
-(leave-one-out; both folders, or the 48 of `nbrdf-merl` with `--quick`); `auto` runs without a prior; `constant` is a constant f (the median of the samples), the
-baseline. {floor_txt}
+(leave-one-out; both folders, or the 48 of `nbrdf-merl` with `--quick`); `auto` runs without a prior;
+`constant` is a constant f (the median of the samples), the baseline. {floor_txt}
 
 {chr(10).join(_table(records, methods, modes))}
 
