@@ -196,7 +196,7 @@ def job_from_args(args: argparse.Namespace, **overrides: Any) -> Job:
         html=args.html if isinstance(getattr(args, "html", None), str) else None,
         **{k: getattr(args, k, None) for k in ("rgl", "zemax", "zemax_incidences", "zemax_azimuths", "zemax_radials",
                                               "export_mitsuba", "export_json")},
-        preview_renderer=getattr(args, "preview_renderer", None) or "builtin", prior=_prior_arg(args),
+        preview_renderer=getattr(args, "preview_renderer", None) or "builtin", prior=getattr(args, "prior", None),
         prior_anchor=float(getattr(args, "prior_anchor", 0.0) or 0.0))
     fields.update(overrides)
     return Job(**fields)
@@ -335,15 +335,11 @@ def _os_error(e: OSError) -> str:
     return f"{where}{what}"
 
 
-def _prior_arg(args: argparse.Namespace) -> str | None:
-    """--prior's folders (repeated, or already joined by os.pathsep) as one os.pathsep-joined string."""
-    p = getattr(args, "prior", None)
-    return os.pathsep.join(p) if isinstance(p, list) else p
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
+    if isinstance(args.prior, list):  # --prior repeated: one os.pathsep-joined list of folders
+        args.prior = os.pathsep.join(args.prior)
     from reconstruction.cliutil import plain_warnings
 
     try:
