@@ -152,9 +152,10 @@ def build_parser() -> argparse.ArgumentParser:
                     help="revolve: axis of each sub-curve, vertical through its highest point or its first principal "
                          "component (auto: chosen per sub-curve)")
     ap.add_argument("--smoothing", type=_nonneg_float, default=None, help="revolve: smoothing (passed through)")
-    ap.add_argument("--prior", metavar="DIR", default=None,
+    ap.add_argument("--prior", metavar="DIR", default=None, action="append",
                     help="folder of measured materials (NBRDF npy sets, MERL .binary tables or material TOML files): "
-                         "--method prior completes the slices from their structure; auto also tries it")
+                         "--method prior completes the slices from their structure; auto also tries it. Repeat it, "
+                         f"or join folders with '{os.pathsep}', for a prior of several folders")
     ap.add_argument("--prior-anchor", type=_unit_float, default=0.0, metavar="A",
                     help="method prior: blend its completion with the samples' bivariate interpolation, f = "
                          "f_prior^(1-A) f_bivariate^A (0: the prior alone, the default; auto scores 0, 0.25 and "
@@ -358,6 +359,8 @@ def _fmt(x: float | None) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
+    if isinstance(args.prior, list):  # --prior repeated: one os.pathsep-joined list of folders
+        args.prior = os.pathsep.join(args.prior)
     from reconstruction.cliutil import plain_warnings
 
     try:

@@ -24,13 +24,26 @@ def bench():
 
 def test_cases_are_parsed(bench):
     assert bench.incidences_of("1") == (40.0,)
+    assert bench.incidences_of("2") == (40.0, 70.0)
     assert bench.incidences_of("3") == (20.0, 40.0, 60.0)
     assert bench.incidences_of("20/50/75") == (20.0, 50.0, 75.0)
     assert bench.incidences_of("70") == (70.0,)
     assert bench._label("40/70") == "2 slice(s) at 40/70 deg"
-    for bad, why in (("x", "expected 1, 3 or incidences"), ("20/95", "0..80"), ("20//50", "expected")):
+    for bad, why in (("x", "expected 1, 2, 3 or incidences"), ("20/95", "0..80"), ("20//50", "expected")):
         with pytest.raises(ValueError, match=why):
             bench.incidences_of(bad)
+
+
+def test_databases_and_the_contact_sheets_spread(bench):
+    assert bench.database_of("/d/nbrdf-merl", "chrome") == "MERL"
+    assert bench.database_of("/d/nbrdf-extra", "merl-teflon") == "MERL"
+    assert bench.database_of("/d/nbrdf-extra", "rgl-satin_blue_rgb") == "RGL"
+    assert bench.database_of("/d/nbrdf-extra", "nielsen-cardboard") == "Nielsen"
+    by = {"MERL": [f"m{k:02d}" for k in range(88)], "RGL": [f"r{k:02d}" for k in range(47)], "Nielsen": ["n0", "n1"]}
+    pick = bench.sheet_materials(by, 16)
+    assert len(pick) >= 12 and len(set(pick)) == len(pick)
+    assert {p[0] for p in pick} == {"m", "r", "n"}  # every database on the sheet
+    assert "m00" in pick and "m87" in pick  # spread over the names
 
 
 def write_nbrdf(prefix: Path, seed: int) -> None:
@@ -46,36 +59,54 @@ def write_nbrdf(prefix: Path, seed: int) -> None:
 def test_benchmark_runs_every_case_on_a_data_folder(bench, tmp_path, capsys):
     data = tmp_path / "realdata"
     (data / "nbrdf-merl").mkdir(parents=True)
-    for k, name in enumerate(("synthetic-a", "synthetic-b")):
-        write_nbrdf(data / "nbrdf-merl" / name, k)
+    (data / "nbrdf-extra").mkdir(parents=True)
+    write_nbrdf(data / "nbrdf-merl" / "synthetic-a", 0)
+    write_nbrdf(data / "nbrdf-extra" / "rgl-synthetic", 1)
     out = tmp_path / "records.jsonl"
-    args = ["--data", str(data), "--methods", "bivariate", "--workers", "1", "--cache", "", "--prior", "",
-            "--jsonl", str(out)]
+    args = ["--data", str(data), "--methods", "bivariate,constant", "--workers", "1", "--cache", "", "--prior", "",
+            "--jsonl", str(out), "--size", "16"]
     assert bench.main(args + ["--slices", "1,30/60"]) == 0
-    recs = [json.loads(line) for line in out.read_text().splitlines()]
-    assert sorted((r["material"], r["slices"]) for r in recs) == [
-        ("synthetic-a", "1"), ("synthetic-a", "30/60"), ("synthetic-b", "1"), ("synthetic-b", "30/60")]
-    assert all(np.isfinite(r["rmse80"]) and r["plausible"] for r in recs)
-    # two slices see more of each material than one
-    by = {(r["material"], r["slices"]): r["rmse80"] for r in recs}
-    assert all(by[(m, "30/60")] < by[(m, "1")] for m in ("synthetic-a", "synthetic-b"))
-    capsys.readouterr()
+    lines = [json.loads(line) for line in out.read_text().splitlines()]
+    recs = [r for r in lines if r.get("kind") != "floor"]
+    floors = [r for r in lines if r.get("kind") == "floor"]
+    assert sorted(f["material"] for f in floors) == ["rgl-synthetic", "synthetic-a"]
+    assert {f["database"] for f in floors} == {"MERL", "RGL"}
+    assert all(f["psnr_db"] > 30 and f["linear"] < 0.05 for f in floors)  # the table is close to its network
+    assert len(recs) == 2 * 2 * 2
+    for r in recs:
+        for k in ("psnr_db", "psnr_key_db", "psnr_rim_db", "linear", "cosl2", "log", "rmse80", "grazing"):
+            assert np.isfinite(r[k]), (k, r)
+    by = {(r["material"], r["slices"], r["method"]): r for r in recs}
+    for m in ("synthetic-a", "rgl-synthetic"):  # two slices see more of each material than one
+        assert by[(m, "30/60", "bivariate")]["rmse80"] < by[(m, "1", "bivariate")]["rmse80"]
+    printed = capsys.readouterr().out
+    assert "floor (the truth's own MERL table" in printed and "    RGL " in printed
+    assert bench.main(["--from-jsonl", str(out), "--methods", "bivariate,constant"]) == 0
+    assert printed.split("1 slice(s) at 40 deg:")[1].split("2 materials")[0] in capsys.readouterr().out
     assert bench.main(args + ["--slices", "1,95"]) == 2
     assert "--slices" in capsys.readouterr().err
+    assert bench.main(args + ["--quick", "--methods", "prior"]) == 2  # prior without a prior
+    assert "need a prior" in capsys.readouterr().err
 
 
-def test_the_summary_counts_auto_against_the_best_method_and_bounds_any_choice(bench):
-    def rec(material, method, e):
-        return {"material": material, "slices": "1", "method": method, "rmse80": e, "medrel": e, "plausible": True,
-                "seconds": 0.1, "max_albedo": 0.5}
+def _rec(material, method, psnr, lin, db="MERL", mode="1"):
+    return {"material": material, "database": db, "slices": mode, "method": method, "psnr_db": psnr,
+            "linear": lin, "psnr_key_db": psnr, "psnr_rim_db": psnr, "linear_key": lin, "linear_rim": lin,
+            "cosl2": lin, "log": 0.1, "rmse80": lin, "grazing": 0.5, "plausible": True, "seconds": 0.1}
 
-    records = [rec("a", "auto", 0.20), rec("a", "fit", 0.19), rec("a", "revolve", 0.40),   # within 10 %
-               rec("b", "auto", 0.60), rec("b", "fit", 0.30), rec("b", "revolve", 0.90),   # not
-               rec("c", "auto", 0.70), rec("c", "fit", 0.80), rec("c", "revolve", 0.65)]   # within
-    lines = "\n".join(bench.summarise(records, ["auto", "fit", "revolve"]))
-    assert "within 10 % (relative) of the best method's rmse80: 2 of 3" in lines
-    # the best per material: 19, 30, 65 %
-    assert "chosen with the truth, a bound on any choice): rmse80 median 30.0 %, worst 65.0 %, > 50 %: 1" in lines
+
+def test_the_summary_gives_medians_worst_cases_and_databases(bench):
+    records = [_rec("a", "auto", 30.0, 0.10), _rec("b", "auto", 40.0, 0.60), _rec("c", "auto", 35.0, 0.20, "RGL"),
+               _rec("a", "constant", 20.0, 0.9)]
+    floors = [dict(_rec("a", "-", 50.0, 0.01), kind="floor"), dict(_rec("c", "-", 60.0, 0.02, "RGL"), kind="floor")]
+    lines = bench.summarise(records, floors, ["auto", "constant"])
+    text = "\n".join(lines)
+    auto = next(x for x in lines if x.strip().startswith("auto"))
+    assert "PSNR median  35.0 / worst  30.0 dB (a)" in auto and "linear  20.0 /   60.0 %" in auto
+    assert "linear > 50 %: 1" in auto and "[3]" in auto
+    assert "    MERL                     PSNR median  35.0 / worst  30.0 dB (a)" in text  # a and b
+    assert "    RGL                      PSNR median  35.0 / worst  35.0 dB (c)" in text
+    assert "  all                      PSNR median  55.0 / worst  50.0 dB (a)" in text  # the floor
 
 
 def test_the_prior_floor_benchmark_runs_on_a_data_folder(tmp_path, capsys, monkeypatch):
@@ -101,17 +132,20 @@ def test_the_prior_floor_benchmark_runs_on_a_data_folder(tmp_path, capsys, monke
     assert floor.main(["--data", str(data), "--materials", "nope"]) == 2
 
 
-def test_the_docs_page_keeps_its_hand_written_notes(bench, tmp_path):
-    recs = [{"material": m, "slices": "1", "method": "auto", "rmse80": e, "medrel": e, "plausible": True,
-             "used": "prior", "seconds": 0.1} for m, e in (("a", 0.2), ("b", 0.4))]
-    bench.write_docs(recs, ["auto"], tmp_path, ["SUMMARY LINE"])
+def test_the_docs_page_leads_with_the_image_metric_and_keeps_its_notes(bench, tmp_path):
+    recs = [_rec("a", "auto", 31.0, 0.2), _rec("b", "auto", 41.0, 0.4, "RGL")]
+    bench.write_docs(recs, [], ["auto"], tmp_path, ["SUMMARY LINE"], "CMD --docs docs")
     first = (tmp_path / "real-materials.md").read_text(encoding="utf-8")
-    assert "SUMMARY LINE" in first and "| a | 20.0 / 20.0 [prior] |" in first
+    assert first.splitlines()[2].startswith("Regenerate: `CMD --docs docs`")
+    assert "SUMMARY LINE" in first and "| a | MERL | 31.0 / 20 % [] |" in first
+    head = first.split("## Summary")[0]
+    assert "**PSNR**" in head and "| 1 slice(s) at 40 deg | auto | 36.0 / 31.0 | 30 % / 40 % |" in head
+    assert "(real-materials.png)" in head
     assert bench.NOTES_BEGIN in first and "No notes yet" in first  # a new page gets a placeholder block
     notes = f"{bench.NOTES_BEGIN}\nTwo slices at 40/70 deg beat three (`some --command`).\n{bench.NOTES_END}"
     (tmp_path / "real-materials.md").write_text(first.replace(bench.kept_notes(tmp_path / "real-materials.md"), notes),
                                                 encoding="utf-8")
-    bench.write_docs([dict(r, rmse80=0.3) for r in recs], ["auto"], tmp_path, ["NEW SUMMARY"])
+    bench.write_docs([dict(r, psnr_db=20.0) for r in recs], [], ["auto"], tmp_path, ["NEW SUMMARY"], "CMD")
     second = (tmp_path / "real-materials.md").read_text(encoding="utf-8")
     assert "NEW SUMMARY" in second and "SUMMARY LINE" not in second  # the figures are rewritten ...
     assert second.count(notes) == 1 and "No notes yet" not in second  # ... the notes kept, once

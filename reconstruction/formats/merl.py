@@ -32,27 +32,9 @@ FILE_SIZE = 12 + 3 * N_CELLS * 8  # 34,992,012 bytes
 SCALES = np.array([1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0])  # stored * scale = f_r
 _HEADER = np.array([N_TH, N_TD, N_PD], dtype="<i4").tobytes()
 
-__all__ = [
-    "SHAPE",
-    "N_CELLS",
-    "FILE_SIZE",
-    "SCALES",
-    "MerlError",
-    "MerlWarning",
-    "MAX_CELL_VALUE",
-    "read",
-    "write",
-    "theta_h_index",
-    "theta_d_index",
-    "phi_d_index",
-    "cell_angles",
-    "cell_to_dirs",
-    "dirs_to_cell",
-    "valid_mask",
-    "lookup",
-    "brdf_of",
-    "tabulate",
-]
+__all__ = ["SHAPE", "N_CELLS", "FILE_SIZE", "SCALES", "MerlError", "MerlWarning", "MAX_CELL_VALUE", "read", "write",
+           "theta_h_index", "theta_d_index", "phi_d_index", "cell_angles", "cell_to_dirs", "dirs_to_cell",
+           "valid_mask", "lookup", "brdf_of", "lookup_cells", "tabulate"]
 
 
 class MerlError(ValueError):
@@ -227,35 +209,16 @@ def lookup(table: ArrayLike, wi: ArrayLike, wo: ArrayLike, interpolate: bool = F
         raise MerlError(f"table has shape {t.shape}, expected {SHAPE}")
     wi = np.asarray(wi, dtype=np.float64)
     wo = np.asarray(wo, dtype=np.float64)
-    th, _, td, pd = half_diff_from_dirs(wi, wo)
-    below = (wi[..., 2] <= 0) | (wo[..., 2] <= 0)
-    if not interpolate:
-        out = t[:, theta_h_index(th), theta_d_index(td), phi_d_index(pd)]
-        out = np.moveaxis(out, 0, -1)
-        out[below] = np.nan
-        return out
-    xh, xd, xp = _continuous_index(th, td, pd)
-    xh = np.clip(xh, 0.0, N_TH - 1.0)
-    xd = np.clip(xd, 0.0, N_TD - 1.0)
-    ih = np.minimum(np.floor(xh).astype(np.intp), N_TH - 2)
-    idd = np.minimum(np.floor(xd).astype(np.intp), N_TD - 2)
-    ip = np.floor(xp).astype(np.intp)  # in [-1, 179]
-    fh, fd, fp = xh - ih, xd - idd, xp - ip
-    acc = np.zeros(th.shape + (3,))
-    wsum = np.zeros(th.shape + (3,))
-    for a in (0, 1):  # the 8 corners of the interpolation cube
-        wa = fh if a else 1.0 - fh
-        for b in (0, 1):
-            wb = fd if b else 1.0 - fd
-            for c in (0, 1):
-                wc = fp if c else 1.0 - fp
-                v = np.moveaxis(t[:, ih + a, idd + b, (ip + c) % N_PD], 0, -1)
-                w = (wa * wb * wc)[..., None] * np.isfinite(v)
-                acc += w * np.nan_to_num(v, nan=0.0)
-                wsum += w
-    out = np.divide(acc, wsum, out=np.full_like(acc, np.nan), where=wsum > 1e-12)
-    out[below] = np.nan
-    return out
+    shape = np.broadcast_shapes(wi.shape, wo.shape)
+    idx, w = lookup_cells(np.broadcast_to(wi, shape).reshape(-1, 3), np.broadcast_to(wo, shape).reshape(-1, 3),
+                          interpolate)
+    v = t.reshape(3, -1)[:, idx]  # (3, N, K) the cells' values
+    ok = np.isfinite(v)
+    w = w[None] * ok  # NaN neighbours ignored
+    acc = np.sum(w * np.where(ok, v, 0.0), axis=-1)
+    wsum = np.sum(w, axis=-1)
+    out = np.divide(acc, wsum, out=np.full_like(acc, np.nan), where=wsum > 1e-12)  # NaN below the horizon
+    return out.T.reshape(shape[:-1] + (3,))
 
 
 def brdf_of(table: ArrayLike, interpolate: bool = True) -> Callable[[Array, Array], Array]:
@@ -276,7 +239,45 @@ def brdf_of(table: ArrayLike, interpolate: bool = True) -> Callable[[Array, Arra
     def f(wi: Array, wo: Array) -> Array:
         return np.nan_to_num(lookup(t, wi, wo, interpolate=interpolate), nan=0.0)
 
+    # what the renderer needs to render the table as one sparse product (reconstruction.core.render): the table,
+    # and each pair's cells and weights, the same lookup as ``f``
+    f.table = t  # type: ignore[attr-defined]
+    f.table_cells = lambda wi, wo: lookup_cells(wi, wo, interpolate)  # type: ignore[attr-defined]
+    f.table_lookup = "merl-interpolated" if interpolate else "merl-nearest"  # type: ignore[attr-defined]
     return f
+
+
+def lookup_cells(wi: ArrayLike, wo: ArrayLike, interpolate: bool = True) -> tuple[NDArray[np.intp], Array]:
+    """The cells and weights of :func:`lookup` at direction pairs (N, 3): flat indices into a channel of the
+    table ((90, 90, 180) raveled) and their weights, both (N, 8) (trilinear; (N, 1) and weight 1 for the
+    nearest cell). :func:`lookup` is sum(w t[idx]) / sum(w) over the finite cells; pairs below the horizon have
+    weight 0.
+
+    Examples
+    --------
+    >>> wi, wo = cell_to_dirs(np.array([10]), np.array([30]), np.array([90]))  # a bin centre: its own cell
+    >>> idx, w = lookup_cells(wi, wo)
+    >>> idx.shape, float(w.sum().round(12)), int(idx[0, np.argmax(w[0])]) == (10 * 90 + 30) * 180 + 90
+    ((1, 8), 1.0, True)
+    """
+    wi = np.asarray(wi, dtype=np.float64).reshape(-1, 3)
+    wo = np.asarray(wo, dtype=np.float64).reshape(-1, 3)
+    th, _, td, pd = half_diff_from_dirs(wi, wo)
+    above = ((wi[:, 2] > 0) & (wo[:, 2] > 0)).astype(np.float64)
+    if not interpolate:
+        idx = (theta_h_index(th) * N_TD + theta_d_index(td)) * N_PD + phi_d_index(pd)
+        return idx[:, None], above[:, None]
+    xh, xd, xp = _continuous_index(th, td, pd)
+    xh = np.clip(xh, 0.0, N_TH - 1.0)
+    xd = np.clip(xd, 0.0, N_TD - 1.0)
+    ih = np.minimum(np.floor(xh).astype(np.intp), N_TH - 2)
+    idd = np.minimum(np.floor(xd).astype(np.intp), N_TD - 2)
+    ip = np.floor(xp).astype(np.intp)  # in [-1, 179]
+    fh, fd, fp = (x[:, None] for x in (xh - ih, xd - idd, xp - ip))
+    a, b, c = np.array([[0, 0, 0, 0, 1, 1, 1, 1], [0, 0, 1, 1, 0, 0, 1, 1], [0, 1, 0, 1, 0, 1, 0, 1]])  # corners
+    idx = ((ih[:, None] + a) * N_TD + idd[:, None] + b) * N_PD + (ip[:, None] + c) % N_PD
+    w = np.where(a, fh, 1.0 - fh) * np.where(b, fd, 1.0 - fd) * np.where(c, fp, 1.0 - fp) * above[:, None]
+    return idx, w
 
 
 # --- tabulation ------------------------------------------------------------------------------------------

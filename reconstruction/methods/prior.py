@@ -31,6 +31,8 @@ both are, and its directional albedo is at most the weighted mean of theirs (wei
 
 from __future__ import annotations
 
+import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -47,7 +49,8 @@ from reconstruction.formats.slicefile import Slice
 
 Array = NDArray[np.float64]
 
-__all__ = ["GRID", "PriorSet", "PriorReconstruction", "AnchoredPrior", "anchored", "load_prior", "reconstruct_prior"]
+__all__ = ["GRID", "PriorSet", "PriorReconstruction", "AnchoredPrior", "anchored", "load_prior", "prior_folders",
+           "reconstruct_prior"]
 
 GRID = (90, 45, 45)  # theta_h (MERL's sqrt bins), theta_d (2 deg), phi_d (4 deg, centred on 0)
 EPS = 1e-2
@@ -268,9 +271,43 @@ def _load_cached(folder: str) -> PriorSet:
     return PriorSet(folder, names, tables)
 
 
-def load_prior(folder: str | Path) -> PriorSet:
-    """The prior's materials in ``folder`` (tabulated once, then read from the cache)."""
-    return _load_cached(str(Path(folder)))
+def prior_folders(folders: str | Path | Sequence[str | Path]) -> tuple[str, ...]:
+    """The prior's folders: one folder, a list of them, or paths joined by ``os.pathsep`` (``--prior A:B``), in
+    order, without repeats or empty entries."""
+    items = [folders] if isinstance(folders, (str, Path)) else list(folders)
+    out: list[str] = []
+    for item in items:
+        for part in str(item).split(os.pathsep):
+            if part.strip() and str(Path(part)) not in out:
+                out.append(str(Path(part)))
+    return tuple(out)
+
+
+@lru_cache(maxsize=4)
+def _load_set(folders: tuple[str, ...]) -> PriorSet:
+    """The materials of every folder of ``folders`` in one :class:`PriorSet` (each folder tabulated once and
+    cached on its own; this in-memory set is keyed by the whole folder list)."""
+    sets = [_load_cached(f) for f in folders]
+    seen: dict[str, str] = {}
+    for f, ps in zip(folders, sets, strict=True):
+        for n in ps.names:
+            if n in seen:
+                raise ReconstructionError(f"--prior {f}: material {n} is also in {seen[n]}; expected each material "
+                                          f"once over the prior's folders")
+            seen[n] = f
+    return PriorSet(os.pathsep.join(folders), [n for ps in sets for n in ps.names],
+                    np.concatenate([ps.tables for ps in sets], axis=0))
+
+
+def load_prior(folder: str | Path | Sequence[str | Path]) -> PriorSet:
+    """The prior's materials in ``folder``: one folder, several (a list, or paths joined by ``os.pathsep``); each
+    folder is tabulated once, then read from the cache."""
+    folders = prior_folders(folder)
+    if not folders:
+        raise ReconstructionError("--prior: no folder given (expected one or more folders of materials)")
+    if len(folders) == 1:
+        return _load_cached(folders[0])
+    return _load_set(folders)
 
 
 # --- the reconstruction ----------------------------------------------------------------------------------------

@@ -1,0 +1,340 @@
+"""``gonio-compare A B``: two BRDFs compared as the field judges them (A = a reconstruction, B = the reference).
+
+Any two BRDFs the project reads: a MERL table (``.binary``), an RGL-EPFL measured material (``.bsdf``, read as
+Mitsuba's ``measured`` plugin does: :class:`reconstruction.formats.rgl.RGLTable`), a neural-BRDF npy set (the
+published layout of asztr/Neural-BRDF: ``PREFIX`` or any ``PREFIX_fc1.npy`` ... ``PREFIX_b3.npy``, or a folder
+holding one such set) and a material TOML (``[material]``). The figures (the metrics of
+``../shared/realdata/README.md``; :func:`compare` returns them, ``--json`` writes them):
+
+* ``image``: a sphere rendered with A and with B (:func:`reconstruction.core.render.render_sphere`) under the
+  presets ``key`` (a sky-and-ground environment plus a sun in front) and ``rim`` (the same sky plus a sun behind
+  the sphere: grazing light), pixels seen at a view angle above 80 deg left out: per lighting ``psnr_db`` of the
+  tone-mapped images (exposure at B's 99.5th percentile, clipped, gamma 2.2; infinite, ``null`` in JSON, for
+  identical images) and ``relative_rmse`` of the linear images; ``psnr_db`` and ``relative_rmse`` at the top of
+  ``image`` are the means over the two lightings. A MERL table is read with trilinear interpolation.
+* ``cosl2``: relative cosine-weighted L2 of f over direction pairs drawn uniformly in solid angle, both angles
+  <= 80 deg (:func:`reconstruction.core.metrics.cosl2`).
+* ``log_error``: mean |ln((f_A cos ti + 1e-3) / (f_B cos ti + 1e-3))| over the same pairs.
+* ``rmse80``: relative RMSE of f cos ti cos to over the MERL cells with both angles <= 80 deg (a BRDF that is not
+  a table is tabulated first, at the bin centres), and ``rmse80_grazing_share``: the share of its square from
+  the cells with theta_d >= 60 deg.
+
+Dimensionless errors are fractions (0.05 = 5 %). ``--png OUT`` writes the two spheres side by side with their
+difference. Bad input: exit 2 and one line naming the file and what was expected.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from reconstruction.base import ReconstructionError
+from reconstruction.core.metrics import (
+    IMAGE_MAX_VIEW_DEG,
+    cosl2,
+    image_exposure,
+    image_psnr,
+    image_relative_rmse,
+    log_error,
+    relative_rmse_cos_by_theta_d,
+    tone_map,
+    uniform_pairs,
+)
+from reconstruction.core.models import NBRDF_SUFFIXES, Material, MaterialError
+from reconstruction.core.render import render_sphere, view_angle_mask
+from reconstruction.formats import merl
+
+Array = NDArray[np.float64]
+BRDF = Callable[[Array, Array], Any]
+
+__all__ = ["Brdf", "Reference", "CompareError", "load_brdf", "reference", "judge", "compare", "main",
+           "LIGHTINGS", "N_PAIRS", "MAX_THETA_DEG", "GRAZING_THETA_D_DEG"]
+
+PROG = "gonio-compare"
+LIGHTINGS = ("key", "rim")
+N_PAIRS = 200_000  # direction pairs of cosl2 and the log error (their sampling noise is far below 1 %)
+MAX_THETA_DEG = 80.0
+GRAZING_THETA_D_DEG = 60.0
+RGL_CHUNK = 4096  # pairs per evaluation of an RGL file (each holds its incidence's grid: a few MB per pair block)
+EXPECTED = ("expected a MERL .binary table, an RGL .bsdf file, a material .toml or a neural-BRDF npy set "
+            f"(PREFIX, PREFIX_fc1.npy or a folder holding one set of PREFIX_{{{','.join(NBRDF_SUFFIXES)}}}.npy)")
+
+
+class CompareError(ReconstructionError):
+    """A BRDF to compare cannot be read; the message names the file and what was expected."""
+
+
+def _rgb(v: Any, n: int) -> Array:
+    """(n, 3) f_r from a BRDF's (n, 1 | 3) values (grey repeated)."""
+    a = np.asarray(v, dtype=np.float64).reshape(n, -1)
+    return np.repeat(a, 3, axis=1) if a.shape[1] == 1 else a
+
+
+@dataclass
+class Brdf:
+    """A BRDF to compare: ``eval(wi, wo) -> (N, 1 | 3)`` (1/sr) and, for a MERL table, the ``table`` itself
+    (3, 90, 90, 180), which is then what is rendered and evaluated (interpolated lookups)."""
+
+    name: str
+    kind: str  # "merl", "rgl", "nbrdf", "material"
+    eval: BRDF
+    table: Array | None = None
+    _tabulated: Array | None = field(default=None, repr=False)
+
+    def f(self) -> BRDF:
+        """The BRDF as the renderer and the metrics read it: a table's interpolated lookup, else ``eval``."""
+        return merl.brdf_of(self.table) if self.table is not None else self.eval
+
+    def values(self, wi: Array, wo: Array) -> Array:
+        """f_r (N, 3) at pairs (N, 3): non-finite values (a table's empty cells) as 0."""
+        return np.nan_to_num(_rgb(self.f()(wi, wo), wi.shape[0]), nan=0.0, posinf=0.0, neginf=0.0)
+
+    def merl_table(self) -> Array:
+        """The MERL table: the table itself, or this BRDF tabulated at the bin centres (once)."""
+        if self.table is not None:
+            return self.table
+        if self._tabulated is None:
+            self._tabulated = merl.tabulate(self.eval)
+        return self._tabulated
+
+
+def _chunked(f: BRDF, n: int) -> BRDF:
+    """``f`` evaluated ``n`` pairs at a time (a BRDF whose evaluation holds per-pair grids in memory)."""
+
+    def g(wi: Array, wo: Array) -> Array:
+        wi = np.asarray(wi, dtype=np.float64).reshape(-1, 3)
+        wo = np.asarray(wo, dtype=np.float64).reshape(-1, 3)
+        if wi.shape[0] <= n:
+            return np.asarray(f(wi, wo), dtype=np.float64).reshape(wi.shape[0], -1)
+        return np.concatenate([np.asarray(f(wi[k:k + n], wo[k:k + n]), dtype=np.float64).reshape(-1, 3)
+                               for k in range(0, wi.shape[0], n)])  # blocks, for memory
+
+    return g
+
+
+def _nbrdf_prefix(p: Path) -> Path | None:
+    """The prefix of the neural-BRDF set that ``p`` names (the prefix, one of its files, or a folder holding one
+    set), or None."""
+    for s in NBRDF_SUFFIXES:
+        if p.name.endswith(f"_{s}.npy"):
+            return p.with_name(p.name[: -len(f"_{s}.npy")])
+    if p.is_dir():
+        sets = sorted(q.name[: -len(f"_{NBRDF_SUFFIXES[0]}.npy")] for q in p.glob(f"*_{NBRDF_SUFFIXES[0]}.npy"))
+        if len(sets) == 1:
+            return p / sets[0]
+        raise CompareError(f"{p}: a folder with {len(sets)} neural-BRDF sets; {EXPECTED}")
+    if Path(f"{p}_{NBRDF_SUFFIXES[0]}.npy").is_file():
+        return p
+    return None
+
+
+def load_brdf(path: str | Path) -> Brdf:
+    """Read the BRDF at ``path`` (see the module docstring); :class:`CompareError` naming the file otherwise."""
+    p = Path(path)
+    suffix = p.suffix.lower()
+    try:
+        if suffix == ".binary":
+            t = merl.read(p)
+            return Brdf(p.name, "merl", merl.brdf_of(t), t)
+        if suffix == ".bsdf":
+            from reconstruction.formats.rgl import RGLTable
+
+            rgl = RGLTable.read(p)
+            return Brdf(p.name, "rgl", _chunked(rgl.eval, RGL_CHUNK))
+        if suffix == ".toml":
+            mat = Material.from_toml(p)
+            if mat.n_channels not in (1, 3):
+                raise CompareError(f"{p}: a spectral material ({mat.n_channels} channels); expected 1 (grey) or 3 "
+                                   f"(RGB) channels")
+            return Brdf(mat.name, "material", mat.eval)
+        prefix = _nbrdf_prefix(p)
+        if prefix is not None:
+            mat = Material.from_dict({"name": prefix.name, "lobes": [{"type": "nbrdf", "path": str(prefix)}]},
+                                     source=str(p))
+            return Brdf(prefix.name, "nbrdf", mat.eval)
+    except (merl.MerlError, MaterialError, ReconstructionError) as e:
+        msg = str(e)
+        raise CompareError(msg if str(p) in msg else f"{p}: {msg}") from None
+    except OSError as e:
+        raise CompareError(f"{p}: cannot read ({e.strerror or e})") from None
+    if not p.exists():
+        raise CompareError(f"{p}: no such file; {EXPECTED}")
+    raise CompareError(f"{p}: unknown kind of file; {EXPECTED}")
+
+
+@dataclass
+class Reference:
+    """What a comparison needs of the reference, computed once: its renders (per lighting, (size, size, 3)), its
+    values at the uniform pairs and (on demand) its MERL table."""
+
+    brdf: Brdf
+    size: int
+    images: dict[str, Array]
+    wi: Array
+    wo: Array
+    values: Array
+
+
+def render_images(b: Brdf, size: int) -> dict[str, Array]:
+    """The sphere rendered with ``b`` under each of :data:`LIGHTINGS`, (size, size, 3) linear radiance each."""
+    return {name: np.repeat(img, 3, axis=2) if img.shape[2] == 1 else img
+            for name in LIGHTINGS for img in (render_sphere(b.f(), size, name),)}
+
+
+def reference(b: Brdf, size: int = 128, n_pairs: int = N_PAIRS) -> Reference:
+    """The reference ``b`` rendered and evaluated once (:func:`judge` compares any number of BRDFs with it)."""
+    wi, wo = uniform_pairs(n_pairs, MAX_THETA_DEG)
+    return Reference(b, size, render_images(b, size), wi, wo, b.values(wi, wo))
+
+
+def rmse80(table: Array, truth: Array) -> tuple[float, float]:
+    """(rmse80, the share of its square from theta_d >= 60 deg) of two MERL tables."""
+    parts = relative_rmse_cos_by_theta_d(table, truth, MAX_THETA_DEG, (0.0, GRAZING_THETA_D_DEG, 90.0))
+    tot = float(np.sum(parts ** 2))
+    return float(np.sqrt(tot)), (float(parts[1] ** 2 / tot) if tot > 0 else 0.0)
+
+
+def image_metrics(images: dict[str, Array], truth: dict[str, Array], size: int) -> dict[str, Any]:
+    """Per lighting ``psnr_db`` and ``relative_rmse`` over the pixels seen at <= 80 deg, and their means."""
+    mask = view_angle_mask(size, 1.0, IMAGE_MAX_VIEW_DEG)
+    out: dict[str, Any] = {"size": size, "max_view_deg": IMAGE_MAX_VIEW_DEG}
+    for name in LIGHTINGS:
+        out[name] = {"psnr_db": image_psnr(images[name], truth[name], mask),
+                     "relative_rmse": image_relative_rmse(images[name], truth[name], mask)}
+    out["psnr_db"] = float(np.mean([out[n]["psnr_db"] for n in LIGHTINGS]))
+    out["relative_rmse"] = float(np.mean([out[n]["relative_rmse"] for n in LIGHTINGS]))
+    return out
+
+
+def judge(a: Brdf, ref: Reference, with_rmse80: bool = True,
+          images: dict[str, Array] | None = None) -> dict[str, Any]:
+    """``a`` against the reference: the figures of the module docstring (``rmse80`` only ``with_rmse80``).
+    ``images``: ``a``'s renders if already made (:func:`render_images`)."""
+    imgs = images if images is not None else render_images(a, ref.size)
+    va = a.values(ref.wi, ref.wo)
+    out: dict[str, Any] = {"image": image_metrics(imgs, ref.images, ref.size),
+                           "cosl2": cosl2(va, ref.values, ref.wi, ref.wo),
+                           "log_error": log_error(va, ref.values, ref.wi),
+                           "pairs": int(ref.wi.shape[0])}
+    if with_rmse80:
+        out["rmse80"], out["rmse80_grazing_share"] = rmse80(a.merl_table(), ref.brdf.merl_table())
+    return out
+
+
+def compare(a: Brdf, b: Brdf, size: int = 128) -> dict[str, Any]:
+    """``a`` (a reconstruction) against ``b`` (the reference): :func:`judge` of ``a`` and ``reference(b)``."""
+    return judge(a, reference(b, size))
+
+
+def write_png(path: str | Path, images: dict[str, Array], truth: dict[str, Array], labels: tuple[str, str]) -> None:
+    """A, B and 4 |A - B| (tone-mapped with B's exposure), a row per lighting, as a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(len(LIGHTINGS), 3, figsize=(7.5, 2.6 * len(LIGHTINGS)), squeeze=False)
+    for row, name in zip(axes, LIGHTINGS, strict=True):
+        size = truth[name].shape[0]
+        e = image_exposure(truth[name], view_angle_mask(size, 1.0, IMAGE_MAX_VIEW_DEG))
+        ta, tb = tone_map(images[name], e), tone_map(truth[name], e)
+        for ax, img, title in zip(row, (ta, tb, np.clip(4.0 * np.abs(ta - tb), 0, 1)),
+                                  (f"A: {labels[0]}", f"B: {labels[1]}", "4 |A - B|"), strict=True):
+            ax.imshow(img, interpolation="nearest")
+            ax.set_title(f"{title} ({name})", fontsize=7)
+            ax.axis("off")
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def _fmt_pct(x: float) -> str:
+    return f"{x * 100:.2f} %" if np.isfinite(x) else "inf"
+
+
+def _fmt_db(x: float) -> str:
+    return f"{x:.2f} dB" if np.isfinite(x) else "inf dB (identical)"
+
+
+def format_lines(res: dict[str, Any]) -> list[str]:
+    """The figures of :func:`judge` as lines for a terminal."""
+    im = res["image"]
+    lines = [f"image ({im['size']}x{im['size']}, view <= {im['max_view_deg']:g} deg): PSNR {_fmt_db(im['psnr_db'])}"
+             f" (key {_fmt_db(im['key']['psnr_db'])}, rim {_fmt_db(im['rim']['psnr_db'])}); linear error "
+             f"{_fmt_pct(im['relative_rmse'])} (key {_fmt_pct(im['key']['relative_rmse'])}, rim "
+             f"{_fmt_pct(im['rim']['relative_rmse'])})",
+             f"cosl2 {_fmt_pct(res['cosl2'])}; log error {res['log_error']:.4f} ({res['pairs']} pairs uniform in "
+             f"solid angle, both angles <= {MAX_THETA_DEG:g} deg)"]
+    if "rmse80" in res:
+        lines.append(f"rmse80 {_fmt_pct(res['rmse80'])} ({res['rmse80_grazing_share'] * 100:.0f} % of its square at "
+                     f"theta_d >= {GRAZING_THETA_D_DEG:g} deg)")
+    return lines
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from reconstruction.cliutil import OneLineParser
+
+    ap = OneLineParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog="examples:\n  gonio-compare out/demo/material.binary truth.binary --json cmp.json\n"
+                              "  gonio-compare material.binary ../shared/realdata/nbrdf-merl/chrome_fc1.npy "
+                              "--png cmp.png")
+    ap.add_argument("a", metavar="A", help="the BRDF to judge (a reconstruction)")
+    ap.add_argument("b", metavar="B", help="the reference (the truth, a reference measurement)")
+    ap.add_argument("--json", metavar="OUT", help="write the figures as JSON (non-finite values as null)")
+    ap.add_argument("--png", metavar="OUT", help="write A, B and their difference, rendered, as a PNG")
+    ap.add_argument("--size", type=int, default=128, metavar="N", help="image size in pixels (default 128)")
+    return ap
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = build_parser()
+    args = ap.parse_args(argv)
+    if not 8 <= args.size <= 2048:
+        ap.error(f"--size: expected 8..2048 pixels, got {args.size}")
+    from reconstruction.cliutil import plain_warnings
+
+    t0 = time.perf_counter()
+    try:
+        with plain_warnings(PROG), np.errstate(all="ignore"):
+            a, b = load_brdf(args.a), load_brdf(args.b)
+            ref = reference(b, args.size)
+            imgs = render_images(a, args.size)
+            res = judge(a, ref, images=imgs)
+            res["a"] = {"path": str(args.a), "kind": a.kind}
+            res["b"] = {"path": str(args.b), "kind": b.kind}
+            if args.png:
+                try:
+                    write_png(args.png, imgs, ref.images, (a.name, b.name))
+                except OSError as e:
+                    raise CompareError(f"{args.png}: cannot write ({e.strerror or e})") from None
+    except CompareError as e:
+        print(f"{PROG}: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return 130
+    print(f"{PROG}: A = {args.a} ({a.kind}), B = {args.b} ({b.kind})")
+    print("\n".join(format_lines(res)))
+    if args.json:
+        from reconstruction.report.summary import write_json
+
+        try:
+            write_json(args.json, res)
+        except OSError as e:
+            print(f"{PROG}: error: {args.json}: cannot write ({e.strerror or e})", file=sys.stderr)
+            return 2
+    print(f"{PROG}: {time.perf_counter() - t0:.1f} s")
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

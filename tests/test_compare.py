@@ -1,0 +1,137 @@
+"""gonio-compare: two BRDFs judged as the field judges them (synthetic materials and tables only)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from reconstruction.core.metrics import cosl2, log_error, uniform_pairs
+from reconstruction.core.models import Material
+from reconstruction.formats import merl
+from reconstruction.report import compare as cmp
+
+MATERIAL = {"name": "plastic", "lobes": [{"type": "lambert", "albedo": [0.1, 0.2, 0.4]},
+                                         {"type": "ggx", "alpha": 0.2, "specular": 0.8, "f0": 0.04}]}
+TOML = """[material]
+name = "plastic"
+[[material.lobes]]
+type = "lambert"
+albedo = [0.1, 0.2, 0.4]
+[[material.lobes]]
+type = "ggx"
+alpha = 0.2
+specular = 0.8
+f0 = 0.04
+"""
+
+
+@pytest.fixture(scope="module")
+def table() -> np.ndarray:
+    return merl.tabulate(Material.from_dict(MATERIAL).eval)
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory, table):
+    d = tmp_path_factory.mktemp("cmp")
+    merl.write(d / "a.binary", table)
+    merl.write(d / "double.binary", 2.0 * table)
+    (d / "plastic.toml").write_text(TOML, encoding="utf-8")
+    return d
+
+
+def test_uniform_pairs_are_uniform_in_solid_angle_within_the_cap():
+    wi, wo = uniform_pairs(40_000, 80.0, seed=1)
+    for d in (wi, wo):
+        assert np.allclose(np.linalg.norm(d, axis=1), 1.0)
+        assert d[:, 2].min() >= np.cos(np.radians(80.0)) - 1e-12
+        # uniform in solid angle: cos theta uniform over [cos 80, 1], azimuth uniform
+        assert abs(np.mean(d[:, 2]) - 0.5 * (1 + np.cos(np.radians(80.0)))) < 0.01
+        assert abs(np.mean(d[:, 0])) < 0.01 and abs(np.mean(d[:, 1])) < 0.01
+
+
+def test_cosl2_and_log_error_by_hand():
+    wi, wo = uniform_pairs(1000, 80.0)
+    g = np.full((1000, 3), 0.2)
+    assert cosl2(g, g, wi, wo) == 0.0 and log_error(g, g, wi) == 0.0
+    assert cosl2(1.5 * g, g, wi, wo) == pytest.approx(0.5)  # a uniform 50 % excess
+    c = wi[:, 2:3]
+    want = np.mean(np.abs(np.log((0.4 * c + 1e-3) / (0.2 * c + 1e-3))))
+    assert log_error(2.0 * g, g, wi) == pytest.approx(want)
+
+
+def test_a_table_compared_with_itself_is_zero_and_infinite_psnr(files, tmp_path, capsys):
+    out = tmp_path / "same.json"
+    png = tmp_path / "same.png"
+    assert cmp.main([str(files / "a.binary"), str(files / "a.binary"), "--size", "16", "--json", str(out),
+                     "--png", str(png)]) == 0
+    res = json.loads(out.read_text())
+    assert res["cosl2"] == 0.0 and res["log_error"] == 0.0 and res["rmse80"] == 0.0
+    for light in ("key", "rim"):
+        assert res["image"][light]["relative_rmse"] == 0.0
+        assert res["image"][light]["psnr_db"] is None  # infinite: null in strict JSON
+    assert res["a"]["kind"] == res["b"]["kind"] == "merl"
+    assert png.stat().st_size > 1000
+    assert "inf dB (identical)" in capsys.readouterr().out
+
+
+def test_a_table_twice_too_bright(files, table):
+    res = cmp.compare(cmp.load_brdf(files / "double.binary"), cmp.load_brdf(files / "a.binary"), size=16)
+    # f doubled everywhere: every relative error of f and of the linear images is exactly 100 %
+    assert res["cosl2"] == pytest.approx(1.0, rel=1e-9)
+    assert res["rmse80"] == pytest.approx(1.0, rel=1e-9)
+    for light in ("key", "rim"):
+        assert res["image"][light]["relative_rmse"] == pytest.approx(1.0, rel=1e-9)
+        assert 5.0 < res["image"][light]["psnr_db"] < 40.0
+    assert 0.0 < res["rmse80_grazing_share"] < 1.0
+    assert 0.2 < res["log_error"] < np.log(2.0)
+
+
+def test_a_material_against_its_own_table_is_close(files, table):
+    a = cmp.load_brdf(files / "a.binary")
+    b = cmp.load_brdf(files / "plastic.toml")
+    assert b.kind == "material" and b.table is None
+    res = cmp.compare(a, b, size=16)
+    assert 0.0 < res["cosl2"] < 0.05 and 0.0 < res["log_error"] < 0.05
+    assert res["image"]["psnr_db"] > 35.0
+    assert res["rmse80"] < 0.05  # the material tabulated at the bin centres: the same table
+
+
+def test_a_neural_brdf_set_by_prefix_file_or_folder(tmp_path):
+    rng = np.random.default_rng(0)
+    shapes = {"fc1": (6, 21), "b1": (21,), "fc2": (21, 21), "b2": (21,), "fc3": (21, 3), "b3": (3,)}
+    for k, s in shapes.items():
+        np.save(tmp_path / f"m_{k}.npy", 0.3 * rng.standard_normal(s))
+    ref = cmp.load_brdf(tmp_path / "m")
+    wi, wo = uniform_pairs(50)
+    for p in (tmp_path / "m_fc2.npy", tmp_path):
+        b = cmp.load_brdf(p)
+        assert b.kind == "nbrdf" and b.name == "m"
+        np.testing.assert_array_equal(b.values(wi, wo), ref.values(wi, wo))
+    np.save(tmp_path / "n_fc1.npy", np.zeros((6, 21)))  # a second (incomplete) set: the folder is ambiguous
+    with pytest.raises(cmp.CompareError, match="2 neural-BRDF sets"):
+        cmp.load_brdf(tmp_path)
+
+
+@pytest.mark.parametrize("name, content, expect", [
+    ("missing.binary", None, "no such file"),
+    ("short.binary", b"\x5a\x00\x00\x00", "too short"),
+    ("bad.toml", b"[other]\nx = 1\n", "no [material] table"),
+    ("notes.txt", b"hello", "unknown kind of file; expected a MERL .binary table"),
+    ("junk.bsdf", b"not a tensor file", "junk.bsdf"),
+    ("x_fc1.npy", b"not numpy", "x_"),
+])
+def test_bad_input_is_one_line_and_exit_2(files, tmp_path, capsys, name, content, expect):
+    p = tmp_path / name
+    if content is not None:
+        p.write_bytes(content)
+    assert cmp.main([str(p), str(files / "a.binary"), "--size", "16"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and err.startswith("gonio-compare: error: ") and str(p) in err and expect in err
+
+
+def test_a_bad_size_is_a_usage_error(files, capsys):
+    with pytest.raises(SystemExit) as e:
+        cmp.main([str(files / "a.binary"), str(files / "a.binary"), "--size", "2"])
+    assert e.value.code == 2 and "--size" in capsys.readouterr().err
