@@ -93,7 +93,7 @@ def test_an_anisotropic_or_incomplete_rgl_file_is_one_clear_error(tmp_path, rgl_
         load_brdf(p)
     junk = tmp_path / "junk.dat"
     junk.write_bytes(b"hello")
-    with pytest.raises(BRDFFileError, match=r"junk\.dat: not a BRDF file we read"):
+    with pytest.raises(BRDFFileError, match=r"junk\.dat: unknown kind of file; expected an RGL"):
         load_brdf(junk)
 
 

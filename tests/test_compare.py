@@ -118,7 +118,7 @@ def test_a_neural_brdf_set_by_prefix_file_or_folder(tmp_path):
     ("missing.binary", None, "no such file"),
     ("short.binary", b"\x5a\x00\x00\x00", "too short"),
     ("bad.toml", b"[other]\nx = 1\n", "no [material] table"),
-    ("notes.txt", b"hello", "unknown kind of file; expected a MERL .binary table"),
+    ("notes.txt", b"hello", "unknown kind of file; expected an RGL .bsdf tensor file"),
     ("junk.bsdf", b"not a tensor file", "junk.bsdf"),
     ("x_fc1.npy", b"not numpy", "x_"),
 ])

@@ -6,10 +6,10 @@
   ``--rgl`` output): evaluated as Mitsuba 3's ``measured`` plugin does (:class:`~reconstruction.formats.rgl.RGLTable`);
 * a Zemax tabular BSDF text file: its grid interpolated (trilinear in incidence, azimuth and radial angle about
   the specular direction, the incidence clamped to the file's range; :func:`zemax_brdf`);
-* a MERL table (``.binary``): trilinear interpolation between bin centres
-  (:func:`reconstruction.formats.merl.brdf_of`);
-* a neural BRDF (``NAME_fc1.npy`` ... ``NAME_b3.npy``, or the prefix ``NAME``):
-  :class:`~reconstruction.core.models.Nbrdf`;
+* a MERL table (``.binary``, or any file of the format's size): trilinear interpolation between bin centres
+  (:func:`reconstruction.formats.merl.brdf_of`; the table itself is :attr:`LoadedBRDF.table`);
+* a neural BRDF (the published layout of asztr/Neural-BRDF: ``NAME_fc1.npy`` ... ``NAME_b3.npy``, the prefix
+  ``NAME``, or a folder holding one such set): :class:`~reconstruction.core.models.Nbrdf`;
 * a material file (``.toml``, :meth:`~reconstruction.core.models.Material.from_toml`).
 
 Directions are unit vectors (N, 3) in the local frame (z = normal), wi towards the light; values f_r in 1/sr, 0
@@ -60,6 +60,8 @@ class LoadedBRDF:
     channels: list[str]
     source: str
     kind: str  # "rgl", "zemax", "merl", "nbrdf" or "material"
+    name: str = ""  # the material's name: the material file's, the NBRDF set's prefix, else the file name
+    table: Array | None = None  # a MERL file's table (3, 90, 90, 180)
 
     def __call__(self, wi: ArrayLike, wo: ArrayLike) -> Array:
         wi = np.asarray(wi, dtype=np.float64).reshape(-1, 3)
@@ -83,12 +85,28 @@ def is_rgl(path: str | Path) -> bool:
         return False
 
 
-def _nbrdf_prefix(path: Path) -> str | None:
-    name = str(path)
-    for suffix in ("fc1", "b1", "fc2", "b2", "fc3", "b3"):
-        if name.endswith(f"_{suffix}.npy"):
-            return name[: -len(f"_{suffix}.npy")]
-    return name if Path(f"{name}_fc1.npy").is_file() else None
+def _nbrdf_prefix(p: Path) -> Path | None:
+    """The prefix of the neural-BRDF set that ``p`` names (the prefix, one of its files, or a folder holding one
+    set), or None; :class:`BRDFFileError` for a folder of several sets."""
+    from reconstruction.core.models import NBRDF_SUFFIXES
+
+    for suffix in NBRDF_SUFFIXES:
+        if p.name.endswith(f"_{suffix}.npy"):
+            return p.with_name(p.name[: -len(f"_{suffix}.npy")])
+    if p.is_dir():
+        first = NBRDF_SUFFIXES[0]
+        sets = sorted(q.name[: -len(f"_{first}.npy")] for q in p.glob(f"*_{first}.npy"))
+        if len(sets) == 1:
+            return p / sets[0]
+        raise BRDFFileError(f"{p}: a folder with {len(sets)} neural-BRDF sets; {EXPECTED}")
+    if Path(f"{p}_{NBRDF_SUFFIXES[0]}.npy").is_file():
+        return p
+    return None
+
+
+#: what load_brdf reads, for its error messages
+EXPECTED = ("expected an RGL .bsdf tensor file, a Zemax tabular BSDF, a MERL .binary table, a neural-BRDF npy set "
+            "(PREFIX, PREFIX_fc1.npy or a folder holding one set) or a material .toml")
 
 
 def _to_rgb(f: Callable[[Array, Array], ArrayLike], wavelengths_nm: Array) -> Callable[[Array, Array], Array]:
@@ -131,47 +149,56 @@ def load_brdf(path: str | Path, *, rgb: bool = True) -> LoadedBRDF:
 
     ``rgb``: spectral files in linear sRGB (default) or in their own wavelengths. :class:`BRDFFileError` (one line
     naming the file) for anything else."""
-    from reconstruction.core.models import Material, MaterialError, Nbrdf
+    from reconstruction.core.models import MaterialError, Nbrdf
 
     p = Path(path)
-    prefix = _nbrdf_prefix(p) if p.suffix in (".npy", "") else None
+    prefix = _nbrdf_prefix(p) if p.suffix in (".npy", "") or p.is_dir() else None
     if prefix is not None:
         try:
-            lobe = Nbrdf(path=prefix)
+            lobe = Nbrdf(path=str(prefix))
             lobe._weights()
         except MaterialError as e:
-            raise BRDFFileError(str(e)) from None
-        return LoadedBRDF(lambda wi, wo: lobe.eval(wi, wo, 3), ["R", "G", "B"], str(p), "nbrdf")
+            raise BRDFFileError(str(e) if str(p) in str(e) or str(prefix) in str(e) else f"{p}: {e}") from None
+        return LoadedBRDF(lambda wi, wo: lobe.eval(wi, wo, 3), ["R", "G", "B"], str(p), "nbrdf", prefix.name)
+    if not p.exists():
+        raise BRDFFileError(f"{p}: no such file; {EXPECTED}")
     if not p.is_file():
-        raise BRDFFileError(f"{p}: no such file (expected a BRDF file: RGL .bsdf, Zemax .bsdf, MERL .binary, NBRDF "
-                            f".npy or material .toml)")
+        raise BRDFFileError(f"{p}: not a file; {EXPECTED}")
+    try:
+        return _load_file(p, rgb)
+    except OSError as e:
+        raise BRDFFileError(f"{p}: cannot read ({e.strerror or e})") from None
+
+
+def _load_file(p: Path, rgb: bool) -> LoadedBRDF:
+    from reconstruction.core.models import Material, MaterialError
+
     if is_rgl(p):
         t = rgl.RGLTable.read(p)
         if t.wavelengths_nm is not None and rgb:
-            return LoadedBRDF(_to_rgb(t.eval, t.wavelengths_nm), ["R", "G", "B"], str(p), "rgl")
-        return LoadedBRDF(t.eval, list(t.channels), str(p), "rgl")
+            return LoadedBRDF(_to_rgb(t.eval, t.wavelengths_nm), ["R", "G", "B"], str(p), "rgl", p.name)
+        return LoadedBRDF(t.eval, list(t.channels), str(p), "rgl", p.name)
     if zemax.is_zemax(p):
         f, channels = zemax_brdf(zemax.read(p))
-        return LoadedBRDF(f, channels, str(p), "zemax")
-    if p.suffix == ".toml":
+        return LoadedBRDF(f, channels, str(p), "zemax", p.name)
+    if p.suffix.lower() == ".toml":
         try:
             mat = Material.from_toml(p)
         except MaterialError as e:
             raise BRDFFileError(str(e)) from None
         if mat.wavelengths_nm is not None and rgb:
             return LoadedBRDF(_to_rgb(mat.eval, np.asarray(mat.wavelengths_nm)), ["R", "G", "B"], str(p),
-                              "material")
+                              "material", mat.name)
         ch = (["value"] if mat.n_channels == 1 else ["R", "G", "B"] if mat.wavelengths_nm is None
               else [f"{w:g}nm" for w in mat.wavelengths_nm])
-        return LoadedBRDF(mat.eval, ch, str(p), "material")
-    if p.stat().st_size == merl.FILE_SIZE:
+        return LoadedBRDF(mat.eval, ch, str(p), "material", mat.name)
+    if p.suffix.lower() == ".binary" or p.stat().st_size == merl.FILE_SIZE:
         try:
             table = merl.read(p)
-        except (merl.MerlError, OSError) as e:
-            raise BRDFFileError(f"{p}: {e}") from None
-        return LoadedBRDF(merl.brdf_of(table, interpolate=True), ["R", "G", "B"], str(p), "merl")
-    raise BRDFFileError(f"{p}: not a BRDF file we read (expected an RGL tensor file, a Zemax tabular BSDF, a MERL "
-                        f"table of {merl.FILE_SIZE:,} bytes, an NBRDF NAME_fc1.npy set or a material .toml)")
+        except merl.MerlError as e:
+            raise BRDFFileError(str(e) if str(p) in str(e) else f"{p}: {e}") from None
+        return LoadedBRDF(merl.brdf_of(table, interpolate=True), ["R", "G", "B"], str(p), "merl", p.name, table)
+    raise BRDFFileError(f"{p}: unknown kind of file; {EXPECTED}")
 
 
 def sample_brdf(b: LoadedBRDF, incidence_deg: ArrayLike = SAMPLE_INCIDENCES_DEG,

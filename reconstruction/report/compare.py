@@ -1,9 +1,10 @@
 """``gonio-compare A B``: two BRDFs compared as the field judges them (A = a reconstruction, B = the reference).
 
-Any two BRDFs the project reads: a MERL table (``.binary``), an RGL-EPFL measured material (``.bsdf``, read as
-Mitsuba's ``measured`` plugin does: :class:`reconstruction.formats.rgl.RGLTable`), a neural-BRDF npy set (the
-published layout of asztr/Neural-BRDF: ``PREFIX`` or any ``PREFIX_fc1.npy`` ... ``PREFIX_b3.npy``, or a folder
-holding one such set) and a material TOML (``[material]``). The figures (the metrics of
+Any two BRDFs the project reads (:func:`reconstruction.formats.brdffile.load_brdf`): a MERL table (``.binary``),
+an RGL-EPFL measured material (``.bsdf``, read as Mitsuba's ``measured`` plugin does), a Zemax tabular BSDF, a
+neural-BRDF npy set (the published layout of asztr/Neural-BRDF: ``PREFIX`` or any ``PREFIX_fc1.npy`` ...
+``PREFIX_b3.npy``, or a folder holding one such set) and a material TOML (``[material]``); spectral files in
+linear sRGB. The figures (the metrics of
 ``../shared/realdata/README.md``; :func:`compare` returns them, ``--json`` writes them):
 
 * ``image``: a sphere rendered with A and with B (:func:`reconstruction.core.render.render_sphere`) under the
@@ -48,7 +49,6 @@ from reconstruction.core.metrics import (
     tone_map,
     uniform_pairs,
 )
-from reconstruction.core.models import NBRDF_SUFFIXES, Material, MaterialError
 from reconstruction.core.render import render_sphere, view_angle_mask
 from reconstruction.formats import merl
 
@@ -64,8 +64,6 @@ N_PAIRS = 200_000  # direction pairs of cosl2 and the log error (their sampling 
 MAX_THETA_DEG = 80.0
 GRAZING_THETA_D_DEG = 60.0
 RGL_CHUNK = 4096  # pairs per evaluation of an RGL file (each holds its incidence's grid: a few MB per pair block)
-EXPECTED = ("expected a MERL .binary table, an RGL .bsdf file, a material .toml or a neural-BRDF npy set "
-            f"(PREFIX, PREFIX_fc1.npy or a folder holding one set of PREFIX_{{{','.join(NBRDF_SUFFIXES)}}}.npy)")
 
 
 class CompareError(ReconstructionError):
@@ -120,54 +118,18 @@ def _chunked(f: BRDF, n: int) -> BRDF:
     return g
 
 
-def _nbrdf_prefix(p: Path) -> Path | None:
-    """The prefix of the neural-BRDF set that ``p`` names (the prefix, one of its files, or a folder holding one
-    set), or None."""
-    for s in NBRDF_SUFFIXES:
-        if p.name.endswith(f"_{s}.npy"):
-            return p.with_name(p.name[: -len(f"_{s}.npy")])
-    if p.is_dir():
-        sets = sorted(q.name[: -len(f"_{NBRDF_SUFFIXES[0]}.npy")] for q in p.glob(f"*_{NBRDF_SUFFIXES[0]}.npy"))
-        if len(sets) == 1:
-            return p / sets[0]
-        raise CompareError(f"{p}: a folder with {len(sets)} neural-BRDF sets; {EXPECTED}")
-    if Path(f"{p}_{NBRDF_SUFFIXES[0]}.npy").is_file():
-        return p
-    return None
-
-
 def load_brdf(path: str | Path) -> Brdf:
-    """Read the BRDF at ``path`` (see the module docstring); :class:`CompareError` naming the file otherwise."""
-    p = Path(path)
-    suffix = p.suffix.lower()
-    try:
-        if suffix == ".binary":
-            t = merl.read(p)
-            return Brdf(p.name, "merl", merl.brdf_of(t), t)
-        if suffix == ".bsdf":
-            from reconstruction.formats.rgl import RGLTable
+    """Read the BRDF at ``path`` (:func:`reconstruction.formats.brdffile.load_brdf`: every file the project reads);
+    :class:`CompareError` naming the file otherwise."""
+    from reconstruction.formats.brdffile import load_brdf as load
 
-            rgl = RGLTable.read(p)
-            return Brdf(p.name, "rgl", _chunked(rgl.eval, RGL_CHUNK))
-        if suffix == ".toml":
-            mat = Material.from_toml(p)
-            if mat.n_channels not in (1, 3):
-                raise CompareError(f"{p}: a spectral material ({mat.n_channels} channels); expected 1 (grey) or 3 "
-                                   f"(RGB) channels")
-            return Brdf(mat.name, "material", mat.eval)
-        prefix = _nbrdf_prefix(p)
-        if prefix is not None:
-            mat = Material.from_dict({"name": prefix.name, "lobes": [{"type": "nbrdf", "path": str(prefix)}]},
-                                     source=str(p))
-            return Brdf(prefix.name, "nbrdf", mat.eval)
-    except (merl.MerlError, MaterialError, ReconstructionError) as e:
-        msg = str(e)
-        raise CompareError(msg if str(p) in msg else f"{p}: {msg}") from None
-    except OSError as e:
-        raise CompareError(f"{p}: cannot read ({e.strerror or e})") from None
-    if not p.exists():
-        raise CompareError(f"{p}: no such file; {EXPECTED}")
-    raise CompareError(f"{p}: unknown kind of file; {EXPECTED}")
+    try:
+        b = load(path)
+    except ReconstructionError as e:
+        raise CompareError(str(e)) from None
+    if b.table is not None:
+        return Brdf(b.name, b.kind, merl.brdf_of(b.table), b.table)
+    return Brdf(b.name, b.kind, _chunked(b.eval, RGL_CHUNK) if b.kind == "rgl" else b.eval)
 
 
 @dataclass
