@@ -153,7 +153,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "component (auto: chosen per sub-curve)")
     ap.add_argument("--smoothing", type=_nonneg_float, default=None, help="revolve: smoothing (passed through)")
     ap.add_argument("--prior", metavar="DIR", default=None, action="append",
-                    help="folder of measured materials (NBRDF npy sets, MERL .binary tables or material TOML files): "
+                    help="folder of measured materials (NBRDF npy sets, MERL .binary tables, material TOML files, RGL "
+                         "or Zemax .bsdf files): "
                          "--method prior completes the slices from their structure; auto also tries it. Repeat it, "
                          f"or join folders with '{os.pathsep}', for a prior of several folders")
     ap.add_argument("--prior-anchor", type=_unit_float, default=0.0, metavar="A",

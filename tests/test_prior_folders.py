@@ -91,3 +91,28 @@ def test_gonio_reconstruct_takes_prior_repeated_and_joined(folders, tmp_path):
                            capture_output=True, text=True, env=env)
         assert r.returncode == 0, r.stderr
         assert json.loads((tmp_path / "m.json").read_text())["details"]["prior"]["materials"] == 8
+
+
+def test_rgl_files_are_prior_materials(folders, tmp_path):
+    """A prior folder may hold RGL .bsdf files (the RGL database's, our --rgl output) beside other materials: each
+    is tabulated through formats.brdffile.load_brdf (which reads Zemax files the same way), and the tables agree
+    with the same materials given as TOML (within the RGL grid's resolution)."""
+    from reconstruction.formats import rgl
+
+    _, _, both = folders
+    pick = ["m2", "m5"]
+    mixed = tmp_path / "mixed"
+    mixed.mkdir()
+    for name in pick:
+        rgl.write(mixed / f"{name}.bsdf", Material.from_toml(both / f"{name}.toml").eval)
+    shutil.copy(both / "m0.toml", mixed / "m0.toml")
+    ps = prior.load_prior(mixed)
+    assert sorted(ps.names) == ["m0", "m2", "m5"]
+    ref = prior.load_prior(both)
+    g = prior._grid()
+    fc = g["cos"][None] * g["within"][None]
+    for name in pick:
+        got = ps.tables[ps.names.index(name)].astype(np.float64) * fc
+        want = ref.tables[ref.names.index(name)].astype(np.float64) * fc
+        rel = np.sqrt(np.sum((got - want) ** 2) / np.sum(want ** 2))
+        assert rel < 0.05, (name, rel)

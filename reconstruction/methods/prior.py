@@ -2,7 +2,8 @@
 
 Real isotropic materials share structure that no single analytic family captures: how the specular peak
 sharpens and brightens towards grazing theta_d, how the diffuse part falls off, how the two are tied. A folder
-of measured materials (the user's own: NBRDF ``npy`` sets, MERL ``.binary`` tables or material TOML files)
+of measured materials (the user's own: NBRDF ``npy`` sets, MERL ``.binary`` tables, material TOML files, RGL or
+Zemax ``.bsdf`` files)
 holds that structure. Following Nielsen, Jensen and Ramamoorthi (2015, "On Optimal, Minimal BRDF Sampling for
 Reflectance Acquisition", ACM TOG 34(6)), every prior material and channel becomes one vector
 
@@ -124,7 +125,8 @@ def _dirs_weights(wi: Array, wo: Array) -> tuple[NDArray[np.intp], Array]:
 
 
 def _material_files(folder: Path) -> dict[str, Path]:
-    """name -> file of every material in ``folder``: NBRDF sets (NAME_fc1.npy ...), MERL .binary, material .toml."""
+    """name -> file of every material in ``folder``: NBRDF sets (NAME_fc1.npy ...), MERL .binary, material .toml,
+    RGL or Zemax .bsdf."""
     from reconstruction.core.models import NBRDF_SUFFIXES
 
     found: dict[str, Path] = {}
@@ -135,7 +137,7 @@ def _material_files(folder: Path) -> dict[str, Path]:
             stem = p.name[: -len(f"_{NBRDF_SUFFIXES[0]}.npy")]
             if all((folder / f"{stem}_{s}.npy").is_file() for s in NBRDF_SUFFIXES):
                 found[stem] = folder / stem
-        elif p.suffix.lower() in (".binary", ".toml"):
+        elif p.suffix.lower() in (".binary", ".toml", ".bsdf"):
             found[p.stem] = p
     return found
 
@@ -151,7 +153,6 @@ def _grid_nbrdf_features() -> NDArray[np.float32]:
 
 def _tabulate_material(path: Path) -> Array:
     """(3, n_cells) f_r of one prior material on the reduced grid (NaN and negative cells -> 0)."""
-    from reconstruction.core.models import Material
     from reconstruction.formats import merl
 
     g = _grid()
@@ -160,9 +161,10 @@ def _tabulate_material(path: Path) -> Array:
         t = t.reshape(3, 90, 45, 2, 180).mean(axis=3)
         t = np.roll(t, 2, axis=3).reshape(3, 90, 45, 45, 4).mean(axis=4)  # phi_d bins centred on 0, 4, 8 ... deg
         f = t.reshape(3, -1)
-    elif path.suffix.lower() == ".toml":
-        v = np.asarray(Material.from_toml(path).eval(g["wi"], g["wo"]), dtype=np.float64)
-        v = v.reshape(v.shape[0], -1)
+    elif path.suffix.lower() in (".toml", ".bsdf"):  # a material file; an RGL or Zemax file (spectral: in RGB)
+        from reconstruction.formats.brdffile import load_brdf
+
+        v = np.asarray(load_brdf(path)(g["wi"], g["wo"]), dtype=np.float64)
         f = (np.repeat(v, 3, axis=1) if v.shape[1] == 1 else v[:, :3]).T
     else:  # an NBRDF set: the network on the grid's inputs (the same for every material), in float32, on one
         # BLAS thread (matrices of 21 columns: threads only contend, 5 times slower on a busy machine)
@@ -251,11 +253,12 @@ def _load_cached(folder: str) -> PriorSet:
     p = Path(folder)
     if not p.is_dir():
         raise ReconstructionError(f"--prior {folder}: not a folder (expected a folder of materials: NBRDF npy sets, "
-                                  f"MERL .binary tables or material TOML files)")
+                                  f"MERL .binary tables, material TOML or RGL/Zemax .bsdf files)")
     files = _material_files(p)
     if len(files) < 2:
         raise ReconstructionError(f"--prior {folder}: {len(files)} material(s) found; expected at least 2 (NBRDF npy "
-                                  f"sets NAME_fc1.npy ... NAME_b3.npy, MERL .binary tables or material TOML files)")
+                                  f"sets NAME_fc1.npy ... NAME_b3.npy, MERL .binary tables, material TOML or RGL/Zemax "
+                                  f".bsdf files)")
     names = sorted(files)
 
     def tabulate() -> tuple[Any, ...]:

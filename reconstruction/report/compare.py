@@ -63,7 +63,6 @@ LIGHTINGS = ("key", "rim")
 N_PAIRS = 200_000  # direction pairs of cosl2 and the log error (their sampling noise is far below 1 %)
 MAX_THETA_DEG = 80.0
 GRAZING_THETA_D_DEG = 60.0
-RGL_CHUNK = 4096  # pairs per evaluation of an RGL file (each holds its incidence's grid: a few MB per pair block)
 
 
 class CompareError(ReconstructionError):
@@ -104,20 +103,6 @@ class Brdf:
         return self._tabulated
 
 
-def _chunked(f: BRDF, n: int) -> BRDF:
-    """``f`` evaluated ``n`` pairs at a time (a BRDF whose evaluation holds per-pair grids in memory)."""
-
-    def g(wi: Array, wo: Array) -> Array:
-        wi = np.asarray(wi, dtype=np.float64).reshape(-1, 3)
-        wo = np.asarray(wo, dtype=np.float64).reshape(-1, 3)
-        if wi.shape[0] <= n:
-            return np.asarray(f(wi, wo), dtype=np.float64).reshape(wi.shape[0], -1)
-        return np.concatenate([np.asarray(f(wi[k:k + n], wo[k:k + n]), dtype=np.float64).reshape(-1, 3)
-                               for k in range(0, wi.shape[0], n)])  # blocks, for memory
-
-    return g
-
-
 def load_brdf(path: str | Path) -> Brdf:
     """Read the BRDF at ``path`` (:func:`reconstruction.formats.brdffile.load_brdf`: every file the project reads);
     :class:`CompareError` naming the file otherwise."""
@@ -129,7 +114,7 @@ def load_brdf(path: str | Path) -> Brdf:
         raise CompareError(str(e)) from None
     if b.table is not None:
         return Brdf(b.name, b.kind, merl.brdf_of(b.table), b.table)
-    return Brdf(b.name, b.kind, _chunked(b.eval, RGL_CHUNK) if b.kind == "rgl" else b.eval)
+    return Brdf(b.name, b.kind, b.eval)
 
 
 @dataclass
