@@ -157,7 +157,16 @@ def _finite_aperture(s: Slice) -> bool:
 def reconstruct_auto(s: Slice, opts: Options,
                      progress: Callable[[str], None] | None) -> tuple[Reconstruction, dict[str, Any]]:
     """Cross-validate every usable method on ``s`` (sorted, checked) and build the chosen one on all samples;
-    returns (reconstruction, choice) as :func:`reconstruction.pipeline.reconstruct` does."""
+    returns (reconstruction, choice) as :func:`reconstruction.pipeline.reconstruct` does. The folds' fits and the
+    final one share their cone integrals (a finite aperture's readings of unit lobes, computed once per sample)."""
+    from reconstruction.bench.instrument import shared_cone_averages
+
+    with shared_cone_averages():
+        return _reconstruct_auto(s, opts, progress)
+
+
+def _reconstruct_auto(s: Slice, opts: Options,
+                      progress: Callable[[str], None] | None) -> tuple[Reconstruction, dict[str, Any]]:
     from reconstruction.methods.fit import FitReconstruction, model_name, reconstruct_fit
 
     fit_rec = get("fit").build(s, opts, progress)
