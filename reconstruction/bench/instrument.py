@@ -295,6 +295,15 @@ def _smooth_lobe(lb: Microfacet, wib: Array, d: Array, idx: NDArray[np.bool_], n
     return s[..., None] * lb.colour.on(n, lwl)
 
 
+def _unit_shape(lb: Microfacet, wi: Array, d: Array) -> Array:
+    """``lb.shape`` (r, k) from ``wi`` (r, 3) to the directions ``d`` (r, k, 3), the half vector's cosines
+    written out per component (a unit lobe's many peak-rule nodes: about twice as fast as the general form)."""
+    hx, hy, hz = (wi[:, None, j] + d[..., j] for j in range(3))
+    inv = 1.0 / np.maximum(np.sqrt(hx * hx + hy * hy + hz * hz), 1e-300)
+    cos_d = (wi[:, None, 0] * hx + wi[:, None, 1] * hy + wi[:, None, 2] * hz) * inv
+    return lb.shape_cosines(hz * inv, cos_d, np.broadcast_to(wi[:, None, 2], hz.shape), d[..., 2])
+
+
 def _cone_reading(rest: BrdfFn, lobes: list[Microfacet], n_ch: int, wl: Array | None, wi: Array, wc: Array,
                   tan_a: float, per_lobe: bool = False) -> Array:
     """(1 / Omega) int f cos(theta_o) d omega over the cone of half angle atan(tan_a) about ``wc``: (m, C); with
@@ -341,7 +350,9 @@ def _cone_reading(rest: BrdfFn, lobes: list[Microfacet], n_ch: int, wl: Array | 
                 ld, _ = _dirs(wc[r], u[r], v[r], nodes[0], nodes[1])
                 lwi = np.broadcast_to(wi[r][:, None, :], ld.shape)
                 lcw = (nodes[2] * np.maximum(ld[..., 2], 0.0))[..., None]
-                acc[r] += np.sum(lb.eval(lwi, ld, n, lwl) * lcw, axis=1)
+                val = (_unit_shape(lb, wi[r], ld)[..., None] if per_lobe and type(lb).shape is Microfacet.shape
+                       else lb.eval(lwi, ld, n, lwl))
+                acc[r] += np.sum(val * lcw, axis=1)
         if per_lobe:
             parts.append(acc[:, 0])
     if per_lobe:

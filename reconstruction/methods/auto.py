@@ -29,10 +29,13 @@ The report's ``cross_validation`` section holds the scheme, every method's held-
 
 from __future__ import annotations
 
+import contextvars
 import dataclasses
 import math
+import os
 import warnings
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -169,40 +172,49 @@ def _reconstruct_auto(s: Slice, opts: Options,
                       progress: Callable[[str], None] | None) -> tuple[Reconstruction, dict[str, Any]]:
     from reconstruction.methods.fit import FitReconstruction, model_name, reconstruct_fit
 
-    fit_rec = get("fit").build(s, opts, progress)
-    assert isinstance(fit_rec, FitReconstruction)
-    specs = fit_rec.result.specs
     full = s
     s = thin_for_cv(full)  # cross-validation of a large input on a subsample; the chosen method uses every sample
     scheme, masks = folds(s)
-    # (method, variant, builder of a training slice): fit refitted in every fold as it was fitted to all samples
-    # (to a scene's samples when its budget chose a simpler model), and then the BIC choice competes too
-    builders: list[tuple[str, str | None, Callable[[Slice], Reconstruction]]] = []
-    for name, m in REGISTRY.items():
-        if not m.usable(opts):
-            continue
-        if name == "fit":
-            builders.append((name, None, lambda tr: reconstruct_fit(tr, scene=opts.scene, lobes=opts.lobes,
-                                                                    specs=specs, fit_to_scene=fit_rec.fitted_to_scene)))
-            if fit_rec.bic_specs is not None:
-                builders.append((name, f"BIC choice {model_name(fit_rec.bic_specs)}", lambda tr: reconstruct_fit(
-                    tr, scene=opts.scene, lobes=opts.lobes, specs=fit_rec.bic_specs)))
-        elif name == "prior":  # its anchored variants are scored from its and bivariate's held-out predictions
-            builders.append((name, None, lambda tr, m=m: m.build(tr, dataclasses.replace(opts, prior_anchor=0.0),
-                                                                 None)))
-        else:
-            builders.append((name, None, lambda tr, m=m: m.build(tr, opts, None)))
     inside = scene_mask(s, opts.scene)
     if inside is not None and not inside.any():
         inside = None  # no sample inside the scene: judge on all of them
-    scores: list[CVScore] = []
-    for name, variant, build in builders:  # a handful of methods
-        if progress:
-            progress(f"cross-validating {name}" + (f" ({variant})" if variant else ""))
-        sc = cross_validate(s, name, build, masks, inside)
-        sc.anchor = 0.0 if name == "prior" else None  # built with anchor 0 (above)
-        sc.variant = variant
-        scores.append(sc)
+    # the methods other than fit do not depend on fit's choice: they are cross-validated in a second thread while
+    # fit searches its model on all samples (their cone integrals and array work run beside its small solves)
+    others: list[tuple[str, Callable[[Slice], Reconstruction]]] = []
+    for name, m in REGISTRY.items():
+        if name == "fit" or not m.usable(opts):
+            continue
+        if name == "prior":  # its anchored variants are scored from its and bivariate's held-out predictions
+            others.append((name, lambda tr, m=m: m.build(tr, dataclasses.replace(opts, prior_anchor=0.0), None)))
+        else:
+            others.append((name, lambda tr, m=m: m.build(tr, opts, None)))
+    with _Background(enabled=len(others) > 0) as bg:
+        pending = {name: bg.submit(cross_validate, s, name, build, masks, inside) for name, build in others}
+        fit_rec = get("fit").build(full, opts, progress)
+        assert isinstance(fit_rec, FitReconstruction)
+        specs = fit_rec.result.specs
+        # (method, variant, builder of a training slice): fit refitted in every fold as it was fitted to all samples
+        # (to a scene's samples when its budget chose a simpler model), and then the BIC choice competes too
+        builders: list[tuple[str, str | None, Callable[[Slice], Reconstruction]]] = []
+        for name, m in REGISTRY.items():
+            if not m.usable(opts):
+                continue
+            if name == "fit":
+                builders.append((name, None, lambda tr: reconstruct_fit(
+                    tr, scene=opts.scene, lobes=opts.lobes, specs=specs, fit_to_scene=fit_rec.fitted_to_scene)))
+                if fit_rec.bic_specs is not None:
+                    builders.append((name, f"BIC choice {model_name(fit_rec.bic_specs)}", lambda tr: reconstruct_fit(
+                        tr, scene=opts.scene, lobes=opts.lobes, specs=fit_rec.bic_specs)))
+            else:
+                builders.append((name, None, lambda tr: None))  # cross-validated in the background (above)
+        scores: list[CVScore] = []
+        for name, variant, build in builders:  # a handful of methods, in the registry's order
+            if progress:
+                progress(f"cross-validating {name}" + (f" ({variant})" if variant else ""))
+            sc = pending[name]() if name in pending else cross_validate(s, name, build, masks, inside)
+            sc.anchor = 0.0 if name == "prior" else None  # built with anchor 0 (above)
+            sc.variant = variant
+            scores.append(sc)
     scores += _anchored_scores(s, scores, masks, inside)
     single = np.unique(s.theta_i_deg).size == 1
     preferred, margin = preference([b[0] for b in builders], single, _finite_aperture(s))
@@ -264,6 +276,30 @@ def _reconstruct_auto(s: Slice, opts: Options,
                     "held_out_predictions": ({} if s is not full else  # per sample of the input (none when thinned)
                                              {c.method: c.predictions for c in reversed(scores)
                                               if c.predictions is not None and (c.method != best.method or c is best)})}
+
+
+class _Background:
+    """A second thread for independent work when the machine has a second core (else the work runs when its result
+    is asked for); ``submit`` returns a function that gives the result (or raises the work's exception). The
+    thread runs in a copy of the caller's context (the shared cone integrals of
+    :func:`reconstruction.bench.instrument.shared_cone_averages` included)."""
+
+    def __init__(self, enabled: bool = True) -> None:
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        self.pool = ThreadPoolExecutor(max_workers=1) if enabled and cores > 1 else None
+
+    def __enter__(self) -> _Background:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.pool is not None:
+            self.pool.shutdown(wait=True, cancel_futures=True)
+
+    def submit(self, fn: Callable[..., Any], *args: Any) -> Callable[[], Any]:
+        if self.pool is None:
+            return lambda: fn(*args)
+        fut = self.pool.submit(contextvars.copy_context().run, fn, *args)
+        return fut.result
 
 
 def _bic_fit(s: Slice, opts: Options, fit_rec: Any, progress: Callable[[str], None] | None) -> Reconstruction:
