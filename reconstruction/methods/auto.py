@@ -88,6 +88,8 @@ NOISE_LEVEL_FACTOR = 1.5
 #: and from 20/40/60 deg from 169 % to 86 %; the medians move by about a point either way (28.0 -> 27.3 %,
 #: 16.8 -> 18.0 %, 15.4 -> 16.4 % from 20/50/75, 17.2 -> 15.4 % from 40/70; README: Real materials).
 PRIOR_ANCHORS = (0.25, 0.5)
+#: The methods cross-validated in a second thread while fit searches its model (when the machine has two cores).
+BACKGROUND_METHODS = ("microfacet", "revolve", "bivariate")
 
 def max_albedo(rec: Reconstruction) -> tuple[float, float]:
     """(largest directional albedo over channels and theta_i = 0-85 deg, the theta_i in degrees where it is).
@@ -178,16 +180,12 @@ def _reconstruct_auto(s: Slice, opts: Options,
     inside = scene_mask(s, opts.scene)
     if inside is not None and not inside.any():
         inside = None  # no sample inside the scene: judge on all of them
-    # the methods other than fit do not depend on fit's choice: they are cross-validated in a second thread while
-    # fit searches its model on all samples (their cone integrals and array work run beside its small solves)
-    others: list[tuple[str, Callable[[Slice], Reconstruction]]] = []
-    for name, m in REGISTRY.items():
-        if name == "fit" or not m.usable(opts):
-            continue
-        if name == "prior":  # its anchored variants are scored from its and bivariate's held-out predictions
-            others.append((name, lambda tr, m=m: m.build(tr, dataclasses.replace(opts, prior_anchor=0.0), None)))
-        else:
-            others.append((name, lambda tr, m=m: m.build(tr, opts, None)))
+    # microfacet, revolve and bivariate do not depend on fit's choice: they are cross-validated in a second thread
+    # while fit searches its model on all samples (their cone integrals and array work run beside its small solves).
+    # prior stays in this thread, after fit: its large least-squares problems use BLAS threads, whose number fit's
+    # threadpool limit changes for the whole process while it runs (and with it the last digits of prior's results)
+    others = [(name, lambda tr, m=m: m.build(tr, opts, None)) for name, m in REGISTRY.items()
+              if name in BACKGROUND_METHODS and m.usable(opts)]
     with _Background(enabled=len(others) > 0) as bg:
         pending = {name: bg.submit(cross_validate, s, name, build, masks, inside) for name, build in others}
         fit_rec = get("fit").build(full, opts, progress)
@@ -205,8 +203,13 @@ def _reconstruct_auto(s: Slice, opts: Options,
                 if fit_rec.bic_specs is not None:
                     builders.append((name, f"BIC choice {model_name(fit_rec.bic_specs)}", lambda tr: reconstruct_fit(
                         tr, scene=opts.scene, lobes=opts.lobes, specs=fit_rec.bic_specs)))
+            elif name == "prior":  # its anchored variants are scored from its and bivariate's held-out predictions
+                builders.append((name, None, lambda tr, m=m: m.build(tr, dataclasses.replace(opts, prior_anchor=0.0),
+                                                                     None)))
+            elif name in pending:
+                builders.append((name, None, lambda tr: None))  # cross-validated in the second thread (above)
             else:
-                builders.append((name, None, lambda tr: None))  # cross-validated in the background (above)
+                builders.append((name, None, lambda tr, m=m: m.build(tr, opts, None)))
         scores: list[CVScore] = []
         for name, variant, build in builders:  # a handful of methods, in the registry's order
             if progress:
