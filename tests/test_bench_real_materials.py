@@ -43,6 +43,7 @@ def write_nbrdf(prefix: Path, seed: int) -> None:
         np.save(f"{prefix}_{k}.npy", a)
 
 
+@pytest.mark.slow
 def test_benchmark_runs_every_case_on_a_data_folder(bench, tmp_path, capsys):
     data = tmp_path / "realdata"
     (data / "nbrdf-merl").mkdir(parents=True)
@@ -78,6 +79,7 @@ def test_the_summary_counts_auto_against_the_best_method_and_bounds_any_choice(b
     assert "chosen with the truth, a bound on any choice): rmse80 median 30.0 %, worst 65.0 %, > 50 %: 1" in lines
 
 
+@pytest.mark.slow
 def test_the_prior_floor_benchmark_runs_on_a_data_folder(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_prior_floor.py"

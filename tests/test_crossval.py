@@ -92,6 +92,7 @@ def test_a_large_input_is_cross_validated_on_a_bounded_subsample():
     assert thin_for_cv(small) is small
 
 
+@pytest.mark.slow
 def test_one_slice_through_a_finite_cone_prefers_microfacet():
     from reconstruction import pipeline
     from reconstruction.bench.instrument import Instrument, instrument_average
