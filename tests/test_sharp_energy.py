@@ -65,6 +65,7 @@ class _Analytic:
         return self._mat.eval(wi, wo)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("lam, alpha, ks", [(0.02, 1e-3, 0.95), (0.1, 5e-3, 0.9), (0.0, 5e-3, 1.0)])
 def test_a_sub_cell_lobe_near_the_energy_limit_tabulates_plausibly_for_both_readers(lam, alpha, ks):
     """The default tabulation of an exact BRDF whose lobe lies in the first theta_h cells (the issue's mirror, albedo
@@ -85,6 +86,7 @@ def test_a_sub_cell_lobe_near_the_energy_limit_tabulates_plausibly_for_both_read
     assert report.plausibility(rec, table)["albedo"]["pass"]
 
 
+@pytest.mark.slow
 def test_an_implausible_sub_cell_lobe_stays_implausible():
     """The renormalisation is to the BRDF's own albedo: one of 1.5 is not brought down to a plausible table."""
     mat = _material(0.6, 5e-3, 0.9)
