@@ -226,7 +226,15 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
     the registry), tabulate, check plausibility, write the table (atomically), the preview and the report.
     Returns the report. Raises :class:`ImplausibleError` (nothing written) for a table that fails a plausibility
     check unless ``job.allow_implausible``; bad input is a :class:`ReconstructionError` (or a reader's error)
-    naming the file, checked output paths before any work."""
+    naming the file, checked output paths before any work. The job's fits (auto's folds, the HTML report's other
+    methods) share their cone integrals (:func:`reconstruction.bench.instrument.shared_cone_averages`)."""
+    from reconstruction.bench.instrument import shared_cone_averages
+
+    with shared_cone_averages():
+        return _run(job, progress)
+
+
+def _run(job: Job, progress: Progress | None) -> dict[str, Any]:
     from reconstruction.core import colour
     from reconstruction.core.scene import LOBE_KINDS, load_scene
     from reconstruction.formats import brdffile, exports, inputs, merl, zemax

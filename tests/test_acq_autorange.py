@@ -266,6 +266,7 @@ def ranged_count(out) -> int:
         return 0
 
 
+@pytest.mark.slow
 def test_resume_after_kill_in_the_auto_ranged_region(tmp_path):
     """SIGKILL once two points of the peak were auto-ranged, resume: the samples equal an uninterrupted run's
     (none lost, none twice, the same settings), the darks per setting come from the run record."""

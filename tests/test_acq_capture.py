@@ -21,6 +21,7 @@ def _check_against_truth(raw, s, z_max=5.0):
     return z, rel
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("motion", ["dynamixel", "serial"])
 def test_full_capture_matches_ground_truth(tmp_path, capsys, motion):
     raw = make_raw({"bench": {"motion": motion}})
@@ -130,6 +131,7 @@ def test_out_dir_with_capture_needs_resume(tmp_path, capsys):
     assert "different plan" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_example_script_runs(tmp_path):
     import subprocess
     import sys
@@ -144,6 +146,7 @@ def test_example_script_runs(tmp_path):
     assert "(0 of 4 repeats saturated)" in line and float(line.split()[2]) > 65535.0, line
 
 
+@pytest.mark.slow
 def test_bench_read_ranges_a_saturated_reading_or_warns_without_auto_ranging(tmp_path):
     """The README's Bench snippet at the demo material's specular peak, (30, 30), which saturates the reference
     setting (gain 10000, 0.01 s): with auto-ranging the reading is taken at a lower gain and converted to the
@@ -175,6 +178,7 @@ def test_bench_read_ranges_a_saturated_reading_or_warns_without_auto_ranging(tmp
         assert clipped.saturated == 4
 
 
+@pytest.mark.slow
 def test_cli_subprocess_json(tmp_path):
     cfg = write_config(tmp_path / "j.toml", make_raw({"plan": {"theta_o_step_deg": 20.0}}))
     p = run_capture("--config", str(cfg), "--out", str(tmp_path / "o"), "--json")
@@ -183,6 +187,7 @@ def test_cli_subprocess_json(tmp_path):
     assert d["status"] == "complete" and d["samples_new"] == d["points_planned"] == 7
 
 
+@pytest.mark.slow
 def test_scene_restricts_the_capture(tmp_path, capsys):
     raw = make_raw({"plan": {"theta_i_deg": [30.0, 60.0]}})
     cfg = write_config(tmp_path / "scene.toml", raw)

@@ -56,6 +56,7 @@ def test_comm_faults_are_retried(tmp_path, capsys, motion):
     assert "'dropped': 0, 'corrupted': 0" not in counts.split("serial")[1][:60]  # faults did happen on serial
 
 
+@pytest.mark.slow
 def test_overloads_stop_safely_and_resume_exactly(tmp_path, capsys):
     raw = make_raw({"simulator": {"faults": {"overload_rate": 0.12}}})
     out = tmp_path / "out"
@@ -69,6 +70,7 @@ def test_overloads_stop_safely_and_resume_exactly(tmp_path, capsys):
     assert sum(r["samples_new"] for r in runs) == len(planned(cfg))  # none measured twice
 
 
+@pytest.mark.slow
 def test_stepper_stalls_stop_safely_and_resume_exactly(tmp_path, capsys):
     raw = make_raw({"bench": {"motion": "serial"}, "simulator": {"faults": {"stall_rate": 0.1}}})
     out = tmp_path / "out"
@@ -79,6 +81,7 @@ def test_stepper_stalls_stop_safely_and_resume_exactly(tmp_path, capsys):
     assert "alarm 21 (an axis stalled)" in log and "RESET" in log
 
 
+@pytest.mark.slow
 def test_vanished_port_then_resume(tmp_path, capsys):
     raw = make_raw({"simulator": {"faults": {"port_vanish_after_s": 4.5, "vanish_ports": "dynamixel"}}})
     cfg = write_config(tmp_path / "vanish.toml", raw)
@@ -117,6 +120,7 @@ def test_saturation_faults_are_reread(tmp_path, capsys):
     assert "saturated" in (out / "capture.log").read_text()
 
 
+@pytest.mark.slow
 def test_real_saturation_stops_with_advice(tmp_path, capsys):
     """Without auto-ranging a saturating detector stops the capture; with it, when even the shortest allowed
     integration time saturates."""
@@ -153,6 +157,7 @@ def test_refused_goal_is_a_hardware_error_and_reconnect_reboots(tmp_path, caplog
         assert abs(ti - 40.0) < 0.25 and abs(to - 40.0) < 0.25
 
 
+@pytest.mark.slow
 def test_failure_before_the_first_sample_says_nothing_was_captured(tmp_path, capsys):
     raw = make_raw({"simulator": {"faults": {"port_vanish_after_s": 0.1, "vanish_ports": "serial"}}})
     cfg = write_config(tmp_path / "early.toml", raw)

@@ -47,6 +47,7 @@ def one_line(err: str) -> bool:
 # --- one capture per folder -----------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_two_captures_on_one_out_the_second_refuses_at_once(tmp_path):
     cfg = write_config(tmp_path / "slow.toml", make_raw(SLOW))
     out = tmp_path / "out"
@@ -74,6 +75,7 @@ def test_two_captures_on_one_out_the_second_refuses_at_once(tmp_path):
     assert (out / LOCK_NAME).read_text() == ""  # released at the end
 
 
+@pytest.mark.slow
 def test_kill_9_of_the_lock_holder_then_resume(tmp_path):
     cfg = write_config(tmp_path / "slow.toml", make_raw(SLOW))
     out = tmp_path / "out"
@@ -124,6 +126,7 @@ def partial_capture(tmp_path: Path, capsys) -> tuple[Path, dict]:
     return out, make_raw()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("newline", ["\n", "\r\n"])
 def test_resume_after_a_column_reorder_appends_under_the_right_columns(tmp_path, capsys, newline):
     out, raw = partial_capture(tmp_path, capsys)
@@ -180,6 +183,7 @@ os.execv(sys.executable, [sys.executable, "-m", "simulator.cli", *args])
     return script
 
 
+@pytest.mark.slow
 def test_a_resume_with_another_sample_on_the_bench_is_refused_unless_forced(tmp_path, capsys):
     """Issue 22, item 4: a capture stopped part-way is resumed with another sample on the bench (the config the
     same): the last two recorded points are measured again first, read ~5 x the recorded values, and the resume
@@ -304,6 +308,7 @@ def test_the_fingerprint_is_in_the_slice_metadata(complete_capture):
 # --- resumed runs continue the simulator's random streams -------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_a_resumed_run_draws_new_faults_and_noise(tmp_path, capsys):
     from simulator.bench import VirtualBench
     from simulator.config import load_config as sim_config
@@ -378,6 +383,7 @@ def test_transient_clips_are_read_around_and_real_saturation_is_not():
 # --- signals ------------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("first, second, code, gap", [(signal.SIGTERM, signal.SIGTERM, 143, 0.0),
                                                       (signal.SIGINT, signal.SIGINT, 130, 0.03),
                                                       (signal.SIGTERM, signal.SIGINT, 143, 0.1)])
@@ -416,6 +422,7 @@ def test_a_second_signal_while_stopping_is_no_traceback_and_keeps_the_status(tmp
     assert sorted(keys(read(out / "slice.csv"))) == planned(fast) and n >= 3
 
 
+@pytest.mark.slow
 def test_a_signal_during_the_final_dark_reading_is_an_interrupted_exit(tmp_path):
     raw = make_raw({"detector": {"dark_repeats": 1000}}, SLOW)  # the final dark takes ~1.3 s of wall time
     cfg = write_config(tmp_path / "slow.toml", raw)
@@ -448,6 +455,7 @@ def _file_size_limit(nbytes: int):
     return pre
 
 
+@pytest.mark.slow
 def test_a_full_disk_during_a_capture_is_one_line_and_the_capture_resumes(tmp_path):
     raw = make_raw({"detector": {"type": "spectrometer"}, "plan": {"theta_o_step_deg": 10.0},
                     "simulator": {"spectrometer": {"wl_min_nm": 400.0, "wl_max_nm": 700.0, "wl_step_nm": 20.0}}})
@@ -478,6 +486,7 @@ def _unprivileged_capture(*args: str) -> subprocess.CompletedProcess[str]:
                           capture_output=True, text=True, timeout=60, **unprivileged())
 
 
+@pytest.mark.slow
 def test_read_only_outputs_are_refused_before_anything_moves(tmp_path, capsys):
     cfg = write_config(tmp_path / "c.toml", make_raw())
     ro = tmp_path / "ro"

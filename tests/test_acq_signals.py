@@ -31,6 +31,7 @@ def wait_for_rows(path, n, proc, timeout=30.0) -> None:
         time.sleep(0.01)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sig, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
 def test_signal_parks_torque_off_and_resumes(tmp_path, sig, code):
     cfg = write_config(tmp_path / "slow.toml", make_raw(SLOW))
@@ -55,6 +56,7 @@ def test_signal_parks_torque_off_and_resumes(tmp_path, sig, code):
     assert sorted(keys(s)) == planned(fast)
 
 
+@pytest.mark.slow
 def test_sigkill_at_random_moments_then_resume(tmp_path):
     """Kill -9 the capture several times at random moments, resume each time: the final set of samples equals
     an uninterrupted run's, none twice, and the values agree with the ground truth."""
@@ -173,6 +175,7 @@ def test_without_a_signal_the_guard_gives_the_previous_handlers_back():
     assert {s: signal.getsignal(s) for s in old} == old
 
 
+@pytest.mark.slow
 def test_two_sigterms_at_any_moment_never_print_a_traceback(tmp_path):
     """SIGTERM to the capture's process group and again 20 ms later, at several moments: during start-up (before
     the capture handles signals: killed by the signal, silently), while the simulator starts, during the

@@ -114,6 +114,7 @@ def test_numbers_that_would_overflow_later_are_refused_by_check(tmp_path, capsys
     assert len(err) < 400 and err.count("\n") == 2, err
 
 
+@pytest.mark.slow
 def test_a_tabulated_lobe_of_garbage_fails_check_and_the_simulator_refuses_to_serve(tmp_path, capsys):
     (tmp_path / "garbage.binary").write_bytes(np.random.default_rng(0).bytes(3000))
     (tmp_path / "wild.binary").write_bytes(np.array([90, 90, 180], "<i4").tobytes()

@@ -11,6 +11,7 @@ from reconstruction.formats import merl
 from tests.test_cli_reconstruct import BLUE_PLASTIC, slice_file
 
 
+@pytest.mark.slow
 def test_batch_reconstructs_every_slice_and_reports_failures(tmp_path, capsys):
     src = tmp_path / "captures"
     (src / "run1").mkdir(parents=True)

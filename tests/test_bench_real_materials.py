@@ -56,6 +56,7 @@ def write_nbrdf(prefix: Path, seed: int) -> None:
         np.save(f"{prefix}_{k}.npy", a)
 
 
+@pytest.mark.slow
 def test_benchmark_runs_every_case_on_a_data_folder(bench, tmp_path, capsys):
     data = tmp_path / "realdata"
     (data / "nbrdf-merl").mkdir(parents=True)
@@ -109,6 +110,7 @@ def test_the_summary_gives_medians_worst_cases_and_databases(bench):
     assert "  all                      PSNR median  55.0 / worst  50.0 dB (a)" in text  # the floor
 
 
+@pytest.mark.slow
 def test_the_prior_floor_benchmark_runs_on_a_data_folder(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_prior_floor.py"

@@ -32,6 +32,7 @@ def slice_file(path, mat, incidences=(30.0,), step=2.0):
     return path
 
 
+@pytest.mark.slow
 def test_end_to_end_on_a_slice_file(tmp_path):
     src = slice_file(tmp_path / "slice.csv", BLUE_PLASTIC)
     out = tmp_path / "material.binary"
@@ -75,6 +76,7 @@ def test_help_answers():
         assert word in r.stdout
 
 
+@pytest.mark.slow
 def test_generic_spectral_table_bivariate_supersampled(tmp_path):
     wl = np.arange(400, 701, 20)
     s = synthetic_slice(Material.from_dict({"name": "grey", "lobes": [
@@ -160,6 +162,7 @@ def test_bad_options_exit_2(tmp_path, capsys):
 # --- dispatch --------------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_auto_chooses_by_held_out_prediction_on_a_material_outside_every_family():
     # rough Oren-Nayar diffuse + a Phong lobe: neither fit nor microfacet can describe it; three incidences
     s = synthetic_slice(PHONG, (10.0, 40.0, 70.0))
@@ -230,6 +233,7 @@ def test_options_reach_the_method_and_samples_arrive_sorted(monkeypatch):
     assert np.allclose(t[:, merl.valid_mask()], 0.1)
 
 
+@pytest.mark.slow
 def test_an_implausible_table_is_refused_with_exit_3_unless_allowed(tmp_path, capsys):
     # a flat f = 0.5 1/sr reflects pi / 2 of the light it receives: no honest table
     to = np.arange(-80.0, 81.0, 2.0)
@@ -274,6 +278,7 @@ def test_tabulate_refuses_negative_or_missing_cells():
         pipeline.tabulate(Bad(np.nan))
 
 
+@pytest.mark.slow
 def test_every_method_passes_the_plausibility_checks(tmp_path):
     src = slice_file(tmp_path / "slice.csv", BLUE_PLASTIC, incidences=(20.0, 40.0, 60.0))
     for method in ("fit", "microfacet", "bivariate", "revolve"):

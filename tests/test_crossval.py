@@ -92,6 +92,7 @@ def test_a_large_input_is_cross_validated_on_a_bounded_subsample():
     assert thin_for_cv(small) is small
 
 
+@pytest.mark.slow
 def test_one_slice_through_a_finite_cone_prefers_microfacet():
     from reconstruction import pipeline
     from reconstruction.bench.instrument import Instrument, instrument_average
@@ -242,3 +243,34 @@ def test_a_choice_over_the_scene_budget_is_said_in_the_report_and_the_console(tm
                      str(tmp_path / "m.binary"), "--report", str(tmp_path / "m.json")])
     assert code == 0 and "warning" not in capsys.readouterr().err
     assert json.loads((tmp_path / "m.json").read_text())["cross_validation"]["over_budget"] is False
+
+
+def test_auto_cross_validates_the_other_methods_in_a_second_thread_with_the_same_result(monkeypatch):
+    """auto runs microfacet's, revolve's and bivariate's folds beside fit's model search when a second core is
+    there: the scores and the choice are those of running them one after the other."""
+    from reconstruction import pipeline
+    from reconstruction.core.models import Colour, Lambert, Material, Microfacet
+    from reconstruction.synthetic import synthetic_slice
+
+    mat = Material("m", [Lambert(Colour(np.array([0.2]))), Microfacet(Colour(np.array([0.5])), alpha=0.2)])
+    s = synthetic_slice(mat, (20.0, 50.0), step_deg=4.0, noise=0.01, seed=3)
+    threads: list[int] = []
+    real = auto._Background.submit
+
+    def watched(self, fn, *args):
+        threads.append(self.pool is not None)
+        return real(self, fn, *args)
+
+    monkeypatch.setattr(auto._Background, "submit", watched)
+    monkeypatch.setattr(auto.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    _, two = pipeline.reconstruct(s, "auto")
+    monkeypatch.setattr(auto.os, "sched_getaffinity", lambda pid: {0}, raising=False)
+    _, one = pipeline.reconstruct(s, "auto")
+    assert threads == [True] * 3 + [False] * 3  # microfacet, revolve, bivariate; in a thread, then inline
+
+    def scores(c):
+        return [(x["label"], x["held_out_relative_rmse_cos"], x["fold_errors"])
+                for x in c["cross_validation"]["scores"]]
+
+    assert scores(two) == scores(one) and two["reason"] == one["reason"]
+    assert sorted(x[0] for x in scores(one)) == ["bivariate", "fit", "microfacet", "revolve"]

@@ -147,6 +147,7 @@ def test_parameters_json_follows_the_schema():
         pytest.approx(1.0)
 
 
+@pytest.mark.slow
 def test_preview_rendered_by_mitsuba_with_the_written_file(mi, tmp_path):
     mat = Material.from_toml("configs/simulated.toml")
     s = tmp_path / "slice.csv"

@@ -51,6 +51,7 @@ def check_table(rec):
 GRAZING_TO = np.unique(np.concatenate([np.linspace(-89.9, 89.9, 121), [0.0, 45.0, 89.9]]))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", METHODS)
 def test_sharp_lobe_with_1e8_dynamic_range_at_grazing_angles(method):
     s = inplane_slice(SHARP, [0.0, 45.0, 89.9], GRAZING_TO)
@@ -72,6 +73,7 @@ def test_negative_samples_after_dark_subtraction(method):
     check_table(pipeline.reconstruct(s, method)[0])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", METHODS)
 def test_float32_input(method):
     s = inplane_slice(Material.from_toml("configs/simulated.toml"), [30.0], np.linspace(-80, 80, 81),
@@ -118,6 +120,7 @@ class _EvalOnly:
         return self._mat.eval(wi, wo)
 
 
+@pytest.mark.slow
 def test_tabulate_without_a_table_averages_a_sharp_lobe_over_its_cells():
     """pipeline.tabulate's fallback for a method without table(): bin-centre values, and where the method names a
     lobe sharper than the cells (sharp_theta_h_rad), theta_h cell averages there, each theta_d row scaled to the

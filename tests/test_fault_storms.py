@@ -66,6 +66,7 @@ def run_storm(tmp_path, capsys, raw: dict, runs: int) -> tuple[list[int], dict, 
     return codes, seen, lost
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind, rate, motion, faults, over, completes", STORMS,
                          ids=[f"{s[0]}-{s[1]}" for s in STORMS])
 def test_fault_storm(tmp_path, capsys, kind, rate, motion, faults, over, completes):
@@ -85,6 +86,7 @@ def test_fault_storm(tmp_path, capsys, kind, rate, motion, faults, over, complet
         assert len(codes) > 1  # the faults did stop runs, and the resumes went on from there
 
 
+@pytest.mark.slow
 def test_a_resume_does_not_replay_the_faults_that_stopped_the_run(tmp_path, capsys):
     """The issue's case: 1 % corrupt bytes on both ports. With seed 6 (the issue's; 13 while the capture asked
     its bench fewer questions and before gain ranging) the first run fails before its first sample (during the

@@ -188,6 +188,7 @@ def _max_albedo(rec):
     return float(halfvector_albedo(rec.eval, np.radians(np.arange(0.0, 89.0, 4.0))).max())
 
 
+@pytest.mark.slow
 @settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @example(seed=5403, noise=0.25, incidences=(40.0,))  # the beckmann alpha 0.005 lobe the coarse grid misjudged
 @given(st.integers(0, 10_000), st.floats(0.0, 0.3), st.sampled_from([(40.0,), (15.0, 60.0)]))
@@ -242,6 +243,7 @@ def test_a_mirror_direction_in_a_gap_bounds_the_lobe_width():
     assert rec.report()["parameters"][1]["alpha"] >= a_min * (1 - 1e-9)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("n_channels", [1, 3])
 def test_fit_table_is_the_tabulated_eval_with_theta_h_averages(n_channels):
     # FitReconstruction.table averages its sharp microfacet lobes in the half-diff angles: the same table as

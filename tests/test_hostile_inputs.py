@@ -27,6 +27,7 @@ def _report(outcomes: list[hostile.Outcome]) -> str:
                      for o in outcomes if not o.clean)
 
 
+@pytest.mark.slow
 def test_hostile_inputs_and_outputs_of_gonio_reconstruct(work):
     cases = hostile.reconstruct_cases(work / "reconstruct")
     assert len(cases) >= 60
@@ -37,6 +38,7 @@ def test_hostile_inputs_and_outputs_of_gonio_reconstruct(work):
     assert full.code == 1 and "disk is full" in full.stderr
 
 
+@pytest.mark.slow
 def test_hostile_configs_and_scenes_of_gonio_capture_check(work):
     cases = hostile.capture_check_cases(work / "capture")
     assert len(cases) >= 20

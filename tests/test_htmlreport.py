@@ -37,6 +37,7 @@ def parse(path):
     return p
 
 
+@pytest.mark.slow
 def test_html_report_is_self_contained_and_matches_the_json_report(tmp_path):
     src = slice_file(tmp_path / "slice.csv", BLUE_PLASTIC, incidences=(20.0, 50.0))
     html_path, report = tmp_path / "m.html", tmp_path / "m.json"
@@ -62,6 +63,7 @@ def test_html_report_is_self_contained_and_matches_the_json_report(tmp_path):
     assert rep["outputs"]["html"] == str(html_path)
 
 
+@pytest.mark.slow
 def test_batch_html_writes_a_page_per_material_and_an_index(tmp_path):
     d = tmp_path / "captures"
     d.mkdir()
@@ -91,6 +93,7 @@ def test_html_needs_a_file_name_outside_batch(tmp_path, capsys):
 # --- the figures: the environment sphere, the coverage legend, the albedo of grey data ---------------------------
 
 
+@pytest.mark.slow
 def test_the_environment_sphere_is_the_integral_of_the_environment_at_the_rim_too():
     """The page's sky-and-ground sphere (a glossy lobe, GGX alpha 0.05): each pixel, the grazing views at the rim
     included, is the environment's integral (the old render summed 192 fixed world directions, so a glossy lobe
@@ -153,6 +156,7 @@ def test_grey_data_have_one_albedo_curve():
     assert curves(colour) == ["R", "G", "B"]
 
 
+@pytest.mark.slow
 def test_an_html_report_a_preview_or_a_report_alone_is_an_output(tmp_path, capsys):
     """--out is optional once another output is asked: the HTML page (or the preview, or the JSON report) alone
     is written, and no table."""

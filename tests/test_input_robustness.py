@@ -167,6 +167,7 @@ def _big_table(path: Path, target_bytes: int) -> None:
         np.savetxt(fh, np.column_stack([ti, to, v, 0.01 * v]), delimiter=",", fmt="%.12g")
 
 
+@pytest.mark.slow
 def test_a_100_mb_table_is_read_in_bounded_memory(tmp_path):
     big = tmp_path / "big.csv"
     _big_table(big, 100_000_000)

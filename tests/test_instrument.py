@@ -149,3 +149,56 @@ def test_grazing_light_and_empty_input(recwarn):
     assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]
     assert instrument_average(mat, [], [], inst).shape == (0, 1)
     assert instrument_average(mat, [], [], Instrument()).shape == (0, 1)
+
+
+def _near_mirror_pairs():
+    """Direction pairs of three slices within 10 deg of their mirror directions (and two far from it)."""
+    ti = np.repeat([20.0, 45.0, 70.0], 7)
+    to = ti + np.tile([-10.0, -3.0, -0.7, 0.0, 0.4, 2.5, 9.0], 3)
+    ti, to = np.r_[ti, 30.0, 50.0], np.r_[to, -60.0, 10.0]
+    return inplane_to_dirs(np.radians(ti), np.radians(to))
+
+
+@pytest.mark.parametrize("kind", ["ggx", "beckmann"])
+def test_unit_lobe_averages_equal_one_lobe_at_a_time(kind):
+    from reconstruction.bench.instrument import instrument_average_dirs, unit_lobe_averages
+
+    wi, wo = _near_mirror_pairs()
+    inst = Instrument(detector_solid_angle_sr=1e-3, source_divergence_deg=0.25)
+    alphas = np.geomspace(1e-4, 1.5, 7)  # sharp lobes (the peak rule) and broad ones (the smooth rule)
+    got = unit_lobe_averages(wi, wo, inst, alphas, kind)
+    assert got.shape == (len(wi), alphas.size)
+    for k, a in enumerate(alphas):
+        one = instrument_average_dirs(_mat(Microfacet(Colour(np.ones(1)), alpha=float(a), distribution=kind)), wi, wo,
+                                      inst)[:, 0]
+        np.testing.assert_allclose(got[:, k], one, rtol=1e-8, atol=0.0)
+
+
+def test_shared_cone_averages_compute_each_direction_pair_once(monkeypatch):
+    from reconstruction.bench import instrument as ins
+
+    wi, wo = _near_mirror_pairs()
+    inst = Instrument.from_half_angle(1.0)
+    alphas = np.array([2e-3, 0.05, 0.3])
+    fresh = ins.unit_lobe_averages(wi, wo, inst, alphas)
+    computed: list[int] = []
+    real = ins._average_dirs
+
+    def counting(f, a, b, *args, **kw):
+        computed.append(len(np.atleast_2d(a)))
+        return real(f, a, b, *args, **kw)
+
+    monkeypatch.setattr(ins, "_average_dirs", counting)
+    with ins.shared_cone_averages():
+        first = ins.unit_lobe_averages(wi[:10], wo[:10], inst, alphas)  # a fold's training samples
+        with ins.shared_cone_averages():  # nested: the same memory
+            both = ins.unit_lobe_averages(wi, wo, inst, alphas)  # all of them: only the 13 others computed
+        again = ins.unit_lobe_averages(wi[5:15], wo[5:15], inst, alphas)  # all known: nothing computed
+        other = ins.unit_lobe_averages(wi[:3], wo[:3], inst, alphas[:2])  # another alpha grid: computed
+    assert computed == [10, len(wi) - 10, 3]
+    np.testing.assert_array_equal(both[:10], first)
+    np.testing.assert_array_equal(again, both[5:15])
+    np.testing.assert_allclose(both, fresh, rtol=1e-12)
+    np.testing.assert_allclose(other, fresh[:3, :2], rtol=1e-12)
+    ins.unit_lobe_averages(wi[:4], wo[:4], inst, alphas)  # the block is over: its memory is gone
+    assert computed[-1] == 4

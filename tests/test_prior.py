@@ -128,6 +128,7 @@ def _cli(*args, env=None):
                           text=True, timeout=300, env=env)
 
 
+@pytest.mark.slow
 def test_gonio_reconstruct_with_a_prior_and_auto_trying_it(family, tmp_path):
     import os
 
@@ -190,6 +191,7 @@ def test_the_noise_level_is_what_the_samples_std_amounts_to():
     assert 0.009 < noise_level(synthetic_slice(TARGET, (40.0,), noise=0.01, seed=3)) < 0.011
 
 
+@pytest.mark.slow
 def test_auto_with_a_prior_keeps_an_exact_model_of_a_noisy_slice(family, truth):
     s = synthetic_slice(TARGET, (40.0,), noise=0.01, seed=1)
     rec, choice = pipeline.reconstruct(s, "auto", pipeline.Options(prior=str(family[0])))
@@ -199,6 +201,7 @@ def test_auto_with_a_prior_keeps_an_exact_model_of_a_noisy_slice(family, truth):
     assert relative_rmse_cos(pipeline.tabulate(rec), truth, 80) < 0.05
 
 
+@pytest.mark.slow
 def test_an_anchored_prior_is_the_weighted_geometric_mean_of_prior_and_bivariate(family):
     from reconstruction import methods
     from reconstruction.core.geometry import inplane_to_dirs
@@ -254,6 +257,7 @@ def test_held_out_predictions_are_scored_as_the_relative_rmse_of_f_cos_cos():
     assert np.isinf(bad.error) and "fold 2" in bad.failure
 
 
+@pytest.mark.slow
 def test_auto_anchors_the_prior_on_a_material_outside_its_family(family):
     """PHONG (Oren-Nayar + Phong) is unlike every lambert + ggx of the prior: the prior alone overshoots from one
     slice; auto scores the anchored variants from held-out predictions and takes the best of them."""

@@ -90,6 +90,7 @@ def test_the_readme_has_python_snippets():
     assert len(BLOCKS) >= 2
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("k", range(len(BLOCKS)))
 def test_readme_python_snippet_runs(k):
     (ROOT / "out").mkdir(exist_ok=True)  # the snippets write under out/, which .gitignore covers
@@ -171,6 +172,7 @@ def demo(tmp_path_factory, request) -> Demo:
     return Demo(**{**saved, "folder": Path(saved["folder"])})
 
 
+@pytest.mark.slow
 def test_the_demo_capture_is_deterministic(demo):
     from reconstruction.formats.slicefile import read_slice
 
@@ -353,6 +355,7 @@ def test_the_cheap_command_line_runs(source, argv):
     assert r.returncode == 0, f"{source}: `{shlex.join(argv)}` exits {r.returncode}:\n{r.stderr[-2000:]}"
 
 
+@pytest.mark.slow
 def test_the_readme_demo_command_lines_run_on_the_demo(demo, tmp_path):
     """The README's reconstructions of out/demo/slice.csv and its --resume of out/demo, in a folder where out/demo
     is the demo's output (a copy, for the resume) and configs/ the repository's."""

@@ -66,6 +66,7 @@ def test_environment_matches_a_brute_force_integral(mat):
     assert np.sqrt(np.mean(errs ** 2)) < 0.015, errs  # measured: 1.0 % (ggx), 0.9 % (lambert)
 
 
+@pytest.mark.slow
 def test_a_mirror_like_lobe_at_the_rim_is_integrated():
     """A sharp lobe (GGX alpha 0.01) at grazing views: a fixed set of world directions sees it at a handful of
     directions at most (the blotches of the old environment sphere); the lobe's own samples integrate it."""

@@ -533,6 +533,7 @@ def test_zero_values_inside_a_slice_keep_their_angle():
     np.testing.assert_allclose(rec.eval(wi, wo)[:, 0], f, rtol=0.05, atol=1e-3 * f.max())  # grid leak at 0 | >0
 
 
+@pytest.mark.slow
 @settings(max_examples=25, deadline=None)
 @given(st.lists(st.floats(0.0, 85.0), min_size=1, max_size=3, unique=True),
        st.lists(st.integers(-178, 178), min_size=3, max_size=40, unique=True),
@@ -609,6 +610,7 @@ def test_sort_option_and_bad_parameters():
         rv.thesis_hemisphere(good, 45.0)
 
 
+@pytest.mark.slow
 def test_the_revolve_table_is_its_reciprocal_eval_at_every_cell_from_one_evaluation_per_cell():
     mat = Material.from_dict({"name": "m", "lobes": [{"type": "lambert", "albedo": [0.3, 0.2, 0.1]},
                                                      {"type": "ggx", "alpha": 0.15, "specular": 0.8, "f0": 0.04}]})

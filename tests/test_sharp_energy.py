@@ -65,6 +65,7 @@ class _Analytic:
         return self._mat.eval(wi, wo)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("lam, alpha, ks", [(0.02, 1e-3, 0.95), (0.1, 5e-3, 0.9), (0.0, 5e-3, 1.0)])
 def test_a_sub_cell_lobe_near_the_energy_limit_tabulates_plausibly_for_both_readers(lam, alpha, ks):
     """The default tabulation of an exact BRDF whose lobe lies in the first theta_h cells (the issue's mirror, albedo
@@ -85,6 +86,7 @@ def test_a_sub_cell_lobe_near_the_energy_limit_tabulates_plausibly_for_both_read
     assert report.plausibility(rec, table)["albedo"]["pass"]
 
 
+@pytest.mark.slow
 def test_an_implausible_sub_cell_lobe_stays_implausible():
     """The renormalisation is to the BRDF's own albedo: one of 1.5 is not brought down to a plausible table."""
     mat = _material(0.6, 5e-3, 0.9)
@@ -119,6 +121,7 @@ def test_revolve_leaves_a_broad_lobe_beyond_its_last_incidence_as_it_was():
     assert np.all(np.isfinite(f80)) and f80.max() < 10.0
 
 
+@pytest.mark.slow
 def test_auto_writes_a_mirror_table_that_keeps_its_albedo_to_80_deg(tmp_path):
     """Item 1 end to end: gonio-reconstruct --method auto on the mirror's readings; the written table's albedo is
     within 5 % of 0.97 at 0-80 deg (it was 0.36 at 80 deg) for both readers, and the checks pass."""
@@ -135,6 +138,7 @@ def test_auto_writes_a_mirror_table_that_keeps_its_albedo_to_80_deg(tmp_path):
     np.testing.assert_allclose(_table_albedo(table, False), exact, rtol=0.05)
 
 
+@pytest.mark.slow
 def test_fit_of_a_sub_cell_lobe_at_the_energy_limit_is_written(tmp_path):
     """Item 2 end to end: --method fit on lambert 0.1 + ggx 5e-3 (specular 0.9) exited 3 ("the table fails the
     plausibility check(s) albedo"); now it writes a plausible table, alpha within 25 % of 5e-3."""
@@ -154,6 +158,7 @@ def test_fit_of_a_sub_cell_lobe_at_the_energy_limit_is_written(tmp_path):
     np.testing.assert_allclose(_table_albedo(table, False), exact, rtol=0.05)
 
 
+@pytest.mark.slow
 def test_a_brdf_that_reflects_more_than_it_receives_is_still_refused(tmp_path, capsys):
     """Readings of a sharp lobe at 1.5 times what any surface reflects: revolve (no energy constraint) reconstructs
     them as they are, the sub-cell rows are renormalised, and the table is refused with exit 3, nothing written."""

@@ -68,6 +68,7 @@ def tiny_study(tmp_path_factory):
     return d, rows
 
 
+@pytest.mark.slow
 def test_a_real_simulated_capture_is_reconstructed_by_every_method(tiny_study):
     d, rows = tiny_study
     assert [r["method"] for r in rows] == list(study.METHODS)
@@ -89,6 +90,7 @@ def test_a_real_simulated_capture_is_reconstructed_by_every_method(tiny_study):
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 5000
 
 
+@pytest.mark.slow
 def test_the_same_cases_run_on_a_dask_cluster(tmp_path):
     import distributed  # the test extra installs it; the feature is --scheduler ADDRESS
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as lc:
@@ -107,6 +109,7 @@ def test_cli_rejects_unknown_materials_and_missing_config(capsys):
     assert "no such file" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_a_case_is_recaptured_when_its_config_changed_and_resumed_when_not(tmp_path, monkeypatch, request):
     request.addfinalizer(study.truth_table.cache_clear)  # no truth of the patched material outlives this test
     case = Case("diffuse", 5.0, 1, 1, "uniform", "low")
@@ -130,6 +133,7 @@ def test_a_case_is_recaptured_when_its_config_changed_and_resumed_when_not(tmp_p
     assert read_slice(slice_csv).values.mean() < 0.7 * 0.6 / np.pi  # the new, darker material's samples
 
 
+@pytest.mark.slow
 def test_a_material_dir_gives_neural_and_toml_materials_to_the_study(tmp_path):
     from tests.test_nbrdf_energy import write_nbrdf
 

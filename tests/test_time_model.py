@@ -132,6 +132,7 @@ def test_with_every_point_auto_ranged_the_estimate_is_within_2_percent_ranging_i
     assert "read at lower gains (0.01 s, gain" in log and "read at shorter integration times" not in log
 
 
+@pytest.mark.slow
 def test_in_real_time_the_polling_and_the_software_are_in_the_estimate_too(tmp_path):
     """time_scale = 1: the drivers' polling interval and the software's own time are bench time, as on a real
     bench (the Dynamixel bench's own settings: 0.05 s integration, 0.3 s settling, 0.02 s polling; three

@@ -170,6 +170,7 @@ def test_write_then_read_gives_the_same_values_and_tis_is_the_albedo(tmp_path):
     np.testing.assert_allclose(back, zemax.tabulate(rgb.eval, inc, az, rad), rtol=1e-5, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_gonio_reconstruct_reads_a_zemax_file_and_writes_one_back(tmp_path):
     """Every method reads the file's in-plane slices; fit uses all its points; --zemax output on a stated grid
     reads back as the reconstruction's values."""

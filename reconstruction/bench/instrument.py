@@ -16,7 +16,9 @@ evaluations, wherever its peak falls (inside, at the edge or outside the cone).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any
@@ -25,13 +27,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from reconstruction.core.geometry import inplane_to_dirs, normalize
-from reconstruction.core.models import Material, Microfacet
+from reconstruction.core.models import Colour, Material, Microfacet
 from reconstruction.schema.slice_meta import INSTRUMENT_KEYS, check_instrument
 
 Array = NDArray[np.float64]
 BrdfFn = Callable[[Array, Array], Array]
 
-__all__ = ["Instrument", "InstrumentError", "instrument_average", "instrument_average_dirs", "INSTRUMENT_KEYS"]
+__all__ = ["Instrument", "InstrumentError", "instrument_average", "instrument_average_dirs", "INSTRUMENT_KEYS",
+           "unit_lobe_averages", "shared_cone_averages"]
 
 
 # Quadrature sizes: the smooth polar rule (radial Gauss in r^2 x uniform azimuth), the lobe rule (rays x radial
@@ -279,9 +282,32 @@ def _split(f: BrdfFn | Material, lobes: Sequence[Microfacet] | None
     return rest_sub, mf, 0, wl
 
 
+def _smooth_lobe(lb: Microfacet, wib: Array, d: Array, idx: NDArray[np.bool_], n: int, lwl: Array | None,
+                 geo: dict[str, tuple[Array, ...]]) -> Array:
+    """``lb.eval(wib[idx], d[idx], n, lwl)``, the lobe at the smooth rule's nodes, with the half-vector cosines
+    (independent of the lobe) computed once per cone reading in ``geo`` and shared by every lobe."""
+    if type(lb).shape is not Microfacet.shape:  # a lobe of its own shape: evaluated as it says
+        return lb.eval(wib[idx], d[idx], n, lwl)
+    if "cos" not in geo:
+        h = normalize(wib + d)
+        geo["cos"] = (h[..., 2], np.sum(wib * h, axis=-1), wib[..., 2], d[..., 2])
+    s = lb.shape_cosines(*(c[idx] for c in geo["cos"]))
+    return s[..., None] * lb.colour.on(n, lwl)
+
+
+def _unit_shape(lb: Microfacet, wi: Array, d: Array) -> Array:
+    """``lb.shape`` (r, k) from ``wi`` (r, 3) to the directions ``d`` (r, k, 3), the half vector's cosines
+    written out per component (a unit lobe's many peak-rule nodes: about twice as fast as the general form)."""
+    hx, hy, hz = (wi[:, None, j] + d[..., j] for j in range(3))
+    inv = 1.0 / np.maximum(np.sqrt(hx * hx + hy * hy + hz * hz), 1e-300)
+    cos_d = (wi[:, None, 0] * hx + wi[:, None, 1] * hy + wi[:, None, 2] * hz) * inv
+    return lb.shape_cosines(hz * inv, cos_d, np.broadcast_to(wi[:, None, 2], hz.shape), d[..., 2])
+
+
 def _cone_reading(rest: BrdfFn, lobes: list[Microfacet], n_ch: int, wl: Array | None, wi: Array, wc: Array,
-                  tan_a: float) -> Array:
-    """(1 / Omega) int f cos(theta_o) d omega over the cone of half angle atan(tan_a) about ``wc``: (m, C)."""
+                  tan_a: float, per_lobe: bool = False) -> Array:
+    """(1 / Omega) int f cos(theta_o) d omega over the cone of half angle atan(tan_a) about ``wc``: (m, C); with
+    ``per_lobe`` each microfacet lobe's own reading, channel 0, the smooth rest left out: (m, len(lobes))."""
     m = len(wi)
     omega = 2.0 * np.pi * (1.0 - 1.0 / math.sqrt(1.0 + tan_a * tan_a))
     u, v = _frame(wc)
@@ -296,7 +322,10 @@ def _cone_reading(rest: BrdfFn, lobes: list[Microfacet], n_ch: int, wl: Array | 
     # smooth over the cone (the smooth rule is then within 1e-4 of a brute-force integral even at grazing angles)
     wr = wi * np.array([-1.0, -1.0, 1.0])
     near_peak = np.sum(wr * wc, axis=-1) > math.cos(min(_NEAR_CONES * math.atan(tan_a), 0.5 * math.pi))
-    for lb in lobes:
+    geo: dict[str, tuple[Array, ...]] = {}
+    parts = []
+    for lb in lobes:  # a handful of lobes (a dictionary's few dozen terms with per_lobe)
+        acc = np.zeros_like(total) if per_lobe else total
         lwl = wl if wl is not None else lb.colour.wavelengths_nm
         sharp = near_peak & (lb.alpha / max(tan_a, 1e-300) < 2.0)
         if np.any(sharp):
@@ -307,22 +336,27 @@ def _cone_reading(rest: BrdfFn, lobes: list[Microfacet], n_ch: int, wl: Array | 
             lqx, lqy, lw, edge = lqx[ok], lqy[ok], lw[ok], edge[ok]
         if np.any(~sharp):
             idx = ~sharp
-            total[idx] += np.sum(lb.eval(wib[idx], d[idx], n, lwl) * cosw[idx], axis=1)
-        if not np.any(sharp):
-            continue
-        rows = np.flatnonzero(sharp)
-        for sel, nodes in ((~edge, (lqx, lqy, lw)), (edge, None)):
-            if not np.any(sel):
-                continue
-            r = rows[sel]
-            if nodes is None:  # a peak near the cone's edge: four times the rays
-                nodes = _lobe_nodes(wi[r], wc[r], u[r], v[r], tan_a, lb.alpha, 4 * _LOBE_NPSI)[:3]
-            else:
-                nodes = tuple(a[sel] for a in nodes)
-            ld, _ = _dirs(wc[r], u[r], v[r], nodes[0], nodes[1])
-            lwi = np.broadcast_to(wi[r][:, None, :], ld.shape)
-            lcw = (nodes[2] * np.maximum(ld[..., 2], 0.0))[..., None]
-            total[r] += np.sum(lb.eval(lwi, ld, n, lwl) * lcw, axis=1)
+            acc[idx] += np.sum(_smooth_lobe(lb, wib, d, idx, n, lwl, geo) * cosw[idx], axis=1)
+        if np.any(sharp):
+            rows = np.flatnonzero(sharp)
+            for sel, nodes in ((~edge, (lqx, lqy, lw)), (edge, None)):
+                if not np.any(sel):
+                    continue
+                r = rows[sel]
+                if nodes is None:  # a peak near the cone's edge: four times the rays
+                    nodes = _lobe_nodes(wi[r], wc[r], u[r], v[r], tan_a, lb.alpha, 4 * _LOBE_NPSI)[:3]
+                else:
+                    nodes = tuple(a[sel] for a in nodes)
+                ld, _ = _dirs(wc[r], u[r], v[r], nodes[0], nodes[1])
+                lwi = np.broadcast_to(wi[r][:, None, :], ld.shape)
+                lcw = (nodes[2] * np.maximum(ld[..., 2], 0.0))[..., None]
+                val = (_unit_shape(lb, wi[r], ld)[..., None] if per_lobe and type(lb).shape is Microfacet.shape
+                       else lb.eval(lwi, ld, n, lwl))
+                acc[r] += np.sum(val * lcw, axis=1)
+        if per_lobe:
+            parts.append(acc[:, 0])
+    if per_lobe:
+        return np.stack(parts, axis=-1).reshape(m, len(lobes)) / omega
     return total / omega
 
 
@@ -356,12 +390,22 @@ def instrument_average_dirs(f: BrdfFn | Material, wi: ArrayLike, wo: ArrayLike, 
                             lobes: Sequence[Microfacet] | None = None) -> Array:
     """:func:`instrument_average` for any direction pairs: unit vectors ``wi`` (to the light) and ``wo`` (the
     detector cone's centre), (n, 3) each; returns (n, channels)."""
+    return _average_dirs(f, wi, wo, instrument, lobes)
+
+
+def _average_dirs(f: BrdfFn | Material, wi: ArrayLike, wo: ArrayLike, instrument: Instrument,
+                  lobes: Sequence[Microfacet] | None = None, per_lobe: bool = False) -> Array:
+    """:func:`instrument_average_dirs`; with ``per_lobe`` (``f`` a material of microfacet lobes only) each lobe's
+    reading, channel 0: (n, lobes)."""
     wi = np.atleast_2d(np.asarray(wi, dtype=np.float64))
     wc = np.atleast_2d(np.asarray(wo, dtype=np.float64))
     wi, wc = np.broadcast_arrays(wi, wc)
     wi, wc = wi.reshape(-1, 3), wc.reshape(-1, 3)
     m = len(wi)
     fn: BrdfFn = f.eval if isinstance(f, Material) else f
+    if per_lobe:
+        assert isinstance(f, Material) and all(isinstance(lb, Microfacet) for lb in f.lobes)
+        fn = lambda a, b: np.stack([lb.eval(a, b, 1)[..., 0] for lb in f.lobes], axis=-1)  # noqa: E731
     if instrument.is_point or m == 0:
         out = np.asarray(fn(wi, wc), dtype=np.float64)
         return out.reshape(m, out.shape[-1] if out.ndim > 1 else 1)
@@ -381,7 +425,7 @@ def instrument_average_dirs(f: BrdfFn | Material, wi: ArrayLike, wo: ArrayLike, 
     else:
         wis, wcs, k, sw = wi, wc, 1, np.ones((m, 1))
     if tan_a > 0.0:
-        vals = _cone_reading(rest, mf, n_ch, wl, wis, wcs, tan_a)
+        vals = _cone_reading(rest, mf, n_ch, wl, wis, wcs, tan_a, per_lobe)
     else:
         vals = np.asarray(fn(wis, wcs), dtype=np.float64).reshape(len(wis), -1)
         vals = vals * np.maximum(wcs[:, 2:3], 0.0)
@@ -389,3 +433,62 @@ def instrument_average_dirs(f: BrdfFn | Material, wi: ArrayLike, wo: ArrayLike, 
     reading = np.sum(vals * sw[..., None], axis=1)
     cos_c = np.maximum(wc[:, 2], 1e-12)[:, None]
     return reading / cos_c
+
+
+# --- unit lobes, shared ----------------------------------------------------------------------------------------
+
+_SHARED: ContextVar[dict[Any, tuple[Array, Array]] | None] = ContextVar("shared_cone_averages", default=None)
+
+
+@contextmanager
+def shared_cone_averages() -> Iterator[None]:
+    """Within this block :func:`unit_lobe_averages` remembers every direction pair's cone averages (per instrument,
+    distribution and alpha grid) and computes only pairs it has not seen: ``auto`` refits on the folds of
+    cross-validation subsets of the same samples, whose cone integrals are then computed once. Nested blocks share
+    the outer memory; it is dropped when the outermost block ends."""
+    if _SHARED.get() is not None:
+        yield
+        return
+    token = _SHARED.set({})
+    try:
+        yield
+    finally:
+        _SHARED.reset(token)
+
+
+def unit_lobe_averages(wi: ArrayLike, wo: ArrayLike, instrument: Instrument, alphas: ArrayLike,
+                       distribution: str = "ggx") -> Array:
+    """The readings (n, len(alphas)) of unit microfacet lobes (colour 1, no Fresnel) of each roughness ``alphas``
+    at the direction pairs ``wi``, ``wo`` (n, 3): column k is ``instrument_average_dirs`` of the material
+    ``[Microfacet(alpha=alphas[k], distribution=distribution)]``, every lobe integrated in one pass over the
+    quadrature's geometry. Inside :func:`shared_cone_averages`, pairs already computed are looked up."""
+    wi = np.atleast_2d(np.asarray(wi, dtype=np.float64)).reshape(-1, 3)
+    wo = np.atleast_2d(np.asarray(wo, dtype=np.float64)).reshape(-1, 3)
+    al = np.atleast_1d(np.asarray(alphas, dtype=np.float64))
+
+    def compute(a: Array, b: Array) -> Array:
+        mat = Material("unit", [Microfacet(Colour(np.ones(1)), alpha=float(x), distribution=distribution)
+                                for x in al])
+        return _average_dirs(mat, a, b, instrument, per_lobe=True).reshape(len(a), al.size)
+
+    memo = _SHARED.get()
+    if memo is None or len(wi) == 0:
+        return compute(wi, wo)
+    key = (instrument, distribution, al.tobytes())
+    q = np.concatenate([wi, wo], axis=1)
+    known, vals = memo.get(key, (np.zeros((0, 6)), np.zeros((0, al.size))))
+    _, inv = np.unique(np.concatenate([known, q]), axis=0, return_inverse=True)
+    inv = inv.reshape(-1)
+    where = np.full(int(inv.max()) + 1, -1)
+    where[inv[: len(known)]] = np.arange(len(known))
+    hit = where[inv[len(known):]]
+    out = np.empty((len(q), al.size))
+    out[hit >= 0] = vals[hit[hit >= 0]]
+    miss = np.flatnonzero(hit < 0)
+    if miss.size:
+        # a direction pair may repeat (repeated samples): compute each distinct pair once
+        uq, back = np.unique(q[miss], axis=0, return_inverse=True)
+        new = compute(uq[:, :3], uq[:, 3:])
+        out[miss] = new[back.reshape(-1)]
+        memo[key] = (np.concatenate([known, uq]), np.concatenate([vals, new]))
+    return out

@@ -29,10 +29,13 @@ The report's ``cross_validation`` section holds the scheme, every method's held-
 
 from __future__ import annotations
 
+import contextvars
 import dataclasses
 import math
+import os
 import warnings
 from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -97,6 +100,8 @@ NOISE_LEVEL_FACTOR = 1.5
 #: and from 20/40/60 deg from 169 % to 86 %; the medians move by about a point either way (28.0 -> 27.3 %,
 #: 16.8 -> 18.0 %, 15.4 -> 16.4 % from 20/50/75, 17.2 -> 15.4 % from 40/70; README: Real materials).
 PRIOR_ANCHORS = (0.25, 0.5)
+#: The methods cross-validated in a second thread while fit searches its model (when the machine has two cores).
+BACKGROUND_METHODS = ("microfacet", "revolve", "bivariate")
 
 def max_albedo(rec: Reconstruction) -> tuple[float, float]:
     """(largest directional albedo over channels and theta_i = 0-85 deg, the theta_i in degrees where it is).
@@ -173,12 +178,18 @@ def _finite_aperture(s: Slice) -> bool:
 def reconstruct_auto(s: Slice, opts: Options,
                      progress: Callable[[str], None] | None) -> tuple[Reconstruction, dict[str, Any]]:
     """Cross-validate every usable method on ``s`` (sorted, checked) and build the chosen one on all samples;
-    returns (reconstruction, choice) as :func:`reconstruction.pipeline.reconstruct` does."""
+    returns (reconstruction, choice) as :func:`reconstruction.pipeline.reconstruct` does. The folds' fits and the
+    final one share their cone integrals (a finite aperture's readings of unit lobes, computed once per sample)."""
+    from reconstruction.bench.instrument import shared_cone_averages
+
+    with shared_cone_averages():
+        return _reconstruct_auto(s, opts, progress)
+
+
+def _reconstruct_auto(s: Slice, opts: Options,
+                      progress: Callable[[str], None] | None) -> tuple[Reconstruction, dict[str, Any]]:
     from reconstruction.methods.fit import FitReconstruction, model_name, reconstruct_fit
 
-    fit_rec = get("fit").build(s, opts, progress)
-    assert isinstance(fit_rec, FitReconstruction)
-    specs = fit_rec.result.specs
     full = s
     pts = points_anywhere(full)
     # cross-validation of a large input on a subsample; the chosen method uses every sample. Points anywhere (a
@@ -188,35 +199,48 @@ def reconstruct_auto(s: Slice, opts: Options,
     scheme, masks = folds(s)
     if pts is not None:
         scheme += f" over points anywhere ({len(s)} of the {len(pts)} points)"
-    # (method, variant, builder of a training slice): fit refitted in every fold as it was fitted to all samples
-    # (to a scene's samples when its budget chose a simpler model), and then the BIC choice competes too
-    builders: list[tuple[str, str | None, Callable[[Slice], Reconstruction]]] = []
-    for name, m in REGISTRY.items():
-        if not m.usable(opts):
-            continue
-        if name == "fit":
-            builders.append((name, None, lambda tr: reconstruct_fit(everywhere(tr), scene=opts.scene,
-                                                                    lobes=opts.lobes, specs=specs,
-                                                                    fit_to_scene=fit_rec.fitted_to_scene)))
-            if fit_rec.bic_specs is not None:
-                builders.append((name, f"BIC choice {model_name(fit_rec.bic_specs)}", lambda tr: reconstruct_fit(
-                    everywhere(tr), scene=opts.scene, lobes=opts.lobes, specs=fit_rec.bic_specs)))
-        elif name == "prior":  # its anchored variants are scored from its and bivariate's held-out predictions
-            builders.append((name, None, lambda tr, m=m: m.build(tr, dataclasses.replace(opts, prior_anchor=0.0),
-                                                                 None)))
-        else:
-            builders.append((name, None, lambda tr, m=m: m.build(tr, opts, None)))
     inside = scene_mask(s, opts.scene)
     if inside is not None and not inside.any():
         inside = None  # no sample inside the scene: judge on all of them
-    scores: list[CVScore] = []
-    for name, variant, build in builders:  # a handful of methods
-        if progress:
-            progress(f"cross-validating {name}" + (f" ({variant})" if variant else ""))
-        sc = cross_validate(s, name, build, masks, inside)
-        sc.anchor = 0.0 if name == "prior" else None  # built with anchor 0 (above)
-        sc.variant = variant
-        scores.append(sc)
+    # microfacet, revolve and bivariate do not depend on fit's choice: they are cross-validated in a second thread
+    # while fit searches its model on all samples (their cone integrals and array work run beside its small solves).
+    # prior stays in this thread, after fit: its large least-squares problems use BLAS threads, whose number fit's
+    # threadpool limit changes for the whole process while it runs (and with it the last digits of prior's results)
+    others = [(name, lambda tr, m=m: m.build(tr, opts, None)) for name, m in REGISTRY.items()
+              if name in BACKGROUND_METHODS and m.usable(opts)]
+    with _Background(enabled=len(others) > 0) as bg:
+        pending = {name: bg.submit(cross_validate, s, name, build, masks, inside) for name, build in others}
+        fit_rec = get("fit").build(full, opts, progress)
+        assert isinstance(fit_rec, FitReconstruction)
+        specs = fit_rec.result.specs
+        # (method, variant, builder of a training slice): fit refitted in every fold as it was fitted to all samples
+        # (to a scene's samples when its budget chose a simpler model), and then the BIC choice competes too
+        builders: list[tuple[str, str | None, Callable[[Slice], Reconstruction]]] = []
+        for name, m in REGISTRY.items():
+            if not m.usable(opts):
+                continue
+            if name == "fit":
+                builders.append((name, None, lambda tr: reconstruct_fit(
+                    everywhere(tr), scene=opts.scene, lobes=opts.lobes, specs=specs,
+                    fit_to_scene=fit_rec.fitted_to_scene)))
+                if fit_rec.bic_specs is not None:
+                    builders.append((name, f"BIC choice {model_name(fit_rec.bic_specs)}", lambda tr: reconstruct_fit(
+                        everywhere(tr), scene=opts.scene, lobes=opts.lobes, specs=fit_rec.bic_specs)))
+            elif name == "prior":  # its anchored variants are scored from its and bivariate's held-out predictions
+                builders.append((name, None, lambda tr, m=m: m.build(tr, dataclasses.replace(opts, prior_anchor=0.0),
+                                                                     None)))
+            elif name in pending:
+                builders.append((name, None, lambda tr: None))  # cross-validated in the second thread (above)
+            else:
+                builders.append((name, None, lambda tr, m=m: m.build(tr, opts, None)))
+        scores: list[CVScore] = []
+        for name, variant, build in builders:  # a handful of methods, in the registry's order
+            if progress:
+                progress(f"cross-validating {name}" + (f" ({variant})" if variant else ""))
+            sc = pending[name]() if name in pending else cross_validate(s, name, build, masks, inside)
+            sc.anchor = 0.0 if name == "prior" else None  # built with anchor 0 (above)
+            sc.variant = variant
+            scores.append(sc)
     scores += _anchored_scores(s, scores, masks, inside)
     single = np.unique(s.theta_i_deg).size == 1
     preferred, margin = preference([b[0] for b in builders], single, _finite_aperture(s), pts is not None)
@@ -293,6 +317,30 @@ def reconstruct_auto(s: Slice, opts: Options,
                     "held_out_predictions": ({} if s is not full else  # per sample of the input (none when thinned)
                                              {c.method: c.predictions for c in reversed(scores)
                                               if c.predictions is not None and (c.method != best.method or c is best)})}
+
+
+class _Background:
+    """A second thread for independent work when the machine has a second core (else the work runs when its result
+    is asked for); ``submit`` returns a function that gives the result (or raises the work's exception). The
+    thread runs in a copy of the caller's context (the shared cone integrals of
+    :func:`reconstruction.bench.instrument.shared_cone_averages` included)."""
+
+    def __init__(self, enabled: bool = True) -> None:
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        self.pool = ThreadPoolExecutor(max_workers=1) if enabled and cores > 1 else None
+
+    def __enter__(self) -> _Background:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.pool is not None:
+            self.pool.shutdown(wait=True, cancel_futures=True)
+
+    def submit(self, fn: Callable[..., Any], *args: Any) -> Callable[[], Any]:
+        if self.pool is None:
+            return lambda: fn(*args)
+        fut = self.pool.submit(contextvars.copy_context().run, fn, *args)
+        return fut.result
 
 
 def _bic_fit(s: Slice, opts: Options, fit_rec: Any, progress: Callable[[str], None] | None) -> Reconstruction:

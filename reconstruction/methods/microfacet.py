@@ -38,9 +38,9 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import minimize, minimize_scalar, nnls
 
 from reconstruction.base import ReconstructionError
-from reconstruction.bench.instrument import Instrument, InstrumentError, instrument_average_dirs
+from reconstruction.bench.instrument import Instrument, InstrumentError, unit_lobe_averages
 from reconstruction.core.geometry import normalize
-from reconstruction.core.models import Colour, Material, Microfacet, ggx_d, ggx_g1_over_cos
+from reconstruction.core.models import ggx_d, ggx_g1_over_cos
 from reconstruction.core.samples import sample_directions
 from reconstruction.formats.slicefile import Slice
 
@@ -311,9 +311,7 @@ def reconstruct_microfacet(slices: Slice, *, fresnel_kinds: tuple[str, ...] = FR
     alphas = np.geomspace(a_min, ALPHA_CEIL, n_alphas)
     basis = np.where(up[:, None], _basis(ch, ci, co, alphas), 0.0)  # (N, J), computed once
     if near.size:  # a finite aperture: the dictionary terms as the cone reads them near the mirror directions
-        for j, a in enumerate(alphas):  # N_ALPHAS cone integrals of the near samples
-            unit = Material("unit", [Microfacet(Colour(np.ones(1)), alpha=float(a))])
-            basis[near, j] = instrument_average_dirs(unit, wi[near], wo[near], inst)[:, 0]
+        basis[near] = unit_lobe_averages(wi[near], wo[near], inst, alphas)  # N_ALPHAS cone integrals of them
     lam = np.full((len(slices), 1), 1.0 / np.pi)
     y = f.mean(axis=1)
     w = _weights(y, std.mean(axis=1))

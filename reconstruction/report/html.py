@@ -18,8 +18,10 @@ import base64
 import html
 import io
 import json
+import os
 import warnings
 from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -237,36 +239,55 @@ def _backdrop(size: int, radius: float, env: Any) -> Array:
     return (back * (1.0 - sphere_coverage(size, radius, antialias=True)))[..., None] * np.ones(3)
 
 
-def _spheres(table: Array) -> str:
+#: The spheres' renders on the page: pixels per side, and the environment's quadrature (135 directions per pixel,
+#: half the renderer's default: within about 1 % RMS of it on the demo's table, 3 % at worst, where the page shows
+#: each sphere at about twice this size anyway).
+SPHERE_SIZE = 112
+SPHERE_QUADRATURE = (35, (0.005, 0.03, 0.12, 0.4), 25)
+
+
+def _sphere_images(table: Array) -> tuple[list[tuple[str, Array, Array | None]], Array, Array]:
+    """The spheres' renders (title, linear radiance, background or None: the environment's backdrop), the
+    backdrop, and the sphere's coverage: the numeric part of :func:`_spheres` (numpy only; it may run in a
+    second thread while matplotlib draws the other figures)."""
     from reconstruction.core.render import (
         PRESETS,
         Lighting,
         PointLight,
+        Quadrature,
         SkyGround,
         render_sphere,
         sphere_coverage,
         sphere_normals,
     )
-    from reconstruction.report.preview import AMBIENT, PREVIEW_RADIUS, albedo_at_view, srgb_encode
+    from reconstruction.report.preview import AMBIENT, PREVIEW_RADIUS, albedo_at_view
 
-    plt = _pyplot()
     brdf = merl.brdf_of(table)
-    size, radius = 128, PREVIEW_RADIUS
+    size, radius = SPHERE_SIZE, PREVIEW_RADIUS
+    quad = Quadrature(SPHERE_QUADRATURE[0], SPHERE_QUADRATURE[1], SPHERE_QUADRATURE[2])
     cov = sphere_coverage(size, radius, antialias=True)
     mask, n = sphere_normals(size, radius, antialias=True)
     ambient = np.zeros((size, size, 3))  # the preview's uniform environment, shared by the three point lights
     ambient[mask] = AMBIENT * albedo_at_view(brdf, n[:, 2]) * cov[mask][:, None]
     uniform = np.full((size, size, 3), AMBIENT) * (1.0 - cov)[..., None]  # ... seen behind the sphere
-    # (title, the sphere's linear radiance, the background as radiance or None: the environment's backdrop)
     imgs: list[tuple[str, Array, Array | None]] = [
         (f"point light, {name}", _rgb(render_sphere(brdf, size, Lighting(points=(PointLight(pos, float(
             np.dot(pos, pos))),)), radius, antialias=True)) + ambient, uniform) for name, pos in LIGHTS.items()]
-    env = _rgb(render_sphere(brdf, size, Lighting(SkyGround()), radius, antialias=True))  # integrated once
+    env = _rgb(render_sphere(brdf, size, Lighting(SkyGround()), radius, antialias=True, quadrature=quad))  # once
     imgs.append(("sky and ground environment", env, None))
     for key, label in (("key", "environment + key sun (front)"), ("rim", "environment + rim sun (behind)")):
         sun = _rgb(render_sphere(brdf, size, Lighting(suns=PRESETS[key].suns), radius, antialias=True))
         imgs.append((label, env + sun, None))
     backdrop = _backdrop(size, radius, SkyGround()) / SkyGround().zenith  # display values: sky at 0.35
+    return imgs, backdrop, cov
+
+
+def _spheres(table: Array, images: tuple[list[tuple[str, Array, Array | None]], Array, Array] | None = None) -> str:
+    """The spheres' figure, from :func:`_sphere_images` (rendered here when not given)."""
+    from reconstruction.report.preview import srgb_encode
+
+    plt = _pyplot()
+    imgs, backdrop, cov = images if images is not None else _sphere_images(table)
     fig, axes = plt.subplots(2, 3, figsize=(9.6, 6.8))
     for ax, (name, im, bg) in zip(axes.ravel(), imgs, strict=True):
         lum = (im @ np.array([0.2126, 0.7152, 0.0722]))[cov > 0.5]  # exposed on the sphere, as the preview
@@ -277,6 +298,9 @@ def _spheres(table: Array) -> str:
         ax.axis("off")
     fig.tight_layout()
     return _png(fig)
+
+
+_N_DIRS = SPHERE_QUADRATURE[0] + len(SPHERE_QUADRATURE[1]) * SPHERE_QUADRATURE[2]
 
 
 def _cuts_figure(table: Array, s: Slice, sigma: Array | None = None) -> str:
@@ -368,8 +392,24 @@ def build_html(*, report: Mapping[str, Any], working: Slice, rec: Reconstruction
     """The page (a string). ``report`` is the JSON report; ``alternatives`` the other methods' reconstructions
     of the same samples (their predictions are drawn); ``held_out`` (N, C), in the order of ``working``:
     cross-validation's prediction of each sample from the fold that left it out (NaN where it was never held
-    out)."""
+    out); ``sigma``: the --uncertainty array (sigma of ln f per cell), drawn as a map and as bands on the cuts."""
     t = np.asarray(table, dtype=np.float64)
+    # the spheres' renders (numpy, most of the page's arithmetic) in a second thread while matplotlib draws
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        spheres = pool.submit(_sphere_images, t) if _cores() > 1 else None
+        return _page(report, working, rec, t, alternatives, held_out, title, spheres, sigma)
+
+
+def _cores() -> int:
+    """The cores this process may use."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def _page(report: Mapping[str, Any], working: Slice, rec: Reconstruction, t: Array,
+          alternatives: Mapping[str, Reconstruction] | None, held_out: Array | None, title: str | None,
+          spheres: Future[Any] | None, sigma: ArrayLike | None = None) -> str:
+    """:func:`build_html`'s page; ``spheres``: the spheres' renders under way (None: rendered here); ``sigma``:
+    sigma of ln f per cell (3, 90, 90, 180) or None."""
     order = np.lexsort((working.theta_o_deg, working.theta_i_deg))
     s = working.take(order)
     held_out = None if held_out is None else np.asarray(held_out, dtype=np.float64)[order]
@@ -416,10 +456,10 @@ def build_html(*, report: Mapping[str, Any], working: Slice, rec: Reconstruction
                               + f"{u.get('expected_psnr_db', float('nan')):.1f} dB, linear image error "
                               + f"{u.get('expected_linear_image_error', float('nan')):.1%}, cosl2 "
                               + f"{u.get('expected_cosl2', float('nan')):.1%}.</p>")
-    sec["spheres"] = (_img(_spheres(t), "sphere renders")
+    sec["spheres"] = (_img(_spheres(t, spheres.result() if spheres is not None else None), "sphere renders")
                       + '<p class="note">The written table on a sphere (linear radiance, each image exposed on its '
                         "own 99.5th percentile, sRGB). Top: a point light and a dim uniform environment, as the "
-                        "preview. Bottom: a sky-and-ground environment (integrated over a fixed set of 275 "
+                        f"preview. Bottom: a sky-and-ground environment (integrated over a fixed set of {_N_DIRS} "
                         "directions per pixel, importance-sampled around the mirror direction, so the grazing "
                         "rim is resolved), alone, with a sun in front and with a sun behind the sphere (grazing "
                         "light): reconstruction.core.render.</p>")

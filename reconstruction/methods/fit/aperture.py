@@ -25,8 +25,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.interpolate import PchipInterpolator
 
-from reconstruction.bench.instrument import Instrument, instrument_average_dirs
-from reconstruction.core.models import Colour, Material, Microfacet, schlick
+from reconstruction.bench.instrument import Instrument, instrument_average_dirs, unit_lobe_averages
+from reconstruction.core.models import Material, schlick
 
 Array = NDArray[np.float64]
 
@@ -83,10 +83,8 @@ class Blur:
         root = self._root
         if kind not in root._tables:
             wi, wo = root.wi[root.near], root.wo[root.near]
-            vals = np.empty((root.alphas.size, root.near.size))
-            for k, alpha in enumerate(root.alphas):  # N_ALPHA cone integrals of the near samples, once
-                mat = Material("unit", [Microfacet(Colour(np.ones(1)), alpha=float(alpha), distribution=kind)])
-                vals[k] = instrument_average_dirs(mat, wi, wo, root.instrument)[:, 0]
+            # N_ALPHA cone integrals of the near samples, once (shared with other fits inside shared_cone_averages)
+            vals = unit_lobe_averages(wi, wo, root.instrument, root.alphas, kind).T
             root._tables[kind] = PchipInterpolator(np.log(root.alphas), np.log(np.maximum(vals, 1e-300)), axis=0)
         return root._tables[kind]
 
