@@ -16,7 +16,9 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import signal
 import sys
+import threading
 import warnings
 from pathlib import Path
 from typing import Any
@@ -86,6 +88,12 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.force and not args.resume:
         parser.error("--force goes with --resume (it accepts another sample in a capture being resumed)")
+    from .interrupts import SignalGuard
+
+    # once a signal stopped the capture this run ends: a second one while it prints where to resume is ignored
+    # (SignalGuard.__exit__); the handlers of before come back when main returns (in-process callers go on)
+    SignalGuard.ignore_after_signal = True
+    before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
     handler = _BarSafeHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("gonio-capture: %(levelname)s: %(message)s"))
     handler.setLevel(getattr(logging, args.log_level.upper()))
@@ -106,6 +114,11 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     finally:
         lg.removeHandler(handler)
+        SignalGuard.ignore_after_signal = False
+        if threading.current_thread() is threading.main_thread():
+            for sig, h in before.items():
+                if h is not None:
+                    signal.signal(sig, h)
 
 
 def _duration(seconds: float) -> str:

@@ -16,7 +16,7 @@ import logging
 import queue
 import signal
 import threading
-from typing import Any
+from typing import Any, ClassVar
 
 from .errors import CaptureInterrupted
 
@@ -29,8 +29,12 @@ class SignalGuard:
     """SIGINT/SIGTERM become flags, main thread only: the first asks the capture to stop after the current step
     (:meth:`check` raises :class:`CaptureInterrupted` there); a second also aborts the parking
     (:meth:`check_abort`). The handler itself never raises, logs, imports or writes (see the module docstring);
-    the exit status is the first signal's. Use as a context manager around the capture. After a signal, leaving
-    the context ignores further SIGINT/SIGTERM (the caller is ending with the first one's status)."""
+    the exit status is the first signal's. Use as a context manager around the capture. Leaving it gives the
+    previous handlers back, except after a signal in a program that set :attr:`ignore_after_signal` (it ends with
+    the first signal's status: further SIGINT/SIGTERM are ignored)."""
+
+    #: set by a program that exits once a signal stopped its capture (gonio-capture): see :meth:`__exit__`
+    ignore_after_signal: ClassVar[bool] = False
 
     def __init__(self, enabled: bool) -> None:
         self.enabled = enabled and threading.current_thread() is threading.main_thread()
@@ -95,11 +99,12 @@ class SignalGuard:
 
     def __exit__(self, *exc: object) -> None:
         for s, h in self._old.items():
-            # once a signal stopped the capture, the process is winding down with the first signal's status: a
-            # second signal arriving after this point (20 ms later, while the caller prints where to resume) is
-            # ignored rather than handed to the default action, which would kill it (-15) or raise
-            # KeyboardInterrupt mid-message; without a signal the previous handlers come back as they were
-            signal.signal(s, signal.SIG_IGN if self.signum is not None else h)
+            # a program that ends once a signal stopped the capture (gonio-capture: ignore_after_signal) ignores a
+            # second signal arriving after this point (20 ms later, while it prints where to resume) rather than
+            # handing it to the default action, which would kill it (-15) or raise KeyboardInterrupt mid-message;
+            # otherwise (a lab script that goes on) the previous handlers come back as they were
+            ignore = self.signum is not None and SignalGuard.ignore_after_signal
+            signal.signal(s, signal.SIG_IGN if ignore else h)
         self.drain()
 
 

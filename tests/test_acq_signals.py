@@ -142,6 +142,8 @@ def test_a_signal_arriving_inside_a_log_record_does_not_log_from_the_handler():
     lg.addHandler(h)
     old_level = lg.level
     lg.setLevel(logging.INFO)
+    mp = pytest.MonkeyPatch()
+    mp.setattr(SignalGuard, "ignore_after_signal", True)  # as gonio-capture sets it
     try:
         with SignalGuard(True) as guard:
             os.kill(os.getpid(), signal.SIGTERM)
@@ -156,6 +158,7 @@ def test_a_signal_arriving_inside_a_log_record_does_not_log_from_the_handler():
         assert signal.getsignal(signal.SIGTERM) == signal.SIG_IGN
         os.kill(os.getpid(), signal.SIGTERM)
     finally:
+        mp.undo()
         signal.signal(signal.SIGTERM, old_term)
         signal.signal(signal.SIGINT, signal.default_int_handler)
         lg.removeHandler(h)
@@ -165,13 +168,23 @@ def test_a_signal_arriving_inside_a_log_record_does_not_log_from_the_handler():
                     "SIGTERM received again: not waiting for the arms to park"]
 
 
-def test_without_a_signal_the_guard_gives_the_previous_handlers_back():
-    """A capture that ends normally leaves SIGINT/SIGTERM as they were before it (a lab script goes on)."""
+def test_a_lab_script_gets_the_previous_handlers_back():
+    """A capture that ends normally, or one stopped by a signal in a program that goes on (a lab script, a test
+    worker: ignore_after_signal unset), leaves SIGINT/SIGTERM as they were before it; the children it starts
+    later do not inherit an ignored SIGTERM."""
     from acquisition.interrupts import SignalGuard
 
+    assert SignalGuard.ignore_after_signal is False  # only gonio-capture's main sets it
     old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
     with SignalGuard(True) as guard:
         assert signal.getsignal(signal.SIGTERM) == guard._handler
+    assert {s: signal.getsignal(s) for s in old} == old
+    with SignalGuard(True) as guard:
+        os.kill(os.getpid(), signal.SIGTERM)
+        t_end = time.monotonic() + 5.0
+        while guard.signum is None and time.monotonic() < t_end:
+            time.sleep(0.001)
+        assert guard.signum == signal.SIGTERM
     assert {s: signal.getsignal(s) for s in old} == old
 
 

@@ -85,14 +85,47 @@ def _lum(v: ArrayLike) -> Array:
     return a.mean(axis=-1) if a.ndim > 1 else a
 
 
+#: most incidences drawn per figure (a hemispherical file has dozens): spread evenly over the measured ones
+MAX_PANELS = 8
+#: panels per row
+PANELS_PER_ROW = 4
+
+
+def shown_incidences(s: Slice) -> list[float]:
+    """The incidences (deg) the per-incidence figures draw: all up to :data:`MAX_PANELS`, else that many spread
+    evenly over them (first and last included)."""
+    inc = [float(t) for t in s.incidences()]
+    if len(inc) <= MAX_PANELS:
+        return inc
+    return [inc[k] for k in np.unique(np.round(np.linspace(0, len(inc) - 1, MAX_PANELS)).astype(int))]
+
+
+def _panels(n: int, w: float, h: float) -> tuple[Any, list[Any]]:
+    """A figure of ``n`` panels, :data:`PANELS_PER_ROW` a row, each about ``w`` x ``h`` inches (at most 16 wide)."""
+    plt = _pyplot()
+    cols = min(n, PANELS_PER_ROW)
+    rows = -(-n // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(min(w * cols, 16), h * rows), squeeze=False)
+    flat = list(axes.ravel())
+    for ax in flat[n:]:
+        ax.set_visible(False)
+    return fig, flat[:n]
+
+
+def _shown_note(s: Slice) -> str:
+    """A sentence for the figures' note when they draw only some of the incidences."""
+    shown, n = shown_incidences(s), len(s.incidences())
+    return "" if len(shown) == n else (f" {len(shown)} of the {n} incidences are drawn ("
+                                       + ", ".join(f"{x:g}" for x in shown) + " deg).")
+
+
 def _slices_figure(s: Slice, chosen: str, preds: Mapping[str, Callable[[Array, Array], ArrayLike]],
                    held_out: Array | None, blind_deg: float) -> str:
-    plt = _pyplot()
-    inc = s.incidences()
-    fig, axes = plt.subplots(1, len(inc), figsize=(min(5.2 * len(inc), 16), 3.8), squeeze=False)
+    inc = shown_incidences(s)
+    fig, axes = _panels(len(inc), 5.2, 3.8)
     f, std = s.brdf()
     lum, lstd = _lum(f), _lum(std)
-    for ax, t in zip(axes[0], inc, strict=True):
+    for ax, t in zip(axes, inc, strict=True):
         m = s.theta_i_deg == t
         to = s.theta_o_deg[m]
         ax.axvspan(-t - blind_deg, -t + blind_deg, color="0.85", label="blind spot")
@@ -120,7 +153,7 @@ def _slices_figure(s: Slice, chosen: str, preds: Mapping[str, Callable[[Array, A
         ax.set_ylabel("f_r (1/sr), channel mean")
         ax.set_title(f"theta_i = {t:g} deg")
         ax.grid(True, which="both", alpha=0.2)
-    axes[0][0].legend(fontsize=7)
+    axes[0].legend(fontsize=7)
     fig.tight_layout()
     return _png(fig)
 
@@ -128,11 +161,10 @@ def _slices_figure(s: Slice, chosen: str, preds: Mapping[str, Callable[[Array, A
 def _polar_figure(s: Slice) -> str:
     from reconstruction.methods.revolve import split_subcurves, subcurve_axis
 
-    plt = _pyplot()
-    inc = s.incidences()
-    fig, axes = plt.subplots(1, len(inc), figsize=(min(4.6 * len(inc), 16), 3.9), squeeze=False)
+    inc = shown_incidences(s)
+    fig, axes = _panels(len(inc), 4.6, 3.9)
     f, _ = s.brdf()
-    for ax, t in zip(axes[0], inc, strict=True):
+    for ax, t in zip(axes, inc, strict=True):
         m = s.theta_i_deg == t
         order = np.argsort(s.theta_o_deg[m])
         to = np.radians(s.theta_o_deg[m][order])
@@ -308,7 +340,9 @@ def _cuts_figure(table: Array, s: Slice, sigma: Array | None = None) -> str:
     fig, ax = plt.subplots(figsize=(8.5, 4.2))
     to = np.linspace(-85.0, 85.0, 341)
     measured = set(float(x) for x in s.incidences())
-    for t in sorted({0.0, 20.0, 40.0, 60.0, 75.0} | measured):
+    # with many incidences measured (a hemispherical file) the cuts of MAX_PANELS of them, spread evenly
+    cuts = {0.0, 20.0, 40.0, 60.0, 75.0} | measured if len(measured) <= MAX_PANELS else set(shown_incidences(s))
+    for t in sorted(cuts):
         wi, wo = inplane_to_dirs(np.radians(np.full(to.size, t)), np.radians(to))
         v = _lum(np.nan_to_num(merl.lookup(table, wi, wo, interpolate=True)))
         line = ax.plot(to, np.maximum(v, 1e-9), lw=2.0 if t in measured else 1.0, ls="-" if t in measured else "--",
@@ -435,7 +469,8 @@ def _page(report: Mapping[str, Any], working: Slice, rec: Reconstruction, t: Arr
                      + '<p class="note">Points: the measured samples with their standard deviations; grey: the '
                        "blind spot around the retro direction; gold: stretches with no samples; lines: each "
                        "method's prediction at the same angles (the chosen one thick and black); crosses: "
-                       "cross-validation's prediction of each sample from the folds that left it out.</p>")
+                       "cross-validation's prediction of each sample from the folds that left it out."
+                     + _shown_note(s) + "</p>")
     sec["polar"] = (_img(_polar_figure(s), "polar curve with sub-curves and axes")
                     + '<p class="note">The slice as the thesis draws it: each sample as value x (sin, cos) '
                       "theta_o, split into sub-curves where the curve's turning changes sign, each with its axis "
