@@ -11,6 +11,7 @@ import hashlib
 import os
 import zipfile
 from collections.abc import Callable, Sequence
+from contextvars import ContextVar
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +19,19 @@ from numpy.typing import NDArray
 
 from reconstruction.atomic import atomic_open
 
-__all__ = ["cache_dir", "cached_arrays"]
+__all__ = ["cache_dir", "cached_arrays", "BUILD_PROGRESS", "BUILT", "report_build"]
+
+#: who hears how a long build goes (a command line's progress bar): called with (what, done, total); None: nobody
+BUILD_PROGRESS: ContextVar[Callable[[str, int, int], None] | None] = ContextVar("build_progress", default=None)
+#: who hears where a build's cache file went: called with (what, path, size in bytes, seconds it took to build)
+BUILT: ContextVar[Callable[[str, Path, int, float], None] | None] = ContextVar("built", default=None)
+
+
+def report_build(what: str, done: int, total: int) -> None:
+    """Tell :data:`BUILD_PROGRESS` (if anyone listens) that ``done`` of ``total`` parts of ``what`` are built."""
+    hook = BUILD_PROGRESS.get()
+    if hook is not None:
+        hook(what, done, total)
 
 
 def cache_dir() -> Path:
@@ -26,21 +39,29 @@ def cache_dir() -> Path:
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "gonio-brdf"
 
 
-def cached_arrays(name: str, key: str, build: Callable[[], Sequence[NDArray[np.float64]]]
-                  ) -> tuple[NDArray[np.float64], ...]:
+def cached_arrays(name: str, key: str, build: Callable[[], Sequence[NDArray[np.float64]]],
+                  what: str | None = None) -> tuple[NDArray[np.float64], ...]:
     """The arrays ``build()`` returns, read from ``cache_dir()/NAME-HASH.npz`` when a file for this ``key`` (every
-    input the arrays depend on, as text) is there, else built and saved."""
+    input the arrays depend on, as text) is there, else built and saved. ``what``: the build described for a
+    person; then :data:`BUILT` hears where the file went."""
+    import time
+
     path = cache_dir() / f"{name}-{hashlib.sha1(key.encode()).hexdigest()[:16]}.npz"
     try:
         with np.load(path) as z:
             return tuple(z[f"a{k}"] for k in range(len(z.files)))
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
         pass  # absent or damaged: built again
+    t0 = time.perf_counter()
     out = tuple(np.asarray(a) for a in build())
+    seconds = time.perf_counter() - t0
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         with atomic_open(path, "wb") as fh:
             np.savez(fh, **{f"a{k}": a for k, a in enumerate(out)})
     except OSError:
-        pass  # no cache: the next process builds again
+        return out  # no cache: the next process builds again
+    hook = BUILT.get()
+    if what is not None and hook is not None:
+        hook(what, path, path.stat().st_size, seconds)
     return out

@@ -238,6 +238,18 @@ class _Bar:
         if self.bar is not None:
             self.bar.update(1)
 
+    def build(self, what: str, done: int, total: int) -> None:
+        """A long build under way (the prior's tabulation): its count beside the current step."""
+        self.begin(f"{what}: {done}/{total}")
+
+    def built(self, what: str, path: Path, size: int, seconds: float) -> None:
+        """A build was cached: where, how large, how to clear it (printed even with --quiet: it is disk space)."""
+        from reconstruction.cache import cache_dir
+
+        tqdm.write(f"{PROG}: {what}: built in {seconds:.0f} s and cached in {path} ({size / 1e6:.0f} MB), read from "
+                   f"there from now on; delete it to rebuild, or {cache_dir()} to clear every cache",
+                   file=sys.stderr)
+
     def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
@@ -246,11 +258,16 @@ class _Bar:
 def run(args: argparse.Namespace) -> dict[str, Any]:
     """Do the work of one command line (:func:`reconstruction.pipeline.run`); returns the report (also written
     with --report)."""
+    from reconstruction.cache import BUILD_PROGRESS, BUILT
+
     job = job_from_args(args)
     bar = _Bar(job, args.quiet)
+    hooks = BUILD_PROGRESS.set(bar.build), BUILT.set(bar.built)
     try:
         return pipeline_run(job, progress=bar)
     finally:
+        BUILD_PROGRESS.reset(hooks[0])
+        BUILT.reset(hooks[1])
         bar.close()
 
 

@@ -85,12 +85,36 @@ def test_gonio_reconstruct_takes_prior_repeated_and_joined(folders, tmp_path):
     write_slice(src, Slice(s.theta_i_deg, s.theta_o_deg, s.values, s.channels, 0.002 * s.values + 1e-6,
                            np.full(len(s), 4), 1.795e9 + np.arange(len(s)), meta={"material": "t"}))
     env = {**os.environ, "XDG_CACHE_HOME": str(tmp_path / "cache")}
-    for args in (["--prior", str(a), "--prior", str(b)], ["--prior", f"{a}{os.pathsep}{b}"]):
+    for k, args in enumerate((["--prior", str(a), "--prior", str(b)], ["--prior", f"{a}{os.pathsep}{b}"])):
         r = subprocess.run([sys.executable, "-m", "reconstruction.cli", str(src), "--method", "prior", *args,
                             "--out", str(tmp_path / "m.binary"), "--report", str(tmp_path / "m.json")],
                            capture_output=True, text=True, env=env)
         assert r.returncode == 0, r.stderr
         assert json.loads((tmp_path / "m.json").read_text())["details"]["prior"]["materials"] == 8
+        # the first run says where each folder's tabulation is cached and how to clear it; the second reads it
+        cached = [ln for ln in r.stderr.splitlines() if "cached in" in ln]
+        if k == 0:
+            assert len(cached) == 2, r.stderr
+            for folder, line in zip((a, b), cached, strict=True):
+                assert f"materials in {folder}" in line and "delete it to rebuild" in line, line
+                path = line.split("cached in ")[1].split(" (")[0]
+                assert os.path.isfile(path) and path.startswith(str(tmp_path / "cache")), line
+        else:
+            assert cached == [], r.stderr
+
+
+def test_the_prior_build_reports_its_progress(folders):
+    from reconstruction.cache import BUILD_PROGRESS
+
+    _, _, both = folders
+    seen: list[tuple[str, int, int]] = []
+    token = BUILD_PROGRESS.set(lambda what, done, total: seen.append((what, done, total)))
+    try:
+        prior.load_prior(both)
+    finally:
+        BUILD_PROGRESS.reset(token)
+    assert [d for _, d, _ in seen] == list(range(9)) and {t for *_, t in seen} == {8}
+    assert all(str(both) in w for w, *_ in seen)
 
 
 def test_rgl_files_are_prior_materials(folders, tmp_path):

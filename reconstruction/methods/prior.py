@@ -43,7 +43,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from reconstruction.base import ReconstructionError
-from reconstruction.cache import cached_arrays
+from reconstruction.cache import cached_arrays, report_build
 from reconstruction.core.geometry import dirs_from_half_diff, half_diff_from_dirs
 from reconstruction.core.samples import everywhere, sample_directions
 from reconstruction.formats.slicefile import Slice
@@ -248,6 +248,11 @@ def train_index() -> NDArray[np.intp]:
     return out
 
 
+#: threads that tabulate a prior's materials (one material and one BLAS thread each)
+PRIOR_BUILD_THREADS = max(1, min(4, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+                                 else (os.cpu_count() or 1)))
+
+
 @lru_cache(maxsize=4)
 def _load_cached(folder: str) -> PriorSet:
     p = Path(folder)
@@ -261,16 +266,31 @@ def _load_cached(folder: str) -> PriorSet:
                                   f".bsdf files)")
     names = sorted(files)
 
+    def one(n: str) -> Array:
+        try:
+            return _tabulate_material(files[n])
+        except (OSError, ValueError, ReconstructionError) as e:
+            msg = str(e)
+            raise ReconstructionError(f"--prior {folder}: material {n}: {msg}") from None
+
     def tabulate() -> tuple[Any, ...]:
+        from concurrent.futures import ThreadPoolExecutor
+
+        from threadpoolctl import threadpool_limits
+
         tables = np.empty((len(names), 3, _grid()["cos"].size), dtype=np.float32)
-        for k, n in enumerate(names):  # one material at a time (each is a vectorised evaluation of the grid)
-            try:
-                tables[k] = _tabulate_material(files[n])
-            except (OSError, ValueError) as e:
-                raise ReconstructionError(f"--prior {folder}: material {n}: {e}") from None
+        _grid_nbrdf_features()  # shared by the threads: computed once, before them
+        what = f"tabulating the prior's materials ({folder})"
+        report_build(what, 0, len(names))
+        # one material per thread on one BLAS thread each (numpy's kernels release the GIL): 2 cores, 2 materials
+        with threadpool_limits(1), ThreadPoolExecutor(max_workers=max(1, min(PRIOR_BUILD_THREADS, len(names)))) as ex:
+            for k, t in enumerate(ex.map(one, names)):
+                tables[k] = t
+                report_build(what, k + 1, len(names))
         return (tables,)
 
-    (tables,) = cached_arrays("prior", _cache_key(p, files), tabulate)  # the key holds every name
+    (tables,) = cached_arrays("prior", _cache_key(p, files), tabulate,  # the key holds every name
+                              what=f"the prior of {len(names)} materials in {folder}")
     return PriorSet(folder, names, tables)
 
 
