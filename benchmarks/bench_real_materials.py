@@ -57,7 +57,7 @@ MODES = {"1": (40.0,), "2": (40.0, 70.0), "3": (20.0, 40.0, 60.0)}
 STEP_DEG, BLIND_DEG, MAX_DEG = 2.0, 4.0, 80.0
 FOLDERS = ("nbrdf-merl", "nbrdf-extra")
 DATABASES = ("MERL", "RGL", "Nielsen")
-EXTRA_METHODS = ("auto+prior", "constant")
+EXTRA_METHODS = ("auto+prior", "auto+prior-unbounded", "constant")
 DEFAULT_METHODS = "auto,auto+prior,prior,constant"
 SHEET_MODES = ("1", "2")
 SHEET_SIZE = 16  # materials on the contact sheet
@@ -118,13 +118,18 @@ def _reconstruct(method: str, s: Slice, prior: str | None, name: str) -> tuple[n
         c = np.median(s.values.reshape(len(s), -1), axis=0)
         c = np.repeat(c, 3) if c.size == 1 else c
         return np.broadcast_to(c[:, None, None, None], merl.SHAPE).copy(), {"used": "constant"}
-    with_prior = method in ("prior", "auto+prior")
+    with_prior = method in ("prior", "auto+prior", "auto+prior-unbounded")
     opts = pipeline.Options(prior=prior if with_prior else None, prior_exclude=(name,) if with_prior else ())
-    rec, choice = pipeline.reconstruct(s, "auto" if method == "auto+prior" else method, opts)
+    rec, choice = pipeline.reconstruct(s, "auto" if method.startswith("auto") else method, opts)
     table = pipeline.tabulate(rec)
+    facts: dict[str, Any] = {}
+    if method == "auto+prior":  # as gonio-reconstruct writes auto's table with a prior (--no-conservative: unbounded)
+        rec, table, bounded, _ = pipeline.bound_where_unmeasured(rec, table, s, opts)
+        facts["cells_lowered"] = bounded["cells_lowered"]
+        facts["energy_removed"] = bounded["energy_removed"]
     checks = plausibility(rec, table)
-    facts: dict[str, Any] = {"used": choice["used"], "plausible": bool(checks["all_pass"]),
-                             "max_albedo": float(checks["albedo"]["max"])}
+    facts.update({"used": choice["used"], "plausible": bool(checks["all_pass"]),
+                  "max_albedo": float(checks["albedo"]["max"])})
     if "cross_validation" in choice:
         facts["chosen_label"] = choice["cross_validation"].get("chosen_label", choice["used"])
     return table, facts

@@ -174,6 +174,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "(default: 0-80 deg, a 4 deg blind spot, 0.13 s per point)")
     u.add_argument("--budget-s", type=_nonneg_float, default=None, metavar="T",
                    help="--advise: also plan the best further slices that fit in T seconds of bench time")
+    ap.add_argument("--no-conservative", dest="conservative", action="store_false",
+                    help="auto: write the chosen method's table as it extrapolates, also where no sample rests on a "
+                         "cell (by default auto keeps those cells below the reference posterior's median x "
+                         "exp(sigma): the report's 'conservative' section)")
     ap.add_argument("--allow-implausible", action="store_true",
                     help="write the table even if it fails a plausibility check (the report and the console say so)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar and no summary line")
@@ -208,6 +212,7 @@ def job_from_args(args: argparse.Namespace, **overrides: Any) -> Job:
         quantity=args.quantity, columns=args.columns, blind_spot_deg=args.blind_spot_deg, illuminant=args.illuminant,
         scene=args.scene, lobes=lobes, fill=args.fill, axis=args.axis, smoothing=args.smoothing,
         allow_implausible=bool(getattr(args, "allow_implausible", False)),
+        conservative=bool(getattr(args, "conservative", True)),
         html=args.html if isinstance(getattr(args, "html", None), str) else None,
         **{k: getattr(args, k, None) for k in ("rgl", "zemax", "zemax_incidences", "zemax_azimuths", "zemax_radials",
                                               "export_mitsuba", "export_json", "principled", "materialx", "gltf",

@@ -211,3 +211,65 @@ def test_auto_falls_back_when_the_chosen_table_fails_a_check(monkeypatch, tmp_pa
     assert rep["cross_validation"]["fell_back_from"] == "bivariate"
     assert "written instead" in rep["method_reason"]
     assert (tmp_path / "m.binary").is_file()
+
+
+def test_the_conservative_bound_lowers_only_unmeasured_cells(one_slice):
+    """A table far too bright off the measured slice (a grazing lobe the slice at 20 deg never saw) is brought
+    under the reference's median x e^sigma where no sample rests; measured cells stay the method's; the bounded
+    BRDF evaluates as its table at bin centres, stays reciprocal and only loses energy."""
+    from reconstruction.assess import guard
+    from reconstruction.formats import merl
+
+    s, rec, (_, _, ref, _, _) = one_slice
+    bright = Material.from_dict({"name": "bright", "lobes": [
+        {"type": "lambert", "albedo": 0.2}, {"type": "ggx", "alpha": 0.12, "specular": 1.0, "f0": 0.9}]})
+
+    class Wrong:  # the measured slice's values where measured, a metal's grazing rise elsewhere
+        method = "wrong"
+        eval = staticmethod(bright.eval)
+
+        def report(self):
+            return {"method": "wrong"}
+
+    table = merl.tabulate(bright.eval)
+    bounded, out, info = guard.conservative(Wrong(), table, s, ref)
+    free = uncertainty.cell_classes(s) > 0
+    valid = merl.valid_mask()
+    assert info["applied"] and info["cells_lowered"] > 1000 and 0.0 < info["energy_removed"] < 1.0
+    np.testing.assert_array_equal(out[:, valid & ~free], table[:, valid & ~free])  # measured: untouched
+    bound = guard.upper_bound_table(ref)
+    assert np.all(out[:, valid & free] <= np.maximum(table, bound)[:, valid & free])
+    assert np.all(out[:, valid] <= table[:, valid])
+    lowered = valid & free & (out[0] < table[0])
+    assert np.all(np.isclose(out[0][lowered], bound[0][lowered]))
+    # eval at bin centres of lowered cells = the table there; reciprocal
+    ih, idd, ip = (a[:50] for a in np.nonzero(lowered))
+    wi, wo = merl.cell_to_dirs(ih, idd, ip)
+    np.testing.assert_allclose(bounded.eval(wi, wo)[:, 0], out[0][ih, idd, ip], rtol=1e-6)
+    np.testing.assert_allclose(bounded.eval(wi, wo), bounded.eval(wo, wi), rtol=1e-9)
+    assert bounded.method == "wrong" and bounded.report() == {"method": "wrong"}
+
+
+def test_auto_reports_its_bound_with_a_prior_and_why_not_without(tmp_path, cache):
+    folder = tmp_path / "prior"
+    folder.mkdir()
+    for k in range(4):
+        (folder / f"m{k}.toml").write_text(
+            f'[material]\nname = "m{k}"\n[[material.lobes]]\ntype = "lambert"\nalbedo = {0.1 + 0.1 * k}\n'
+            f'[[material.lobes]]\ntype = "ggx"\nalpha = {0.08 + 0.05 * k}\nspecular = 1.0\nf0 = 0.04\n',
+            encoding="utf-8")
+    s = synthetic_slice(PLASTIC, (30.0,)).sorted()
+    src = tmp_path / "s.csv"
+    write_slice(src, s.__class__(s.theta_i_deg, s.theta_o_deg, s.values, s.channels, 0.002 * s.values + 1e-6,
+                                 np.full(len(s), 4), 1.795e9 + np.arange(len(s)), meta={"material": "t"}))
+    for extra, applied in ((["--prior", str(folder)], None), ([], False)):
+        rep = tmp_path / "r.json"
+        r = subprocess.run([sys.executable, "-m", "reconstruction.cli", str(src), "--method", "auto",
+                            "--out", str(tmp_path / "m.binary"), "--report", str(rep), *extra],
+                           capture_output=True, text=True)
+        assert r.returncode == 0, r.stderr
+        c = json.loads(rep.read_text())["conservative"]
+        if applied is None:
+            assert "cells_lowered" in c and "reference posterior" in c["rule"] and str(folder) in c["reference"]
+        else:
+            assert c["applied"] is False and "no --prior" in c["why"]

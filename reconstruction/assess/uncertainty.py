@@ -84,9 +84,19 @@ def reference_posterior(s: Slice, prior: Any = None, exclude: tuple[str, ...] = 
     return P.reconstruct_prior(s, analytic_prior())
 
 
+def reference_for(rec: Any, s: Slice, prior: Any = None, exclude: tuple[str, ...] = ()
+                  ) -> P.PriorReconstruction:
+    """The reference posterior of the reconstruction ``rec`` of ``s``: the prior method's own (fitted already)
+    when ``rec`` is the prior or an anchored variant of it, else :func:`reference_posterior`."""
+    own = _own_posterior(rec)
+    return own if own is not None else reference_posterior(s, prior, exclude)
+
+
 def _own_posterior(rec: Any) -> P.PriorReconstruction | None:
-    """The prior method's reconstruction inside ``rec`` (itself, or an anchored variant's) when it carries its
-    posterior: then it is the reference, fitted already."""
+    """The prior method's reconstruction inside ``rec`` (itself, or an anchored variant's; through a wrapper such
+    as :class:`reconstruction.assess.guard.Conservative`) when it carries its posterior: then it is the
+    reference, fitted already."""
+    rec = rec.__dict__.get("inner", rec) if hasattr(rec, "__dict__") else rec
     inner = rec.prior if isinstance(getattr(rec, "prior", None), P.PriorReconstruction) else rec
     ok = isinstance(inner, P.PriorReconstruction) and inner.sigma_ln is not None and inner.posterior is not None
     return inner if ok else None
@@ -189,13 +199,14 @@ def expected_errors(f_grid: Array, sigmas: Array) -> list[dict[str, float]]:
              "expected_psnr_db": float(psnr[k])} for k in range(m)]
 
 
-def assess_table(rec: Any, s: Slice, prior: Any = None, exclude: tuple[str, ...] = ()
+def assess_table(rec: Any, s: Slice, prior: Any = None, exclude: tuple[str, ...] = (),
+                 ref: P.PriorReconstruction | None = None
                  ) -> tuple[NDArray[np.float32], dict[str, Any], P.PriorReconstruction, Array, Array]:
     """(sigma of ln f per MERL cell (3, 90, 90, 180) float32, the report's ``uncertainty`` section, the reference
     posterior, sigma (C, n_cells) and f_r (C, n_cells) of ``rec`` on the reduced grid) for the reconstruction
-    ``rec`` of the samples ``s``."""
-    own = _own_posterior(rec)
-    ref = own if own is not None else reference_posterior(s, prior, exclude)
+    ``rec`` of the samples ``s``; ``ref``: the reference posterior when the caller has it
+    (:func:`reference_for`)."""
+    ref = ref if ref is not None else reference_for(rec, s, prior, exclude)
     sg = sigma_grid(rec, ref)
     table_sigma = P.grid_to_merl(sg).astype(np.float32)
     valid = merl.valid_mask()
