@@ -67,6 +67,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--every", type=int, default=6, help="every N-th material of the 141 (1: all)")
     ap.add_argument("--step", type=float, default=10.0, help="candidates every STEP deg (a multiple of 5)")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--json", default=None, help="write every material's actual and expected PSNR per candidate")
     args = ap.parse_args(argv)
     if not all(f.is_dir() for f in B.FOLDERS):
         print(f"bench_advice: {B.DATA} not found (the real materials live beside the project)", file=sys.stderr)
@@ -75,6 +76,11 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     with ProcessPoolExecutor(args.workers) as ex:
         rows = list(ex.map(one, [(n, args.step) for n in names]))
+    if args.json:
+        import json
+
+        Path(args.json).write_text(json.dumps([{"material": n, "actual": a, "expected": e, "advised": d}
+                                               for n, a, e, d in rows]))
     cands = sorted(rows[0][1])
     within, adv, oracle = [], [], []
     per_fixed = {t: [] for t in cands}

@@ -48,7 +48,8 @@ README = (ROOT / "README.md").read_text(encoding="utf-8")
 DOCS = sorted((ROOT / "docs").glob("*.md"))
 BLOCKS = re.findall(r"```python\n(.*?)```", README, flags=re.S)
 MAX_LINES = 300
-CLIS = {"gonio-capture": "acquisition.cli", "gonio-reconstruct": "reconstruction.cli", "gonio-sim": "simulator.cli"}
+CLIS = {"gonio-capture": "acquisition.cli", "gonio-reconstruct": "reconstruction.cli", "gonio-sim": "simulator.cli",
+        "gonio-compare": "reconstruction.report.compare"}
 SHIPPED_CONFIGS = ("simulated", "dynamixel-bench", "serial-bench")
 
 

@@ -43,7 +43,7 @@ __all__ = ["analytic_prior", "reference_posterior", "sigma_grid", "cell_classes"
 ANALYTIC_ALBEDOS = (0.02, 0.1, 0.35, 0.8)
 ANALYTIC_ALPHAS = tuple(float(a) for a in np.geomspace(0.01, 0.7, 7))
 ANALYTIC_F0 = (0.04, 0.5, 0.95)
-ANALYTIC_VERSION = 1
+ANALYTIC_VERSION = 2  # 2: grey, one channel per material (a third of version 1's cache, the same basis)
 #: Image size and quadrature of the expected image errors (a cheap render; the metrics' own renders are 128 px).
 EXPECT_SIZE = 32
 EXPECT_QUADRATURE = Quadrature(n_cosine=21, alphas=(0.01, 0.05, 0.2, 0.5), n_per_alpha=21)
@@ -63,7 +63,7 @@ def _analytic_tables() -> tuple[Array, ...]:
                     {"type": "lambert", "albedo": a if f0 < 0.3 else 0.02 * a},
                     {"type": "ggx", "alpha": al, "specular": spec, "f0": f0}]})
                 v = np.asarray(mat.eval(g["wi"], g["wo"]), dtype=np.float64).reshape(g["cos"].size, -1)
-                rows.append(np.repeat(v[:, :1].T, 3, axis=0))
+                rows.append(v[:, :1].T)  # grey: one channel (the basis holds one row per material)
     return (np.asarray(rows, dtype=np.float32),)
 
 

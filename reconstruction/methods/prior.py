@@ -191,7 +191,8 @@ def _cache_key(folder: Path, files: dict[str, Path]) -> str:
 
 @dataclass
 class PriorSet:
-    """The prior's materials on the reduced grid: ``names`` (N) and ``tables`` (N, 3, n_cells) f_r in 1/sr."""
+    """The prior's materials on the reduced grid: ``names`` (N) and ``tables`` (N, 3, n_cells) f_r in 1/sr (or
+    (N, 1, n_cells) for a grey family: the basis then has one row per material, not three equal ones)."""
 
     folder: str
     names: list[str]
@@ -218,10 +219,11 @@ class PriorSet:
         keep = [i for i, n in enumerate(self.names) if n not in drop]
         if len(keep) < 2:
             raise ReconstructionError(f"--prior {self.folder}: at least 2 materials are needed, {len(keep)} remain")
-        rows = (np.asarray(keep)[:, None] * 3 + np.arange(3)).ravel()
+        nc = self.tables.shape[1]  # 3, or 1 for a grey family (the analytic prior: one row per material)
+        rows = (np.asarray(keep)[:, None] * nc + np.arange(nc)).ravel()
         fc = self._fc()[rows]
         at = np.einsum("nj,tnj->tn", w, fc[:, idx])  # (T, n) f cos cos at the samples
-        scales = channel_scales(at.reshape(len(keep), 3, -1)).reshape(-1).astype(np.float32)
+        scales = channel_scales(at.reshape(len(keep), nc, -1)).reshape(-1).astype(np.float32)
         y = np.divide(fc, scales[:, None], out=fc)  # in place: fc is this call's own copy (80 MB for 48 materials)
         y += np.float32(EPS)
         np.log(y, out=y)
