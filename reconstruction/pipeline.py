@@ -334,7 +334,9 @@ def _run(job: Job, progress: Progress | None) -> dict[str, Any]:
     rep = report.build_report(
         rec=rec, choice=choice, working=working, table=table, checks=checks,
         inputs={"files": loaded.files, "quantities": loaded.quantities, "notes": loaded.notes,
-                "columns": job.columns, "scene": job.scene},
+                "columns": job.columns, "scene": job.scene,
+                **({"scene_ranges_deg": {"theta_i": scene.theta_i_deg, "theta_o": scene.theta_o_deg},
+                    **({"scene_view": scene.view} if scene.view else {})} if scene is not None else {})},
         colour=colour_info,
         table_info={"cells": 3 * merl.N_CELLS,
                     "values": "cell averages" if job.supersample else getattr(rec, "table_values", "bin centres")

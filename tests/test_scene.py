@@ -62,6 +62,16 @@ def test_every_lobe_kind_is_accepted():
     ("[scene.error_budget]\nrmse = 0.1\n", r"\[scene\.error_budget\]\.rmse: unknown key; allowed keys: "
                                            r"relative_rmse, relative_sigma"),
     ("[scene\n", r"scene\.toml: invalid TOML"),
+    ("[scene.view]\ngeometry = 'cube'\nlights_deg = [[0, 0]]\n", r"\[scene\.view\]\.geometry: expected one of sphere"),
+    ("[scene.view]\ngeometry = 'sphere'\n", r"\[scene\.view\]\.lights_deg: missing"),
+    ("[scene.view]\nlights_deg = [45]\n", r"\[scene\.view\]\.lights_deg: expected a list of \[polar, azimuth\]"),
+    ("[scene.view]\ngeometry = 'plane'\nlights_deg = [[30, 180]]\n", r"\[scene\.view\]\.camera_deg: missing"),
+    ("[scene.view]\ngeometry = 'plane'\ncamera_deg = [95]\nlights_deg = [[30, 180]]\n",
+     r"\[scene\.view\]\.camera_deg: expected a list of polar angles"),
+    ("[scene.view]\ngeometry = 'plane'\ncamera_deg = [0]\nlights_deg = [[120, 0]]\n", r"a plane's lights are above it"),
+    ("[scene.view]\nlights_deg = [[40, 0]]\ncoverage = 0\n", r"\[scene\.view\]\.coverage: expected a share"),
+    ("[scene.view]\nlights_deg = [[40, 0]]\nzoom = 2\n", r"\[scene\.view\]\.zoom: unknown key; allowed keys: geometry"),
+    ("[scene]\nview = 3\n", r"\[scene\.view\]: expected a table"),
 ])
 def test_bad_scene_files(tmp_path, text, pattern):
     p = tmp_path / "scene.toml"
@@ -79,3 +89,22 @@ def test_errors_are_value_errors_and_name_missing_files(tmp_path):
         load_scene(tmp_path / "bin.toml")
     with pytest.raises(SceneError, match=r"<scene>: \[scene\]\.relative_rmse: unknown key"):
         scene_from_dict({"scene": {"relative_rmse": math.pi}})
+
+
+def test_a_view_gives_the_ranges_a_renderer_uses():
+    """[scene.view]: a key light near the camera sees a sphere at moderate angles, a rim light behind it only at
+    grazing ones; a plane's ranges are its cameras' and lights' angles; ranges the file gives win."""
+    key = scene_from_dict({"scene": {"view": {"lights_deg": [[30.0, 0.0]]}}})
+    rim = scene_from_dict({"scene": {"view": {"lights_deg": [[150.0, 0.0]]}}})
+    assert key.theta_i_deg[0] < 20.0 and 55.0 < key.theta_i_deg[1] < 85.0
+    assert rim.theta_i_deg[0] > 55.0 and rim.theta_o_deg[0] > 55.0 and rim.theta_o_deg[1] < 90.0
+    assert "sphere" in rim.view and "theta_i_deg" in rim.view
+    wide = scene_from_dict({"scene": {"view": {"lights_deg": [[30.0, 0.0]], "coverage": 1.0}}})
+    assert wide.theta_i_deg[0] <= key.theta_i_deg[0] and wide.theta_i_deg[1] >= key.theta_i_deg[1]
+    plane = scene_from_dict({"scene": {"view": {"geometry": "plane", "camera_deg": [20.0, 60.0],
+                                                "lights_deg": [[45.0, 180.0], [10.0, 90.0]]}}})
+    assert plane.theta_i_deg == (10.0, 45.0) and plane.theta_o_deg == (20.0, 60.0)
+    given = scene_from_dict({"scene": {"theta_o_deg": [0.0, 30.0], "view": {"lights_deg": [[150.0, 0.0]]}}})
+    assert given.theta_o_deg == (0.0, 30.0) and given.theta_i_deg == rim.theta_i_deg
+    with pytest.raises(SceneError, match="no light reaches"):
+        scene_from_dict({"scene": {"view": {"lights_deg": [[180.0, 0.0]]}}})

@@ -16,6 +16,14 @@ and by ``gonio-reconstruct --scene`` (model selection, :func:`reconstruction.met
     lobes = ["lambert", "ggx", "fresnel"]  # optional: the lobe kinds the reconstruction may use (lambert, ggx,
                                            # beckmann, retro, fresnel); ignored by the capture
 
+    [scene.view]                         # optional: what a renderer will do, instead of the two ranges above
+    geometry = "sphere"                  # "sphere": an object seen whole; "plane": a flat sample
+    lights_deg = [[45.0, 0.0]]           # light directions [polar, azimuth] (deg): sphere: the angle from the
+                                         # camera's direction and the azimuth about it; plane: from the normal,
+                                         # azimuth from the camera's (180 = the mirror side)
+    camera_deg = [30.0]                  # plane only: the camera's polar angles from the normal
+    coverage = 0.9                       # sphere: the share of the lit, seen surface the ranges keep
+
     [scene.error_budget]                 # optional
     relative_rmse = 0.03                 # tolerated relative error. Capture: the adaptive refinement tolerance.
                                          # Fit: tolerated relative RMSE of f cos(theta_i) cos(theta_o) over the
@@ -23,8 +31,11 @@ and by ``gonio-reconstruct --scene`` (model selection, :func:`reconstruction.met
                                          # is used
     relative_sigma = 0.01                # relative measurement uncertainty aimed at (fit: used in the weights)
 
-All keys are optional; unknown keys and tables other than ``[scene]`` are errors (they are probably typos). A
-range the file does not give is None in :class:`Scene`; each program says which default it uses with
+All keys are optional; unknown keys and tables other than ``[scene]`` are errors (they are probably typos). With
+``[scene.view]``, the ranges the file does not give follow from the view (:func:`view_ranges`): for a plane, the
+cameras' and lights' polar angles; for a sphere, the central ``coverage`` of theta_i and theta_o over its lit,
+seen surface, each point weighted by its projected area and cos theta_i. A range the file does not give is None
+in :class:`Scene`; each program says which default it uses with
 :meth:`Scene.ranges` (the capture the whole hemisphere, the fit 0-85 deg).
 
 Errors are :class:`SceneError`; their messages name the file and the key.
@@ -40,19 +51,20 @@ from pathlib import Path
 from typing import Any
 
 from reconstruction.base import ReconstructionError
-from reconstruction.schema.scene import LOBE_KINDS, ErrorBudget, SceneTable, keys
+from reconstruction.schema.scene import GEOMETRIES, LOBE_KINDS, ErrorBudget, SceneTable, View, keys
 
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover
     import tomli as tomllib
 
-__all__ = ["Scene", "SceneError", "LOBE_KINDS", "RECONSTRUCTION_DEFAULT_RANGE_DEG", "CAPTURE_DEFAULT_RANGE_DEG",
-           "load_scene", "scene_from_dict"]
+__all__ = ["Scene", "SceneError", "LOBE_KINDS", "view_ranges", "RECONSTRUCTION_DEFAULT_RANGE_DEG",
+           "CAPTURE_DEFAULT_RANGE_DEG", "load_scene", "scene_from_dict"]
 
 #: The keys of [scene] and [scene.error_budget]: the scene file's schema (reconstruction.schema.scene).
 _SCENE_KEYS = keys(SceneTable)
 _BUDGET_KEYS = keys(ErrorBudget)
+_VIEW_KEYS = keys(View)
 
 Range = tuple[float, float]
 
@@ -82,6 +94,8 @@ class Scene:
     relative_rmse: float | None = None
     relative_sigma: float | None = None
     source: str = "<scene>"
+    view: str | None = None  # [scene.view] described, with the ranges it gave
+
 
     def ranges(self, default: Range) -> tuple[Range, Range]:
         """(theta_i_deg, theta_o_deg), each the file's range or ``default`` where the file gives none."""
@@ -142,7 +156,95 @@ def scene_from_dict(d: Mapping[str, Any], source: str = "<scene>") -> Scene:
     for key in _BUDGET_KEYS:
         if key in eb:
             kw[key] = _positive(source, f"[scene.error_budget].{key}", eb[key])
+    if "view" in s:
+        kw.update(_view(source, s["view"], kw))
     return Scene(**kw)
+
+
+def _angles(src: str, key: str, v: Any, pairs: bool) -> list[Any]:
+    def num(x: Any) -> bool:
+        return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+    ok = isinstance(v, list) and len(v) > 0 and all(
+        (isinstance(x, list) and len(x) == 2 and all(num(y) for y in x) and 0.0 <= x[0] <= 180.0) if pairs
+        else (num(x) and 0.0 <= x < 90.0) for x in v)
+    if not ok:
+        want = ("a list of [polar, azimuth] pairs in degrees (polar 0-180)" if pairs
+                else "a list of polar angles in degrees, 0 <= angle < 90")
+        raise SceneError(f"{src}: [scene.view].{key}: expected {want}, got {v!r}")
+    return [tuple(float(y) for y in x) for x in v] if pairs else [float(x) for x in v]
+
+
+def _view(src: str, v: Any, given: Mapping[str, Any]) -> dict[str, Any]:
+    """The ranges (those the file does not give) and the description of ``[scene.view]``."""
+    if not isinstance(v, Mapping):
+        raise SceneError(f"{src}: [scene.view]: expected a table ({', '.join(_VIEW_KEYS)})")
+    _unknown(src, "[scene.view]", v, _VIEW_KEYS)
+    geometry = v.get("geometry", "sphere")
+    if geometry not in GEOMETRIES:
+        raise SceneError(f"{src}: [scene.view].geometry: expected one of {', '.join(GEOMETRIES)}, got {geometry!r}")
+    if "lights_deg" not in v:
+        raise SceneError(f"{src}: [scene.view].lights_deg: missing (the light directions the renderer uses)")
+    lights = _angles(src, "lights_deg", v["lights_deg"], pairs=True)
+    cameras = _angles(src, "camera_deg", v["camera_deg"], pairs=False) if "camera_deg" in v else None
+    if geometry == "plane" and cameras is None:
+        raise SceneError(f"{src}: [scene.view].camera_deg: missing (a plane's camera polar angles)")
+    if geometry == "plane" and any(t >= 90.0 for t, _ in lights):
+        raise SceneError(f"{src}: [scene.view].lights_deg: a plane's lights are above it (polar < 90 deg)")
+    coverage = v.get("coverage", 0.9)
+    if isinstance(coverage, bool) or not isinstance(coverage, (int, float)) or not 0.0 < coverage <= 1.0:
+        raise SceneError(f"{src}: [scene.view].coverage: expected a share in (0, 1], got {coverage!r}")
+    ti, to = view_ranges(geometry, lights, cameras, float(coverage))
+    out: dict[str, Any] = {}
+    derived = []
+    for key, r in (("theta_i_deg", ti), ("theta_o_deg", to)):
+        if key not in given:
+            out[key] = r
+            derived.append(f"{key} {r[0]:.1f}-{r[1]:.1f}")
+    out["view"] = (f"{geometry}, lights {[list(x) for x in lights]} deg"
+                   + (f", cameras {cameras} deg" if cameras else "")
+                   + (f": {', '.join(derived)}" if derived else ": ranges as the file gives them"))
+    return out
+
+
+def view_ranges(geometry: str, lights_deg: list[tuple[float, float]], cameras_deg: list[float] | None = None,
+                coverage: float = 0.9) -> tuple[Range, Range]:
+    """(theta_i range, theta_o range) in degrees that a renderer's view uses (module docstring): a plane's
+    cameras and lights, or the central ``coverage`` over a sphere's lit, seen surface."""
+    import numpy as np
+
+    if geometry == "plane":
+        ti = [t for t, _ in lights_deg]
+        to = list(cameras_deg or [0.0])
+        return (min(ti), max(ti)), (min(to), max(to))
+    # the sphere seen from +z: normals over the visible disk (uniform in projected area), lights about +z
+    n1 = 400
+    x, y = np.meshgrid((np.arange(n1) + 0.5) / n1 * 2 - 1, (np.arange(n1) + 0.5) / n1 * 2 - 1)
+    inside = x**2 + y**2 < 1.0
+    n = np.stack([x[inside], y[inside], np.sqrt(1.0 - x[inside] ** 2 - y[inside] ** 2)], axis=-1)
+    cos_o = n[:, 2]
+    ti_all, to_all, w_all = [], [], []
+    for a, b in lights_deg:
+        a, b = math.radians(a), math.radians(b)
+        lvec = np.array([math.sin(a) * math.cos(b), math.sin(a) * math.sin(b), math.cos(a)])
+        cos_i = n @ lvec
+        lit = (cos_i > 0) & (cos_o > 0)
+        ti_all.append(np.degrees(np.arccos(cos_i[lit])))
+        to_all.append(np.degrees(np.arccos(cos_o[lit])))
+        w_all.append(cos_i[lit])
+    if not any(t.size for t in ti_all):
+        raise SceneError(f"[scene.view].lights_deg {lights_deg}: no light reaches the part of the sphere the camera "
+                         "sees")
+    ti, to, w = (np.concatenate(v) for v in (ti_all, to_all, w_all))
+    lo, hi = (1.0 - coverage) / 2.0, (1.0 + coverage) / 2.0
+
+    def quantiles(v: Any) -> Range:
+        order = np.argsort(v)
+        c = np.cumsum(w[order]) / np.sum(w)
+        q = np.interp([lo, hi], c, v[order])
+        return float(np.clip(q[0], 0.0, 89.0)), float(np.clip(q[1], 0.0, 89.0))
+
+    return quantiles(ti), quantiles(to)
 
 
 def load_scene(path: str | Path) -> Scene:

@@ -6,10 +6,12 @@ from typing import Annotated, Literal
 import msgspec
 from msgspec import Meta
 
-__all__ = ["LOBE_KINDS", "ErrorBudget", "SceneTable", "SceneFile"]
+__all__ = ["LOBE_KINDS", "GEOMETRIES", "ErrorBudget", "View", "SceneTable", "SceneFile"]
 
 #: Lobe kinds a scene may allow (the fit's vocabulary; ``fresnel`` allows Schlick Fresnel on microfacet lobes).
 LOBE_KINDS = ("lambert", "ggx", "beckmann", "retro", "fresnel")
+#: What a renderer shows of the material: a whole object (every normal facing the camera), or a flat sample.
+GEOMETRIES = ("sphere", "plane")
 
 Range = Annotated[tuple[Annotated[float, Meta(ge=0.0, lt=90.0)], Annotated[float, Meta(ge=0.0, lt=90.0)]], Meta(
     description="[min, max] degrees with 0 <= min <= max < 90")]
@@ -25,6 +27,23 @@ class ErrorBudget(msgspec.Struct, forbid_unknown_fields=True):
                                                          "fit's weights")] | None = None
 
 
+class View(msgspec.Struct, forbid_unknown_fields=True):
+    """``[scene.view]``: what a renderer will do, instead of angle ranges: the geometry, the camera and the lights;
+    the scene's theta_i and theta_o ranges follow from it (where the file gives none)."""
+
+    geometry: Annotated[Literal[GEOMETRIES], Meta(  # type: ignore[valid-type]
+        description="sphere: an object seen whole (every normal facing the camera); plane: a flat sample")] = "sphere"
+    camera_deg: Annotated[list[Annotated[float, Meta(ge=0.0, lt=90.0)]], Meta(
+        min_length=1, description="plane: the camera's polar angles from the normal (degrees); sphere: unused")
+    ] | None = None
+    lights_deg: Annotated[list[tuple[float, float]], Meta(
+        min_length=1, description="light directions [polar, azimuth] in degrees: plane: from the normal, azimuth "
+                                  "from the camera's (180: the mirror side); sphere: the angle from the camera's "
+                                  "direction and the azimuth about it")] | None = None
+    coverage: Annotated[float, Meta(gt=0.0, le=1.0, description="sphere: the share of the lit, seen surface "
+                                                                 "(weighted by cos theta_i) the ranges keep")] = 0.9
+
+
 class SceneTable(msgspec.Struct, forbid_unknown_fields=True):
     """``[scene]``: the ranges, the angular resolution, the lobes and the error budget a scene needs."""
 
@@ -36,6 +55,7 @@ class SceneTable(msgspec.Struct, forbid_unknown_fields=True):
     )] | None = None
     lobes: Annotated[list[Literal[LOBE_KINDS]], Meta(min_length=1)] | None = None  # type: ignore[valid-type]
     error_budget: ErrorBudget | None = None
+    view: View | None = None
 
 
 class SceneFile(msgspec.Struct, forbid_unknown_fields=True):
