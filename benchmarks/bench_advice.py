@@ -58,13 +58,14 @@ def one(args: tuple[str, float]) -> tuple[str, dict[float, float], dict[float, f
         rec = P.reconstruct_prior(both, _PS, exclude=(name,))
         mse = np.mean([10 ** (-image_psnr(render_sphere(rec.eval, SIZE, k), truth[k], mask) / 10) for k in truth])
         actual[float(t)] = float(-10 * np.log10(mse))
-    advised = max((t for t in expected if t in actual), key=lambda t: expected[t])
+    advised, _ = advice.recommend({t: v for t, v in expected.items() if t in actual})  # as advise() does
     return name, actual, expected, advised
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--every", type=int, default=6, help="every N-th material of the 141 (1: all)")
+    ap.add_argument("--offset", type=int, default=0, help="start at the OFFSET-th material (another subset)")
     ap.add_argument("--step", type=float, default=10.0, help="candidates every STEP deg (a multiple of 5)")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--json", default=None, help="write every material's actual and expected PSNR per candidate")
@@ -72,7 +73,7 @@ def main(argv: list[str] | None = None) -> int:
     if not all(f.is_dir() for f in B.FOLDERS):
         print(f"bench_advice: {B.DATA} not found (the real materials live beside the project)", file=sys.stderr)
         return 2
-    names = B.prior_set().names[:: args.every]
+    names = B.prior_set().names[args.offset:: args.every]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(args.workers) as ex:
         rows = list(ex.map(one, [(n, args.step) for n in names]))

@@ -273,3 +273,12 @@ def test_auto_reports_its_bound_with_a_prior_and_why_not_without(tmp_path, cache
             assert "cells_lowered" in c and "reference posterior" in c["rule"] and str(folder) in c["reference"]
         else:
             assert c["applied"] is False and "no --prior" in c["why"]
+
+
+def test_candidates_the_model_cannot_separate_go_to_the_preferred_incidence():
+    # within TIE_DB of the best: equivalent, the one nearest PREFERRED_DEG wins; a clear winner stays the winner
+    t = advice.TIE_DB / 2
+    pick, tied = advice.recommend({60.0: 30.0, 65.0: 30.0 + t, 75.0: 30.0, 20.0: 25.0})
+    assert pick == advice.PREFERRED_DEG and tied == [60.0, 65.0, 75.0]
+    pick, tied = advice.recommend({20.0: 30.0 + 3 * advice.TIE_DB, 75.0: 30.0, 70.0: 30.0})
+    assert pick == 20.0 and tied == [20.0]
