@@ -152,3 +152,23 @@ def test_a_bad_rgl_input_is_one_line_and_exit_2(tmp_path, capsys, rgl_file):
     assert cli.main([str(p), "--out", str(tmp_path / "m.binary"), "--quiet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "bad.bsdf: not a measured material: no field(s) vndf" in err[0]
+
+
+def test_a_whole_hemisphere_file_is_read_on_its_own(tmp_path, rgl_file):
+    """An RGL or Zemax input holds every incidence and f_r: with another input, --quantity or --columns it is one
+    clear error naming the file, in its format's own error class."""
+    from reconstruction.formats import brdffile
+
+    z = tmp_path / "z.bsdf"
+    zemax.write(z, MAT.eval, ["R", "G", "B"], incidence_deg=[0.0, 30.0], azimuth_deg=[0.0, 90.0, 180.0],
+                radial_deg=[0.0, 10.0, 30.0])
+    other = tmp_path / "s.csv"
+    for load, path, err, kind in ((brdffile.load_inputs, rgl_file, BRDFFileError, "RGL"),
+                                  (zemax.load_inputs, z, zemax.ZemaxError, "Zemax")):
+        with pytest.raises(err, match=rf"{path.name}: a {kind} file is read on its own .* got 2 inputs"):
+            load([path, other])
+        with pytest.raises(err, match=rf"a {kind} file holds f_r \(1/sr\); --quantity reflectance_factor"):
+            load([path], "reflectance_factor")
+        with pytest.raises(err, match=rf"--columns applies to generic CSV tables, not to a {kind} file"):
+            load([path], None, "theta_i=a")
+        assert load([path]) is not None

@@ -35,7 +35,7 @@ from reconstruction.base import ReconstructionError
 from reconstruction.core.geometry import inplane_to_dirs
 from reconstruction.core.samples import SliceWithPoints, directional_slice
 from reconstruction.formats import merl, rgl, zemax
-from reconstruction.formats.inputs import LoadedInput
+from reconstruction.formats.inputs import LoadedInput, check_whole_file_input
 
 Array = NDArray[np.float64]
 
@@ -246,13 +246,7 @@ def load_inputs(paths: Sequence[str | Path], quantity: str | None = None, column
     found = [p for p in paths if is_rgl(p)]
     if not found:
         return None
-    if len(paths) > 1:
-        raise BRDFFileError(f"{found[0]}: an RGL file is read on its own (it holds every incidence); got "
-                            f"{len(paths)} inputs")
-    if quantity not in (None, "brdf"):
-        raise BRDFFileError(f"{found[0]}: an RGL file holds f_r (1/sr); --quantity {quantity} does not apply")
-    if columns:
-        raise BRDFFileError(f"{found[0]}: --columns applies to generic CSV tables, not to an RGL file")
+    check_whole_file_input(paths, found[0], "RGL", quantity, columns, BRDFFileError)
     try:
         b = load_brdf(found[0], rgb=False)
     except rgl.RGLError as e:

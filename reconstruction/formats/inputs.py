@@ -543,6 +543,18 @@ def load_inputs(paths: Sequence[str | Path], *, quantity: str | None = None,
     return LoadedInput(merged, [str(p) for p in paths], quantities, dropped, notes)
 
 
+def check_whole_file_input(paths: Sequence[str | Path], found: str | Path, kind: str, quantity: str | None,
+                           columns: object, error: type[Exception]) -> None:
+    """A file that holds every incidence (a Zemax or RGL file, ``kind`` names it) is read on its own, holds f_r and
+    takes no ``--columns``: ``error`` (the format's own class) naming the file otherwise."""
+    if len(paths) > 1:
+        raise error(f"{found}: a {kind} file is read on its own (it holds every incidence); got {len(paths)} inputs")
+    if quantity not in (None, "brdf"):
+        raise error(f"{found}: a {kind} file holds f_r (1/sr); --quantity {quantity} does not apply")
+    if columns:
+        raise error(f"{found}: --columns applies to generic CSV tables, not to a {kind} file")
+
+
 def check_slice(s: Slice, min_samples: int = MIN_SAMPLES) -> None:
     """Raise :class:`InputError` for input no method can reconstruct: too few samples, NaN, all zero, duplicates.
 

@@ -55,7 +55,7 @@ from numpy.typing import ArrayLike, NDArray
 from reconstruction.atomic import atomic_open
 from reconstruction.base import ReconstructionError
 from reconstruction.core.samples import SliceWithPoints, directional_slice
-from reconstruction.formats.inputs import LoadedInput
+from reconstruction.formats.inputs import LoadedInput, check_whole_file_input
 
 Array = NDArray[np.float64]
 BRDF = Callable[[Array, Array], ArrayLike]
@@ -550,12 +550,6 @@ def load_inputs(paths: Sequence[str | Path], quantity: str | None = None, column
     found = [p for p in paths if is_zemax(p)]
     if not found:
         return None
-    if len(paths) > 1:
-        raise ZemaxError(f"{found[0]}: a Zemax file is read on its own (it holds every incidence); got "
-                         f"{len(paths)} inputs")
-    if quantity not in (None, "brdf"):
-        raise ZemaxError(f"{found[0]}: a Zemax BRDF file holds f_r (1/sr); --quantity {quantity} does not apply")
-    if columns:
-        raise ZemaxError(f"{found[0]}: --columns applies to generic CSV tables, not to a Zemax file")
+    check_whole_file_input(paths, found[0], "Zemax", quantity, columns, ZemaxError)
     s, notes, _ = load_input(found[0])
     return LoadedInput(s, [str(found[0])], ["brdf"], 0, notes)
