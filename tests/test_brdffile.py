@@ -11,6 +11,7 @@ import pytest
 
 from reconstruction import cli
 from reconstruction.core.colour import spectra_to_rgb
+from reconstruction.core.metrics import uniform_pairs
 from reconstruction.core.models import Colour, Lambert, Material, Microfacet, Nbrdf
 from reconstruction.formats import merl, rgl, zemax
 from reconstruction.formats.brdffile import BRDFFileError, load_brdf, sample_brdf
@@ -19,13 +20,9 @@ MAT = Material("demo-like", [Lambert(colour=Colour(np.array([0.10, 0.20, 0.30]))
                              Microfacet(colour=Colour(np.array([0.9, 0.9, 0.9])), alpha=0.15, f0=0.04)])
 
 
-def random_pairs(n, max_deg=80.0, seed=5):
-    rng = np.random.default_rng(seed)
-    ct = rng.uniform(np.cos(np.radians(max_deg)), 1.0, (2, n))
-    ph = rng.uniform(0.0, 2 * np.pi, (2, n))
-    st = np.sqrt(1.0 - ct ** 2)
-    d = np.stack([st * np.cos(ph), st * np.sin(ph), ct], axis=-1)
-    return d[0], d[1]
+def random_pairs(n):
+    """Direction pairs uniform in solid angle with both polar angles within 80 deg (fixed seed)."""
+    return uniform_pairs(n, 80.0, seed=5)
 
 
 def median_rel(a, b):

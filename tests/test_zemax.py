@@ -10,7 +10,7 @@ import pytest
 
 from reconstruction import cli
 from reconstruction.core.geometry import inplane_to_dirs
-from reconstruction.core.metrics import directional_albedo
+from reconstruction.core.metrics import directional_albedo, uniform_pairs
 from reconstruction.core.models import Colour, Lambert, Material, Microfacet
 from reconstruction.core.samples import DirectionalSlice, everywhere
 from reconstruction.formats import zemax
@@ -273,14 +273,9 @@ DEMO = Material("demo-like", [Lambert(colour=Colour(np.array([0.14]))),
                               Microfacet(colour=Colour(np.array([0.91])), alpha=0.15, f0=0.04)])
 
 
-def random_pairs(n, max_deg=80.0, seed=3):
-    """Direction pairs uniform in solid angle with both polar angles within ``max_deg``."""
-    rng = np.random.default_rng(seed)
-    ct = rng.uniform(np.cos(np.radians(max_deg)), 1.0, (2, n))
-    ph = rng.uniform(0.0, 2 * np.pi, (2, n))
-    st = np.sqrt(1.0 - ct ** 2)
-    d = np.stack([st * np.cos(ph), st * np.sin(ph), ct], axis=-1)
-    return d[0], d[1]
+def random_pairs(n):
+    """Direction pairs uniform in solid angle with both polar angles within 80 deg (fixed seed)."""
+    return uniform_pairs(n, 80.0, seed=3)
 
 
 def test_a_zemax_round_trip_of_a_demo_like_lobe_gives_the_same_brdf(tmp_path):
