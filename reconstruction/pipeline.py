@@ -414,7 +414,9 @@ def bound_where_unmeasured(rec: Reconstruction, table: Array, working: Slice, op
     s = working.sorted()
     ref = uncertainty.reference_for(rec, s, opts.prior, tuple(opts.prior_exclude))
     bounded, out, info = guard.conservative(rec, table, s, ref)
-    return bounded, out, info, ref
+    # nothing lowered: the method's own reconstruction stays (an analytic fit exports its lobes); else the bounded
+    # one, which every output sees (its table is no longer the model's: exports treat it as data-driven)
+    return (bounded if info["applied"] else rec), out, info, ref
 
 
 def _assess(job: Job, rep: dict[str, Any], working: Slice, rec: Reconstruction, opts: Options,
