@@ -458,6 +458,11 @@ def _main(ap: argparse.ArgumentParser, args: argparse.Namespace) -> int:
                 print(f"{PROG}: within {a['budget_s']:g} s: measure "
                       f"{', '.join(f'{x:g}' for x in p['theta_i_deg']) or 'nothing more'} deg "
                       f"({p['bench_time_s']:g} s, expected PSNR {p['expected_psnr_db']:.1f} dB)", file=sys.stderr)
+        c = rep.get("conservative")
+        if c and c.get("applied"):
+            print(f"{PROG}: conservative: {c['cells_lowered']:,} of {c['cells']:,} cells no sample rests on lowered to "
+                  f"the prior's median x e^sigma ({c['energy_removed']:.1%} of the table's light; --no-conservative "
+                  "keeps the method's extrapolation)", file=sys.stderr)
         if "principled" in rep:
             print(f"{PROG}: {rep['principled']['summary']}", file=sys.stderr)
         if rep.get("colour", {}).get("working_channels") == ["value"]:

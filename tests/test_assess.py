@@ -274,6 +274,7 @@ def test_auto_reports_its_bound_with_a_prior_and_why_not_without(tmp_path, cache
         c = json.loads(rep.read_text())["conservative"]
         if applied is None:
             assert "cells_lowered" in c and "reference posterior" in c["rule"] and str(folder) in c["reference"]
+            assert ("conservative: " in r.stderr) == c["applied"], r.stderr
         else:
             assert c["applied"] is False and "no --prior" in c["why"]
 
