@@ -183,3 +183,22 @@ def test_the_help_of_out_names_every_other_output():
     assert "optional once another output is asked" in out.help
     for flag in OTHER_OUTPUTS:
         assert "--" + flag.replace("_", "-") in out.help, flag
+
+
+def test_a_hemispherical_file_draws_at_most_eight_incidences_spread_over_its_range():
+    """Per-incidence figures of a file with dozens of incidences (a Zemax file's 26) draw MAX_PANELS of them, the
+    first and the last included, 4 a row, and the page's note says which; a few slices are all drawn."""
+    from reconstruction.formats.slicefile import Slice
+    from reconstruction.report import html
+
+    inc = np.concatenate([np.arange(0.0, 50.0, 5.0), np.arange(50.0, 88.0, 2.5)])  # 26 incidences
+    ti = np.repeat(inc, 3)
+    s = Slice(ti, np.tile([-30.0, 0.0, 30.0], inc.size), np.full((ti.size, 1), 0.1), ["value"])
+    shown = html.shown_incidences(s)
+    assert len(shown) == html.MAX_PANELS and shown[0] == 0.0 and shown[-1] == 87.5
+    assert shown == sorted(set(shown)) and set(shown) <= set(inc.tolist())
+    assert f"{html.MAX_PANELS} of the 26 incidences are drawn" in html._shown_note(s)
+    few = s.take(np.isin(s.theta_i_deg, [20.0, 40.0, 60.0]))
+    assert html.shown_incidences(few) == [20.0, 40.0, 60.0] and html._shown_note(few) == ""
+    fig, axes = html._panels(len(shown), 5.2, 3.8)
+    assert len(axes) == len(shown) and fig.axes[0].get_gridspec().ncols == html.PANELS_PER_ROW
