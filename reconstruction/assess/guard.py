@@ -106,7 +106,7 @@ def conservative(rec: Reconstruction, table: Array, s: Slice, ref: P.PriorRecons
     wrapped = Conservative(rec, bound, free)
     out = wrapped.bound_table(table)
     valid = merl.valid_mask()[None]
-    lowered = valid & (out < table)
+    lowered = valid[0] & np.any(out < table, axis=0)  # a cell is lowered when any of its channels is
     fc = _cos_weights()[None]
     before = float(np.sum(np.where(valid, table, 0.0) * fc))
     after = float(np.sum(np.where(valid, out, 0.0) * fc))
