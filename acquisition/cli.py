@@ -82,16 +82,21 @@ class _BarSafeHandler(logging.StreamHandler):  # type: ignore[type-arg]
             self.handleError(record)
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``gonio-capture`` console script."""
+def main(argv: list[str] | None = None, *, process: bool | None = None) -> int:
+    """Entry point of the ``gonio-capture`` console script. ``process``: this call is the whole process (the
+    default when ``argv`` is None: the console script and ``python -m acquisition.cli``), so once a signal stopped
+    the capture a second one is ignored until the process exits; an in-process caller (``argv`` given) gets its
+    signal handlers back when main returns."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.force and not args.resume:
         parser.error("--force goes with --resume (it accepts another sample in a capture being resumed)")
     from .interrupts import SignalGuard
 
-    # once a signal stopped the capture this run ends: a second one while it prints where to resume is ignored
-    # (SignalGuard.__exit__); the handlers of before come back when main returns (in-process callers go on)
+    # once a signal stopped the capture this run ends: a second one while it prints where to resume, or in the
+    # instant before the process exits, is ignored (SignalGuard.__exit__); an in-process caller gets the handlers
+    # of before back when main returns (its later children must not inherit an ignored SIGTERM)
+    whole_process = argv is None if process is None else process
     SignalGuard.ignore_after_signal = True
     before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
     handler = _BarSafeHandler(sys.stderr)
@@ -115,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         lg.removeHandler(handler)
         SignalGuard.ignore_after_signal = False
-        if threading.current_thread() is threading.main_thread():
+        if not whole_process and threading.current_thread() is threading.main_thread():
             for sig, h in before.items():
                 if h is not None:
                     signal.signal(sig, h)
