@@ -444,15 +444,20 @@ def _main(ap: argparse.ArgumentParser, args: argparse.Namespace) -> int:
             print(f"{PROG}: uncertainty: median sigma of ln f {_fmt(ms['measured'])} measured, "
                   f"{_fmt(ms['interpolated'])} interpolated, {_fmt(ms['extrapolated'])} extrapolated cells; expect "
                   f"PSNR {u['expected_psnr_db']:.1f} dB, linear image error {u['expected_linear_image_error']:.1%}, "
-                  f"cosl2 {u['expected_cosl2']:.1%}", file=sys.stderr)
+                  f"cosl2 {u['expected_cosl2']:.1%}"
+                  + (f"; in the scene's own images ({u['scene']['name']}): PSNR "
+                     f"{u['scene']['expected_scene_psnr_db']:.1f} dB, linear error "
+                     f"{u['scene']['expected_scene_linear_error']:.1%}" if "scene" in u else ""), file=sys.stderr)
         if "advice" in rep:
             a = rep["advice"]
             print(f"{PROG}: advice: " + (f"measure theta_i = {a['recommended_theta_i_deg']:g} deg next"
                                          if a["recommended_theta_i_deg"] is not None else a["note"]), file=sys.stderr)
             for cand in a["candidates"]:
-                print(f"  theta_i {cand['theta_i_deg']:4g} deg: expected PSNR {cand['expected_psnr_db']:5.1f} dB, "
-                      f"cosl2 {cand['expected_cosl2']:6.1%}, bench time {cand['bench_time_s']:5.1f} s",
-                      file=sys.stderr)
+                scene_psnr = (f"in the scene {cand['expected_scene_psnr_db']:5.1f} dB, "
+                              if "expected_scene_psnr_db" in cand else "")
+                print(f"  theta_i {cand['theta_i_deg']:4g} deg: expected PSNR {scene_psnr}"
+                      f"{cand['expected_psnr_db']:5.1f} dB (sphere), cosl2 {cand['expected_cosl2']:6.1%}, "
+                      f"bench time {cand['bench_time_s']:5.1f} s", file=sys.stderr)
             if "plan" in a:
                 p = a["plan"]
                 print(f"{PROG}: within {a['budget_s']:g} s: measure "

@@ -428,7 +428,8 @@ def _assess(job: Job, rep: dict[str, Any], working: Slice, rec: Reconstruction, 
     from reconstruction.atomic import atomic_path
 
     s = working.sorted()
-    sigma, section, ref, sg, f_grid = uncertainty.assess_table(rec, s, opts.prior, tuple(opts.prior_exclude), ref)
+    sigma, section, ref, sg, f_grid = uncertainty.assess_table(rec, s, opts.prior, tuple(opts.prior_exclude), ref,
+                                                               scene=opts.scene)
     if job.uncertainty:
         with atomic_path(job.uncertainty) as tmp:
             with open(tmp, "wb") as fh:
@@ -439,9 +440,11 @@ def _assess(job: Job, rep: dict[str, Any], working: Slice, rec: Reconstruction, 
     if job.advise:
         t0 = begin("advice")
         rep["advice"] = advice.advise(s, ref, advice.bench_limits(job.bench), job.budget_s,
-                                      current={k: section[k] for k in ("expected_psnr_db", "expected_cosl2",
-                                                                       "expected_linear_image_error")},
-                                      sigma_now=sg, f_grid=f_grid)
+                                      current={**{k: section[k] for k in ("expected_psnr_db", "expected_cosl2",
+                                                                          "expected_linear_image_error")},
+                                               **{k: v for k, v in section.get("scene", {}).items()
+                                                  if k.startswith("expected_")}},
+                                      sigma_now=sg, f_grid=f_grid, scene=opts.scene)
         done("advice", t0)
     return sigma
 

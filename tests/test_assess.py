@@ -287,3 +287,69 @@ def test_candidates_the_model_cannot_separate_go_to_the_preferred_incidence():
     assert pick == advice.PREFERRED_DEG and tied == [60.0, 65.0, 75.0]
     pick, tied = advice.recommend({20.0: 30.0 + 3 * advice.TIE_DB, 75.0: 30.0, 70.0: 30.0})
     assert pick == 20.0 and tied == [20.0]
+
+
+def _scene(text):
+    from reconstruction.core.scene import scene_from_dict
+
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # pragma: no cover
+        import tomli as tomllib
+    return scene_from_dict(tomllib.loads(text), "test.toml")
+
+
+FRONT = "[scene]\nname = 'front'\n[scene.view]\ngeometry = 'plane'\ncamera_deg = [5.0]\nlights_deg = [[8.0, 180.0]]\n"
+GRAZING = ("[scene]\nname = 'grazing'\n[scene.view]\ngeometry = 'plane'\ncamera_deg = [72.0]\n"
+           "lights_deg = [[75.0, 180.0]]\n")
+
+
+def test_a_scenes_own_images_weigh_its_expected_errors_and_its_advice(one_slice):
+    # the same table and sigma, two scenes: a plane lit and seen near the normal, and one at grazing angles, where
+    # one slice at 20 deg leaves the Fresnel rise a guess. Each scene's expected errors are of its own pairs,
+    # and its advice measures where its light comes from
+    s, rec, (_, section, ref, sg, f_grid) = one_slice
+    front, grazing = _scene(FRONT), _scene(GRAZING)
+    ef = uncertainty.scene_section(front, f_grid, sg)
+    eg = uncertainty.scene_section(grazing, f_grid, sg)
+    assert ef["pairs"] == eg["pairs"] == 1 and "plane" in ef["weighs"]
+    assert eg["expected_scene_linear_error"] > 2 * ef["expected_scene_linear_error"], (ef, eg)
+    assert eg["expected_scene_psnr_db"] < ef["expected_scene_psnr_db"]
+    af = advice.advise(s, ref, advice.BenchLimits(), current=section, sigma_now=sg, f_grid=f_grid, scene=front)
+    ag = advice.advise(s, ref, advice.BenchLimits(), current=section, sigma_now=sg, f_grid=f_grid, scene=grazing)
+    assert af["recommended_theta_i_deg"] <= 30.0, af["candidates"][:4]
+    assert ag["recommended_theta_i_deg"] >= 65.0, ag["candidates"][:4]
+    for a, sc in ((af, front), (ag, grazing)):
+        assert sc.name in a["ranked_by"]
+        psnr = [c["expected_scene_psnr_db"] for c in a["candidates"]]
+        assert psnr == sorted(psnr, reverse=True)  # ranked by the scene's own images
+    # with a budget, the plan is judged in the scene too: its expected PSNR is the scene's
+    ab = advice.advise(s, ref, advice.BenchLimits(), budget_s=25.0, sigma_now=sg, f_grid=f_grid, scene=grazing,
+                       current={"expected_psnr_db": section["expected_psnr_db"],
+                                "expected_scene_psnr_db": eg["expected_scene_psnr_db"]})
+    assert ab["plan"]["theta_i_deg"] and ab["plan"]["expected_psnr_db"] > eg["expected_scene_psnr_db"]
+
+
+def test_a_sphere_scene_sees_every_pair_its_lights_make():
+    # a sphere seen from +z lit from the camera: every pixel's light comes back along its view (wi = wo); a light
+    # 90 deg off the camera lights half the sphere
+    from reconstruction.core.scene import scene_pairs
+
+    back = scene_pairs(_scene("[scene]\n[scene.view]\nlights_deg = [[0.0, 0.0]]\n"))
+    lit = back.weight > 0
+    assert back.kind == "sphere" and lit.all()
+    np.testing.assert_allclose(back.wi[lit], back.wo[lit], atol=1e-6)
+    side = scene_pairs(_scene("[scene]\n[scene.view]\nlights_deg = [[90.0, 0.0]]\n"))
+    assert 0.4 < np.mean(side.weight > 0) < 0.6
+    assert np.all((side.wi[..., 2] >= 0) & (side.wo[..., 2] > 0))
+    # the brightest mirror pair of a sphere lit 90 deg off the camera is where the normal halves them
+    half = np.cos(np.radians(45.0))
+    dot = np.einsum("plk,plk->pl", side.wi, side.wo * np.array([-1.0, -1.0, 1.0]))  # wi . mirror(wo)
+    k = np.argmax(np.where(side.weight > 0, dot, -2.0)[:, 0])
+    assert dot[k, 0] > 0.995 and abs(side.wi[k, 0, 2] - half) < 0.05
+    # a plane's light on the mirror side (azimuth 180) at the camera's polar angle is the mirror pair
+    plane = scene_pairs(_scene(GRAZING.replace("75.0", "72.0")))
+    np.testing.assert_allclose(plane.wi[0, 0], plane.wo[0, 0] * np.array([-1.0, -1.0, 1.0]), atol=1e-12)
+    ranges = scene_pairs(_scene("[scene]\ntheta_i_deg = [10.0, 30.0]\ntheta_o_deg = [0.0, 20.0]\n"))
+    t = ranges.theta_i_deg
+    assert ranges.kind == "ranges" and t.min() >= 10.0 - 1e-9 and t.max() <= 30.0 + 1e-9

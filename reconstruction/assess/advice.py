@@ -29,8 +29,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from reconstruction.assess.uncertainty import expected_errors
+from reconstruction.assess.uncertainty import expected_errors, expected_scene_errors
 from reconstruction.base import ReconstructionError
+from reconstruction.core.scene import RECONSTRUCTION_DEFAULT_RANGE_DEG, scene_pairs
 from reconstruction.formats.slicefile import Slice
 from reconstruction.methods import prior as P
 
@@ -132,13 +133,16 @@ def _sigma_after(ref: P.PriorReconstruction, extra: Slice, sigma_now: Array | No
 
 def advise(s: Slice, ref: P.PriorReconstruction, limits: BenchLimits, budget_s: float | None = None,
            current: dict[str, Any] | None = None, sigma_now: Array | None = None,
-           f_grid: Array | None = None) -> dict[str, Any]:
+           f_grid: Array | None = None, scene: Any = None) -> dict[str, Any]:
     """The report's ``advice``: ``candidates`` (each ``theta_i_deg``, ``expected_psnr_db``, ``expected_cosl2``,
     ``bench_time_s``), best first, and ``recommended_theta_i_deg``; with ``budget_s``, ``plan``: the incidences of
     the best further slices that fit in that many seconds of bench time. ``current``: the expected errors of the
     table as it is (the report's ``uncertainty``), shown beside the candidates; ``sigma_now``: the table's sigma
     on the reduced grid (:func:`reconstruction.assess.uncertainty.sigma_grid`); ``f_grid``: the table's f_r there
-    (C, n_cells), whose images the expected errors are of (the reference posterior's without it)."""
+    (C, n_cells), whose images the expected errors are of (the reference posterior's without it). ``scene``
+    (:class:`reconstruction.core.scene.Scene`): the candidates also carry ``expected_scene_psnr_db`` and
+    ``expected_scene_linear_error`` (the scene's own images, :func:`scene_pairs`), are ranked by them, and a tie
+    goes to the incidence nearest :data:`PREFERRED_DEG` within the scene's theta_i range."""
     f = ref.values if f_grid is None else f_grid
     lo = max(limits.light_min_deg, 0.0)
     hi = min(limits.light_max_deg, 80.0)
@@ -152,40 +156,59 @@ def advise(s: Slice, ref: P.PriorReconstruction, limits: BenchLimits, budget_s: 
     slices = [candidate_slice(t, limits, list(s.channels)) for t in thetas]
     sig = np.stack([_sigma_after(ref, c, sigma_now) for c in slices])
     exp = expected_errors(f, sig)
+    if scene is not None:
+        pairs = scene_pairs(scene)
+        for e, es in zip(exp, expected_scene_errors(f, sig, pairs), strict=True):
+            e.update(es)
     cands = [{"theta_i_deg": t, "expected_psnr_db": round(e["expected_psnr_db"], 2),
               "expected_cosl2": round(e["expected_cosl2"], 4),
               "expected_linear_image_error": round(e["expected_linear_image_error"], 4),
+              **({"expected_scene_psnr_db": round(e["expected_scene_psnr_db"], 2),
+                  "expected_scene_linear_error": round(e["expected_scene_linear_error"], 4)} if scene else {}),
               "bench_time_s": round(len(c) * limits.point_s, 1)}
              for t, e, c in zip(thetas, exp, slices, strict=True)]
-    cands.sort(key=lambda c: (-c["expected_psnr_db"], c["expected_cosl2"]))
-    pick, tied = recommend({c["theta_i_deg"]: c["expected_psnr_db"] for c in cands})
+    key = "expected_scene_psnr_db" if scene is not None else "expected_psnr_db"
+    cands.sort(key=lambda c: (-c[key], c["expected_cosl2"]))
+    preferred = PREFERRED_DEG
+    if scene is not None:
+        lo_s, hi_s = scene.ranges(RECONSTRUCTION_DEFAULT_RANGE_DEG)[0]
+        preferred = float(np.clip(PREFERRED_DEG, lo_s, hi_s))
+    pick, tied = recommend({c["theta_i_deg"]: c[key] for c in cands}, preferred)
     out: dict[str, Any] = {"recommended_theta_i_deg": pick, "candidates": cands,
                            **({"tie": {"within_db": TIE_DB, "equivalent_theta_i_deg": sorted(tied),
                                        "rule": f"the model cannot separate these (expected PSNR within {TIE_DB:g} dB "
-                                               f"of the best); the one nearest {PREFERRED_DEG:g} deg, the best "
-                                               "fixed second slice on the real materials"}}
+                                               f"of the best); the one nearest {preferred:g} deg, "
+                                               + ("the best fixed second slice on the real materials"
+                                                  if preferred == PREFERRED_DEG else
+                                                  f"the nearest the scene's incidences come to {PREFERRED_DEG:g} "
+                                                  "deg, the best fixed second slice on the real materials")}}
                               if len(tied) > 1 else {}),
+                           "ranked_by": (f"expected PSNR in the scene's own images ({scene.name})" if scene is not None
+                                         else "expected PSNR of a sphere under key and rim lighting"),
                            "bench": limits.source, "current": current,
                            "method": "the reference posterior's sigma after each candidate slice (value-independent)"
                                      ", its expected PSNR (key and rim lighting) and cosl2"}
     if budget_s is not None:
         out["budget_s"] = budget_s
-        now = (current or {}).get("expected_psnr_db")
-        out["plan"] = _plan(s, ref, limits, budget_s, thetas, float(now) if now is not None else 0.0, sigma_now, f)
+        now = (current or {}).get(key)
+        out["plan"] = _plan(s, ref, limits, budget_s, thetas, float(now) if now is not None else 0.0, sigma_now, f,
+                            scene_pairs(scene) if scene is not None else None)
     return out
 
 
-def recommend(expected_psnr_db: dict[float, float]) -> tuple[float, list[float]]:
+def recommend(expected_psnr_db: dict[float, float], preferred_deg: float = PREFERRED_DEG
+              ) -> tuple[float, list[float]]:
     """(the recommended incidence, the incidences equivalent to the best) from each candidate's expected PSNR
-    (deg -> dB): within :data:`TIE_DB` of the best, the one nearest :data:`PREFERRED_DEG` (module docstring)."""
+    (deg -> dB): within :data:`TIE_DB` of the best, the one nearest ``preferred_deg`` (module docstring)."""
     best = max(expected_psnr_db.values())
     tied = sorted(t for t, v in expected_psnr_db.items() if v >= best - TIE_DB)
-    return min(tied, key=lambda t: (abs(t - PREFERRED_DEG), -t)), tied
+    return min(tied, key=lambda t: (abs(t - preferred_deg), -t)), tied
 
 
 def _plan(s: Slice, ref: P.PriorReconstruction, limits: BenchLimits, budget_s: float, thetas: list[float],
-          psnr_start: float, sigma_now: Array | None, f: Array) -> dict[str, Any]:
-    """Greedy: add the candidate with the largest expected PSNR gain per second until the budget is spent."""
+          psnr_start: float, sigma_now: Array | None, f: Array, pairs: Any = None) -> dict[str, Any]:
+    """Greedy: add the candidate with the largest expected PSNR gain per second until the budget is spent (the
+    PSNR of the scene's own images with ``pairs``, :func:`scene_pairs`)."""
     chosen: list[float] = []
     spent = 0.0
     extra: Slice | None = None
@@ -198,7 +221,8 @@ def _plan(s: Slice, ref: P.PriorReconstruction, limits: BenchLimits, budget_s: f
             break
         tries = [candidate_slice(t, limits, list(s.channels)) for t in fits]
         sig = np.stack([_sigma_after(ref, tr if extra is None else join_slices(extra, tr), sigma_now) for tr in tries])
-        exp = expected_errors(f, sig)
+        exp = ([{"expected_psnr_db": e["expected_scene_psnr_db"]} for e in expected_scene_errors(f, sig, pairs)]
+               if pairs is not None else expected_errors(f, sig))
         gains = [(e["expected_psnr_db"] - psnr_now) / (len(tr) * limits.point_s)
                  for e, tr in zip(exp, tries, strict=True)]
         k = int(np.argmax(gains))

@@ -37,7 +37,7 @@ from reconstruction.methods import prior as P
 Array = NDArray[np.float64]
 
 __all__ = ["analytic_prior", "reference_posterior", "sigma_grid", "cell_classes", "expected_errors",
-           "assess_table", "EXPECT_SIZE"]
+           "assess_table", "EXPECT_SIZE", "expected_scene_errors", "scene_section"]
 
 #: The analytic family standing in for a prior when none is given: lambert albedo x GGX alpha x Fresnel f0.
 ANALYTIC_ALBEDOS = (0.02, 0.1, 0.35, 0.8)
@@ -199,13 +199,49 @@ def expected_errors(f_grid: Array, sigmas: Array) -> list[dict[str, float]]:
              "expected_psnr_db": float(psnr[k])} for k in range(m)]
 
 
+def expected_scene_errors(f_grid: Array, sigmas: Array, pairs: Any) -> list[dict[str, float]]:
+    """Expected errors in a scene's own images (:func:`reconstruction.core.scene.scene_pairs`: its pixels' direction
+    pairs under its lights) of a BRDF ``f_grid`` (C, n_cells, reduced grid) for each sigma of ln f in ``sigmas``
+    (m, C | 1, n_cells): ``expected_scene_linear_error`` (relative RMS of the pixels' spread, f sigma rendered
+    beside f) and ``expected_scene_psnr_db`` (tone-mapped as the image metrics are: exposure at the base image's
+    99.5th percentile, gamma 2.2)."""
+    m = sigmas.shape[0]
+    fl = f_grid.mean(axis=0)
+    sl = np.sqrt(np.mean(sigmas**2, axis=1))  # (m, n_cells)
+    shape = pairs.weight.shape
+    idx, w = P._dirs_weights(pairs.wi.reshape(-1, 3), pairs.wo.reshape(-1, 3))
+    fv = np.einsum("nk,nk->n", w, fl[idx]).reshape(shape) * pairs.weight  # (P, L) radiance of each light
+    sv = np.einsum("nk,mnk->mn", w, sl[:, idx]).reshape(m, *shape)
+    base = fv.sum(axis=1)  # (P,) a pixel's radiance: its lights' sum
+    spread = np.einsum("pl,mpl->mp", fv, sv)  # (m, P)
+    lin = np.sqrt(np.sum(spread**2, axis=1) / max(float(np.sum(base**2)), 1e-300))
+    e = image_exposure(base[:, None])
+    d = (tone_map(base[None] + spread, e) - tone_map(np.maximum(base[None] - spread, 0.0), e)) / 2.0
+    psnr = 10.0 * np.log10(1.0 / np.maximum(np.mean(d**2, axis=1), 1e-12))
+    return [{"expected_scene_linear_error": float(lin[k]), "expected_scene_psnr_db": float(psnr[k])}
+            for k in range(m)]
+
+
+def scene_section(scene: Any, f_grid: Array, sg: Array) -> dict[str, Any]:
+    """The ``uncertainty.scene`` section: the expected errors in ``scene``'s own images, and what weighs them."""
+    from reconstruction.core.scene import scene_pairs
+
+    pairs = scene_pairs(scene)
+    what = {"sphere": "a sphere seen whole under the scene's lights ([scene.view])",
+            "plane": "the scene's cameras and lights on a plane ([scene.view])",
+            "ranges": "direction pairs uniform within the scene's theta_i and theta_o ranges"}[pairs.kind]
+    return {"name": scene.name, "weighs": what, "pairs": int(np.count_nonzero(pairs.weight)),
+            **expected_scene_errors(f_grid, sg[None], pairs)[0]}
+
+
 def assess_table(rec: Any, s: Slice, prior: Any = None, exclude: tuple[str, ...] = (),
-                 ref: P.PriorReconstruction | None = None
+                 ref: P.PriorReconstruction | None = None, scene: Any = None
                  ) -> tuple[NDArray[np.float32], dict[str, Any], P.PriorReconstruction, Array, Array]:
     """(sigma of ln f per MERL cell (3, 90, 90, 180) float32, the report's ``uncertainty`` section, the reference
     posterior, sigma (C, n_cells) and f_r (C, n_cells) of ``rec`` on the reduced grid) for the reconstruction
     ``rec`` of the samples ``s``; ``ref``: the reference posterior when the caller has it
-    (:func:`reference_for`)."""
+    (:func:`reference_for`); ``scene`` (:class:`reconstruction.core.scene.Scene`): the section's ``scene`` holds the
+    errors to expect in that scene's own images (:func:`expected_scene_errors`)."""
     ref = ref if ref is not None else reference_for(rec, s, prior, exclude)
     sg = sigma_grid(rec, ref)
     table_sigma = P.grid_to_merl(sg).astype(np.float32)
@@ -229,4 +265,6 @@ def assess_table(rec: Any, s: Slice, prior: Any = None, exclude: tuple[str, ...]
                "expected_note": (f"what to expect against the truth: cosl2 over uniform direction pairs within "
                                  f"{IMAGE_MAX_VIEW_DEG:g} deg; the image errors from a {EXPECT_SIZE} px render of f "
                                  "sigma beside f (key and rim lighting)")}
+    if scene is not None:
+        section["scene"] = scene_section(scene, f_grid, sg)
     return table_sigma, section, ref, sg, f_grid

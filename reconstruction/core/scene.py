@@ -59,7 +59,7 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 __all__ = ["Scene", "SceneError", "LOBE_KINDS", "view_ranges", "RECONSTRUCTION_DEFAULT_RANGE_DEG",
-           "CAPTURE_DEFAULT_RANGE_DEG", "load_scene", "scene_from_dict"]
+           "CAPTURE_DEFAULT_RANGE_DEG", "load_scene", "scene_from_dict", "ScenePairs", "scene_pairs"]
 
 #: The keys of [scene] and [scene.error_budget]: the scene file's schema (reconstruction.schema.scene).
 _SCENE_KEYS = keys(SceneTable)
@@ -95,6 +95,9 @@ class Scene:
     relative_sigma: float | None = None
     source: str = "<scene>"
     view: str | None = None  # [scene.view] described, with the ranges it gave
+    view_geometry: str | None = None  # [scene.view]'s geometry, lights and cameras (deg) as given; None without
+    view_lights_deg: tuple[tuple[float, float], ...] | None = None
+    view_cameras_deg: tuple[float, ...] | None = None
 
 
     def ranges(self, default: Range) -> tuple[Range, Range]:
@@ -201,6 +204,8 @@ def _view(src: str, v: Any, given: Mapping[str, Any]) -> dict[str, Any]:
         if key not in given:
             out[key] = r
             derived.append(f"{key} {r[0]:.1f}-{r[1]:.1f}")
+    out.update(view_geometry=geometry, view_lights_deg=tuple(lights),
+               view_cameras_deg=tuple(cameras) if cameras else None)
     out["view"] = (f"{geometry}, lights {[list(x) for x in lights]} deg"
                    + (f", cameras {cameras} deg" if cameras else "")
                    + (f": {', '.join(derived)}" if derived else ": ranges as the file gives them"))
@@ -245,6 +250,83 @@ def view_ranges(geometry: str, lights_deg: list[tuple[float, float]], cameras_de
         return float(np.clip(q[0], 0.0, 89.0)), float(np.clip(q[1], 0.0, 89.0))
 
     return quantiles(ti), quantiles(to)
+
+
+@dataclass(frozen=True)
+class ScenePairs:
+    """The direction pairs a scene's renderer evaluates the BRDF at, in the surface's local frame (+z the normal):
+    ``wi``, ``wo`` (P, L, 3) unit vectors of P pixels under L lights, and ``weight`` (P, L) each pair's share of
+    its pixel's radiance (cos theta_i x the light's irradiance; 0 where the light does not reach or the camera
+    does not see). A pixel's radiance is sum_l f(wi, wo) weight."""
+
+    wi: Any
+    wo: Any
+    weight: Any
+    kind: str
+
+    @property
+    def theta_i_deg(self) -> Any:
+        """(P, L) incidence angles in degrees."""
+        import numpy as np
+
+        return np.degrees(np.arccos(np.clip(self.wi[..., 2], -1.0, 1.0)))
+
+
+#: pixels across a sphere scene's image, and pairs drawn for a scene of ranges
+SCENE_PIXELS = 48
+SCENE_RANGE_PAIRS = 4000
+
+
+def scene_pairs(scene: Scene, default: Range = RECONSTRUCTION_DEFAULT_RANGE_DEG,
+                max_view_deg: float = 80.0) -> ScenePairs:
+    """The distribution of (wi, wo) a scene's renderer uses (:class:`ScenePairs`): with ``[scene.view]``, a
+    sphere seen from +z (:data:`SCENE_PIXELS` pixels across, pixels seen above ``max_view_deg`` left out as the
+    image metrics do) under its lights, or a plane's cameras x lights; without, pairs uniform in solid angle
+    within the scene's theta_i and theta_o ranges (``default`` where the file gives none) at uniform relative
+    azimuths, each weighted by cos theta_i. Deterministic."""
+    import numpy as np
+
+    def local(ct: Any, st: Any, cp: Any, sp: Any) -> Any:
+        return np.stack([st * cp, st * sp, ct], axis=-1)
+
+    if scene.view_geometry == "sphere" and scene.view_lights_deg:
+        n1 = SCENE_PIXELS
+        x, y = np.meshgrid((np.arange(n1) + 0.5) / n1 * 2 - 1, (np.arange(n1) + 0.5) / n1 * 2 - 1)
+        inside = x**2 + y**2 < np.sin(np.radians(max_view_deg)) ** 2
+        n = np.stack([x[inside], y[inside], np.sqrt(1.0 - x[inside] ** 2 - y[inside] ** 2)], axis=-1)  # (P, 3)
+        a, b = np.radians(np.array(scene.view_lights_deg)).T
+        lv = np.stack([np.sin(a) * np.cos(b), np.sin(a) * np.sin(b), np.cos(a)], axis=-1)  # (L, 3)
+        cos_i = n @ lv.T  # (P, L)
+        cos_o = np.broadcast_to(n[:, 2:3], cos_i.shape)
+        lt = lv[None] - cos_i[..., None] * n[:, None]  # the light and the camera projected on the tangent plane
+        vt = np.array([0.0, 0.0, 1.0])[None, None] - cos_o[..., None] * n[:, None]
+        norm = np.linalg.norm(lt, axis=-1) * np.linalg.norm(vt, axis=-1)
+        cp = np.where(norm > 1e-12, np.einsum("plk,plk->pl", lt, vt) / np.maximum(norm, 1e-300), 1.0)
+        cp = np.clip(cp, -1.0, 1.0)
+        ci = np.clip(cos_i, 1e-6, 1.0)
+        wi = local(ci, np.sqrt(1.0 - ci**2), np.ones_like(ci), np.zeros_like(ci))
+        wo = local(cos_o, np.sqrt(1.0 - cos_o**2), cp, np.sqrt(1.0 - cp**2))
+        return ScenePairs(wi, wo, np.where(cos_i > 0, cos_i, 0.0), "sphere")
+    if scene.view_geometry == "plane" and scene.view_lights_deg:
+        t, az = np.radians(np.array(scene.view_lights_deg)).T  # (L,)
+        c = np.radians(np.array(scene.view_cameras_deg or (0.0,)))  # (P,)
+        shape = (c.size, t.size)
+        wi = np.broadcast_to(local(np.cos(t), np.sin(t), np.cos(az), np.sin(az))[None], (*shape, 3))
+        wo = np.broadcast_to(local(np.cos(c), np.sin(c), np.ones_like(c), np.zeros_like(c))[:, None], (*shape, 3))
+        return ScenePairs(np.array(wi), np.array(wo), np.broadcast_to(np.cos(t)[None], shape).copy(), "plane")
+    (i0, i1), (o0, o1) = scene.ranges(default)
+    rng = np.random.default_rng(11)
+
+    def cap(lo: float, hi: float) -> Any:
+        ct = rng.uniform(np.cos(np.radians(hi)), np.cos(np.radians(lo)), SCENE_RANGE_PAIRS)
+        return ct, np.sqrt(1.0 - ct**2)
+
+    ci, si = cap(i0, i1)
+    co, so = cap(o0, o1)
+    ph = rng.uniform(0.0, 2 * np.pi, SCENE_RANGE_PAIRS)
+    wi = local(ci, si, np.ones_like(ci), np.zeros_like(ci))[:, None]
+    wo = local(co, so, np.cos(ph), np.sin(ph))[:, None]
+    return ScenePairs(wi, wo, ci[:, None], "ranges")
 
 
 def load_scene(path: str | Path) -> Scene:
