@@ -57,13 +57,16 @@ def _version() -> str:
         return "unknown"
 
 
-def _png(fig: Any) -> str:
-    """A matplotlib figure as an inline data URI (PNG), closed afterwards."""
-    import matplotlib.pyplot as plt
+#: the figures' resolution (dots per inch) and their PNGs' zlib level (1: a few % larger files than PIL's default 6,
+#: written several times faster)
+DPI = 90
+PNG_COMPRESS_LEVEL = 1
 
+
+def _png(fig: Any) -> str:
+    """A matplotlib figure as an inline data URI (PNG)."""
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90)
-    plt.close(fig)
+    fig.savefig(buf, format="png", dpi=DPI, pil_kwargs={"compress_level": PNG_COMPRESS_LEVEL})
     return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
 
 
@@ -71,13 +74,56 @@ def _img(uri: str, alt: str) -> str:
     return f'<img src="{uri}" alt="{html.escape(alt)}">'
 
 
-def _pyplot() -> Any:
-    import matplotlib
+def _figure(figsize: tuple[float, float]) -> Any:
+    """A matplotlib figure of ``figsize`` (inches) outside pyplot (no global state: nothing to close, and any
+    thread may draw one), rendered by Agg when saved."""
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    return Figure(figsize=figsize)
 
-    return plt
+
+def _margins(fig: Any, left: float, right: float, bottom: float, top: float, wgap: float = 0.0,
+             hgap: float = 0.0) -> None:
+    """Place the figure's grid of axes by fixed margins and gaps between panels, all in inches (what
+    ``tight_layout`` found for the demo's figures, with room for wider tick labels): no measuring of every text,
+    which cost a third of the page's drawing."""
+    w, h = fig.get_size_inches()
+    gs = fig.axes[0].get_gridspec() if fig.axes else None
+    rows, cols = (gs.nrows, gs.ncols) if gs is not None else (1, 1)
+    aw = (w - left - right - (cols - 1) * wgap) / cols  # one panel's width and height (inches)
+    ah = (h - bottom - top - (rows - 1) * hgap) / rows
+    fig.subplots_adjust(left=left / w, right=1.0 - right / w, bottom=bottom / h, top=1.0 - top / h,
+                        wspace=wgap / aw if cols > 1 else 0.0, hspace=hgap / ah if rows > 1 else 0.0)
+
+
+_SUPERSCRIPT = str.maketrans("0123456789-", "\u2070\u00b9\u00b2\u00b3\u2074\u2075\u2076\u2077\u2078\u2079\u207b")
+
+
+def _plain(label: str) -> str:
+    """A log axis's mathtext tick label (``$\\mathdefault{2\\times10^{-1}}$``) as plain text with Unicode
+    superscripts (2\u00d710\u207b\u00b9): drawn the same without the mathtext parser."""
+    if not (label.startswith("$\\mathdefault{") and label.endswith("}$")):
+        return label
+    body = label[len("$\\mathdefault{"):-2].replace("\\times", "\u00d7").replace("-", "\u2212")
+    head, sep, exp = body.partition("^{")
+    return head + (exp.rstrip("}").replace("\u2212", "-").translate(_SUPERSCRIPT) if sep else "")
+
+
+def _plain_log_ticks(axis: Any) -> None:
+    """The log ``axis``'s tick labels (major and minor) as plain text (:func:`_plain`), with the same choice of
+    which ticks are labelled as matplotlib's own formatter."""
+    from matplotlib.ticker import LogFormatterSciNotation
+
+    class Plain(LogFormatterSciNotation):
+        def __call__(self, x: float, pos: int | None = None) -> str:
+            return _plain(super().__call__(x, pos))
+
+    for get, put in ((axis.get_major_formatter, axis.set_major_formatter),
+                     (axis.get_minor_formatter, axis.set_minor_formatter)):
+        f = get()
+        if isinstance(f, LogFormatterSciNotation) and not isinstance(f, Plain):
+            put(Plain(f._base, labelOnlyBase=f.labelOnlyBase, minor_thresholds=f.minor_thresholds,
+                      linthresh=f._linthresh))
 
 
 def _lum(v: ArrayLike) -> Array:
@@ -102,10 +148,10 @@ def shown_incidences(s: Slice) -> list[float]:
 
 def _panels(n: int, w: float, h: float) -> tuple[Any, list[Any]]:
     """A figure of ``n`` panels, :data:`PANELS_PER_ROW` a row, each about ``w`` x ``h`` inches (at most 16 wide)."""
-    plt = _pyplot()
     cols = min(n, PANELS_PER_ROW)
     rows = -(-n // cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(min(w * cols, 16), h * rows), squeeze=False)
+    fig = _figure((min(w * cols, 16), h * rows))
+    axes = fig.subplots(rows, cols, squeeze=False)
     flat = list(axes.ravel())
     for ax in flat[n:]:
         ax.set_visible(False)
@@ -148,13 +194,14 @@ def _slices_figure(s: Slice, chosen: str, preds: Mapping[str, Callable[[Array, A
         for g in gaps:
             ax.axvspan(srt[g], srt[g + 1], color="gold", alpha=0.25, label="not measured" if g == gaps[0] else None)
         ax.set_yscale("log")
+        _plain_log_ticks(ax.yaxis)
         ax.set_xlim(-90, 90)
         ax.set_xlabel("theta_o (deg, + = specular side)")
         ax.set_ylabel("f_r (1/sr), channel mean")
         ax.set_title(f"theta_i = {t:g} deg")
         ax.grid(True, which="both", alpha=0.2)
     axes[0].legend(fontsize=7)
-    fig.tight_layout()
+    _margins(fig, 1.0, 0.15, 0.6, 0.37, wgap=1.1, hgap=1.0)
     return _png(fig)
 
 
@@ -192,7 +239,7 @@ def _polar_figure(s: Slice) -> str:
         ax.set_xlabel("x (specular side +)")
         ax.set_ylabel("z (normal)")
         ax.legend(fontsize=7)
-    fig.tight_layout()
+    _margins(fig, 0.8, 0.15, 0.6, 0.37, wgap=0.9, hgap=1.0)
     return _png(fig)
 
 
@@ -203,16 +250,16 @@ def _coverage_figure(table: Array, s: Slice) -> str:
 def _coverage_plot(table: Array, s: Slice) -> Any:
     """The figure of the coverage section: the in-plane sheet of the table with the measured samples on it
     (white dots edged in black, so the legend's marker shows on its grey frame)."""
-    plt = _pyplot()
     th, td, _ = merl.cell_angles()
     cc = np.cos(td[0, :, 0])[None, :] ** 2 - np.sin(th[:, 0, 0])[:, None] ** 2  # in-plane cos_i cos_o
     g = np.nanmean(table, axis=0)[:, :, 0]  # phi_d ~ 0: the in-plane configurations
     val = np.log10(np.maximum(g * np.clip(cc, 0, None), 1e-6))
-    fig, ax = plt.subplots(figsize=(6.4, 4.8))
+    fig = _figure((6.4, 4.8))
+    ax = fig.subplots()
+    _margins(fig, 0.65, 0.15, 0.6, 0.37)
     im = ax.imshow(val.T, origin="lower", aspect="auto", extent=[0, 90, 0, 90], cmap="viridis")
     fig.colorbar(im, ax=ax, label="log10 f cos(theta_i) cos(theta_o), in-plane")
     _samples_on_map(ax, s, "where the table rests on data")
-    fig.tight_layout()
     return fig
 
 
@@ -230,19 +277,20 @@ def _samples_on_map(ax: Any, s: Slice, title: str) -> None:
 
 def _sigma_figure(sigma: Array, s: Slice) -> str:
     """sigma of ln f over (theta_h, theta_d), the median over phi_d and channels, with the samples on it."""
-    plt = _pyplot()
     from matplotlib.colors import LogNorm
 
     sg = np.where(merl.valid_mask(), np.asarray(sigma, dtype=np.float64).mean(axis=0), np.nan)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # rows with no valid cell: NaN, drawn blank
         val = np.nanmedian(sg, axis=2)
-    fig, ax = plt.subplots(figsize=(6.4, 4.8))
+    fig = _figure((6.4, 4.8))
+    ax = fig.subplots()
+    _margins(fig, 0.65, 0.22, 0.6, 0.37)
     im = ax.imshow(np.clip(val.T, 0.01, 5.0), origin="lower", aspect="auto", extent=[0, 90, 0, 90], cmap="magma",
                    norm=LogNorm(0.01, 5.0))
-    fig.colorbar(im, ax=ax, label="sigma of ln f_r (median over phi_d; 0.1 = 10 %, 1 = a factor e)")
+    cb = fig.colorbar(im, ax=ax, label="sigma of ln f_r (median over phi_d; 0.1 = 10 %, 1 = a factor e)")
+    _plain_log_ticks(cb.ax.yaxis)
     _samples_on_map(ax, s, "how sure the table is (sigma of ln f)")
-    fig.tight_layout()
     return _png(fig)
 
 
@@ -318,9 +366,10 @@ def _spheres(table: Array, images: tuple[list[tuple[str, Array, Array | None]], 
     """The spheres' figure, from :func:`_sphere_images` (rendered here when not given)."""
     from reconstruction.report.preview import srgb_encode
 
-    plt = _pyplot()
     imgs, backdrop, cov = images if images is not None else _sphere_images(table)
-    fig, axes = plt.subplots(2, 3, figsize=(9.6, 6.8))
+    fig = _figure((9.6, 6.8))
+    axes = fig.subplots(2, 3)
+    _margins(fig, 0.15, 0.15, 0.15, 0.25, wgap=0.15, hgap=0.15)
     for ax, (name, im, bg) in zip(axes.ravel(), imgs, strict=True):
         lum = (im @ np.array([0.2126, 0.7152, 0.0722]))[cov > 0.5]  # exposed on the sphere, as the preview
         p = float(np.percentile(lum[lum > 0], 99.5)) if np.any(lum > 0) else 1.0
@@ -328,7 +377,6 @@ def _spheres(table: Array, images: tuple[list[tuple[str, Array, Array | None]], 
         ax.imshow(srgb_encode(im * e + (bg * e if bg is not None else backdrop)))
         ax.set_title(name, fontsize=9)
         ax.axis("off")
-    fig.tight_layout()
     return _png(fig)
 
 
@@ -336,8 +384,8 @@ _N_DIRS = SPHERE_QUADRATURE[0] + len(SPHERE_QUADRATURE[1]) * SPHERE_QUADRATURE[2
 
 
 def _cuts_figure(table: Array, s: Slice, sigma: Array | None = None) -> str:
-    plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(8.5, 4.2))
+    fig = _figure((8.5, 4.2))
+    ax = fig.subplots()
     to = np.linspace(-85.0, 85.0, 341)
     measured = set(float(x) for x in s.incidences())
     # with many incidences measured (a hemispherical file) the cuts of MAX_PANELS of them, spread evenly
@@ -352,12 +400,13 @@ def _cuts_figure(table: Array, s: Slice, sigma: Array | None = None) -> str:
             ax.fill_between(to, np.maximum(v * np.exp(-sg), 1e-9), np.maximum(v * np.exp(sg), 1e-9),
                             color=line.get_color(), alpha=0.12, lw=0)
     ax.set_yscale("log")
+    _plain_log_ticks(ax.yaxis)
     ax.set_xlabel("theta_o (deg)")
     ax.set_ylabel("table f_r (1/sr), channel mean")
     ax.set_title("in-plane cuts of the written table")
     ax.grid(True, which="both", alpha=0.2)
     ax.legend(fontsize=7, ncol=2)
-    fig.tight_layout()
+    _margins(fig, 0.9, 0.15, 0.6, 0.37)
     return _png(fig)
 
 
@@ -367,10 +416,10 @@ def _albedo_figure(checks: Mapping[str, Any]) -> str:
 
 def _albedo_plot(checks: Mapping[str, Any]) -> Any:
     """The figure of the albedo section: one curve per channel (one for grey data) and the limit 1."""
-    plt = _pyplot()
     a = checks["albedo"]
     alb = np.asarray(a["albedo"], dtype=np.float64)
-    fig, ax = plt.subplots(figsize=(6.0, 3.6))
+    fig = _figure((6.0, 3.6))
+    ax = fig.subplots()
     grey = alb.shape[1] == 1 or bool(np.allclose(alb, alb[:, :1], rtol=1e-9, atol=0.0))
     if grey:  # one curve for grey data (the table holds the same value in its three channels)
         ax.plot(a["theta_i_deg"], alb[:, 0], "o-", ms=3, color="k", label="grey (every channel)")
@@ -382,7 +431,7 @@ def _albedo_plot(checks: Mapping[str, Any]) -> Any:
     ax.set_ylabel("directional albedo")
     ax.set_ylim(0, max(1.1, float(alb.max()) * 1.1))
     ax.legend(fontsize=7)
-    fig.tight_layout()
+    _margins(fig, 0.67, 0.15, 0.6, 0.15)
     return fig
 
 
