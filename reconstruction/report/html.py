@@ -342,7 +342,11 @@ def _sphere_images(table: Array) -> tuple[list[tuple[str, Array, Array | None]],
     )
     from reconstruction.report.preview import AMBIENT, PREVIEW_RADIUS, albedo_at_view
 
-    brdf = merl.brdf_of(table)
+    lookup = merl.brdf_of(table)
+
+    def brdf(wi: Array, wo: Array) -> Array:  # the table's lookup without its sparse operators (render_sphere):
+        return lookup(wi, wo)  # one render each, evaluated directly (the environment once per view angle)
+
     size, radius = SPHERE_SIZE, PREVIEW_RADIUS
     quad = Quadrature(SPHERE_QUADRATURE[0], SPHERE_QUADRATURE[1], SPHERE_QUADRATURE[2])
     cov = sphere_coverage(size, radius, antialias=True)
