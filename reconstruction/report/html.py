@@ -14,9 +14,7 @@ with the standard library. Written atomically.
 
 from __future__ import annotations
 
-import base64
 import html
-import io
 import json
 import os
 import warnings
@@ -33,6 +31,10 @@ from reconstruction.base import Reconstruction
 from reconstruction.core.geometry import inplane_to_dirs, thesis_points_from_slice
 from reconstruction.formats import merl
 from reconstruction.formats.slicefile import Slice
+from reconstruction.report.figures import figure as _figure
+from reconstruction.report.figures import margins as _margins
+from reconstruction.report.figures import plain_log_ticks as _plain_log_ticks
+from reconstruction.report.figures import png as _png
 
 Array = NDArray[np.float64]
 
@@ -57,73 +59,8 @@ def _version() -> str:
         return "unknown"
 
 
-#: the figures' resolution (dots per inch) and their PNGs' zlib level (1: a few % larger files than PIL's default 6,
-#: written several times faster)
-DPI = 90
-PNG_COMPRESS_LEVEL = 1
-
-
-def _png(fig: Any) -> str:
-    """A matplotlib figure as an inline data URI (PNG)."""
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=DPI, pil_kwargs={"compress_level": PNG_COMPRESS_LEVEL})
-    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
-
-
 def _img(uri: str, alt: str) -> str:
     return f'<img src="{uri}" alt="{html.escape(alt)}">'
-
-
-def _figure(figsize: tuple[float, float]) -> Any:
-    """A matplotlib figure of ``figsize`` (inches) outside pyplot (no global state: nothing to close, and any
-    thread may draw one), rendered by Agg when saved."""
-    from matplotlib.figure import Figure
-
-    return Figure(figsize=figsize)
-
-
-def _margins(fig: Any, left: float, right: float, bottom: float, top: float, wgap: float = 0.0,
-             hgap: float = 0.0) -> None:
-    """Place the figure's grid of axes by fixed margins and gaps between panels, all in inches (what
-    ``tight_layout`` found for the demo's figures, with room for wider tick labels): no measuring of every text,
-    which cost a third of the page's drawing."""
-    w, h = fig.get_size_inches()
-    gs = fig.axes[0].get_gridspec() if fig.axes else None
-    rows, cols = (gs.nrows, gs.ncols) if gs is not None else (1, 1)
-    aw = (w - left - right - (cols - 1) * wgap) / cols  # one panel's width and height (inches)
-    ah = (h - bottom - top - (rows - 1) * hgap) / rows
-    fig.subplots_adjust(left=left / w, right=1.0 - right / w, bottom=bottom / h, top=1.0 - top / h,
-                        wspace=wgap / aw if cols > 1 else 0.0, hspace=hgap / ah if rows > 1 else 0.0)
-
-
-_SUPERSCRIPT = str.maketrans("0123456789-", "\u2070\u00b9\u00b2\u00b3\u2074\u2075\u2076\u2077\u2078\u2079\u207b")
-
-
-def _plain(label: str) -> str:
-    """A log axis's mathtext tick label (``$\\mathdefault{2\\times10^{-1}}$``) as plain text with Unicode
-    superscripts (2\u00d710\u207b\u00b9): drawn the same without the mathtext parser."""
-    if not (label.startswith("$\\mathdefault{") and label.endswith("}$")):
-        return label
-    body = label[len("$\\mathdefault{"):-2].replace("\\times", "\u00d7").replace("-", "\u2212")
-    head, sep, exp = body.partition("^{")
-    return head + (exp.rstrip("}").replace("\u2212", "-").translate(_SUPERSCRIPT) if sep else "")
-
-
-def _plain_log_ticks(axis: Any) -> None:
-    """The log ``axis``'s tick labels (major and minor) as plain text (:func:`_plain`), with the same choice of
-    which ticks are labelled as matplotlib's own formatter."""
-    from matplotlib.ticker import LogFormatterSciNotation
-
-    class Plain(LogFormatterSciNotation):
-        def __call__(self, x: float, pos: int | None = None) -> str:
-            return _plain(super().__call__(x, pos))
-
-    for get, put in ((axis.get_major_formatter, axis.set_major_formatter),
-                     (axis.get_minor_formatter, axis.set_minor_formatter)):
-        f = get()
-        if isinstance(f, LogFormatterSciNotation) and not isinstance(f, Plain):
-            put(Plain(f._base, labelOnlyBase=f.labelOnlyBase, minor_thresholds=f.minor_thresholds,
-                      linthresh=f._linthresh))
 
 
 def _lum(v: ArrayLike) -> Array:
