@@ -63,6 +63,9 @@ RIM_SUN_DIRECTION = (2.0, 3.0, -4.0)
 SUN_IRRADIANCE = 3.0
 _FRAME_EPS = 1e-9
 _MAX_PAIRS = 400_000  # direction pairs per block of pixels (memory: a few arrays of this many vectors)
+#: pixel-direction pairs per block of :func:`_environment_by_view` (its temporaries are scalars per pair: small
+#: blocks are reused from the heap, where large ones are fresh memory mapped, faulted in and returned each time)
+_VIEW_BLOCK_PAIRS = 50_000
 
 
 @dataclass(frozen=True)
@@ -311,8 +314,8 @@ def _environment_by_view(f: BRDF, env: SkyGround, n: Array, t: Array, b: Array, 
     fv = np.zeros((views.size, x.shape[1], vals.shape[1]))
     fv[uu, ss] = vals
     rad = np.zeros((n.shape[0], vals.shape[1]))
-    block = max(1, _MAX_PAIRS // max(q.n_directions, 1))
-    for lo in range(0, n.shape[0], block):  # blocks of pixels, for memory
+    block = max(1, _VIEW_BLOCK_PAIRS // max(q.n_directions, 1))
+    for lo in range(0, n.shape[0], block):  # blocks of pixels: temporaries of a few hundred kB each
         k = inv[lo:lo + block]
         up = x[k] * t[lo:lo + block, 1:2] + z[k] * n[lo:lo + block, 1:2]
         side = y[k] * b[lo:lo + block, 1:2]

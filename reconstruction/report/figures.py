@@ -1,15 +1,22 @@
 """Matplotlib for the HTML report's figures (:mod:`reconstruction.report.html`), drawn cheaply with the same look:
 figures outside pyplot, axes placed by fixed margins instead of ``tight_layout``, log tick labels as plain text
-instead of mathtext, PNGs at a fast zlib level; and :func:`warm_up`, the imports and the font, which a helper
-thread does while the reconstruction finishes. Matplotlib is imported when first used."""
+instead of mathtext, PNGs at a fast zlib level; :func:`warm_up`, the imports and the font, which a helper thread
+does while the reconstruction finishes; and :func:`beside`, figures drawn in a forked child process while this
+one draws others (matplotlib holds the GIL: a thread would not draw beside it). Matplotlib is imported when first
+used."""
 
 from __future__ import annotations
 
 import base64
 import io
+import json
+import os
+import sys
+from collections.abc import Callable, Mapping
 from typing import Any
 
-__all__ = ["DPI", "PNG_COMPRESS_LEVEL", "png", "figure", "margins", "plain", "plain_log_ticks", "warm_up"]
+__all__ = ["DPI", "PNG_COMPRESS_LEVEL", "png", "figure", "margins", "plain", "plain_log_ticks", "warm_up", "beside",
+           "can_fork"]
 
 #: the figures' resolution (dots per inch) and their PNGs' zlib level (1: files about 15 % larger than at PIL's
 #: default 6, written several times faster)
@@ -85,3 +92,58 @@ def warm_up() -> None:
     from matplotlib.ticker import LogFormatterSciNotation  # noqa: F401 - imported for the first log axis
 
     font_manager.findfont(font_manager.FontProperties())
+
+
+def can_fork() -> bool:
+    """Whether figures may be drawn in a forked child: on Linux (fork is what the standard library's process pools
+    use there; macOS's system libraries are not fork-safe), with a second core, unless ``GONIO_HTML_FORK=0``."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return (sys.platform.startswith("linux") and hasattr(os, "fork") and cores > 1
+            and os.environ.get("GONIO_HTML_FORK", "1") != "0")
+
+
+def beside(jobs: Mapping[str, Callable[[], str]]) -> Callable[[], dict[str, str]]:
+    """Draw ``jobs`` (name -> a function giving a figure's data URI, :func:`png`) in a forked child process while
+    this one goes on; returns a function giving {name: data URI}. The child inherits everything the figures need
+    (nothing is pickled) and sends back only the URIs through a pipe, then exits without cleanup
+    (``os._exit``). Without fork (:func:`can_fork`), or when the child fails, the figures are drawn here when the
+    result is asked for, so that an error is raised in this process as without a child."""
+
+    def here() -> dict[str, str]:
+        return {k: f() for k, f in jobs.items()}
+
+    if not jobs or not can_fork():
+        return here
+    r, w = os.pipe()
+    try:
+        pid = os.fork()
+    except OSError:
+        os.close(r)
+        os.close(w)
+        return here
+    if pid == 0:  # the child: draw, send, exit at once (no atexit handlers, no flushing of the parent's buffers)
+        code = 1
+        try:
+            os.close(r)
+            data = json.dumps(here()).encode("ascii")
+            with os.fdopen(w, "wb") as fh:
+                fh.write(data)
+            code = 0
+        finally:
+            os._exit(code)
+    os.close(w)
+
+    def result() -> dict[str, str]:
+        with os.fdopen(r, "rb") as fh:  # read everything before waiting: the URIs are larger than a pipe's buffer
+            data = fh.read()
+        _, status = os.waitpid(pid, 0)
+        if status == 0:
+            try:
+                out = json.loads(data)
+                if isinstance(out, dict) and set(out) == set(jobs):
+                    return out
+            except ValueError:
+                pass
+        return here()
+
+    return result

@@ -16,10 +16,8 @@ from __future__ import annotations
 
 import html
 import json
-import os
 import warnings
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +29,7 @@ from reconstruction.base import Reconstruction
 from reconstruction.core.geometry import inplane_to_dirs, thesis_points_from_slice
 from reconstruction.formats import merl
 from reconstruction.formats.slicefile import Slice
+from reconstruction.report.figures import beside, can_fork
 from reconstruction.report.figures import figure as _figure
 from reconstruction.report.figures import margins as _margins
 from reconstruction.report.figures import plain_log_ticks as _plain_log_ticks
@@ -38,7 +37,7 @@ from reconstruction.report.figures import png as _png
 
 Array = NDArray[np.float64]
 
-__all__ = ["SECTIONS", "build_html", "write_html", "write_index", "environment_render"]
+__all__ = ["SECTIONS", "build_html", "write_html", "write_index", "environment_render", "sphere_images"]
 
 SECTIONS = ("summary", "slices", "polar", "coverage", "spheres", "cuts", "albedo", "checks", "parameters",
             "choice", "timings")
@@ -189,7 +188,7 @@ def _coverage_plot(table: Array, s: Slice) -> Any:
     (white dots edged in black, so the legend's marker shows on its grey frame)."""
     th, td, _ = merl.cell_angles()
     cc = np.cos(td[0, :, 0])[None, :] ** 2 - np.sin(th[:, 0, 0])[:, None] ** 2  # in-plane cos_i cos_o
-    g = np.nanmean(table, axis=0)[:, :, 0]  # phi_d ~ 0: the in-plane configurations
+    g = np.nanmean(table[:, :, :, 0], axis=0)  # phi_d ~ 0: the in-plane configurations
     val = np.log10(np.maximum(g * np.clip(cc, 0, None), 1e-6))
     fig = _figure((6.4, 4.8))
     ax = fig.subplots()
@@ -263,7 +262,7 @@ SPHERE_SIZE = 112
 SPHERE_QUADRATURE = (35, (0.005, 0.03, 0.12, 0.4), 25)
 
 
-def _sphere_images(table: Array) -> tuple[list[tuple[str, Array, Array | None]], Array, Array]:
+def sphere_images(table: Array) -> tuple[list[tuple[str, Array, Array | None]], Array, Array]:
     """The spheres' renders (title, linear radiance, background or None: the environment's backdrop), the
     backdrop, and the sphere's coverage: the numeric part of :func:`_spheres` (numpy only; it may run in a
     second thread while matplotlib draws the other figures)."""
@@ -304,10 +303,10 @@ def _sphere_images(table: Array) -> tuple[list[tuple[str, Array, Array | None]],
 
 
 def _spheres(table: Array, images: tuple[list[tuple[str, Array, Array | None]], Array, Array] | None = None) -> str:
-    """The spheres' figure, from :func:`_sphere_images` (rendered here when not given)."""
+    """The spheres' figure, from :func:`sphere_images` (rendered here when not given)."""
     from reconstruction.report.preview import srgb_encode
 
-    imgs, backdrop, cov = images if images is not None else _sphere_images(table)
+    imgs, backdrop, cov = images if images is not None else sphere_images(table)
     fig = _figure((9.6, 6.8))
     axes = fig.subplots(2, 3)
     _margins(fig, 0.15, 0.15, 0.15, 0.25, wgap=0.15, hgap=0.15)
@@ -412,28 +411,31 @@ def _with_std(p: Mapping[str, Any]) -> dict[str, Any]:
 
 def build_html(*, report: Mapping[str, Any], working: Slice, rec: Reconstruction, table: ArrayLike,
                alternatives: Mapping[str, Reconstruction] | None = None, held_out: Array | None = None,
-               title: str | None = None, sigma: ArrayLike | None = None) -> str:
+               title: str | None = None, sigma: ArrayLike | None = None,
+               spheres: Callable[[], Any] | None = None) -> str:
     """The page (a string). ``report`` is the JSON report; ``alternatives`` the other methods' reconstructions
     of the same samples (their predictions are drawn); ``held_out`` (N, C), in the order of ``working``:
     cross-validation's prediction of each sample from the fold that left it out (NaN where it was never held
-    out); ``sigma``: the --uncertainty array (sigma of ln f per cell), drawn as a map and as bands on the cuts."""
+    out); ``sigma``: the --uncertainty array (sigma of ln f per cell), drawn as a map and as bands on the cuts;
+    ``spheres``: the sphere renders under way (a function giving :func:`sphere_images` of ``table``); without
+    it they are rendered and drawn in a forked child beside the other figures' two
+    (:func:`~reconstruction.report.figures.beside`), or where there is no fork in a second thread while
+    matplotlib draws (:class:`~reconstruction.executor.Background`)."""
+    from reconstruction.executor import Background
+
     t = np.asarray(table, dtype=np.float64)
-    # the spheres' renders (numpy, most of the page's arithmetic) in a second thread while matplotlib draws
-    with ThreadPoolExecutor(max_workers=1) as pool:
-        spheres = pool.submit(_sphere_images, t) if _cores() > 1 else None
+    if spheres is not None or can_fork():
         return _page(report, working, rec, t, alternatives, held_out, title, spheres, sigma)
-
-
-def _cores() -> int:
-    """The cores this process may use."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    with Background() as bg:  # the spheres' renders: numpy, beside matplotlib's drawing
+        return _page(report, working, rec, t, alternatives, held_out, title, bg.submit(sphere_images, t), sigma)
 
 
 def _page(report: Mapping[str, Any], working: Slice, rec: Reconstruction, t: Array,
           alternatives: Mapping[str, Reconstruction] | None, held_out: Array | None, title: str | None,
-          spheres: Future[Any] | None, sigma: ArrayLike | None = None) -> str:
-    """:func:`build_html`'s page; ``spheres``: the spheres' renders under way (None: rendered here); ``sigma``:
-    sigma of ln f per cell (3, 90, 90, 180) or None."""
+          spheres: Callable[[], Any] | None, sigma: ArrayLike | None = None) -> str:
+    """:func:`build_html`'s page; ``spheres``: gives the spheres' renders (:func:`sphere_images`), or None: they
+    are rendered with their figure in a forked child; ``sigma``: sigma of ln f per cell (3, 90, 90, 180) or
+    None."""
     order = np.lexsort((working.theta_o_deg, working.theta_i_deg))
     s = working.take(order)
     held_out = None if held_out is None else np.asarray(held_out, dtype=np.float64)[order]
@@ -455,41 +457,51 @@ def _page(report: Mapping[str, Any], working: Slice, rec: Reconstruction, t: Arr
         summary["principled material"] = report["principled"].get("summary", "")
     sec["summary"] = (f'<p class="{status}">Checks {"passed" if checks["all_pass"] else "failed"}.</p>'
                       + _kv_table(summary))
-    sec["slices"] = (_img(_slices_figure(s, rec.method, preds, held_out, blind), "measured slices and predictions")
+    sg = None if sigma is None else np.asarray(sigma, dtype=np.float64)
+    # the figures in forked children, about a third of the work each (:func:`reconstruction.report.figures.beside`)
+    drawn = [beside({"slices": lambda: _slices_figure(s, rec.method, preds, held_out, blind),
+                     "polar": lambda: _polar_figure(s), "albedo": lambda: _albedo_figure(checks)}),
+             beside({"coverage": lambda: _coverage_figure(t, working), "cuts": lambda: _cuts_figure(t, working, sg),
+                     **({"sigma": lambda: _sigma_figure(sg, working)} if sg is not None else {})})]
+    if spheres is None:
+        drawn.append(beside({"spheres": lambda: _spheres(t)}))
+    sphere_uri = _spheres(t, spheres()) if spheres is not None else ""  # here, while the children draw
+    fig = {k: v for d in drawn for k, v in d().items()}
+    sphere_uri = sphere_uri or fig["spheres"]
+    sec["slices"] = (_img(fig["slices"], "measured slices and predictions")
                      + '<p class="note">Points: the measured samples with their standard deviations; grey: the '
                        "blind spot around the retro direction; gold: stretches with no samples; lines: each "
                        "method's prediction at the same angles (the chosen one thick and black); crosses: "
                        "cross-validation's prediction of each sample from the folds that left it out."
                      + _shown_note(s) + "</p>")
-    sec["polar"] = (_img(_polar_figure(s), "polar curve with sub-curves and axes")
+    sec["polar"] = (_img(fig["polar"], "polar curve with sub-curves and axes")
                     + '<p class="note">The slice as the thesis draws it: each sample as value x (sin, cos) '
                       "theta_o, split into sub-curves where the curve's turning changes sign, each with its axis "
                       "of revolution (dashed).</p>")
-    sec["coverage"] = (_img(_coverage_figure(t, working), "theta_h theta_d map of the table")
+    sec["coverage"] = (_img(fig["coverage"], "theta_h theta_d map of the table")
                        + '<p class="note">The in-plane (phi_d = 0) sheet of the table; white dots are the '
                          "measured samples. Away from them the table extrapolates; the rings and bands a "
                          "data-driven method shows in previews come from these interpolations between measured "
                          "lines and from its phi_d-independent approximation.</p>")
-    sg = None if sigma is None else np.asarray(sigma, dtype=np.float64)
     if sg is not None:
         u = report.get("uncertainty", {})
         ms = u.get("median_sigma", {})
-        sec["coverage"] += (_img(_sigma_figure(sg, working), "theta_h theta_d map of sigma")
+        sec["coverage"] += (_img(fig["sigma"], "theta_h theta_d map of sigma")
                             + '<p class="note">sigma of ln f_r per cell (the --uncertainty array): median '
                               + ", ".join(f"{ms[k]:.3f} over {k}" for k in ms if ms[k] is not None)
                               + " cells. Expected against the truth: PSNR "
                               + f"{u.get('expected_psnr_db', float('nan')):.1f} dB, linear image error "
                               + f"{u.get('expected_linear_image_error', float('nan')):.1%}, cosl2 "
                               + f"{u.get('expected_cosl2', float('nan')):.1%}.</p>")
-    sec["spheres"] = (_img(_spheres(t, spheres.result() if spheres is not None else None), "sphere renders")
+    sec["spheres"] = (_img(sphere_uri, "sphere renders")
                       + '<p class="note">The written table on a sphere (linear radiance, each image exposed on its '
                         "own 99.5th percentile, sRGB). Top: a point light and a dim uniform environment, as the "
                         f"preview. Bottom: a sky-and-ground environment (integrated over a fixed set of {_N_DIRS} "
                         "directions per pixel, importance-sampled around the mirror direction, so the grazing "
                         "rim is resolved), alone, with a sun in front and with a sun behind the sphere (grazing "
                         "light): reconstruction.core.render.</p>")
-    sec["cuts"] = _img(_cuts_figure(t, working, sg), "in-plane cuts of the table")
-    sec["albedo"] = _img(_albedo_figure(checks), "directional albedo")
+    sec["cuts"] = _img(fig["cuts"], "in-plane cuts of the table")
+    sec["albedo"] = _img(fig["albedo"], "directional albedo")
     rows = []
     for k in ("non_negative", "albedo", "reciprocity"):
         c = checks[k]
