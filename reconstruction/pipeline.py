@@ -233,13 +233,21 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
     methods) share their cone integrals (:func:`reconstruction.bench.instrument.shared_cone_averages`). With the
     uncertainty or the HTML page asked and a second core, what they need that does not wait for the main thread
     runs beside it in a helper thread (:class:`reconstruction.executor.Background`): the built-in family's
-    posterior (the samples' alone) and matplotlib's imports while the table is tabulated, checked and written;
-    in another, the page's sphere renders from the final table on; the page's other figures are drawn in
-    forked children (:func:`reconstruction.report.figures.beside`)."""
+    posterior (the samples' alone) while the samples are reconstructed, matplotlib's imports while the table is
+    tabulated, checked and written; in another, the page's sphere renders from the tabulation on (again if a
+    fallback or the conservative bound changes the table); the page's other figures are drawn in forked
+    children (:func:`reconstruction.report.figures.beside`)."""
+    from contextlib import nullcontext
+
+    from threadpoolctl import threadpool_limits
+
     from reconstruction.bench.instrument import shared_cone_averages
     from reconstruction.executor import Background
 
-    with shared_cone_averages(), Background(enabled=job.assesses) as helper, \
+    # the built-in family's posterior beside the reconstruction: one BLAS thread for the whole run, so that the
+    # limits fit sets and lifts around its own solves (process-wide) never change the posterior's threads midway
+    blas = threadpool_limits(1, user_api="blas") if job.assesses and not job.prior else nullcontext()
+    with blas, shared_cone_averages(), Background(enabled=job.assesses) as helper, \
             Background(enabled=bool(job.html)) as renders:
         return _run(job, progress, helper, renders)
 
@@ -296,6 +304,11 @@ def _run(job: Job, progress: Progress | None, helper: Any, renders: Any) -> dict
     t0 = begin("reconstructing")
     opts = Options(scene=scene, fill=job.fill, lobes=lobes, revolve_axis=job.axis, revolve_smoothing=job.smoothing,
                    prior=job.prior, prior_anchor=job.prior_anchor)
+    early_ref = None
+    if job.assesses and not opts.prior:  # the built-in family's posterior depends on the samples alone
+        from reconstruction.assess.uncertainty import reference_posterior
+
+        early_ref = helper.submit(reference_posterior, working.sorted())
     rec, choice = reconstruct(working, job.method, opts,
                               progress=(lambda name: progress.begin(f"fitting {name}")) if progress else None)
     done("reconstruct", t0)
@@ -304,15 +317,15 @@ def _run(job: Job, progress: Progress | None, helper: Any, renders: Any) -> dict
         from reconstruction.report.figures import warm_up
 
         warmed = helper.submit(warm_up)
-    early_ref = None
-    if job.assesses and not opts.prior:  # the built-in family's posterior depends on the samples alone
-        from reconstruction.assess.uncertainty import reference_posterior
-
-        early_ref = helper.submit(reference_posterior, working.sorted())
     t0 = begin("tabulating" + (f" (supersample {job.supersample})" if job.supersample else ""))
     energy: dict[str, Any] = {}
     table = tabulate(rec, job.supersample, energy)
     done("tabulate", t0)
+    spheres, rendered = None, table
+    if job.html:  # the page's sphere renders (numpy) in a thread of their own, from now to the page's drawing
+        from reconstruction.report.html import sphere_images
+
+        spheres = renders.submit(sphere_images, np.asarray(table, dtype=np.float64))
     t0 = begin("plausibility checks")
     checks = report.plausibility(rec, table)
     fallbacks = choice.pop("fallbacks", None)
@@ -330,10 +343,7 @@ def _run(job: Job, progress: Progress | None, helper: Any, renders: Any) -> dict
         done("conservative", t0)
     elif job.method == "auto" and job.conservative:
         bounded = {"applied": False, "why": NO_BOUND_WITHOUT_PRIOR}
-    spheres = None
-    if job.html:  # the page's sphere renders (numpy) in a thread of their own, from now to the page's drawing
-        from reconstruction.report.html import sphere_images
-
+    if job.html and table is not rendered:  # a fallback's table or the bounded one: rendered again
         spheres = renders.submit(sphere_images, np.asarray(table, dtype=np.float64))
     t0 = begin("writing table")
     outputs: dict[str, Any] = {}
