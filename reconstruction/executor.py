@@ -6,6 +6,7 @@ optional ``dask`` extra), so a large study or a batch reconstruction runs on man
 
 from __future__ import annotations
 
+import contextvars
 import os
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor, as_completed
@@ -14,7 +15,7 @@ from typing import Any, TypeVar
 
 T = TypeVar("T")
 
-__all__ = ["make_executor", "run_all"]
+__all__ = ["make_executor", "run_all", "Background"]
 
 
 @contextmanager
@@ -71,3 +72,28 @@ def run_all(executor: Executor, fn: Callable[..., T], cases: Iterable[Any],
         if on_done is not None:
             on_done(index[id(fut)], fut)
     return futures
+
+
+class Background:
+    """A second thread for independent work when the machine has a second core (else the work runs when its result
+    is asked for); ``submit`` returns a function that gives the result (or raises the work's exception). The
+    work runs in submission order, in a copy of the caller's context (the shared cone integrals of
+    :func:`reconstruction.bench.instrument.shared_cone_averages` included): auto's cross-validation of the methods
+    that do not wait for fit, and the pipeline's uncertainty and HTML page beside the main thread."""
+
+    def __init__(self, enabled: bool = True) -> None:
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        self.pool = ThreadPoolExecutor(max_workers=1) if enabled and cores > 1 else None
+
+    def __enter__(self) -> Background:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.pool is not None:
+            self.pool.shutdown(wait=True, cancel_futures=True)
+
+    def submit(self, fn: Callable[..., T], *args: Any) -> Callable[[], T]:
+        if self.pool is None:
+            return lambda: fn(*args)
+        fut = self.pool.submit(contextvars.copy_context().run, fn, *args)
+        return fut.result

@@ -230,14 +230,29 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
     Returns the report. Raises :class:`ImplausibleError` (nothing written) for a table that fails a plausibility
     check unless ``job.allow_implausible``; bad input is a :class:`ReconstructionError` (or a reader's error)
     naming the file, checked output paths before any work. The job's fits (auto's folds, the HTML report's other
-    methods) share their cone integrals (:func:`reconstruction.bench.instrument.shared_cone_averages`)."""
+    methods) share their cone integrals (:func:`reconstruction.bench.instrument.shared_cone_averages`). With the
+    uncertainty or the HTML page asked and a second core, what they need that does not wait for the main thread
+    runs beside it in a helper thread (:class:`reconstruction.executor.Background`): the built-in family's
+    posterior (the samples' alone) while the samples are reconstructed, matplotlib's imports while the table is
+    tabulated, checked and written; in another, the page's sphere renders from the tabulation on (again if a
+    fallback or the conservative bound changes the table); the page's other figures are drawn in forked
+    children (:func:`reconstruction.report.figures.beside`)."""
+    from contextlib import nullcontext
+
+    from threadpoolctl import threadpool_limits
+
     from reconstruction.bench.instrument import shared_cone_averages
+    from reconstruction.executor import Background
 
-    with shared_cone_averages():
-        return _run(job, progress)
+    # the built-in family's posterior beside the reconstruction: one BLAS thread for the whole run, so that the
+    # limits fit sets and lifts around its own solves (process-wide) never change the posterior's threads midway
+    blas = threadpool_limits(1, user_api="blas") if job.assesses and not job.prior else nullcontext()
+    with blas, shared_cone_averages(), Background(enabled=job.assesses) as helper, \
+            Background(enabled=bool(job.html)) as renders:
+        return _run(job, progress, helper, renders)
 
 
-def _run(job: Job, progress: Progress | None) -> dict[str, Any]:
+def _run(job: Job, progress: Progress | None, helper: Any, renders: Any) -> dict[str, Any]:
     from reconstruction.core import colour
     from reconstruction.core.scene import LOBE_KINDS, load_scene
     from reconstruction.formats import brdffile, exports, inputs, merl, zemax
@@ -289,13 +304,28 @@ def _run(job: Job, progress: Progress | None) -> dict[str, Any]:
     t0 = begin("reconstructing")
     opts = Options(scene=scene, fill=job.fill, lobes=lobes, revolve_axis=job.axis, revolve_smoothing=job.smoothing,
                    prior=job.prior, prior_anchor=job.prior_anchor)
+    early_ref = None
+    if job.assesses and not opts.prior:  # the built-in family's posterior depends on the samples alone
+        from reconstruction.assess.uncertainty import reference_posterior
+
+        early_ref = helper.submit(reference_posterior, working.sorted())
     rec, choice = reconstruct(working, job.method, opts,
                               progress=(lambda name: progress.begin(f"fitting {name}")) if progress else None)
     done("reconstruct", t0)
+    warmed = None
+    if job.html:  # matplotlib's imports while the tabulation's threads hold no GIL; forked figures inherit them
+        from reconstruction.report.figures import warm_up
+
+        warmed = helper.submit(warm_up)
     t0 = begin("tabulating" + (f" (supersample {job.supersample})" if job.supersample else ""))
     energy: dict[str, Any] = {}
     table = tabulate(rec, job.supersample, energy)
     done("tabulate", t0)
+    spheres, rendered = None, table
+    if job.html:  # the page's sphere renders (numpy) in a thread of their own, from now to the page's drawing
+        from reconstruction.report.html import sphere_images
+
+        spheres = renders.submit(sphere_images, np.asarray(table, dtype=np.float64))
     t0 = begin("plausibility checks")
     checks = report.plausibility(rec, table)
     fallbacks = choice.pop("fallbacks", None)
@@ -313,6 +343,8 @@ def _run(job: Job, progress: Progress | None) -> dict[str, Any]:
         done("conservative", t0)
     elif job.method == "auto" and job.conservative:
         bounded = {"applied": False, "why": NO_BOUND_WITHOUT_PRIOR}
+    if job.html and table is not rendered:  # a fallback's table or the bounded one: rendered again
+        spheres = renders.submit(sphere_images, np.asarray(table, dtype=np.float64))
     t0 = begin("writing table")
     outputs: dict[str, Any] = {}
     if out is not None:
@@ -327,6 +359,8 @@ def _run(job: Job, progress: Progress | None) -> dict[str, Any]:
         done("preview", t0)
     principled = None
     if wants_principled(job):
+        if early_ref is not None:  # its fit sets the process's BLAS threads, as the posterior does: one at a time
+            ref = early_ref()
         t0 = begin("principled material")
         files, principled = write_principled(job, rec, _name(job, working))
         outputs.update(files)
@@ -354,7 +388,8 @@ def _run(job: Job, progress: Progress | None) -> dict[str, Any]:
     sigma_table = None
     if job.assesses:
         t0 = begin("uncertainty")
-        sigma_table = _assess(job, rep, working, rec, opts, begin, done, ref)
+        sigma_table = _assess(job, rep, working, rec, opts, begin, done,
+                              ref if ref is not None or early_ref is None else early_ref())
         done("uncertainty", t0)
     if not checks["all_pass"]:
         rep["implausible_table_written"] = "written with --allow-implausible: " + implausible_message(rec.method,
@@ -367,8 +402,10 @@ def _run(job: Job, progress: Progress | None) -> dict[str, Any]:
         rep["outputs"]["report"] = str(job.report)
         report.write_json(job.report, rep)
     if job.html:
+        if warmed is not None:  # the helper idle before the page forks its figures' children
+            warmed()
         t0 = begin("html report")
-        _write_html(job, rep, working, rec, table, choice, opts, sigma_table)
+        _write_html(job, rep, working, rec, table, choice, opts, sigma_table, spheres)
         rep["timings_s"]["html"] = round(time.perf_counter() - t0, 4)
         done("html", t0)
     return rep
@@ -456,8 +493,10 @@ def _name(job: Job, working: Slice) -> str:
 
 
 def _write_html(job: Job, rep: dict[str, Any], working: Slice, rec: Reconstruction, table: Array,
-                choice: dict[str, Any], opts: Options, sigma: NDArray[np.float32] | None = None) -> None:
-    """The HTML report of ``job``: every other registered method is built on the same samples for comparison."""
+                choice: dict[str, Any], opts: Options, sigma: NDArray[np.float32] | None = None,
+                spheres: Callable[[], Any] | None = None) -> None:
+    """The HTML report of ``job``: every other registered method is built on the same samples for comparison;
+    ``spheres``: the sphere renders under way (:func:`reconstruction.report.html.sphere_images`)."""
     from reconstruction.report import html as htmlreport
 
     ordered = working.sorted()
@@ -471,4 +510,4 @@ def _write_html(job: Job, rep: dict[str, Any], working: Slice, rec: Reconstructi
     held = choice.get("held_out_predictions", {}).get(rec.method)
     title = _name(job, working)
     htmlreport.write_html(job.html, report=rep, working=ordered, rec=rec, table=table, alternatives=others,
-                          held_out=held, title=title, sigma=sigma)
+                          held_out=held, title=title, sigma=sigma, spheres=spheres)

@@ -248,7 +248,7 @@ def test_a_choice_over_the_scene_budget_is_said_in_the_report_and_the_console(tm
 def test_auto_cross_validates_the_other_methods_in_a_second_thread_with_the_same_result(monkeypatch):
     """auto runs microfacet's, revolve's and bivariate's folds beside fit's model search when a second core is
     there: the scores and the choice are those of running them one after the other."""
-    from reconstruction import pipeline
+    from reconstruction import executor, pipeline
     from reconstruction.core.models import Colour, Lambert, Material, Microfacet
     from reconstruction.synthetic import synthetic_slice
 
@@ -262,9 +262,9 @@ def test_auto_cross_validates_the_other_methods_in_a_second_thread_with_the_same
         return real(self, fn, *args)
 
     monkeypatch.setattr(auto._Background, "submit", watched)
-    monkeypatch.setattr(auto.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    monkeypatch.setattr(executor.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
     _, two = pipeline.reconstruct(s, "auto")
-    monkeypatch.setattr(auto.os, "sched_getaffinity", lambda pid: {0}, raising=False)
+    monkeypatch.setattr(executor.os, "sched_getaffinity", lambda pid: {0}, raising=False)
     _, one = pipeline.reconstruct(s, "auto")
     assert threads == [True] * 3 + [False] * 3  # microfacet, revolve, bivariate; in a thread, then inline
 

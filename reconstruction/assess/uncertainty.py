@@ -78,10 +78,15 @@ def analytic_prior() -> P.PriorSet:
 
 def reference_posterior(s: Slice, prior: Any = None, exclude: tuple[str, ...] = ()) -> P.PriorReconstruction:
     """The prior's reconstruction of ``s`` with its posterior: from ``prior`` (what ``--prior`` gives) or, without
-    one, from :func:`analytic_prior`."""
+    one, from :func:`analytic_prior`, on one BLAS thread (its matrices are 84 rows by the grid's training cells:
+    on the 2-core machine a second BLAS thread saves under 0.1 s when idle and costs seconds when the machine is
+    busy, both threads spinning against other jobs)."""
     if prior:
         return P.reconstruct_prior(s, prior, exclude=exclude)
-    return P.reconstruct_prior(s, analytic_prior())
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(1, user_api="blas"):
+        return P.reconstruct_prior(s, analytic_prior())
 
 
 def reference_for(rec: Any, s: Slice, prior: Any = None, exclude: tuple[str, ...] = ()

@@ -29,13 +29,10 @@ The report's ``cross_validation`` section holds the scheme, every method's held-
 
 from __future__ import annotations
 
-import contextvars
 import dataclasses
 import math
-import os
 import warnings
 from collections.abc import Callable, Iterator
-from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -44,6 +41,7 @@ from numpy.typing import NDArray
 from reconstruction.base import Reconstruction, ReconstructionError
 from reconstruction.core.checks import ALBEDO_INCIDENCES_DEG, ALBEDO_TOLERANCE, checked_albedo
 from reconstruction.core.samples import PointFolds, everywhere, points_anywhere
+from reconstruction.executor import Background as _Background
 from reconstruction.formats.slicefile import Slice
 from reconstruction.methods import REGISTRY, Options, get
 from reconstruction.methods.crossval import (
@@ -317,30 +315,6 @@ def _reconstruct_auto(s: Slice, opts: Options,
                     "held_out_predictions": ({} if s is not full else  # per sample of the input (none when thinned)
                                              {c.method: c.predictions for c in reversed(scores)
                                               if c.predictions is not None and (c.method != best.method or c is best)})}
-
-
-class _Background:
-    """A second thread for independent work when the machine has a second core (else the work runs when its result
-    is asked for); ``submit`` returns a function that gives the result (or raises the work's exception). The
-    thread runs in a copy of the caller's context (the shared cone integrals of
-    :func:`reconstruction.bench.instrument.shared_cone_averages` included)."""
-
-    def __init__(self, enabled: bool = True) -> None:
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-        self.pool = ThreadPoolExecutor(max_workers=1) if enabled and cores > 1 else None
-
-    def __enter__(self) -> _Background:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        if self.pool is not None:
-            self.pool.shutdown(wait=True, cancel_futures=True)
-
-    def submit(self, fn: Callable[..., Any], *args: Any) -> Callable[[], Any]:
-        if self.pool is None:
-            return lambda: fn(*args)
-        fut = self.pool.submit(contextvars.copy_context().run, fn, *args)
-        return fut.result
 
 
 def _bic_fit(s: Slice, opts: Options, fit_rec: Any, progress: Callable[[str], None] | None) -> Reconstruction:

@@ -14,14 +14,10 @@ with the standard library. Written atomically.
 
 from __future__ import annotations
 
-import base64
 import html
-import io
 import json
-import os
 import warnings
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -33,10 +29,15 @@ from reconstruction.base import Reconstruction
 from reconstruction.core.geometry import inplane_to_dirs, thesis_points_from_slice
 from reconstruction.formats import merl
 from reconstruction.formats.slicefile import Slice
+from reconstruction.report.figures import beside, can_fork
+from reconstruction.report.figures import figure as _figure
+from reconstruction.report.figures import margins as _margins
+from reconstruction.report.figures import plain_log_ticks as _plain_log_ticks
+from reconstruction.report.figures import png as _png
 
 Array = NDArray[np.float64]
 
-__all__ = ["SECTIONS", "build_html", "write_html", "write_index", "environment_render"]
+__all__ = ["SECTIONS", "build_html", "write_html", "write_index", "environment_render", "sphere_images"]
 
 SECTIONS = ("summary", "slices", "polar", "coverage", "spheres", "cuts", "albedo", "checks", "parameters",
             "choice", "timings")
@@ -57,27 +58,8 @@ def _version() -> str:
         return "unknown"
 
 
-def _png(fig: Any) -> str:
-    """A matplotlib figure as an inline data URI (PNG), closed afterwards."""
-    import matplotlib.pyplot as plt
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90)
-    plt.close(fig)
-    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
-
-
 def _img(uri: str, alt: str) -> str:
     return f'<img src="{uri}" alt="{html.escape(alt)}">'
-
-
-def _pyplot() -> Any:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def _lum(v: ArrayLike) -> Array:
@@ -102,10 +84,10 @@ def shown_incidences(s: Slice) -> list[float]:
 
 def _panels(n: int, w: float, h: float) -> tuple[Any, list[Any]]:
     """A figure of ``n`` panels, :data:`PANELS_PER_ROW` a row, each about ``w`` x ``h`` inches (at most 16 wide)."""
-    plt = _pyplot()
     cols = min(n, PANELS_PER_ROW)
     rows = -(-n // cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(min(w * cols, 16), h * rows), squeeze=False)
+    fig = _figure((min(w * cols, 16), h * rows))
+    axes = fig.subplots(rows, cols, squeeze=False)
     flat = list(axes.ravel())
     for ax in flat[n:]:
         ax.set_visible(False)
@@ -148,13 +130,14 @@ def _slices_figure(s: Slice, chosen: str, preds: Mapping[str, Callable[[Array, A
         for g in gaps:
             ax.axvspan(srt[g], srt[g + 1], color="gold", alpha=0.25, label="not measured" if g == gaps[0] else None)
         ax.set_yscale("log")
+        _plain_log_ticks(ax.yaxis)
         ax.set_xlim(-90, 90)
         ax.set_xlabel("theta_o (deg, + = specular side)")
         ax.set_ylabel("f_r (1/sr), channel mean")
         ax.set_title(f"theta_i = {t:g} deg")
         ax.grid(True, which="both", alpha=0.2)
     axes[0].legend(fontsize=7)
-    fig.tight_layout()
+    _margins(fig, 1.0, 0.15, 0.6, 0.37, wgap=1.1, hgap=1.0)
     return _png(fig)
 
 
@@ -192,7 +175,7 @@ def _polar_figure(s: Slice) -> str:
         ax.set_xlabel("x (specular side +)")
         ax.set_ylabel("z (normal)")
         ax.legend(fontsize=7)
-    fig.tight_layout()
+    _margins(fig, 0.8, 0.15, 0.6, 0.37, wgap=0.9, hgap=1.0)
     return _png(fig)
 
 
@@ -203,16 +186,16 @@ def _coverage_figure(table: Array, s: Slice) -> str:
 def _coverage_plot(table: Array, s: Slice) -> Any:
     """The figure of the coverage section: the in-plane sheet of the table with the measured samples on it
     (white dots edged in black, so the legend's marker shows on its grey frame)."""
-    plt = _pyplot()
     th, td, _ = merl.cell_angles()
     cc = np.cos(td[0, :, 0])[None, :] ** 2 - np.sin(th[:, 0, 0])[:, None] ** 2  # in-plane cos_i cos_o
-    g = np.nanmean(table, axis=0)[:, :, 0]  # phi_d ~ 0: the in-plane configurations
+    g = np.nanmean(table[:, :, :, 0], axis=0)  # phi_d ~ 0: the in-plane configurations
     val = np.log10(np.maximum(g * np.clip(cc, 0, None), 1e-6))
-    fig, ax = plt.subplots(figsize=(6.4, 4.8))
+    fig = _figure((6.4, 4.8))
+    ax = fig.subplots()
+    _margins(fig, 0.65, 0.15, 0.6, 0.37)
     im = ax.imshow(val.T, origin="lower", aspect="auto", extent=[0, 90, 0, 90], cmap="viridis")
     fig.colorbar(im, ax=ax, label="log10 f cos(theta_i) cos(theta_o), in-plane")
     _samples_on_map(ax, s, "where the table rests on data")
-    fig.tight_layout()
     return fig
 
 
@@ -230,19 +213,20 @@ def _samples_on_map(ax: Any, s: Slice, title: str) -> None:
 
 def _sigma_figure(sigma: Array, s: Slice) -> str:
     """sigma of ln f over (theta_h, theta_d), the median over phi_d and channels, with the samples on it."""
-    plt = _pyplot()
     from matplotlib.colors import LogNorm
 
     sg = np.where(merl.valid_mask(), np.asarray(sigma, dtype=np.float64).mean(axis=0), np.nan)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # rows with no valid cell: NaN, drawn blank
         val = np.nanmedian(sg, axis=2)
-    fig, ax = plt.subplots(figsize=(6.4, 4.8))
+    fig = _figure((6.4, 4.8))
+    ax = fig.subplots()
+    _margins(fig, 0.65, 0.22, 0.6, 0.37)
     im = ax.imshow(np.clip(val.T, 0.01, 5.0), origin="lower", aspect="auto", extent=[0, 90, 0, 90], cmap="magma",
                    norm=LogNorm(0.01, 5.0))
-    fig.colorbar(im, ax=ax, label="sigma of ln f_r (median over phi_d; 0.1 = 10 %, 1 = a factor e)")
+    cb = fig.colorbar(im, ax=ax, label="sigma of ln f_r (median over phi_d; 0.1 = 10 %, 1 = a factor e)")
+    _plain_log_ticks(cb.ax.yaxis)
     _samples_on_map(ax, s, "how sure the table is (sigma of ln f)")
-    fig.tight_layout()
     return _png(fig)
 
 
@@ -278,7 +262,7 @@ SPHERE_SIZE = 112
 SPHERE_QUADRATURE = (35, (0.005, 0.03, 0.12, 0.4), 25)
 
 
-def _sphere_images(table: Array) -> tuple[list[tuple[str, Array, Array | None]], Array, Array]:
+def sphere_images(table: Array) -> tuple[list[tuple[str, Array, Array | None]], Array, Array]:
     """The spheres' renders (title, linear radiance, background or None: the environment's backdrop), the
     backdrop, and the sphere's coverage: the numeric part of :func:`_spheres` (numpy only; it may run in a
     second thread while matplotlib draws the other figures)."""
@@ -294,7 +278,11 @@ def _sphere_images(table: Array) -> tuple[list[tuple[str, Array, Array | None]],
     )
     from reconstruction.report.preview import AMBIENT, PREVIEW_RADIUS, albedo_at_view
 
-    brdf = merl.brdf_of(table)
+    lookup = merl.brdf_of(table)
+
+    def brdf(wi: Array, wo: Array) -> Array:  # the table's lookup without its sparse operators (render_sphere):
+        return lookup(wi, wo)  # one render each, evaluated directly (the environment once per view angle)
+
     size, radius = SPHERE_SIZE, PREVIEW_RADIUS
     quad = Quadrature(SPHERE_QUADRATURE[0], SPHERE_QUADRATURE[1], SPHERE_QUADRATURE[2])
     cov = sphere_coverage(size, radius, antialias=True)
@@ -315,12 +303,13 @@ def _sphere_images(table: Array) -> tuple[list[tuple[str, Array, Array | None]],
 
 
 def _spheres(table: Array, images: tuple[list[tuple[str, Array, Array | None]], Array, Array] | None = None) -> str:
-    """The spheres' figure, from :func:`_sphere_images` (rendered here when not given)."""
+    """The spheres' figure, from :func:`sphere_images` (rendered here when not given)."""
     from reconstruction.report.preview import srgb_encode
 
-    plt = _pyplot()
-    imgs, backdrop, cov = images if images is not None else _sphere_images(table)
-    fig, axes = plt.subplots(2, 3, figsize=(9.6, 6.8))
+    imgs, backdrop, cov = images if images is not None else sphere_images(table)
+    fig = _figure((9.6, 6.8))
+    axes = fig.subplots(2, 3)
+    _margins(fig, 0.15, 0.15, 0.15, 0.25, wgap=0.15, hgap=0.15)
     for ax, (name, im, bg) in zip(axes.ravel(), imgs, strict=True):
         lum = (im @ np.array([0.2126, 0.7152, 0.0722]))[cov > 0.5]  # exposed on the sphere, as the preview
         p = float(np.percentile(lum[lum > 0], 99.5)) if np.any(lum > 0) else 1.0
@@ -328,7 +317,6 @@ def _spheres(table: Array, images: tuple[list[tuple[str, Array, Array | None]], 
         ax.imshow(srgb_encode(im * e + (bg * e if bg is not None else backdrop)))
         ax.set_title(name, fontsize=9)
         ax.axis("off")
-    fig.tight_layout()
     return _png(fig)
 
 
@@ -336,8 +324,8 @@ _N_DIRS = SPHERE_QUADRATURE[0] + len(SPHERE_QUADRATURE[1]) * SPHERE_QUADRATURE[2
 
 
 def _cuts_figure(table: Array, s: Slice, sigma: Array | None = None) -> str:
-    plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(8.5, 4.2))
+    fig = _figure((8.5, 4.2))
+    ax = fig.subplots()
     to = np.linspace(-85.0, 85.0, 341)
     measured = set(float(x) for x in s.incidences())
     # with many incidences measured (a hemispherical file) the cuts of MAX_PANELS of them, spread evenly
@@ -352,12 +340,13 @@ def _cuts_figure(table: Array, s: Slice, sigma: Array | None = None) -> str:
             ax.fill_between(to, np.maximum(v * np.exp(-sg), 1e-9), np.maximum(v * np.exp(sg), 1e-9),
                             color=line.get_color(), alpha=0.12, lw=0)
     ax.set_yscale("log")
+    _plain_log_ticks(ax.yaxis)
     ax.set_xlabel("theta_o (deg)")
     ax.set_ylabel("table f_r (1/sr), channel mean")
     ax.set_title("in-plane cuts of the written table")
     ax.grid(True, which="both", alpha=0.2)
     ax.legend(fontsize=7, ncol=2)
-    fig.tight_layout()
+    _margins(fig, 0.9, 0.15, 0.6, 0.37)
     return _png(fig)
 
 
@@ -367,10 +356,10 @@ def _albedo_figure(checks: Mapping[str, Any]) -> str:
 
 def _albedo_plot(checks: Mapping[str, Any]) -> Any:
     """The figure of the albedo section: one curve per channel (one for grey data) and the limit 1."""
-    plt = _pyplot()
     a = checks["albedo"]
     alb = np.asarray(a["albedo"], dtype=np.float64)
-    fig, ax = plt.subplots(figsize=(6.0, 3.6))
+    fig = _figure((6.0, 3.6))
+    ax = fig.subplots()
     grey = alb.shape[1] == 1 or bool(np.allclose(alb, alb[:, :1], rtol=1e-9, atol=0.0))
     if grey:  # one curve for grey data (the table holds the same value in its three channels)
         ax.plot(a["theta_i_deg"], alb[:, 0], "o-", ms=3, color="k", label="grey (every channel)")
@@ -382,7 +371,7 @@ def _albedo_plot(checks: Mapping[str, Any]) -> Any:
     ax.set_ylabel("directional albedo")
     ax.set_ylim(0, max(1.1, float(alb.max()) * 1.1))
     ax.legend(fontsize=7)
-    fig.tight_layout()
+    _margins(fig, 0.67, 0.15, 0.6, 0.15)
     return fig
 
 
@@ -422,28 +411,31 @@ def _with_std(p: Mapping[str, Any]) -> dict[str, Any]:
 
 def build_html(*, report: Mapping[str, Any], working: Slice, rec: Reconstruction, table: ArrayLike,
                alternatives: Mapping[str, Reconstruction] | None = None, held_out: Array | None = None,
-               title: str | None = None, sigma: ArrayLike | None = None) -> str:
+               title: str | None = None, sigma: ArrayLike | None = None,
+               spheres: Callable[[], Any] | None = None) -> str:
     """The page (a string). ``report`` is the JSON report; ``alternatives`` the other methods' reconstructions
     of the same samples (their predictions are drawn); ``held_out`` (N, C), in the order of ``working``:
     cross-validation's prediction of each sample from the fold that left it out (NaN where it was never held
-    out); ``sigma``: the --uncertainty array (sigma of ln f per cell), drawn as a map and as bands on the cuts."""
+    out); ``sigma``: the --uncertainty array (sigma of ln f per cell), drawn as a map and as bands on the cuts;
+    ``spheres``: the sphere renders under way (a function giving :func:`sphere_images` of ``table``); without
+    it they are rendered and drawn in a forked child beside the other figures' two
+    (:func:`~reconstruction.report.figures.beside`), or where there is no fork in a second thread while
+    matplotlib draws (:class:`~reconstruction.executor.Background`)."""
+    from reconstruction.executor import Background
+
     t = np.asarray(table, dtype=np.float64)
-    # the spheres' renders (numpy, most of the page's arithmetic) in a second thread while matplotlib draws
-    with ThreadPoolExecutor(max_workers=1) as pool:
-        spheres = pool.submit(_sphere_images, t) if _cores() > 1 else None
+    if spheres is not None or can_fork():
         return _page(report, working, rec, t, alternatives, held_out, title, spheres, sigma)
-
-
-def _cores() -> int:
-    """The cores this process may use."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    with Background() as bg:  # the spheres' renders: numpy, beside matplotlib's drawing
+        return _page(report, working, rec, t, alternatives, held_out, title, bg.submit(sphere_images, t), sigma)
 
 
 def _page(report: Mapping[str, Any], working: Slice, rec: Reconstruction, t: Array,
           alternatives: Mapping[str, Reconstruction] | None, held_out: Array | None, title: str | None,
-          spheres: Future[Any] | None, sigma: ArrayLike | None = None) -> str:
-    """:func:`build_html`'s page; ``spheres``: the spheres' renders under way (None: rendered here); ``sigma``:
-    sigma of ln f per cell (3, 90, 90, 180) or None."""
+          spheres: Callable[[], Any] | None, sigma: ArrayLike | None = None) -> str:
+    """:func:`build_html`'s page; ``spheres``: gives the spheres' renders (:func:`sphere_images`), or None: they
+    are rendered with their figure in a forked child; ``sigma``: sigma of ln f per cell (3, 90, 90, 180) or
+    None."""
     order = np.lexsort((working.theta_o_deg, working.theta_i_deg))
     s = working.take(order)
     held_out = None if held_out is None else np.asarray(held_out, dtype=np.float64)[order]
@@ -465,41 +457,51 @@ def _page(report: Mapping[str, Any], working: Slice, rec: Reconstruction, t: Arr
         summary["principled material"] = report["principled"].get("summary", "")
     sec["summary"] = (f'<p class="{status}">Checks {"passed" if checks["all_pass"] else "failed"}.</p>'
                       + _kv_table(summary))
-    sec["slices"] = (_img(_slices_figure(s, rec.method, preds, held_out, blind), "measured slices and predictions")
+    sg = None if sigma is None else np.asarray(sigma, dtype=np.float64)
+    # the figures in forked children, about a third of the work each (:func:`reconstruction.report.figures.beside`)
+    drawn = [beside({"slices": lambda: _slices_figure(s, rec.method, preds, held_out, blind),
+                     "polar": lambda: _polar_figure(s), "albedo": lambda: _albedo_figure(checks)}),
+             beside({"coverage": lambda: _coverage_figure(t, working), "cuts": lambda: _cuts_figure(t, working, sg),
+                     **({"sigma": lambda: _sigma_figure(sg, working)} if sg is not None else {})})]
+    if spheres is None:
+        drawn.append(beside({"spheres": lambda: _spheres(t)}))
+    sphere_uri = _spheres(t, spheres()) if spheres is not None else ""  # here, while the children draw
+    fig = {k: v for d in drawn for k, v in d().items()}
+    sphere_uri = sphere_uri or fig["spheres"]
+    sec["slices"] = (_img(fig["slices"], "measured slices and predictions")
                      + '<p class="note">Points: the measured samples with their standard deviations; grey: the '
                        "blind spot around the retro direction; gold: stretches with no samples; lines: each "
                        "method's prediction at the same angles (the chosen one thick and black); crosses: "
                        "cross-validation's prediction of each sample from the folds that left it out."
                      + _shown_note(s) + "</p>")
-    sec["polar"] = (_img(_polar_figure(s), "polar curve with sub-curves and axes")
+    sec["polar"] = (_img(fig["polar"], "polar curve with sub-curves and axes")
                     + '<p class="note">The slice as the thesis draws it: each sample as value x (sin, cos) '
                       "theta_o, split into sub-curves where the curve's turning changes sign, each with its axis "
                       "of revolution (dashed).</p>")
-    sec["coverage"] = (_img(_coverage_figure(t, working), "theta_h theta_d map of the table")
+    sec["coverage"] = (_img(fig["coverage"], "theta_h theta_d map of the table")
                        + '<p class="note">The in-plane (phi_d = 0) sheet of the table; white dots are the '
                          "measured samples. Away from them the table extrapolates; the rings and bands a "
                          "data-driven method shows in previews come from these interpolations between measured "
                          "lines and from its phi_d-independent approximation.</p>")
-    sg = None if sigma is None else np.asarray(sigma, dtype=np.float64)
     if sg is not None:
         u = report.get("uncertainty", {})
         ms = u.get("median_sigma", {})
-        sec["coverage"] += (_img(_sigma_figure(sg, working), "theta_h theta_d map of sigma")
+        sec["coverage"] += (_img(fig["sigma"], "theta_h theta_d map of sigma")
                             + '<p class="note">sigma of ln f_r per cell (the --uncertainty array): median '
                               + ", ".join(f"{ms[k]:.3f} over {k}" for k in ms if ms[k] is not None)
                               + " cells. Expected against the truth: PSNR "
                               + f"{u.get('expected_psnr_db', float('nan')):.1f} dB, linear image error "
                               + f"{u.get('expected_linear_image_error', float('nan')):.1%}, cosl2 "
                               + f"{u.get('expected_cosl2', float('nan')):.1%}.</p>")
-    sec["spheres"] = (_img(_spheres(t, spheres.result() if spheres is not None else None), "sphere renders")
+    sec["spheres"] = (_img(sphere_uri, "sphere renders")
                       + '<p class="note">The written table on a sphere (linear radiance, each image exposed on its '
                         "own 99.5th percentile, sRGB). Top: a point light and a dim uniform environment, as the "
                         f"preview. Bottom: a sky-and-ground environment (integrated over a fixed set of {_N_DIRS} "
                         "directions per pixel, importance-sampled around the mirror direction, so the grazing "
                         "rim is resolved), alone, with a sun in front and with a sun behind the sphere (grazing "
                         "light): reconstruction.core.render.</p>")
-    sec["cuts"] = _img(_cuts_figure(t, working, sg), "in-plane cuts of the table")
-    sec["albedo"] = _img(_albedo_figure(checks), "directional albedo")
+    sec["cuts"] = _img(fig["cuts"], "in-plane cuts of the table")
+    sec["albedo"] = _img(fig["albedo"], "directional albedo")
     rows = []
     for k in ("non_negative", "albedo", "reciprocity"):
         c = checks[k]
