@@ -26,9 +26,11 @@ float32, or 2.2 MB on the whole grid.
 
 from __future__ import annotations
 
+import hashlib
 import zlib
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -58,23 +60,25 @@ def _deflate(data: bytes, strategy: int) -> bytes:
 
 
 def _residuals(q: NDArray[np.int32], mask: NDArray[np.bool_]) -> NDArray[np.int32]:
-    """The predictor's residuals (C, M) of the codes ``q`` (C, M) at the mask's cells: on the whole grid (C, *shape)
-    the codes Q, with Q elsewhere such that R = D_d D_p Q (differences along theta_d and phi_d, 0 before the first)
-    is 0 there; R at the mask's cells, in the order of :class:`_Layout` (theta_d, phi_d, theta_h)."""
+    """The predictor's residuals (C M,) of the codes ``q`` (C, M) at the mask's cells: on the whole grid the codes
+    Q, with Q elsewhere such that R = D_d D_p Q (differences along theta_d and phi_d, 0 before the first) is 0
+    there; R at the mask's cells, in :class:`_Layout`'s order (phi_d, theta_d, theta_h)."""
     c = q.shape[0]
-    full = np.zeros((c, *mask.shape), dtype=np.int32)
-    full[:, mask] = q
-    n = mask.sum(axis=1)  # (theta_h, phi_d): the mask's cells along theta_d, a prefix
-    last = np.maximum(n - 1, 0)
-    g = np.zeros_like(full)  # D_p Q
-    prev = np.zeros(full.shape[:3], dtype=np.int32)
-    for p in range(mask.shape[2]):  # beyond a column's prefix, D_p Q repeats its last value (D_d D_p Q = 0 there)
-        gp = full[..., p] - prev
-        ext = np.take_along_axis(gp, last[None, :, None, p], axis=2) * (n[:, p] > 0)[None, :, None]
-        gp = np.where(mask[None, :, :, p], gp, ext)
-        g[..., p] = gp
-        prev = prev + gp
-    return np.diff(g, axis=2, prepend=0).transpose(0, 2, 3, 1)[:, mask.transpose(1, 2, 0)]  # in _Layout's order
+    lay = _layout(mask, c)
+    full = np.zeros(c * mask.size, dtype=np.int32)
+    full[lay.cells] = q.ravel()
+    full = full.reshape(c, *lay.shape)  # (C, phi_d, theta_d, theta_h): a phi_d step is a contiguous slice
+    inside = mask.transpose(2, 1, 0)
+    n = inside.sum(axis=1)  # (phi_d, theta_h): the mask's cells along theta_d, a prefix
+    last = np.maximum(n - 1, 0)[:, None, None, :]
+    g = np.empty_like(full)  # D_p Q
+    prev = np.zeros((c, *lay.shape[1:]), dtype=np.int32)
+    for p in range(lay.shape[0]):  # beyond a column's prefix, D_p Q repeats its last value (D_d D_p Q = 0 there)
+        gp = full[:, p] - prev
+        ext = np.take_along_axis(gp, last[p], axis=1) * (n[p] > 0)
+        g[:, p] = np.where(inside[p], gp, ext)
+        prev += g[:, p]
+    return np.diff(g, axis=2, prepend=0).ravel().take(lay.stored)  # D_d
 
 
 def encode_rows(f: NDArray[np.floating], mask: NDArray[np.bool_]) -> tuple[bytes, bytes, NDArray[np.float64]]:
@@ -93,7 +97,7 @@ def encode_rows(f: NDArray[np.floating], mask: NDArray[np.bool_]) -> tuple[bytes
     if q.shape[0] == 3:  # the first and third channels relative to the second
         q[0] -= q[1]
         q[2] -= q[1]
-    r = _residuals(q, mask).astype(np.int16).ravel()  # modulo 2^16
+    r = _residuals(q, mask).astype(np.int16)  # modulo 2^16
     z = ((r << 1) ^ (r >> 15)).view(np.uint16)  # zigzag
     big = np.flatnonzero(z > 0xFF)
     steps = np.diff(big, prepend=0).astype("<u4")
@@ -117,22 +121,36 @@ def decode_rows(low: bytes | NDArray[np.uint8], high: bytes | NDArray[np.uint8],
     same cells), into ``out`` when given. Raises ValueError on streams that are damaged or of the wrong size."""
     _check_mask(mask)
     lo = np.asarray(lo, dtype=np.float64)
-    return _decode(low, high, lo, _Layout(mask, lo.shape[0]), out)
+    return _decode(low, high, lo, _layout(mask, lo.shape[0]), out)
 
 
 class _Layout:
-    """Where the decoder works: a grid (C, theta_d, phi_d, theta_h), so that both sums along theta_d and phi_d add
+    """Where the coder works: a grid (C, phi_d, theta_d, theta_h), so that the sums along theta_d and phi_d add
     slices of contiguous runs of theta_h (3 times faster than along the grid's own last axis); ``stored``: the flat
     index in it of every stored residual (C M,: that grid's order), ``cells``: of every cell in the mask's own
     (grid) order (flat indices: 3 to 8 times faster to scatter and gather with than a mask)."""
 
     def __init__(self, mask: NDArray[np.bool_], c: int) -> None:
         nh, nd, npd = mask.shape
-        self.c, self.m, self.shape = c, int(mask.sum()), (nd, npd, nh)
+        self.c, self.m, self.shape = c, int(mask.sum()), (npd, nd, nh)
         base = np.arange(c)[:, None] * mask.size
-        self.stored = (base + np.flatnonzero(mask.transpose(1, 2, 0))).ravel()
+        self.stored = (base + np.flatnonzero(mask.transpose(2, 1, 0))).ravel()
         h, d, p = np.nonzero(mask)
-        self.cells = (base + (d * npd + p) * nh + h).ravel()
+        self.cells = (base + (p * nd + d) * nh + h).ravel()
+
+
+def _layout(mask: NDArray[np.bool_], c: int) -> _Layout:
+    """The :class:`_Layout` of ``mask`` and ``c`` channels (the last few kept: every material of a prior has the same
+    mask)."""
+    key = (mask.shape, hashlib.sha1(np.packbits(mask).tobytes()).hexdigest(), c)
+    if key not in _LAYOUTS:
+        if len(_LAYOUTS) >= 4:
+            _LAYOUTS.pop(next(iter(_LAYOUTS)))
+        _LAYOUTS[key] = _Layout(mask, c)
+    return _LAYOUTS[key]
+
+
+_LAYOUTS: dict[tuple[Any, ...], _Layout] = {}
 
 
 def _decode(low: bytes | NDArray[np.uint8], high: bytes | NDArray[np.uint8], lo: NDArray[np.float64],
@@ -150,10 +168,10 @@ def _decode(low: bytes | NDArray[np.uint8], high: bytes | NDArray[np.uint8], lo:
     z = low_bytes[at].astype(np.uint16) | (exc[4 * k:].astype(np.uint16) << 8)
     grid[layout.stored[at]] = (z >> 1).astype(np.int16) ^ -(z & 1).astype(np.int16)  # ... and the others
     g = grid.reshape(c, *layout.shape)
-    for i in range(1, layout.shape[0]):  # the sums along theta_d, then along phi_d (modulo 2^16, as encoded)
-        g[:, i] += g[:, i - 1]
-    for i in range(1, layout.shape[1]):
+    for i in range(1, layout.shape[1]):  # the sums along theta_d, then along phi_d (modulo 2^16, as encoded)
         g[:, :, i] += g[:, :, i - 1]
+    for i in range(1, layout.shape[0]):
+        g[:, i] += g[:, i - 1]
     q = grid.take(layout.cells).reshape(c, m)
     if c == 3:
         q[0] += q[1]
@@ -191,7 +209,7 @@ def unpack(arrays: Sequence[NDArray], mask: NDArray[np.bool_], threads: int = 1)
     out = np.empty((*lo.shape, int(mask.sum())), dtype=np.float32)
     ends = np.cumsum(sizes.ravel()).reshape(sizes.shape)
     starts = ends - sizes
-    layout = _Layout(mask, lo.shape[1])
+    layout = _layout(mask, lo.shape[1])
 
     def one(k: int) -> None:
         _decode(blob[starts[k, 0]:ends[k, 0]], blob[starts[k, 1]:ends[k, 1]], lo[k], layout, out[k])
