@@ -85,8 +85,11 @@ def test_pack_and_unpack_many_materials_in_threads_and_damage_is_refused(cells):
     bad[sizes[0, 0] // 2] ^= 0xFF
     with pytest.raises(ValueError):
         priorcodec.unpack((lo, sizes, bad, head), mask)
-    with pytest.raises(ValueError):  # another step: another coding
-        priorcodec.unpack((lo, sizes, blob, head * np.array([2.0, 1.0, 1.0])), mask)
+    for k in range(3):  # another version, step or floor: another coding
+        other = head.copy()
+        other[k] *= 2
+        with pytest.raises(ValueError):
+            priorcodec.unpack((lo, sizes, blob, other), mask)
     with pytest.raises(ValueError):  # cut short
         priorcodec.unpack((lo, sizes, blob[:-10], head), mask)
     with pytest.raises(ValueError, match="prefix"):

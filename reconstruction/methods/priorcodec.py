@@ -35,7 +35,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["LN_STEP", "FLOOR", "encode_rows", "decode_rows", "pack", "unpack"]
+__all__ = ["CODEC_VERSION", "LN_STEP", "FLOOR", "encode_rows", "decode_rows", "pack", "unpack"]
+
+#: the coding's version, in :func:`pack`'s header: arrays of any other are refused (and a cache built again)
+CODEC_VERSION = 1
 
 #: quantisation step of ln f_r (dimensionless): every cell above the floor is decoded within +-LN_STEP / 2 of its
 #: ln f_r (a relative error of at most 0.1 %)
@@ -189,11 +192,11 @@ def pack(encoded: Sequence[tuple[bytes, bytes, NDArray[np.float64]]], mask: NDAr
          ) -> tuple[NDArray, ...]:
     """Arrays to save for N materials' :func:`encode_rows` outputs: (the offsets (N, C) float64, the streams' sizes
     (N, 2) int64, every stream (uint8, concatenated: each material's low bytes, then its high ones), the header
-    [LN_STEP, FLOOR, M])."""
+    [CODEC_VERSION, LN_STEP, FLOOR, M])."""
     lo = np.asarray([e[2] for e in encoded], dtype=np.float64).reshape(len(encoded), -1)
     sizes = np.asarray([(len(e[0]), len(e[1])) for e in encoded], dtype=np.int64).reshape(len(encoded), 2)
     blob = np.frombuffer(b"".join(e[0] + e[1] for e in encoded), dtype=np.uint8)
-    return lo, sizes, blob, np.array([LN_STEP, FLOOR, float(mask.sum())])
+    return lo, sizes, blob, np.array([CODEC_VERSION, LN_STEP, FLOOR, float(mask.sum())])
 
 
 def unpack(arrays: Sequence[NDArray], mask: NDArray[np.bool_], threads: int = 1) -> NDArray[np.float32]:
@@ -202,8 +205,9 @@ def unpack(arrays: Sequence[NDArray], mask: NDArray[np.bool_], threads: int = 1)
     if len(arrays) != 4:
         raise ValueError(f"expected 4 arrays of prior codes, got {len(arrays)}")
     lo, sizes, blob, head = (np.asarray(a) for a in arrays)
-    if (head.shape != (3,) or head[0] != LN_STEP or head[1] != FLOOR or head[2] != mask.sum() or lo.ndim != 2
-            or sizes.shape != (lo.shape[0], 2) or int(sizes.sum()) != blob.size):
+    if (head.shape != (4,) or head[0] != CODEC_VERSION or head[1] != LN_STEP or head[2] != FLOOR
+            or head[3] != mask.sum() or lo.ndim != 2 or sizes.shape != (lo.shape[0], 2)
+            or int(sizes.sum()) != blob.size):
         raise ValueError("prior codes of another coding, or damaged")
     _check_mask(mask)
     out = np.empty((*lo.shape, int(mask.sum())), dtype=np.float32)
