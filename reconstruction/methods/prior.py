@@ -185,9 +185,18 @@ def _tabulate_material(path: Path) -> Array:
 
 def _cache_key(folder: Path, files: dict[str, Path]) -> str:
     """Everything the tabulated prior depends on: the grid, the folder and every file's name, size and time."""
+    import bisect
+
     parts = [f"v{CACHE_VERSION} {GRID} {folder.resolve()}"]
+    listed: dict[Path, list[str]] = {}
     for name, p in sorted(files.items()):
-        for q in (sorted(p.parent.glob(f"{p.name}_*.npy")) if not p.suffix else [p]):
+        if p.suffix:
+            found = [p]
+        else:  # an NBRDF set: every NAME_*.npy (one sorted listing of the folder, not one glob per material)
+            names = listed.setdefault(p.parent, sorted(os.listdir(p.parent)))
+            run = names[bisect.bisect_left(names, f"{p.name}_"):bisect.bisect_left(names, f"{p.name}`")]
+            found = [p.parent / n for n in run if n.endswith(".npy")]
+        for q in found:
             st = q.stat()
             parts.append(f"{name} {q.name} {st.st_size} {st.st_mtime_ns}")
     return "\n".join(parts)
