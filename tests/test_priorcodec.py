@@ -90,6 +90,8 @@ def test_pack_and_unpack_many_materials_in_threads_and_damage_is_refused(cells):
         other[k] *= 2
         with pytest.raises(ValueError):
             priorcodec.unpack((lo, sizes, blob, other), mask)
+    with pytest.raises(ValueError, match="expected"):  # other than the materials the caller expects
+        priorcodec.unpack(arrays, mask, rows=(5, 3))
     with pytest.raises(ValueError):  # cut short
         priorcodec.unpack((lo, sizes, blob[:-10], head), mask)
     with pytest.raises(ValueError, match="prefix"):

@@ -22,7 +22,7 @@ cross-validation on the slice: median rmse80 from one slice 28 % against 31 %). 
 as a whole against the others. The prior's materials and size are in the report. The tabulated materials are cached
 per folder (``$XDG_CACHE_HOME/gonio-brdf``; the cache is keyed by every file's name, size and time): their f_r at
 the training cells, each material coded on its own by :mod:`reconstruction.methods.priorcodec` (ln f_r within
-0.001; about 100 kB a material, 14.5 MB for the 141 real ones).
+0.001; about 100 kB a material, 14.6 MB for the 141 real ones).
 
 **Anchoring** (``anchor`` a in [0, 1], ``--prior-anchor``): f = f_prior^(1 - a) f_bivariate^a, a weighted geometric
 mean with the ``bivariate`` interpolation of the same samples. A material unlike the prior's is completed with
@@ -34,6 +34,7 @@ both are, and its directional albedo is at most the weighted mean of theirs (wei
 
 from __future__ import annotations
 
+import bisect
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -61,7 +62,7 @@ EPS = 1e-2
 K_CHOICES = (10, 20, 30)
 LAM_CHOICES = (0.01, 0.03, 0.1)
 MAX_COMPONENTS = max(K_CHOICES)
-CACHE_VERSION = 3  # 3: the training cells only, coded by reconstruction.methods.priorcodec (16 MB for 141)
+CACHE_VERSION = 3  # 3: the training cells only, coded by reconstruction.methods.priorcodec (14.6 MB for 141)
 INPLANE_MAX_DEG = 80.0
 
 
@@ -185,8 +186,6 @@ def _tabulate_material(path: Path) -> Array:
 
 def _cache_key(folder: Path, files: dict[str, Path]) -> str:
     """Everything the tabulated prior depends on: the grid, the folder and every file's name, size and time."""
-    import bisect
-
     parts = [f"v{CACHE_VERSION} {GRID} {folder.resolve()}"]
     listed: dict[Path, list[str]] = {}
     for name, p in sorted(files.items()):
@@ -314,13 +313,8 @@ def _load_cached(folder: str) -> PriorSet:
                 report_build(what, k + 1, len(names))
         return priorcodec.pack(encoded, mask)
 
-    def decode(arrays: tuple[Any, ...]) -> NDArray[np.float32]:
-        tables = priorcodec.unpack(arrays, mask, threads=PRIOR_BUILD_THREADS)
-        if tables.shape[:2] != (len(names), 3):
-            raise ValueError(f"{tables.shape[0]} materials coded, expected {len(names)}")  # built again
-        return tables
-
-    tables = cached_decoded("prior", _cache_key(p, files), tabulate, decode,  # the key holds every name
+    tables = cached_decoded("prior", _cache_key(p, files), tabulate,  # the key holds every name
+                            lambda a: priorcodec.unpack(a, mask, PRIOR_BUILD_THREADS, rows=(len(names), 3)),
                             what=f"the prior of {len(names)} materials in {folder}")
     return PriorSet(folder, names, tables)
 

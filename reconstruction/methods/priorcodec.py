@@ -199,9 +199,11 @@ def pack(encoded: Sequence[tuple[bytes, bytes, NDArray[np.float64]]], mask: NDAr
     return lo, sizes, blob, np.array([CODEC_VERSION, LN_STEP, FLOOR, float(mask.sum())])
 
 
-def unpack(arrays: Sequence[NDArray], mask: NDArray[np.bool_], threads: int = 1) -> NDArray[np.float32]:
+def unpack(arrays: Sequence[NDArray], mask: NDArray[np.bool_], threads: int = 1,
+           rows: tuple[int, int] | None = None) -> NDArray[np.float32]:
     """The tables (N, C, M) float32 f_r in 1/sr from :func:`pack`'s arrays (``mask``: the same cells), ``threads``
-    materials at a time. Raises ValueError when the arrays are not :func:`pack`'s of this coding or are damaged."""
+    materials at a time. Raises ValueError when the arrays are not :func:`pack`'s of this coding, are damaged, or
+    hold other than ``rows`` (N, C) when given."""
     if len(arrays) != 4:
         raise ValueError(f"expected 4 arrays of prior codes, got {len(arrays)}")
     lo, sizes, blob, head = (np.asarray(a) for a in arrays)
@@ -209,6 +211,8 @@ def unpack(arrays: Sequence[NDArray], mask: NDArray[np.bool_], threads: int = 1)
             or head[3] != mask.sum() or lo.ndim != 2 or sizes.shape != (lo.shape[0], 2)
             or int(sizes.sum()) != blob.size):
         raise ValueError("prior codes of another coding, or damaged")
+    if rows is not None and lo.shape != rows:
+        raise ValueError(f"prior codes of {lo.shape} materials x channels, expected {rows}")
     _check_mask(mask)
     out = np.empty((*lo.shape, int(mask.sum())), dtype=np.float32)
     ends = np.cumsum(sizes.ravel()).reshape(sizes.shape)
