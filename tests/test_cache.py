@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from reconstruction.cache import cache_dir, cached_arrays
+from reconstruction.cache import cache_dir, cached_arrays, cached_decoded
 from reconstruction.core import energy
 
 
@@ -30,6 +30,27 @@ def test_arrays_are_built_once_read_after_and_a_damaged_file_is_rebuilt(tmp_path
     for p in cache_dir().glob("t-*.npz"):  # cut short (a full disk, a killed writer elsewhere): a broken zip
         p.write_bytes(p.read_bytes()[:40])
     assert np.array_equal(cached_arrays("t", "key 1", build)[0], np.arange(3.0)) and len(calls) == 4
+
+
+def test_decoded_arrays_are_what_later_reads_give_and_a_refused_file_is_built_again(tmp_path, monkeypatch):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    calls = []
+
+    def build():
+        calls.append(1)
+        return (np.arange(4, dtype=np.int16),)
+
+    def decode(arrays):
+        if arrays[0].dtype != np.int16:
+            raise ValueError("another coding")
+        return arrays[0].astype(np.float64) / 2
+
+    first = cached_decoded("d", "k", build, decode)  # built, saved, decoded like a later read
+    again = cached_decoded("d", "k", build, decode)
+    assert len(calls) == 1 and np.array_equal(first, again) and np.array_equal(again, [0, 0.5, 1, 1.5])
+    (path,) = cache_dir().glob("d-*.npz")
+    np.savez(path, a0=np.zeros(3))  # a file of another coding: refused by decode, built again
+    assert np.array_equal(cached_decoded("d", "k", build, decode), first) and len(calls) == 2
 
 
 def test_a_cache_that_cannot_be_written_costs_only_the_build(tmp_path, monkeypatch):

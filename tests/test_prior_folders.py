@@ -134,7 +134,7 @@ def test_rgl_files_are_prior_materials(folders, tmp_path):
     assert sorted(ps.names) == ["m0", "m2", "m5"]
     ref = prior.load_prior(both)
     g = prior._grid()
-    fc = g["cos"][None] * g["within"][None]
+    fc = (g["cos"] * g["within"])[None, g["train"]]  # the tables hold the training cells
     for name in pick:
         got = ps.tables[ps.names.index(name)].astype(np.float64) * fc
         want = ref.tables[ref.names.index(name)].astype(np.float64) * fc

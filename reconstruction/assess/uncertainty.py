@@ -27,12 +27,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from reconstruction.cache import cached_arrays
+from reconstruction.cache import cached_decoded
 from reconstruction.core.metrics import IMAGE_MAX_VIEW_DEG, image_exposure, tone_map
 from reconstruction.core.render import Quadrature, render_sphere, view_angle_mask
 from reconstruction.formats import merl
 from reconstruction.formats.slicefile import Slice
 from reconstruction.methods import prior as P
+from reconstruction.methods import priorcodec
 
 Array = NDArray[np.float64]
 
@@ -43,7 +44,7 @@ __all__ = ["analytic_prior", "reference_posterior", "sigma_grid", "cell_classes"
 ANALYTIC_ALBEDOS = (0.02, 0.1, 0.35, 0.8)
 ANALYTIC_ALPHAS = tuple(float(a) for a in np.geomspace(0.01, 0.7, 7))
 ANALYTIC_F0 = (0.04, 0.5, 0.95)
-ANALYTIC_VERSION = 2  # 2: grey, one channel per material (a third of version 1's cache, the same basis)
+ANALYTIC_VERSION = 3  # 2: grey, one channel per material; 3: the training cells, coded (priorcodec)
 #: Image size and quadrature of the expected image errors (a cheap render; the metrics' own renders are 128 px).
 EXPECT_SIZE = 32
 EXPECT_QUADRATURE = Quadrature(n_cosine=21, alphas=(0.01, 0.05, 0.2, 0.5), n_per_alpha=21)
@@ -51,20 +52,23 @@ N_PAIRS = 20000
 
 
 def _analytic_tables() -> tuple[Array, ...]:
+    """The analytic family at the grid's training cells, coded (:func:`reconstruction.methods.priorcodec.pack`)."""
     from reconstruction.core.models import Material
 
     g = P._grid()
+    tr = g["train"]
+    wi, wo = g["wi"][tr], g["wo"][tr]
     rows = []
-    for a in ANALYTIC_ALBEDOS:  # 4 x 7 x 3 materials, each a vectorised evaluation of the grid
+    for a in ANALYTIC_ALBEDOS:  # 4 x 7 x 3 materials, each a vectorised evaluation of the training cells
         for al in ANALYTIC_ALPHAS:
             for f0 in ANALYTIC_F0:
                 spec = 1.0 if f0 < 0.3 else 0.9
                 mat = Material.from_dict({"name": "analytic", "lobes": [
                     {"type": "lambert", "albedo": a if f0 < 0.3 else 0.02 * a},
                     {"type": "ggx", "alpha": al, "specular": spec, "f0": f0}]})
-                v = np.asarray(mat.eval(g["wi"], g["wo"]), dtype=np.float64).reshape(g["cos"].size, -1)
-                rows.append(v[:, :1].T)  # grey: one channel (the basis holds one row per material)
-    return (np.asarray(rows, dtype=np.float32),)
+                v = np.asarray(mat.eval(wi, wo), dtype=np.float64).reshape(wi.shape[0], -1)
+                rows.append(priorcodec.encode_rows(v[:, :1].T, tr.reshape(P.GRID)))  # grey: one row per material
+    return priorcodec.pack(rows, tr.reshape(P.GRID))
 
 
 @lru_cache(maxsize=1)
@@ -72,7 +76,8 @@ def analytic_prior() -> P.PriorSet:
     """A prior of :data:`ANALYTIC_ALBEDOS` x :data:`ANALYTIC_ALPHAS` x :data:`ANALYTIC_F0` lambert + GGX materials
     (84, grey), tabulated once and cached: the uncertainty and the advice of a reconstruction without ``--prior``."""
     key = f"analytic v{ANALYTIC_VERSION} {P.GRID} {ANALYTIC_ALBEDOS} {ANALYTIC_ALPHAS} {ANALYTIC_F0}"
-    (tables,) = cached_arrays("analytic-prior", key, _analytic_tables)
+    tables = cached_decoded("analytic-prior", key, _analytic_tables,
+                            lambda arrays: priorcodec.unpack(arrays, P._grid()["train"].reshape(P.GRID)))
     return P.PriorSet("built-in analytic family", [f"m{k:03d}" for k in range(len(tables))], tables)
 
 

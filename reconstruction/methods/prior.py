@@ -19,8 +19,10 @@ coefficients by ridge regression with the prior's own variances (a Gaussian prio
 The reconstruction is the mean, in the mapped space, of the posterior means for K = 10, 20, 30 components and
 ``lam`` = 0.01, 0.03, 0.1 (on the 48 real MERL materials, leave-one-out, steadier than choosing one pair by
 cross-validation on the slice: median rmse80 from one slice 28 % against 31 %). ``auto`` cross-validates the method
-as a whole against the others. The prior's materials and size are in the report. The basis is cached per folder
-(``$XDG_CACHE_HOME/gonio-brdf``; the cache is keyed by every file's name, size and time).
+as a whole against the others. The prior's materials and size are in the report. The tabulated materials are cached
+per folder (``$XDG_CACHE_HOME/gonio-brdf``; the cache is keyed by every file's name, size and time): their f_r at
+the training cells, each material coded on its own by :mod:`reconstruction.methods.priorcodec` (ln f_r within
+0.001; about 100 kB a material, 14.6 MB for the 141 real ones).
 
 **Anchoring** (``anchor`` a in [0, 1], ``--prior-anchor``): f = f_prior^(1 - a) f_bivariate^a, a weighted geometric
 mean with the ``bivariate`` interpolation of the same samples. A material unlike the prior's is completed with
@@ -32,6 +34,7 @@ both are, and its directional albedo is at most the weighted mean of theirs (wei
 
 from __future__ import annotations
 
+import bisect
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -43,10 +46,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from reconstruction.base import ReconstructionError
-from reconstruction.cache import cached_arrays, report_build
+from reconstruction.cache import cached_decoded, report_build
 from reconstruction.core.geometry import dirs_from_half_diff, half_diff_from_dirs
 from reconstruction.core.samples import everywhere, sample_directions
 from reconstruction.formats.slicefile import Slice
+from reconstruction.methods import priorcodec
 
 Array = NDArray[np.float64]
 
@@ -58,7 +62,7 @@ EPS = 1e-2
 K_CHOICES = (10, 20, 30)
 LAM_CHOICES = (0.01, 0.03, 0.1)
 MAX_COMPONENTS = max(K_CHOICES)
-CACHE_VERSION = 2
+CACHE_VERSION = 3  # 3: the training cells only, coded by reconstruction.methods.priorcodec (14.6 MB for 141)
 INPLANE_MAX_DEG = 80.0
 
 
@@ -144,27 +148,28 @@ def _material_files(folder: Path) -> dict[str, Path]:
 
 @lru_cache(maxsize=1)
 def _grid_nbrdf_features() -> NDArray[np.float32]:
-    """The neural BRDFs' inputs at the grid's cells (n_cells, 6), float32 (computed once)."""
+    """The neural BRDFs' inputs at the grid's training cells (M, 6), float32 (computed once)."""
     from reconstruction.core.models import nbrdf_features
 
     g = _grid()
-    return nbrdf_features(g["wi"], g["wo"]).astype(np.float32)
+    return nbrdf_features(g["wi"][g["train"]], g["wo"][g["train"]]).astype(np.float32)
 
 
 def _tabulate_material(path: Path) -> Array:
-    """(3, n_cells) f_r of one prior material on the reduced grid (NaN and negative cells -> 0)."""
+    """(3, M) f_r of one prior material at the reduced grid's training cells (NaN and negative cells -> 0)."""
     from reconstruction.formats import merl
 
     g = _grid()
+    tr = g["train"]
     if path.suffix.lower() == ".binary":
         t = np.nan_to_num(merl.read(path), nan=0.0, posinf=0.0)  # (3, 90, 90, 180) -> cell averages
         t = t.reshape(3, 90, 45, 2, 180).mean(axis=3)
         t = np.roll(t, 2, axis=3).reshape(3, 90, 45, 45, 4).mean(axis=4)  # phi_d bins centred on 0, 4, 8 ... deg
-        f = t.reshape(3, -1)
+        f = t.reshape(3, -1)[:, tr]
     elif path.suffix.lower() in (".toml", ".bsdf"):  # a material file; an RGL or Zemax file (spectral: in RGB)
         from reconstruction.formats.brdffile import load_brdf
 
-        v = np.asarray(load_brdf(path)(g["wi"], g["wo"]), dtype=np.float64)
+        v = np.asarray(load_brdf(path)(g["wi"][tr], g["wo"][tr]), dtype=np.float64)
         f = (np.repeat(v, 3, axis=1) if v.shape[1] == 1 else v[:, :3]).T
     else:  # an NBRDF set: the network on the grid's inputs (the same for every material), in float32, on one
         # BLAS thread (matrices of 21 columns: threads only contend, 5 times slower on a busy machine)
@@ -175,15 +180,22 @@ def _tabulate_material(path: Path) -> Array:
         with threadpool_limits(1):
             f = nbrdf_forward(_grid_nbrdf_features(), _nbrdf_weights(str(path))).T
     f = np.nan_to_num(np.maximum(f, 0.0), nan=0.0, posinf=0.0)
-    peak = np.max(np.where(g["within"], f, 0.0), axis=1, keepdims=True)  # fits blow up at grazing: bound them
+    peak = np.max(np.where(g["within"][tr], f, 0.0), axis=1, keepdims=True)  # fits blow up at grazing: bound them
     return np.minimum(f, np.maximum(peak, 1e-12))
 
 
 def _cache_key(folder: Path, files: dict[str, Path]) -> str:
     """Everything the tabulated prior depends on: the grid, the folder and every file's name, size and time."""
     parts = [f"v{CACHE_VERSION} {GRID} {folder.resolve()}"]
+    listed: dict[Path, list[str]] = {}
     for name, p in sorted(files.items()):
-        for q in (sorted(p.parent.glob(f"{p.name}_*.npy")) if not p.suffix else [p]):
+        if p.suffix:
+            found = [p]
+        else:  # an NBRDF set: every NAME_*.npy (one sorted listing of the folder, not one glob per material)
+            names = listed.setdefault(p.parent, sorted(os.listdir(p.parent)))
+            run = names[bisect.bisect_left(names, f"{p.name}_"):bisect.bisect_left(names, f"{p.name}`")]
+            found = [p.parent / n for n in run if n.endswith(".npy")]
+        for q in found:
             st = q.stat()
             parts.append(f"{name} {q.name} {st.st_size} {st.st_mtime_ns}")
     return "\n".join(parts)
@@ -191,20 +203,26 @@ def _cache_key(folder: Path, files: dict[str, Path]) -> str:
 
 @dataclass
 class PriorSet:
-    """The prior's materials on the reduced grid: ``names`` (N) and ``tables`` (N, 3, n_cells) f_r in 1/sr (or
-    (N, 1, n_cells) for a grey family: the basis then has one row per material, not three equal ones)."""
+    """The prior's materials on the reduced grid: ``names`` (N) and ``tables`` (N, 3, M) f_r in 1/sr at the M
+    training cells (:func:`train_index`; the only cells the basis reads), float32, or (N, 1, M) for a grey family
+    (the basis then has one row per material, not three equal ones). Tables given on the whole grid (N, C, n_cells)
+    are cut to the training cells."""
 
     folder: str
     names: list[str]
     tables: NDArray[np.float32]
     _fc_cache: NDArray[np.float32] | None = field(default=None, init=False, repr=False)
 
+    def __post_init__(self) -> None:
+        g = _grid()
+        if self.tables.shape[-1] == g["cos"].size:
+            self.tables = np.ascontiguousarray(self.tables[..., g["train"]])
+
     def _fc(self) -> NDArray[np.float32]:
-        """f cos theta_i cos theta_o of every material and channel at the training cells, (3 N, M) float32."""
+        """f cos theta_i cos theta_o of every material and channel at the training cells, (C N, M) float32."""
         if self._fc_cache is None:
             g = _grid()
-            self._fc_cache = (self.tables.reshape(-1, g["cos"].size)[:, g["train"]]
-                              * g["cos"][g["train"]].astype(np.float32))
+            self._fc_cache = self.tables.reshape(-1, self.tables.shape[-1]) * g["cos"][g["train"]].astype(np.float32)
         return self._fc_cache
 
     def basis(self, idx: NDArray[np.intp], w: Array, exclude: tuple[str, ...] = (), residual: bool = False
@@ -268,31 +286,36 @@ def _load_cached(folder: str) -> PriorSet:
                                   f".bsdf files)")
     names = sorted(files)
 
-    def one(n: str) -> Array:
+    mask = _grid()["train"].reshape(GRID)
+
+    def one(n: str) -> tuple[bytes, bytes, Array]:
         try:
-            return _tabulate_material(files[n])
+            f = _tabulate_material(files[n])
         except (OSError, ValueError, ReconstructionError) as e:
             msg = str(e)
             raise ReconstructionError(f"--prior {folder}: material {n}: {msg}") from None
+        return priorcodec.encode_rows(f, mask)
 
     def tabulate() -> tuple[Any, ...]:
         from concurrent.futures import ThreadPoolExecutor
 
         from threadpoolctl import threadpool_limits
 
-        tables = np.empty((len(names), 3, _grid()["cos"].size), dtype=np.float32)
+        encoded = []
         _grid_nbrdf_features()  # shared by the threads: computed once, before them
         what = f"tabulating the prior's materials ({folder})"
         report_build(what, 0, len(names))
-        # one material per thread on one BLAS thread each (numpy's kernels release the GIL): 2 cores, 2 materials
+        # one material per thread on one BLAS thread each (numpy's kernels and zlib release the GIL): 2 cores, 2
+        # materials; each coded as it comes (about 1.4 MB of float32 -> 100 kB)
         with threadpool_limits(1), ThreadPoolExecutor(max_workers=max(1, min(PRIOR_BUILD_THREADS, len(names)))) as ex:
-            for k, t in enumerate(ex.map(one, names)):
-                tables[k] = t
+            for k, e in enumerate(ex.map(one, names)):
+                encoded.append(e)
                 report_build(what, k + 1, len(names))
-        return (tables,)
+        return priorcodec.pack(encoded, mask)
 
-    (tables,) = cached_arrays("prior", _cache_key(p, files), tabulate,  # the key holds every name
-                              what=f"the prior of {len(names)} materials in {folder}")
+    tables = cached_decoded("prior", _cache_key(p, files), tabulate,  # the key holds every name
+                            lambda a: priorcodec.unpack(a, mask, PRIOR_BUILD_THREADS, rows=(len(names), 3)),
+                            what=f"the prior of {len(names)} materials in {folder}")
     return PriorSet(folder, names, tables)
 
 
