@@ -103,7 +103,6 @@ def serve(tmp_path) -> Iterator[Callable[..., SimulatorProcess]]:
         sp.stop()
 
 
-
 #: the files whose cases take longest (tens of seconds each on 2 cores), started first
 LONGEST_FIRST = ("tests/test_hostile_inputs.py", "tests/test_prior.py", "tests/test_fault_storms.py",
                  "tests/test_readme.py", "tests/test_study.py", "tests/test_acq_integrity.py",

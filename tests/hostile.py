@@ -1,6 +1,7 @@
 """The hostile-input campaign of issue 11, shared by the tests and ``scripts/hostile_campaign.py``.
 
-Three corpora, each a list of :class:`Case` run as a subprocess (the programs as a user runs them):
+Three corpora, each a list of :class:`Case` run as a subprocess (the programs as a user runs them; the test suite
+forks most of them from warm interpreters, :func:`run_all`):
 
 * :func:`reconstruct_cases`: input tables for ``gonio-reconstruct`` (truncated, wrong header, non-numeric,
   NaN/inf, out-of-range angles, duplicates, huge/negative values, BOM, CRLF/CR, other separators, empty, binary
