@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -49,15 +50,32 @@ def _interp_matrix(grid: np.ndarray, src: np.ndarray) -> np.ndarray:
     return np.stack([np.interp(grid, src, eye[j]) for j in range(src.size)], axis=1)
 
 
+@lru_cache(maxsize=1)
+def _mallett2019() -> tuple[np.ndarray, np.ndarray]:
+    """colour-science's MSDS_BASIS_FUNCTIONS_sRGB_MALLETT2019: (wavelengths (W,) in nm, values (W, 3)), read
+    through the disk cache (:mod:`reconstruction.cache`, keyed by colour-science's version): importing colour
+    takes about 0.7 s (it imports matplotlib), most of a simulator's start, for 81 x 3 numbers."""
+    from importlib.metadata import version
+
+    from reconstruction.cache import cached_arrays
+
+    def build() -> tuple[np.ndarray, np.ndarray]:
+        from colour.recovery import MSDS_BASIS_FUNCTIONS_sRGB_MALLETT2019 as basis
+
+        return np.asarray(basis.wavelengths, dtype=float), np.asarray(basis.values, dtype=float)
+
+    wl, values = cached_arrays("srgb-basis-mallett2019", f"colour-science {version('colour-science')}", build)
+    return wl, values
+
+
 def _srgb_basis(grid: np.ndarray) -> np.ndarray:
     """(len(grid), 3): reflectance spectra of linear sRGB R, G, B (Mallett and Yuksel 2019, colour-science).
 
     A linear-sRGB albedo (r, g, b) becomes the spectrum r B_R + g B_G + b B_B, which converts back to (r, g, b)
     under D65 with the CIE 1931 observer, and (1, 1, 1) is a flat reflectance of 1.
     """
-    from colour.recovery import MSDS_BASIS_FUNCTIONS_sRGB_MALLETT2019 as basis
-
-    return _interp_matrix(grid, np.asarray(basis.wavelengths, dtype=float)) @ np.asarray(basis.values, dtype=float)
+    wl, values = _mallett2019()
+    return _interp_matrix(grid, wl) @ values
 
 
 class BRDF(Protocol):

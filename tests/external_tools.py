@@ -3,14 +3,16 @@
 
 - Blender as a Python module (``bpy``): the builds for Python 3.11 (Blender 4.2 to 5.0) require numpy < 2, and
   colour-science (a dependency of gonio-brdf) requires numpy >= 2, so bpy cannot live in the project's
-  environment: it gets its own, ``<sys.prefix>/blender`` (``python -m venv`` + ``pip install`` of
-  :data:`BPY_REQUIREMENT`, about 20 s once), where tests/blender_render.py runs as a child process.
+  environment: it gets its own (``python -m venv`` + ``pip install`` of :data:`BPY_REQUIREMENT`: about 12 s and
+  11 s of CPU, 950 MB), where tests/blender_render.py runs as a child process.
 - The Khronos glTF validator (the npm package ``gltf-validator``, Dart compiled to JavaScript), run with node:
-  ``npm install`` of :data:`GLTF_VALIDATOR` into ``<sys.prefix>/npm`` (about 1 s once).
+  ``npm install`` of :data:`GLTF_VALIDATOR` (about 1 s once).
 
-Both live inside the test environment (``.venv``), so a fresh CI clone builds them in its first run; a file
-lock keeps the two pytest-xdist workers from installing at once. ``GONIO_BLENDER_PYTHON`` may name a Python that
-already has bpy.
+Both live in the user's cache (:data:`TOOLS`, ``$XDG_CACHE_HOME/gonio-brdf-tests`` else
+``~/.cache/gonio-brdf-tests``, one folder per tool version and Python), outside the test environment, so that a
+fresh clone's ``.venv`` (every CI run) reuses them: a machine builds them once. A file lock keeps the two
+pytest-xdist workers (and concurrent runs) from installing at once; a build that did not finish (no ``.ready``) or
+whose interpreter is gone is built again. ``GONIO_BLENDER_PYTHON`` may name a Python that already has bpy.
 """
 
 from __future__ import annotations
@@ -28,13 +30,15 @@ from pathlib import Path
 BPY_REQUIREMENT = "bpy>=4.5,<4.6"
 #: the Khronos glTF validator, the npm package's newest release
 GLTF_VALIDATOR = "gltf-validator@2.0.0-dev.3.10"
-_ROOT = Path(sys.prefix)
+#: where the tools are built (read once, at import: some tests point XDG_CACHE_HOME at a fresh folder)
+TOOLS = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "gonio-brdf-tests"
+_PY = f"py{sys.version_info.major}.{sys.version_info.minor}"
 
 
 @contextmanager
 def _locked(name: str) -> Iterator[None]:
-    _ROOT.mkdir(parents=True, exist_ok=True)
-    with open(_ROOT / f".{name}.lock", "w") as fh:
+    TOOLS.mkdir(parents=True, exist_ok=True)
+    with open(TOOLS / f".{name}.lock", "w") as fh:
         fcntl.flock(fh, fcntl.LOCK_EX)
         try:
             yield
@@ -53,10 +57,10 @@ def blender_python() -> str:
     given = os.environ.get("GONIO_BLENDER_PYTHON")
     if given:
         return given
-    env = _ROOT / "blender"
+    env = TOOLS / f"blender-{_PY}-{BPY_REQUIREMENT.replace('>=', '-').replace(',<', '-')}"
     py = env / "bin" / "python"
     with _locked("blender"):
-        if not (env / ".ready").exists():
+        if not ((env / ".ready").exists() and py.exists()):
             if env.exists():
                 shutil.rmtree(env)
             base = getattr(sys, "_base_executable", None) or sys.executable
@@ -73,7 +77,7 @@ def gltf_validator() -> tuple[str, Path]:
     if not node or not npm:
         raise RuntimeError("the glTF validator runs on Node.js: install node and npm (Debian: apt-get install "
                            "nodejs npm)")
-    prefix = _ROOT / "npm"
+    prefix = TOOLS / f"npm-{GLTF_VALIDATOR}"
     pkg = prefix / "node_modules" / "gltf-validator"
     with _locked("npm"):
         if not (pkg / "package.json").exists():

@@ -140,6 +140,23 @@ def test_the_continuous_warp_and_its_inverse_agree():
                                rgl.warp_sample(dens, np.repeat(nodes, 3, axis=0)), atol=1e-12)
 
 
+def test_the_table_inverts_the_warp_of_each_points_interpolated_density_without_building_it():
+    """RGLTable.eval interpolates the incidence nodes' cumulative integrals instead of building a density grid per
+    point; that is the same as warp_invert of each point's interpolated density (zero regions included)."""
+    rng = np.random.default_rng(5)
+    vndf = rng.uniform(0.05, 2.0, (4, 9, 7))
+    vndf[2, :, :3] = 0.0
+    fields = {"theta_i": np.array([0.0, 0.4, 0.9, 1.4]), "phi_i": np.zeros(1), "ndf": np.ones((2, 8)),
+              "sigma": np.ones((2, 8)), "vndf": vndf[None], "jacobian": np.array([0]),
+              "rgb": rng.uniform(0.0, 1.0, (1, 4, 3, 5, 5))}
+    table = rgl.RGLTable(fields)
+    n = 400
+    k, t = table._weights(rng.uniform(0.0, 1.5, n))
+    u = rng.uniform(0.0, 1.0, (n, 2))
+    dens = table.vndf[k] * (1 - t)[:, None, None] + table.vndf[k + 1] * t[:, None, None]
+    np.testing.assert_allclose(table._warp_invert(k, k + 1, t, u), rgl.warp_invert(dens, u), rtol=1e-12, atol=1e-14)
+
+
 def test_projected_area_of_the_uniform_ndf_is_one_plus_cos_over_two():
     th = np.radians([0.0, 30.0, 60.0, 89.0])
     sig = rgl.projected_area(np.full(65, 1.0 / np.pi), th)

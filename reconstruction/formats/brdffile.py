@@ -109,8 +109,8 @@ EXPECTED = ("expected an RGL .bsdf tensor file, a Zemax tabular BSDF, a MERL .bi
             "(PREFIX, PREFIX_fc1.npy or a folder holding one set) or a material .toml")
 
 
-#: pairs per evaluation of an RGL file: RGLTable.eval holds a density grid per pair (0.33 s for 4096 pairs, 5.3 s
-#: for 20,000 in one call; a 128 px render at once took 20 GB)
+#: pairs per evaluation of an RGL file: bounds the temporaries of one RGLTable.eval call (it gathers a few cells per
+#: pair: about 2 ms per 4096 pairs; it once built a density grid per pair, 0.33 s and a grid each per 4096 pairs)
 RGL_BLOCK = 4096
 
 

@@ -425,20 +425,18 @@ def write(path: str | Path, f: BRDF, *, resolution: Resolution = DEFAULT_RESOLUT
 # --- evaluation as the renderer does it --------------------------------------------------------------------
 
 
-def _bilinear(grid: Array, pos: Array) -> Array:
-    """Bilinear interpolation of per-point node values ``grid`` (N, ..., H, W) at ``pos`` (N, 2) = (x, y)."""
-    h, w = grid.shape[-2:]
+def _bilinear_at(table: Array, node: NDArray[np.int64], pos: Array) -> Array:
+    """Bilinear interpolation of ``table[node]`` (table (n_nodes, C, H, W) of node values; node (N,)) at ``pos``
+    (N, 2) = (x, y) in [0, 1]^2, reading only the four cells of each point (no (N, C, H, W) copy): (N, C)."""
+    h, w = table.shape[-2:]
     x = np.clip(pos[:, 0], 0.0, 1.0) * (w - 1)
     y = np.clip(pos[:, 1], 0.0, 1.0) * (h - 1)
     k = np.minimum(x.astype(np.int64), w - 2)
     j = np.minimum(y.astype(np.int64), h - 2)
-    tx, ty = x - k, y - j
-    idx = np.arange(grid.shape[0])
-    g = np.moveaxis(grid, (-2, -1), (1, 2))  # (N, H, W, ...)
-    shape = (-1,) + (1,) * (g.ndim - 3)
-    tx, ty = tx.reshape(shape), ty.reshape(shape)
-    return ((1 - tx) * (1 - ty) * g[idx, j, k] + tx * (1 - ty) * g[idx, j, k + 1]
-            + (1 - tx) * ty * g[idx, j + 1, k] + tx * ty * g[idx, j + 1, k + 1])
+    tx, ty = (x - k)[:, None], (y - j)[:, None]
+    g = np.moveaxis(table, 1, -1)  # (n_nodes, H, W, C): a view
+    return ((1 - tx) * (1 - ty) * g[node, j, k] + tx * (1 - ty) * g[node, j, k + 1]
+            + (1 - tx) * ty * g[node, j + 1, k] + tx * ty * g[node, j + 1, k + 1])
 
 
 class RGLTable:
@@ -466,6 +464,7 @@ class RGLTable:
         self.sigma = np.asarray(fields["sigma"], dtype=np.float64)[0]
         v = np.asarray(fields["vndf"], dtype=np.float64)[0]
         self.vndf = v / np.maximum(_cumulative(_cumulative(v)[..., -1])[:, -1], 1e-300)[:, None, None]
+        self._cum: tuple[Array, Array, Array] | None = None  # the vndf's cumulative integrals, on first eval
         self.rgb = values.astype(np.float64)[0]  # (n_i, C, n_s, n_s): 3 (RGB) or one per wavelength
         self.jacobian = bool(np.asarray(fields["jacobian"])[0])
         self.method = "rgl"
@@ -485,6 +484,41 @@ class RGLTable:
         t = np.clip((theta - self.theta_i[k]) / (self.theta_i[k + 1] - self.theta_i[k]), 0.0, 1.0)
         return k, t
 
+    def _warp_invert(self, k: NDArray[np.int64], k1: NDArray[np.int64], t: Array, u: Array) -> Array:
+        """:func:`warp_invert` of the density ``vndf[k] (1 - t) + vndf[k1] t`` of each point at ``u`` (N, 2),
+        without building the N interpolated grids: the cumulative integrals are linear in the density, so they are
+        those of the incidence nodes (computed once per table), interpolated the same way; only the cells the
+        inversion reads are gathered (O(N) instead of O(N H W) time and memory)."""
+        if self._cum is None:
+            cx = _cumulative(self.vndf)  # (n_i, H, W) along x
+            row_int = cx[..., -1]  # (n_i, H)
+            self._cum = (cx, row_int, _cumulative(row_int))
+        cx, row_int, marg = self._cum
+        _, h, w = self.vndf.shape
+        a, b = (1.0 - t), t
+        y = np.clip(u[:, 1], 0.0, 1.0) * (h - 1)
+        j = np.minimum(y.astype(np.int64), h - 2)
+        ty = y - j
+        r0 = row_int[k, j] * a + row_int[k1, j] * b
+        r1 = row_int[k, j + 1] * a + row_int[k1, j + 1] * b
+        total_y = marg[k, -1] * a + marg[k1, -1] * b
+        hy = 1.0 / (h - 1)
+        sy = (marg[k, j] * a + marg[k1, j] * b + hy * (r0 * ty + 0.5 * (r1 - r0) * ty * ty)) / np.maximum(total_y,
+                                                                                                      1e-300)
+        x = np.clip(u[:, 0], 0.0, 1.0) * (w - 1)
+        kx = np.minimum(x.astype(np.int64), w - 2)
+        tx = x - kx
+
+        def cond(grid: Array, col: NDArray[np.int64] | int) -> Array:
+            """The conditional row (rows j and j + 1 mixed by ty, the nodes by t) of ``grid`` at column ``col``."""
+            return ((grid[k, j, col] * a + grid[k1, j, col] * b) * (1.0 - ty)
+                    + (grid[k, j + 1, col] * a + grid[k1, j + 1, col] * b) * ty)
+
+        c0, c1 = cond(self.vndf, kx), cond(self.vndf, kx + 1)
+        hx = 1.0 / (w - 1)
+        sx = (cond(cx, kx) + hx * (c0 * tx + 0.5 * (c1 - c0) * tx * tx)) / np.maximum(cond(cx, -1), 1e-300)
+        return np.stack([sx, sy], axis=-1)
+
     def eval(self, wi: ArrayLike, wo: ArrayLike) -> Array:
         """f_r (N, C) in 1/sr (the renderer's value divided by cos theta_o); 0 below the horizon."""
         wi = np.asarray(wi, dtype=np.float64).reshape(-1, 3)
@@ -497,11 +531,9 @@ class RGLTable:
         phi_rel = np.arctan2(m[:, 1], m[:, 0]) - np.arctan2(wi[:, 1], wi[:, 0])
         u_m = np.stack([theta2u(th_m), np.mod((phi_rel + np.pi) / (2 * np.pi), 1.0)], axis=-1)
         k, t = self._weights(th_i)
-        dens = self.vndf[k] * (1 - t)[:, None, None] + self.vndf[k + 1 if self.theta_i.size > 1 else k] \
-            * t[:, None, None]
-        s = warp_invert(dens, u_m)
         k1 = k + 1 if self.theta_i.size > 1 else k
-        spec = _bilinear(self.rgb[k], s) * (1 - t)[:, None] + _bilinear(self.rgb[k1], s) * t[:, None]
+        s = self._warp_invert(k, k1, t, u_m)
+        spec = _bilinear_at(self.rgb, k, s) * (1 - t)[:, None] + _bilinear_at(self.rgb, k1, s) * t[:, None]
         if self.jacobian:
             spec = spec * (_interp_nodes(self.ndf, u_m[:, 0]) / (4.0 * _interp_nodes(self.sigma, theta2u(th_i))
                                                                    ))[:, None]
