@@ -156,8 +156,8 @@ def advise(s: Slice, ref: P.PriorReconstruction, limits: BenchLimits, budget_s: 
     slices = [candidate_slice(t, limits, list(s.channels)) for t in thetas]
     sig = np.stack([_sigma_after(ref, c, sigma_now) for c in slices])
     exp = expected_errors(f, sig)
-    if scene is not None:
-        pairs = scene_pairs(scene)
+    pairs = scene_pairs(scene) if scene is not None else None
+    if pairs is not None:
         for e, es in zip(exp, expected_scene_errors(f, sig, pairs), strict=True):
             e.update(es)
     cands = [{"theta_i_deg": t, "expected_psnr_db": round(e["expected_psnr_db"], 2),
@@ -192,7 +192,7 @@ def advise(s: Slice, ref: P.PriorReconstruction, limits: BenchLimits, budget_s: 
         out["budget_s"] = budget_s
         now = (current or {}).get(key)
         out["plan"] = _plan(s, ref, limits, budget_s, thetas, float(now) if now is not None else 0.0, sigma_now, f,
-                            scene_pairs(scene) if scene is not None else None)
+                            pairs)
     return out
 
 
