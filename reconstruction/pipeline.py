@@ -246,13 +246,16 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
 
     # the built-in family's posterior beside the reconstruction: one BLAS thread for the whole run, so that the
     # limits fit sets and lifts around its own solves (process-wide) never change the posterior's threads midway
+    from reconstruction.report.figures import Drawer
+
     blas = threadpool_limits(1, user_api="blas") if job.assesses and not job.prior else nullcontext()
-    with blas, shared_cone_averages(), Background(enabled=job.assesses) as helper, \
-            Background(enabled=bool(job.html)) as renders:
-        return _run(job, progress, helper, renders)
+    # the page's drawer first: its child is forked before any thread of the run starts
+    with Drawer(enabled=bool(job.html)) as drawer, blas, shared_cone_averages(), \
+            Background(enabled=job.assesses) as helper, Background(enabled=bool(job.html)) as renders:
+        return _run(job, progress, helper, renders, drawer)
 
 
-def _run(job: Job, progress: Progress | None, helper: Any, renders: Any) -> dict[str, Any]:
+def _run(job: Job, progress: Progress | None, helper: Any, renders: Any, drawer: Any) -> dict[str, Any]:
     from reconstruction.core import colour
     from reconstruction.core.scene import LOBE_KINDS, load_scene
     from reconstruction.formats import brdffile, exports, inputs, merl, zemax
@@ -312,20 +315,14 @@ def _run(job: Job, progress: Progress | None, helper: Any, renders: Any) -> dict
     rec, choice = reconstruct(working, job.method, opts,
                               progress=(lambda name: progress.begin(f"fitting {name}")) if progress else None)
     done("reconstruct", t0)
-    warmed = None
-    if job.html:  # matplotlib's imports while the tabulation's threads hold no GIL; forked figures inherit them
-        from reconstruction.report.figures import warm_up
-
-        warmed = helper.submit(warm_up)
+    others: dict[str, Reconstruction] = {}
+    drawn_for = rec  # the reconstruction the sample figures were sent for
+    if job.html:  # the page's figures of the samples and methods, drawn by its child while the run goes on
+        others = _send_sample_figures(job, drawer, working, rec, choice, opts)
     t0 = begin("tabulating" + (f" (supersample {job.supersample})" if job.supersample else ""))
     energy: dict[str, Any] = {}
     table = tabulate(rec, job.supersample, energy)
     done("tabulate", t0)
-    spheres, rendered = None, table
-    if job.html:  # the page's sphere renders (numpy) in a thread of their own, from now to the page's drawing
-        from reconstruction.report.html import sphere_images
-
-        spheres = renders.submit(sphere_images, np.asarray(table, dtype=np.float64))
     t0 = begin("plausibility checks")
     checks = report.plausibility(rec, table)
     fallbacks = choice.pop("fallbacks", None)
@@ -343,8 +340,13 @@ def _run(job: Job, progress: Progress | None, helper: Any, renders: Any) -> dict
         done("conservative", t0)
     elif job.method == "auto" and job.conservative:
         bounded = {"applied": False, "why": NO_BOUND_WITHOUT_PRIOR}
-    if job.html and table is not rendered:  # a fallback's table or the bounded one: rendered again
-        spheres = renders.submit(sphere_images, np.asarray(table, dtype=np.float64))
+    spheres = None
+    if job.html:  # the page's sphere renders (numpy) in a thread of their own, from now to the page's drawing
+        from reconstruction.report.spheres import sphere_images
+
+        spheres = renders.submit(sphere_images, np.asarray(table, dtype=np.float64), checks["albedo"])
+        if rec is not drawn_for:  # a fallback or the bounded reconstruction: its figures sent again
+            others, drawn_for = _send_sample_figures(job, drawer, working, rec, choice, opts), rec
     t0 = begin("writing table")
     outputs: dict[str, Any] = {}
     if out is not None:
@@ -402,10 +404,8 @@ def _run(job: Job, progress: Progress | None, helper: Any, renders: Any) -> dict
         rep["outputs"]["report"] = str(job.report)
         report.write_json(job.report, rep)
     if job.html:
-        if warmed is not None:  # the helper idle before the page forks its figures' children
-            warmed()
         t0 = begin("html report")
-        _write_html(job, rep, working, rec, table, choice, opts, sigma_table, spheres)
+        _write_html(job, rep, working, rec, table, others, choice, sigma_table, spheres, drawer)
         rep["timings_s"]["html"] = round(time.perf_counter() - t0, 4)
         done("html", t0)
     return rep
@@ -492,13 +492,8 @@ def _name(job: Job, working: Slice) -> str:
                                                     or job.gltf or job.blender or "material").stem)
 
 
-def _write_html(job: Job, rep: dict[str, Any], working: Slice, rec: Reconstruction, table: Array,
-                choice: dict[str, Any], opts: Options, sigma: NDArray[np.float32] | None = None,
-                spheres: Callable[[], Any] | None = None) -> None:
-    """The HTML report of ``job``: every other registered method is built on the same samples for comparison;
-    ``spheres``: the sphere renders under way (:func:`reconstruction.report.html.sphere_images`)."""
-    from reconstruction.report import html as htmlreport
-
+def _other_methods(working: Slice, rec: Reconstruction, opts: Options) -> dict[str, Reconstruction]:
+    """Every other registered method built on the same samples (the page draws their predictions)."""
     ordered = working.sorted()
     others: dict[str, Reconstruction] = {}
     for name, m in REGISTRY.items():
@@ -507,7 +502,29 @@ def _write_html(job: Job, rep: dict[str, Any], working: Slice, rec: Reconstructi
                 others[name] = m.build(ordered, opts, None)
             except (ReconstructionError, ValueError):
                 pass
-    held = choice.get("held_out_predictions", {}).get(rec.method)
-    title = _name(job, working)
-    htmlreport.write_html(job.html, report=rep, working=ordered, rec=rec, table=table, alternatives=others,
-                          held_out=held, title=title, sigma=sigma, spheres=spheres)
+    return others
+
+
+def _send_sample_figures(job: Job, drawer: Any, working: Slice, rec: Reconstruction, choice: dict[str, Any],
+                         opts: Options) -> dict[str, Reconstruction]:
+    """The page's slices and polar figures sent to its drawer (:func:`reconstruction.report.html.
+    draw_sample_figures`); returns the other methods built for them."""
+    from reconstruction.report.html import draw_sample_figures
+
+    others = _other_methods(working, rec, opts)
+    draw_sample_figures(drawer, working.sorted(), rec, others,
+                        choice.get("held_out_predictions", {}).get(rec.method), job.blind_spot_deg or 4.0)
+    return others
+
+
+def _write_html(job: Job, rep: dict[str, Any], working: Slice, rec: Reconstruction, table: Array,
+                others: dict[str, Reconstruction], choice: dict[str, Any], sigma: NDArray[np.float32] | None = None,
+                spheres: Callable[[], Any] | None = None, drawer: Any = None) -> None:
+    """The HTML report of ``job``: ``others``, every other registered method built on the same samples;
+    ``spheres``: the sphere renders under way (:func:`reconstruction.report.spheres.sphere_images`); ``drawer``:
+    the run's :class:`~reconstruction.report.figures.Drawer`, the sample figures sent."""
+    from reconstruction.report import html as htmlreport
+
+    htmlreport.write_html(job.html, report=rep, working=working.sorted(), rec=rec, table=table, alternatives=others,
+                          held_out=choice.get("held_out_predictions", {}).get(rec.method), title=_name(job, working),
+                          sigma=sigma, spheres=spheres, drawer=drawer)

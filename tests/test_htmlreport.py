@@ -46,14 +46,18 @@ def test_html_report_is_self_contained_and_matches_the_json_report(tmp_path):
     page = parse(html_path)
     assert page.sections == list(SECTIONS)
     assert not [x for x in page.links if re.match(r"https?:", x or "")]  # nothing fetched from the network
-    assert len(page.images) == 7  # slices, polar, coverage, sigma, spheres, cuts, albedo
+    assert len(page.images) == 12  # slices, polar, coverage, sigma, cuts, albedo and the six spheres
     for src_uri in page.images:  # every image is inline and decodes as a PNG
         head, data = src_uri.split(",", 1)
         assert head == "data:image/png;base64"
         png = base64.b64decode(data)
         assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 2000
+    spheres = [base64.b64decode(u.split(",", 1)[1]) for u in page.images[4:10]]  # after coverage and sigma
+    assert {int.from_bytes(p[16:20], "big") for p in spheres} == {112}  # the renders' own pixels (PNG width)
     rep = json.loads(report.read_text())
     text = " ".join(page.text)
+    for caption in ("point light, upper left", "environment + rim sun (behind)"):
+        assert caption in text
     assert rep["method"] in text and rep["method_reason"] in text
     for c in rep["cross_validation"]["scores"]:  # every method's held-out error, as in the JSON
         assert c["method"] in text and f"{c['held_out_relative_rmse_cos']:.4%}" in text
@@ -100,7 +104,7 @@ def test_the_environment_sphere_is_the_integral_of_the_environment_at_the_rim_to
     at grazing views met one or none of them: blotches of several times the right value)."""
     from reconstruction.core.models import Material
     from reconstruction.core.render import SkyGround, sphere_coverage
-    from reconstruction.report.html import _backdrop, environment_render
+    from reconstruction.report.spheres import _backdrop, environment_render
     from tests.test_render import brute_force
 
     mat = Material.from_dict({"name": "m", "lobes": [{"type": "lambert", "albedo": 0.1},
@@ -202,3 +206,55 @@ def test_a_hemispherical_file_draws_at_most_eight_incidences_spread_over_its_ran
     assert html.shown_incidences(few) == [20.0, 40.0, 60.0] and html._shown_note(few) == ""
     fig, axes = html._panels(len(shown), 5.2, 3.8)
     assert len(axes) == len(shown) and fig.axes[0].get_gridspec().ncols == html.PANELS_PER_ROW
+
+
+# --- the drawer: figures drawn in a forked child as their data arrive -------------------------------------------
+
+
+def _square(n):
+    return f"data:{n * n}"
+
+
+def _fails(n):
+    raise ValueError(f"no figure of {n}")
+
+
+def _pid(_):
+    import os
+
+    return f"data:{os.getpid()}"
+
+
+def test_the_drawer_draws_in_a_child_and_keeps_the_last_of_a_name():
+    import os
+
+    from reconstruction.report.figures import Drawer, can_fork
+
+    with Drawer() as d:
+        d.draw("a", _square, 3)
+        d.draw("who", _pid, None)
+        d.draw("a", _square, 4)  # sent again (its data changed): the last one kept
+        got = d.results()
+    assert got["a"] == "data:16"
+    assert (got["who"] != f"data:{os.getpid()}") == can_fork()  # drawn by the child where there is one
+    with Drawer(enabled=False) as d:  # no child: drawn here when asked
+        d.draw("who", _pid, None)
+        assert d.results() == {"who": f"data:{os.getpid()}"}
+
+
+def test_a_figure_that_fails_in_the_child_raises_here_and_an_unused_drawer_leaves_no_child():
+    import os
+
+    from reconstruction.report.figures import Drawer
+
+    with Drawer() as d:
+        d.draw("ok", _square, 2)
+        d.draw("bad", _fails, 7)
+        with pytest.raises(ValueError, match="no figure of 7"):
+            d.results()
+    with Drawer() as d:
+        pid = d._pid
+        d.draw("ok", _square, 2)
+    if pid:  # left without asking: the child was ended and reaped
+        with pytest.raises(ChildProcessError):
+            os.waitpid(pid, os.WNOHANG)

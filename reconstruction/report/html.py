@@ -8,8 +8,10 @@ table with the measured lines on it: where the table rests on data and where it 
 sphere under three point lights, and under a sky-and-ground environment alone, with a sun in front and with a sun
 behind: :mod:`reconstruction.core.render`), ``cuts`` (in-plane cuts of the table
 at other incidences), ``albedo`` (directional albedo against theta_i with the limit 1), ``checks``,
-``parameters`` (with uncertainties), ``choice`` (cross-validation), ``timings``. Plots with matplotlib; the page
-with the standard library. Written atomically.
+``parameters`` (with uncertainties), ``choice`` (cross-validation), ``timings``. The figures' values are
+computed here (numpy) and drawn with matplotlib by a forked child as they arrive
+(:class:`~reconstruction.report.figures.Drawer`); the spheres are PNGs of their own
+(:mod:`reconstruction.report.spheres`); the page with the standard library. Written atomically.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import html
 import json
 import warnings
 from collections.abc import Callable, Mapping, Sequence
+from contextlib import nullcontext
 from pathlib import Path
 from typing import Any
 
@@ -29,24 +32,29 @@ from reconstruction.base import Reconstruction
 from reconstruction.core.geometry import inplane_to_dirs, thesis_points_from_slice
 from reconstruction.formats import merl
 from reconstruction.formats.slicefile import Slice
-from reconstruction.report.figures import beside, can_fork
+from reconstruction.report.figures import Drawer
 from reconstruction.report.figures import figure as _figure
+from reconstruction.report.figures import log_grid as _log_grid
 from reconstruction.report.figures import margins as _margins
 from reconstruction.report.figures import plain_log_ticks as _plain_log_ticks
 from reconstruction.report.figures import png as _png
+from reconstruction.report.spheres import N_DIRS, sphere_images, sphere_pngs
 
 Array = NDArray[np.float64]
 
-__all__ = ["SECTIONS", "build_html", "write_html", "write_index", "environment_render", "sphere_images"]
+__all__ = ["SECTIONS", "build_html", "write_html", "write_index", "draw_sample_figures", "draw_table_figures",
+           "slice_curves", "coverage_values", "sigma_values", "cut_lines"]
 
 SECTIONS = ("summary", "slices", "polar", "coverage", "spheres", "cuts", "albedo", "checks", "parameters",
             "choice", "timings")
-LIGHTS = {"upper left": (-3.0, 3.0, 5.0), "overhead": (0.0, 6.0, 2.0), "grazing right": (6.0, 0.5, 1.0)}
 _CSS = """body{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;color:#222}
 h1{font-size:1.6em}h2{font-size:1.25em;border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:1.8em}
 table{border-collapse:collapse;font-size:.9em}td,th{border:1px solid #ddd;padding:.25em .6em;text-align:left}
 .pass{color:#176b2c;font-weight:bold}.fail{color:#a31515;font-weight:bold}img{max-width:100%}
-.note{color:#555;font-size:.9em}code{background:#f3f3f3;padding:0 .2em}"""
+.note{color:#555;font-size:.9em}code{background:#f3f3f3;padding:0 .2em}
+.spheres{display:grid;grid-template-columns:repeat(3,auto);justify-content:start;gap:.3em 1em}
+.spheres figure{margin:0}.spheres img{width:224px;height:224px}.spheres figcaption{font-size:.85em;text-align:center}
+"""  # the spheres shown at twice their SPHERE_SIZE pixels
 
 
 def _version() -> str:
@@ -101,21 +109,33 @@ def _shown_note(s: Slice) -> str:
                                        + ", ".join(f"{x:g}" for x in shown) + " deg).")
 
 
-def _slices_figure(s: Slice, chosen: str, preds: Mapping[str, Callable[[Array, Array], ArrayLike]],
-                   held_out: Array | None, blind_deg: float) -> str:
+#: the outgoing angles (deg) at which the slices figure draws each method's prediction
+DENSE_THETA_O_DEG = np.linspace(-89.0, 89.0, 357)
+
+
+def slice_curves(s: Slice, preds: Mapping[str, Callable[[Array, Array], ArrayLike]]) -> dict[str, Array]:
+    """Each method's prediction (channel mean, 1/sr) at the incidences the figures draw
+    (:func:`shown_incidences`) and :data:`DENSE_THETA_O_DEG`: name -> (incidences, angles), in one evaluation
+    each."""
+    inc = np.asarray(shown_incidences(s), dtype=np.float64)
+    n = DENSE_THETA_O_DEG.size
+    wi, wo = inplane_to_dirs(np.radians(np.repeat(inc, n)), np.radians(np.tile(DENSE_THETA_O_DEG, inc.size)))
+    return {name: _lum(np.asarray(fn(wi, wo), dtype=np.float64)).reshape(inc.size, n) for name, fn in preds.items()}
+
+
+def _slices_figure(s: Slice, chosen: str, curves: Mapping[str, Array], held_out: Array | None,
+                   blind_deg: float) -> str:
+    """The slices figure: ``curves`` from :func:`slice_curves`; ``held_out`` (N, C) in the order of ``s``."""
     inc = shown_incidences(s)
     fig, axes = _panels(len(inc), 5.2, 3.8)
     f, std = s.brdf()
     lum, lstd = _lum(f), _lum(std)
-    for ax, t in zip(axes, inc, strict=True):
+    for k, (ax, t) in enumerate(zip(axes, inc, strict=True)):
         m = s.theta_i_deg == t
         to = s.theta_o_deg[m]
         ax.axvspan(-t - blind_deg, -t + blind_deg, color="0.85", label="blind spot")
-        dense = np.linspace(-89.0, 89.0, 357)
-        wi, wo = inplane_to_dirs(np.radians(np.full(dense.size, t)), np.radians(dense))
-        for name, fn in preds.items():
-            y = _lum(np.asarray(fn(wi, wo), dtype=np.float64))
-            ax.plot(dense, np.maximum(y, 1e-12), lw=2.6 if name == chosen else 1.0,
+        for name, y in curves.items():
+            ax.plot(DENSE_THETA_O_DEG, np.maximum(y[k], 1e-12), lw=2.6 if name == chosen else 1.0,
                     color="k" if name == chosen else None, label=name + (" (chosen)" if name == chosen else ""),
                     zorder=3 if name == chosen else 2)
         ax.errorbar(to, lum[m], yerr=lstd[m], fmt="o", ms=3, color="tab:red", ecolor="tab:red", label="measured",
@@ -135,7 +155,8 @@ def _slices_figure(s: Slice, chosen: str, preds: Mapping[str, Callable[[Array, A
         ax.set_xlabel("theta_o (deg, + = specular side)")
         ax.set_ylabel("f_r (1/sr), channel mean")
         ax.set_title(f"theta_i = {t:g} deg")
-        ax.grid(True, which="both", alpha=0.2)
+        _log_grid(ax)
+        ax.grid(True, which="major", axis="x", alpha=0.2)
     axes[0].legend(fontsize=7)
     _margins(fig, 1.0, 0.15, 0.6, 0.37, wgap=1.1, hgap=1.0)
     return _png(fig)
@@ -179,17 +200,29 @@ def _polar_figure(s: Slice) -> str:
     return _png(fig)
 
 
-def _coverage_figure(table: Array, s: Slice) -> str:
-    return _png(_coverage_plot(table, s))
+def coverage_values(table: Array) -> Array:
+    """The coverage map's values: log10 f cos_i cos_o on the table's in-plane sheet (phi_d ~ 0), (theta_h,
+    theta_d) = (90, 90)."""
+    th, td, _ = merl.cell_angles()
+    cc = np.cos(td[0, :, 0])[None, :] ** 2 - np.sin(th[:, 0, 0])[:, None] ** 2  # in-plane cos_i cos_o
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # cells without a value in any channel: NaN, drawn blank
+        g = np.nanmean(table[:, :, :, 0], axis=0)  # phi_d ~ 0: the in-plane configurations
+    return np.log10(np.maximum(g * np.clip(cc, 0, None), 1e-6))
+
+
+def _coverage_figure(val: Array, s: Slice) -> str:
+    """The coverage figure from :func:`coverage_values`."""
+    return _png(_coverage_draw(val, s))
 
 
 def _coverage_plot(table: Array, s: Slice) -> Any:
     """The figure of the coverage section: the in-plane sheet of the table with the measured samples on it
     (white dots edged in black, so the legend's marker shows on its grey frame)."""
-    th, td, _ = merl.cell_angles()
-    cc = np.cos(td[0, :, 0])[None, :] ** 2 - np.sin(th[:, 0, 0])[:, None] ** 2  # in-plane cos_i cos_o
-    g = np.nanmean(table[:, :, :, 0], axis=0)  # phi_d ~ 0: the in-plane configurations
-    val = np.log10(np.maximum(g * np.clip(cc, 0, None), 1e-6))
+    return _coverage_draw(coverage_values(table), s)
+
+
+def _coverage_draw(val: Array, s: Slice) -> Any:
     fig = _figure((6.4, 4.8))
     ax = fig.subplots()
     _margins(fig, 0.65, 0.15, 0.6, 0.37)
@@ -211,14 +244,19 @@ def _samples_on_map(ax: Any, s: Slice, title: str) -> None:
     ax.legend(fontsize=7, loc="upper right", markerscale=2.0, facecolor="0.75", framealpha=0.9)
 
 
-def _sigma_figure(sigma: Array, s: Slice) -> str:
-    """sigma of ln f over (theta_h, theta_d), the median over phi_d and channels, with the samples on it."""
-    from matplotlib.colors import LogNorm
-
+def sigma_values(sigma: Array) -> Array:
+    """The sigma map's values: sigma of ln f over (theta_h, theta_d), the median over phi_d of the channels'
+    mean, (90, 90)."""
     sg = np.where(merl.valid_mask(), np.asarray(sigma, dtype=np.float64).mean(axis=0), np.nan)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # rows with no valid cell: NaN, drawn blank
-        val = np.nanmedian(sg, axis=2)
+        return np.nanmedian(sg, axis=2)
+
+
+def _sigma_figure(val: Array, s: Slice) -> str:
+    """The sigma figure from :func:`sigma_values`, with the samples on it."""
+    from matplotlib.colors import LogNorm
+
     fig = _figure((6.4, 4.8))
     ax = fig.subplots()
     _margins(fig, 0.65, 0.22, 0.6, 0.37)
@@ -226,117 +264,48 @@ def _sigma_figure(sigma: Array, s: Slice) -> str:
                    norm=LogNorm(0.01, 5.0))
     cb = fig.colorbar(im, ax=ax, label="sigma of ln f_r (median over phi_d; 0.1 = 10 %, 1 = a factor e)")
     _plain_log_ticks(cb.ax.yaxis)
+    _log_grid(cb.ax, grid=False)
     _samples_on_map(ax, s, "how sure the table is (sigma of ln f)")
     return _png(fig)
 
 
-def environment_render(f: Callable[[Array, Array], ArrayLike], size: int = 112, radius: float = 0.8,
-                       lighting: str = "environment") -> NDArray[np.float32]:
-    """The sphere under the sky-and-ground environment of :mod:`reconstruction.core.render` (``lighting``: one of its
-    presets: the environment alone, or with the ``key`` or ``rim`` sun), anti-aliased, over the environment as a
-    dimmed backdrop (sky above, ground below): (size, size, 3) float32 linear RGB."""
-    from reconstruction.core.render import SkyGround, render_sphere
-
-    img = render_sphere(f, size, lighting, radius, antialias=True)
-    return (_rgb(img) + _backdrop(size, radius, SkyGround())).astype(np.float32)
+def _spheres_html(pngs: Sequence[tuple[str, str]]) -> str:
+    """The spheres as a grid of captioned images (three a row, each shown at twice its pixels)."""
+    cells = "".join(f'<figure>{_img(uri, name)}<figcaption>{html.escape(name)}</figcaption></figure>'
+                    for name, uri in pngs)
+    return f'<div class="spheres">{cells}</div>'
 
 
-def _rgb(img: Array) -> Array:
-    return np.repeat(img, 3, axis=2) if img.shape[2] == 1 else img
-
-
-def _backdrop(size: int, radius: float, env: Any) -> Array:
-    """The environment behind the sphere, dimmed (sky above the frame's middle, ground below), times the part of
-    each pixel the sphere leaves uncovered."""
-    from reconstruction.core.render import sphere_coverage
-
-    y = -(((np.arange(size) + 0.5) / size) * 2.0 - 1.0)
-    back = 0.35 * env.radiance(np.clip(y, -1.0, 1.0))[:, None] * np.ones(size)[None, :]
-    return (back * (1.0 - sphere_coverage(size, radius, antialias=True)))[..., None] * np.ones(3)
-
-
-#: The spheres' renders on the page: pixels per side, and the environment's quadrature (135 directions per pixel,
-#: half the renderer's default: within about 1 % RMS of it on the demo's table, 3 % at worst, where the page shows
-#: each sphere at about twice this size anyway).
-SPHERE_SIZE = 112
-SPHERE_QUADRATURE = (35, (0.005, 0.03, 0.12, 0.4), 25)
-
-
-def sphere_images(table: Array) -> tuple[list[tuple[str, Array, Array | None]], Array, Array]:
-    """The spheres' renders (title, linear radiance, background or None: the environment's backdrop), the
-    backdrop, and the sphere's coverage: the numeric part of :func:`_spheres` (numpy only; it may run in a
-    second thread while matplotlib draws the other figures)."""
-    from reconstruction.core.render import (
-        PRESETS,
-        Lighting,
-        PointLight,
-        Quadrature,
-        SkyGround,
-        render_sphere,
-        sphere_coverage,
-        sphere_normals,
-    )
-    from reconstruction.report.preview import AMBIENT, PREVIEW_RADIUS, albedo_at_view
-
-    lookup = merl.brdf_of(table)
-
-    def brdf(wi: Array, wo: Array) -> Array:  # the table's lookup without its sparse operators (render_sphere):
-        return lookup(wi, wo)  # one render each, evaluated directly (the environment once per view angle)
-
-    size, radius = SPHERE_SIZE, PREVIEW_RADIUS
-    quad = Quadrature(SPHERE_QUADRATURE[0], SPHERE_QUADRATURE[1], SPHERE_QUADRATURE[2])
-    cov = sphere_coverage(size, radius, antialias=True)
-    mask, n = sphere_normals(size, radius, antialias=True)
-    ambient = np.zeros((size, size, 3))  # the preview's uniform environment, shared by the three point lights
-    ambient[mask] = AMBIENT * albedo_at_view(brdf, n[:, 2]) * cov[mask][:, None]
-    uniform = np.full((size, size, 3), AMBIENT) * (1.0 - cov)[..., None]  # ... seen behind the sphere
-    imgs: list[tuple[str, Array, Array | None]] = [
-        (f"point light, {name}", _rgb(render_sphere(brdf, size, Lighting(points=(PointLight(pos, float(
-            np.dot(pos, pos))),)), radius, antialias=True)) + ambient, uniform) for name, pos in LIGHTS.items()]
-    env = _rgb(render_sphere(brdf, size, Lighting(SkyGround()), radius, antialias=True, quadrature=quad))  # once
-    imgs.append(("sky and ground environment", env, None))
-    for key, label in (("key", "environment + key sun (front)"), ("rim", "environment + rim sun (behind)")):
-        sun = _rgb(render_sphere(brdf, size, Lighting(suns=PRESETS[key].suns), radius, antialias=True))
-        imgs.append((label, env + sun, None))
-    backdrop = _backdrop(size, radius, SkyGround()) / SkyGround().zenith  # display values: sky at 0.35
-    return imgs, backdrop, cov
-
-
-def _spheres(table: Array, images: tuple[list[tuple[str, Array, Array | None]], Array, Array] | None = None) -> str:
-    """The spheres' figure, from :func:`sphere_images` (rendered here when not given)."""
-    from reconstruction.report.preview import srgb_encode
-
-    imgs, backdrop, cov = images if images is not None else sphere_images(table)
-    fig = _figure((9.6, 6.8))
-    axes = fig.subplots(2, 3)
-    _margins(fig, 0.15, 0.15, 0.15, 0.25, wgap=0.15, hgap=0.15)
-    for ax, (name, im, bg) in zip(axes.ravel(), imgs, strict=True):
-        lum = (im @ np.array([0.2126, 0.7152, 0.0722]))[cov > 0.5]  # exposed on the sphere, as the preview
-        p = float(np.percentile(lum[lum > 0], 99.5)) if np.any(lum > 0) else 1.0
-        e = 1.0 / p if p > 0 else 1.0
-        ax.imshow(srgb_encode(im * e + (bg * e if bg is not None else backdrop)))
-        ax.set_title(name, fontsize=9)
-        ax.axis("off")
-    return _png(fig)
-
-
-_N_DIRS = SPHERE_QUADRATURE[0] + len(SPHERE_QUADRATURE[1]) * SPHERE_QUADRATURE[2]
-
-
-def _cuts_figure(table: Array, s: Slice, sigma: Array | None = None) -> str:
-    fig = _figure((8.5, 4.2))
-    ax = fig.subplots()
-    to = np.linspace(-85.0, 85.0, 341)
+def cut_lines(table: Array, s: Slice, sigma: Array | None = None) -> list[tuple[float, Array, Array | None, bool]]:
+    """The cuts figure's lines: (theta_i in deg, the table's channel mean at :data:`CUT_THETA_O_DEG`, sigma of ln
+    f there or None, whether measured) for 0, 20, 40, 60, 75 deg and the measured incidences (with many measured,
+    :data:`MAX_PANELS` of them spread evenly); sigma only at the incidences not measured."""
     measured = set(float(x) for x in s.incidences())
-    # with many incidences measured (a hemispherical file) the cuts of MAX_PANELS of them, spread evenly
     cuts = {0.0, 20.0, 40.0, 60.0, 75.0} | measured if len(measured) <= MAX_PANELS else set(shown_incidences(s))
+    to = CUT_THETA_O_DEG
+    out: list[tuple[float, Array, Array | None, bool]] = []
     for t in sorted(cuts):
         wi, wo = inplane_to_dirs(np.radians(np.full(to.size, t)), np.radians(to))
         v = _lum(np.nan_to_num(merl.lookup(table, wi, wo, interpolate=True)))
-        line = ax.plot(to, np.maximum(v, 1e-9), lw=2.0 if t in measured else 1.0, ls="-" if t in measured else "--",
-                       label=f"theta_i {t:g}" + (" (measured)" if t in measured else ""))[0]
-        if sigma is not None and t not in measured:  # +- 1 sigma of ln f at the incidences not measured
-            sg = _lum(np.nan_to_num(merl.lookup(sigma, wi, wo, interpolate=True)))
+        sg = (_lum(np.nan_to_num(merl.lookup(sigma, wi, wo, interpolate=True)))
+              if sigma is not None and t not in measured else None)
+        out.append((t, v, sg, t in measured))
+    return out
+
+
+#: the outgoing angles (deg) of the cuts figure
+CUT_THETA_O_DEG = np.linspace(-85.0, 85.0, 341)
+
+
+def _cuts_figure(lines: Sequence[tuple[float, Array, Array | None, bool]]) -> str:
+    """The cuts figure from :func:`cut_lines` (a band of +- 1 sigma where sigma is given)."""
+    fig = _figure((8.5, 4.2))
+    ax = fig.subplots()
+    to = CUT_THETA_O_DEG
+    for t, v, sg, measured in lines:
+        line = ax.plot(to, np.maximum(v, 1e-9), lw=2.0 if measured else 1.0, ls="-" if measured else "--",
+                       label=f"theta_i {t:g}" + (" (measured)" if measured else ""))[0]
+        if sg is not None:  # +- 1 sigma of ln f at the incidences not measured
             ax.fill_between(to, np.maximum(v * np.exp(-sg), 1e-9), np.maximum(v * np.exp(sg), 1e-9),
                             color=line.get_color(), alpha=0.12, lw=0)
     ax.set_yscale("log")
@@ -344,7 +313,8 @@ def _cuts_figure(table: Array, s: Slice, sigma: Array | None = None) -> str:
     ax.set_xlabel("theta_o (deg)")
     ax.set_ylabel("table f_r (1/sr), channel mean")
     ax.set_title("in-plane cuts of the written table")
-    ax.grid(True, which="both", alpha=0.2)
+    _log_grid(ax)
+    ax.grid(True, which="major", axis="x", alpha=0.2)
     ax.legend(fontsize=7, ncol=2)
     _margins(fig, 0.9, 0.15, 0.6, 0.37)
     return _png(fig)
@@ -409,42 +379,65 @@ def _with_std(p: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
-def build_html(*, report: Mapping[str, Any], working: Slice, rec: Reconstruction, table: ArrayLike,
-               alternatives: Mapping[str, Reconstruction] | None = None, held_out: Array | None = None,
-               title: str | None = None, sigma: ArrayLike | None = None,
-               spheres: Callable[[], Any] | None = None) -> str:
-    """The page (a string). ``report`` is the JSON report; ``alternatives`` the other methods' reconstructions
-    of the same samples (their predictions are drawn); ``held_out`` (N, C), in the order of ``working``:
-    cross-validation's prediction of each sample from the fold that left it out (NaN where it was never held
-    out); ``sigma``: the --uncertainty array (sigma of ln f per cell), drawn as a map and as bands on the cuts;
-    ``spheres``: the sphere renders under way (a function giving :func:`sphere_images` of ``table``); without
-    it they are rendered and drawn in a forked child beside the other figures' two
-    (:func:`~reconstruction.report.figures.beside`), or where there is no fork in a second thread while
-    matplotlib draws (:class:`~reconstruction.executor.Background`)."""
-    from reconstruction.executor import Background
-
-    t = np.asarray(table, dtype=np.float64)
-    if spheres is not None or can_fork():
-        return _page(report, working, rec, t, alternatives, held_out, title, spheres, sigma)
-    with Background() as bg:  # the spheres' renders: numpy, beside matplotlib's drawing
-        return _page(report, working, rec, t, alternatives, held_out, title, bg.submit(sphere_images, t), sigma)
-
-
-def _page(report: Mapping[str, Any], working: Slice, rec: Reconstruction, t: Array,
-          alternatives: Mapping[str, Reconstruction] | None, held_out: Array | None, title: str | None,
-          spheres: Callable[[], Any] | None, sigma: ArrayLike | None = None) -> str:
-    """:func:`build_html`'s page; ``spheres``: gives the spheres' renders (:func:`sphere_images`), or None: they
-    are rendered with their figure in a forked child; ``sigma``: sigma of ln f per cell (3, 90, 90, 180) or
-    None."""
+def draw_sample_figures(drawer: Drawer, working: Slice, rec: Reconstruction,
+                        alternatives: Mapping[str, Reconstruction] | None = None, held_out: Array | None = None,
+                        blind_deg: float = 4.0) -> None:
+    """Send the figures that depend on the samples and the methods alone to ``drawer``: ``slices`` (``held_out``
+    (N, C) in the order of ``working``) and ``polar``. A run sends them as soon as its methods are built, while
+    it goes on to tabulate; :func:`build_html` sends them when they were not."""
     order = np.lexsort((working.theta_o_deg, working.theta_i_deg))
     s = working.take(order)
-    held_out = None if held_out is None else np.asarray(held_out, dtype=np.float64)[order]
+    held = None if held_out is None else np.asarray(held_out, dtype=np.float64)[order]
     preds: dict[str, Callable[[Array, Array], ArrayLike]] = {rec.method: rec.eval}
     for name, other in (alternatives or {}).items():
         if name != rec.method:
             preds[name] = other.eval
+    drawer.draw("polar", _polar_figure, s)
+    drawer.draw("slices", _slices_figure, s, rec.method, slice_curves(s, preds), held, float(blind_deg))
+
+
+def draw_table_figures(drawer: Drawer, working: Slice, table: Array, checks: Mapping[str, Any],
+                       sigma: Array | None = None) -> None:
+    """Send the figures of the written ``table`` to ``drawer``: ``albedo``, ``coverage``, ``cuts`` and, with
+    ``sigma`` (sigma of ln f per cell), ``sigma``; their values computed here (numpy), drawn by the drawer."""
+    sg = None if sigma is None else np.asarray(sigma, dtype=np.float64)
+    drawer.draw("albedo", _albedo_figure, {"albedo": checks["albedo"]})
+    drawer.draw("coverage", _coverage_figure, coverage_values(table), working)
+    if sg is not None:
+        drawer.draw("sigma", _sigma_figure, sigma_values(sg), working)
+    drawer.draw("cuts", _cuts_figure, cut_lines(table, working, sg))
+
+
+def build_html(*, report: Mapping[str, Any], working: Slice, rec: Reconstruction, table: ArrayLike,
+               alternatives: Mapping[str, Reconstruction] | None = None, held_out: Array | None = None,
+               title: str | None = None, sigma: ArrayLike | None = None,
+               spheres: Callable[[], Any] | None = None, drawer: Drawer | None = None) -> str:
+    """The page (a string). ``report`` is the JSON report; ``alternatives`` the other methods' reconstructions
+    of the same samples (their predictions are drawn); ``held_out`` (N, C), in the order of ``working``:
+    cross-validation's prediction of each sample from the fold that left it out (NaN where it was never held
+    out); ``sigma``: the --uncertainty array (sigma of ln f per cell), drawn as a map and as bands on the cuts;
+    ``spheres``: the sphere renders under way (a function giving :func:`sphere_images` of ``table``; rendered
+    here when None); ``drawer``: a :class:`~reconstruction.report.figures.Drawer` the run made at its start
+    and has sent the sample figures to (:func:`draw_sample_figures`); without it one is made here (a forked
+    child draws the figures while this process renders the spheres)."""
+    t = np.asarray(table, dtype=np.float64)
+    sg = None if sigma is None else np.asarray(sigma, dtype=np.float64)
+    with Drawer() if drawer is None else nullcontext(drawer) as d:
+        if "slices" not in d.sent:
+            draw_sample_figures(d, working, rec, alternatives, held_out,
+                                float(report.get("inputs", {}).get("blind_spot_deg") or 4.0))
+        draw_table_figures(d, working, t, report["checks"], sg)
+        pngs = sphere_pngs(spheres() if spheres is not None  # while the child draws
+                           else sphere_images(t, report["checks"]["albedo"]))
+        fig = d.results()
+    return _page(report, working, title, fig, pngs, sg)
+
+
+def _page(report: Mapping[str, Any], working: Slice, title: str | None, fig: Mapping[str, str],
+          pngs: Sequence[tuple[str, str]], sg: Array | None) -> str:
+    """:func:`build_html`'s page from the figures' data URIs ``fig`` and the spheres' ``pngs``."""
+    s = working.take(np.lexsort((working.theta_o_deg, working.theta_i_deg)))
     checks = report["checks"]
-    blind = float(report.get("inputs", {}).get("blind_spot_deg") or 4.0)
     name = title or str(working.meta.get("material") or Path(str(working.source)).stem or "material")
     sec: dict[str, str] = {}
     status = "pass" if checks["all_pass"] else "fail"
@@ -457,17 +450,6 @@ def _page(report: Mapping[str, Any], working: Slice, rec: Reconstruction, t: Arr
         summary["principled material"] = report["principled"].get("summary", "")
     sec["summary"] = (f'<p class="{status}">Checks {"passed" if checks["all_pass"] else "failed"}.</p>'
                       + _kv_table(summary))
-    sg = None if sigma is None else np.asarray(sigma, dtype=np.float64)
-    # the figures in forked children, about a third of the work each (:func:`reconstruction.report.figures.beside`)
-    drawn = [beside({"slices": lambda: _slices_figure(s, rec.method, preds, held_out, blind),
-                     "polar": lambda: _polar_figure(s), "albedo": lambda: _albedo_figure(checks)}),
-             beside({"coverage": lambda: _coverage_figure(t, working), "cuts": lambda: _cuts_figure(t, working, sg),
-                     **({"sigma": lambda: _sigma_figure(sg, working)} if sg is not None else {})})]
-    if spheres is None:
-        drawn.append(beside({"spheres": lambda: _spheres(t)}))
-    sphere_uri = _spheres(t, spheres()) if spheres is not None else ""  # here, while the children draw
-    fig = {k: v for d in drawn for k, v in d().items()}
-    sphere_uri = sphere_uri or fig["spheres"]
     sec["slices"] = (_img(fig["slices"], "measured slices and predictions")
                      + '<p class="note">Points: the measured samples with their standard deviations; grey: the '
                        "blind spot around the retro direction; gold: stretches with no samples; lines: each "
@@ -493,10 +475,10 @@ def _page(report: Mapping[str, Any], working: Slice, rec: Reconstruction, t: Arr
                               + f"{u.get('expected_psnr_db', float('nan')):.1f} dB, linear image error "
                               + f"{u.get('expected_linear_image_error', float('nan')):.1%}, cosl2 "
                               + f"{u.get('expected_cosl2', float('nan')):.1%}.</p>")
-    sec["spheres"] = (_img(sphere_uri, "sphere renders")
+    sec["spheres"] = (_spheres_html(pngs)
                       + '<p class="note">The written table on a sphere (linear radiance, each image exposed on its '
                         "own 99.5th percentile, sRGB). Top: a point light and a dim uniform environment, as the "
-                        f"preview. Bottom: a sky-and-ground environment (integrated over a fixed set of {_N_DIRS} "
+                        f"preview. Bottom: a sky-and-ground environment (integrated over a fixed set of {N_DIRS} "
                         "directions per pixel, importance-sampled around the mirror direction, so the grazing "
                         "rim is resolved), alone, with a sun in front and with a sun behind the sphere (grazing "
                         "light): reconstruction.core.render.</p>")

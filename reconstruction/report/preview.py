@@ -37,7 +37,7 @@ from reconstruction.formats import merl
 Array = NDArray[np.float64]
 
 __all__ = ["LIGHT_POSITION", "AMBIENT", "PREVIEW_RADIUS", "render_sphere", "render_preview", "albedo_at_view",
-           "write_exr", "write_png", "srgb_encode", "write_preview"]
+           "write_exr", "write_png", "png_bytes", "srgb_encode", "write_preview"]
 
 AMBIENT = 0.05
 PREVIEW_RADIUS = 0.8
@@ -111,13 +111,19 @@ def write_png(path: str | Path, img: ArrayLike, exposure: float | None = None) -
         nz = lum[lum > 0]
         p = float(np.percentile(nz, 99.5)) if nz.size else 0.0
         exposure = 1.0 / p if p > 0 else 1.0
-    px = np.round(srgb_encode(rgb * exposure) * 255.0).astype(np.uint8)
-    raw = np.concatenate([np.zeros((h, 1), np.uint8), px.reshape(h, w * 3)], axis=1)  # filter 0 on every row
-    data = (b"\x89PNG\r\n\x1a\n" + _png_chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
-            + _png_chunk(b"IDAT", zlib.compress(raw.tobytes(), 6)) + _png_chunk(b"IEND", b""))
+    data = png_bytes(np.round(srgb_encode(rgb * exposure) * 255.0).astype(np.uint8))
     with atomic_open(path, "wb") as fh:
         fh.write(data)
     return exposure
+
+
+def png_bytes(px: ArrayLike, level: int = 6) -> bytes:
+    """An 8-bit RGB image (H, W, 3) uint8 as the bytes of a PNG file (zlib ``level``)."""
+    a = np.ascontiguousarray(px, dtype=np.uint8)
+    h, w, _ = a.shape
+    raw = np.concatenate([np.zeros((h, 1), np.uint8), a.reshape(h, w * 3)], axis=1)  # filter 0 on every row
+    return (b"\x89PNG\r\n\x1a\n" + _png_chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
+            + _png_chunk(b"IDAT", zlib.compress(raw.tobytes(), level)) + _png_chunk(b"IEND", b""))
 
 
 def _sphere_exposure(img: ArrayLike, radius: float) -> float | None:
