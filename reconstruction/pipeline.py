@@ -304,6 +304,10 @@ def _run(job: Job, progress: Progress | None, helper: Any, renders: Any, drawer:
     except ReconstructionError as e:  # e.g. spectral channels outside the observer: say which input
         raise ReconstructionError(f"{', '.join(loaded.files)}: {e}") from None
     done("colour", t0)
+    if job.html:  # the page's figure of the samples alone, drawn by its child while they are reconstructed
+        from reconstruction.report.html import draw_polar_figure
+
+        draw_polar_figure(drawer, working)
     t0 = begin("reconstructing")
     opts = Options(scene=scene, fill=job.fill, lobes=lobes, revolve_axis=job.axis, revolve_smoothing=job.smoothing,
                    prior=job.prior, prior_anchor=job.prior_anchor)
@@ -342,11 +346,13 @@ def _run(job: Job, progress: Progress | None, helper: Any, renders: Any, drawer:
         bounded = {"applied": False, "why": NO_BOUND_WITHOUT_PRIOR}
     spheres = None
     if job.html:  # the page's sphere renders (numpy) in a thread of their own, from now to the page's drawing
+        from reconstruction.report.html import draw_table_figures
         from reconstruction.report.spheres import sphere_images
 
         spheres = renders.submit(sphere_images, np.asarray(table, dtype=np.float64), checks["albedo"])
         if rec is not drawn_for:  # a fallback or the bounded reconstruction: its figures sent again
             others, drawn_for = _send_sample_figures(job, drawer, working, rec, choice, opts), rec
+        draw_table_figures(drawer, working.sorted(), table, checks)  # the final table's
     t0 = begin("writing table")
     outputs: dict[str, Any] = {}
     if out is not None:

@@ -204,7 +204,9 @@ def lookup(table: ArrayLike, wi: ArrayLike, wo: ArrayLike, interpolate: bool = F
     >>> (lookup(t, wi, wo) * np.pi).round(12).tolist()
     [[1.0, 1.0, 1.0], [1.0, 1.0, 1.0]]
     """
-    t = np.asarray(table, dtype=np.float64)
+    t = np.asarray(table)
+    if t.dtype not in (np.float32, np.float64):  # float32 tables (sigma) read as they are: no 35 MB copy a call
+        t = t.astype(np.float64)
     if t.shape != SHAPE:
         raise MerlError(f"table has shape {t.shape}, expected {SHAPE}")
     wi = np.asarray(wi, dtype=np.float64)
@@ -212,7 +214,7 @@ def lookup(table: ArrayLike, wi: ArrayLike, wo: ArrayLike, interpolate: bool = F
     shape = np.broadcast_shapes(wi.shape, wo.shape)
     idx, w = lookup_cells(np.broadcast_to(wi, shape).reshape(-1, 3), np.broadcast_to(wo, shape).reshape(-1, 3),
                           interpolate)
-    v = t.reshape(3, -1)[:, idx]  # (3, N, K) the cells' values
+    v = t.reshape(3, -1)[:, idx].astype(np.float64, copy=False)  # (3, N, K) the cells' values
     ok = np.isfinite(v)
     w = w[None] * ok  # NaN neighbours ignored
     acc = np.sum(w * np.where(ok, v, 0.0), axis=-1)

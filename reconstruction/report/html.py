@@ -42,8 +42,9 @@ from reconstruction.report.spheres import N_DIRS, sphere_images, sphere_pngs
 
 Array = NDArray[np.float64]
 
-__all__ = ["SECTIONS", "build_html", "write_html", "write_index", "draw_sample_figures", "draw_table_figures",
-           "slice_curves", "coverage_values", "sigma_values", "cut_lines"]
+__all__ = ["SECTIONS", "build_html", "write_html", "write_index", "draw_polar_figure", "draw_sample_figures",
+           "draw_table_figures", "draw_sigma_figures", "slice_curves", "coverage_values", "sigma_values",
+           "cut_lines"]
 
 SECTIONS = ("summary", "slices", "polar", "coverage", "spheres", "cuts", "albedo", "checks", "parameters",
             "choice", "timings")
@@ -244,13 +245,16 @@ def _samples_on_map(ax: Any, s: Slice, title: str) -> None:
     ax.legend(fontsize=7, loc="upper right", markerscale=2.0, facecolor="0.75", framealpha=0.9)
 
 
-def sigma_values(sigma: Array) -> Array:
+def sigma_values(sigma: ArrayLike) -> Array:
     """The sigma map's values: sigma of ln f over (theta_h, theta_d), the median over phi_d of the channels'
-    mean, (90, 90)."""
-    sg = np.where(merl.valid_mask(), np.asarray(sigma, dtype=np.float64).mean(axis=0), np.nan)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # rows with no valid cell: NaN, drawn blank
-        return np.nanmedian(sg, axis=2)
+    mean, (90, 90); NaN where no cell of a row lies above the horizon."""
+    sg = np.asarray(sigma).mean(axis=0, dtype=np.float32)  # (90, 90, 180); single precision: a map to look at
+    valid = merl.valid_mask() & np.isfinite(sg)
+    srt = np.sort(np.where(valid, sg, np.inf), axis=2)  # the cells below the horizon sorted last
+    n = valid.sum(axis=2)
+    lo = np.take_along_axis(srt, np.maximum((n - 1) // 2, 0)[..., None], axis=2)[..., 0]
+    hi = np.take_along_axis(srt, np.maximum(n // 2, 0)[..., None], axis=2)[..., 0]
+    return np.where(n > 0, 0.5 * (lo.astype(np.float64) + hi), np.nan)
 
 
 def _sigma_figure(val: Array, s: Slice) -> str:
@@ -379,12 +383,17 @@ def _with_std(p: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
+def draw_polar_figure(drawer: Drawer, working: Slice) -> None:
+    """Send the ``polar`` figure (the samples alone) to ``drawer``: a run sends it as soon as it has read them."""
+    drawer.draw("polar", _polar_figure, working.take(np.lexsort((working.theta_o_deg, working.theta_i_deg))))
+
+
 def draw_sample_figures(drawer: Drawer, working: Slice, rec: Reconstruction,
                         alternatives: Mapping[str, Reconstruction] | None = None, held_out: Array | None = None,
                         blind_deg: float = 4.0) -> None:
-    """Send the figures that depend on the samples and the methods alone to ``drawer``: ``slices`` (``held_out``
-    (N, C) in the order of ``working``) and ``polar``. A run sends them as soon as its methods are built, while
-    it goes on to tabulate; :func:`build_html` sends them when they were not."""
+    """Send the ``slices`` figure (the samples and every method's prediction; ``held_out`` (N, C) in the order
+    of ``working``) to ``drawer``, and ``polar`` unless sent. A run sends them as soon as its methods are built,
+    while it goes on to tabulate; :func:`build_html` sends them when they were not."""
     order = np.lexsort((working.theta_o_deg, working.theta_i_deg))
     s = working.take(order)
     held = None if held_out is None else np.asarray(held_out, dtype=np.float64)[order]
@@ -392,20 +401,24 @@ def draw_sample_figures(drawer: Drawer, working: Slice, rec: Reconstruction,
     for name, other in (alternatives or {}).items():
         if name != rec.method:
             preds[name] = other.eval
-    drawer.draw("polar", _polar_figure, s)
+    if "polar" not in drawer.sent:
+        draw_polar_figure(drawer, working)
     drawer.draw("slices", _slices_figure, s, rec.method, slice_curves(s, preds), held, float(blind_deg))
 
 
-def draw_table_figures(drawer: Drawer, working: Slice, table: Array, checks: Mapping[str, Any],
-                       sigma: Array | None = None) -> None:
-    """Send the figures of the written ``table`` to ``drawer``: ``albedo``, ``coverage``, ``cuts`` and, with
-    ``sigma`` (sigma of ln f per cell), ``sigma``; their values computed here (numpy), drawn by the drawer."""
-    sg = None if sigma is None else np.asarray(sigma, dtype=np.float64)
+def draw_table_figures(drawer: Drawer, working: Slice, table: Array, checks: Mapping[str, Any]) -> None:
+    """Send the figures of the written ``table`` alone to ``drawer``: ``albedo`` and ``coverage``, their values
+    computed here (numpy). A run sends them once its table is final, while it writes it and assesses it."""
     drawer.draw("albedo", _albedo_figure, {"albedo": checks["albedo"]})
-    drawer.draw("coverage", _coverage_figure, coverage_values(table), working)
-    if sg is not None:
-        drawer.draw("sigma", _sigma_figure, sigma_values(sg), working)
-    drawer.draw("cuts", _cuts_figure, cut_lines(table, working, sg))
+    drawer.draw("coverage", _coverage_figure, coverage_values(np.asarray(table, dtype=np.float64)), working)
+
+
+def draw_sigma_figures(drawer: Drawer, working: Slice, table: Array, sigma: Array | None = None) -> None:
+    """Send the figures that show the uncertainty to ``drawer``: ``cuts`` (with bands of +- 1 sigma of ln f
+    where ``sigma`` is given) and, with it, ``sigma``."""
+    if sigma is not None:
+        drawer.draw("sigma", _sigma_figure, sigma_values(sigma), working)
+    drawer.draw("cuts", _cuts_figure, cut_lines(np.asarray(table, dtype=np.float64), working, sigma))
 
 
 def build_html(*, report: Mapping[str, Any], working: Slice, rec: Reconstruction, table: ArrayLike,
@@ -418,15 +431,18 @@ def build_html(*, report: Mapping[str, Any], working: Slice, rec: Reconstruction
     out); ``sigma``: the --uncertainty array (sigma of ln f per cell), drawn as a map and as bands on the cuts;
     ``spheres``: the sphere renders under way (a function giving :func:`sphere_images` of ``table``; rendered
     here when None); ``drawer``: a :class:`~reconstruction.report.figures.Drawer` the run made at its start
-    and has sent the sample figures to (:func:`draw_sample_figures`); without it one is made here (a forked
-    child draws the figures while this process renders the spheres)."""
+    and has sent the sample figures to (:func:`draw_sample_figures`), and the table's
+    (:func:`draw_table_figures`) of this ``table``; without it one is made here (a forked child draws the
+    figures while this process renders the spheres)."""
     t = np.asarray(table, dtype=np.float64)
-    sg = None if sigma is None else np.asarray(sigma, dtype=np.float64)
+    sg = None if sigma is None else np.asarray(sigma)  # float32 as written: read as it is
     with Drawer() if drawer is None else nullcontext(drawer) as d:
         if "slices" not in d.sent:
             draw_sample_figures(d, working, rec, alternatives, held_out,
                                 float(report.get("inputs", {}).get("blind_spot_deg") or 4.0))
-        draw_table_figures(d, working, t, report["checks"], sg)
+        if "coverage" not in d.sent:
+            draw_table_figures(d, working, t, report["checks"])
+        draw_sigma_figures(d, working, t, sg)
         pngs = sphere_pngs(spheres() if spheres is not None  # while the child draws
                            else sphere_images(t, report["checks"]["albedo"]))
         fig = d.results()
