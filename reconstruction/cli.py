@@ -177,7 +177,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--no-conservative", dest="conservative", action="store_false",
                     help="auto: write the chosen method's table as it extrapolates, also where no sample rests on a "
                          "cell (by default auto keeps those cells below the reference posterior's median x "
-                         "exp(sigma): the report's 'conservative' section)")
+                         "exp(sigma), the --prior's; without a prior, the built-in analytic family's median x "
+                         "exp(2 sigma) where that takes at least 12 %% of the light: the report's 'conservative' "
+                         "section)")
     ap.add_argument("--allow-implausible", action="store_true",
                     help="write the table even if it fails a plausibility check (the report and the console say so)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar and no summary line")
@@ -375,11 +377,18 @@ def _os_error(e: OSError) -> str:
     return f"{where}{what}"
 
 
+#: the ``conservative`` section's ``reference`` without a prior (reconstruction.assess.guard)
+ANALYTIC_REFERENCE = "built-in analytic family"
+
+
 def _fmt(x: float | None) -> str:
     return "-" if x is None else f"{x:.3f}"
 
 
 def main(argv: list[str] | None = None) -> int:
+    from reconstruction.cliutil import keep_freed_memory
+
+    keep_freed_memory()
     ap = build_parser()
     args = ap.parse_args(argv)
     if isinstance(args.prior, list):  # --prior repeated: one os.pathsep-joined list of folders
@@ -465,9 +474,10 @@ def _main(ap: argparse.ArgumentParser, args: argparse.Namespace) -> int:
                       f"({p['bench_time_s']:g} s, expected PSNR {p['expected_psnr_db']:.1f} dB)", file=sys.stderr)
         c = rep.get("conservative")
         if c and c.get("applied"):
+            ref = "the prior's" if c.get("reference") != ANALYTIC_REFERENCE else "the built-in analytic family's"
             print(f"{PROG}: conservative: {c['cells_lowered']:,} of {c['cells']:,} cells no sample rests on lowered to "
-                  f"the prior's median x e^sigma ({c['energy_removed']:.1%} of the table's light; --no-conservative "
-                  "keeps the method's extrapolation)", file=sys.stderr)
+                  f"{ref} median x e^({c.get('k', 1):g} sigma) ({c['energy_removed']:.1%} of the table's light; "
+                  "--no-conservative keeps the method's extrapolation)", file=sys.stderr)
         if "principled" in rep:
             print(f"{PROG}: {rep['principled']['summary']}", file=sys.stderr)
         if rep.get("colour", {}).get("working_channels") == ["value"]:

@@ -93,7 +93,14 @@ class Background:
             self.pool.shutdown(wait=True, cancel_futures=True)
 
     def submit(self, fn: Callable[..., T], *args: Any) -> Callable[[], T]:
-        if self.pool is None:
-            return lambda: fn(*args)
+        if self.pool is None:  # run when first asked for, once
+            done: list[T] = []
+
+            def here() -> T:
+                if not done:
+                    done.append(fn(*args))
+                return done[0]
+
+            return here
         fut = self.pool.submit(contextvars.copy_context().run, fn, *args)
         return fut.result

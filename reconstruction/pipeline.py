@@ -142,7 +142,7 @@ class Job:
         from reconstruction.principled.outputs import wants
 
         return (["read", "colour", "reconstruct", "tabulate", "checks"]
-                + (["conservative"] if self.method == "auto" and self.conservative and self.prior else [])
+                + (["conservative"] if self.bounds else [])
                 + ["write"] + (["preview"] if self.preview else [])
                 + (["uncertainty"] if self.assesses else []) + (["advice"] if self.advise else [])
                 + (["principled"] if wants(self) else []) + (["html"] if self.html else []))
@@ -151,6 +151,17 @@ class Job:
     def assesses(self) -> bool:
         """Whether the run computes the per-cell uncertainty (asked for, for the advice or the HTML page)."""
         return bool(self.uncertainty or self.advise or self.html)
+
+    @property
+    def bounds(self) -> bool:
+        """Whether auto's table is bounded where no sample rests (:func:`bound_where_unmeasured`)."""
+        return self.method == "auto" and self.conservative
+
+    @property
+    def posterior_early(self) -> bool:
+        """Whether the built-in analytic family's posterior of the samples (the reference of the uncertainty and
+        of the bound without a prior) is computed beside the reconstruction."""
+        return (self.assesses or self.bounds) and not self.prior
 
 
 class Progress(Protocol):
@@ -248,10 +259,10 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
     # limits fit sets and lifts around its own solves (process-wide) never change the posterior's threads midway
     from reconstruction.report.figures import Drawer
 
-    blas = threadpool_limits(1, user_api="blas") if job.assesses and not job.prior else nullcontext()
+    blas = threadpool_limits(1, user_api="blas") if job.posterior_early else nullcontext()
     # the page's drawer first: its child is forked before any thread of the run starts
     with Drawer(enabled=bool(job.html)) as drawer, blas, shared_cone_averages(), \
-            Background(enabled=job.assesses) as helper, Background(enabled=bool(job.html)) as renders:
+            Background(enabled=job.assesses or job.bounds) as helper, Background(enabled=bool(job.html)) as renders:
         return _run(job, progress, helper, renders, drawer)
 
 
@@ -312,7 +323,7 @@ def _run(job: Job, progress: Progress | None, helper: Any, renders: Any, drawer:
     opts = Options(scene=scene, fill=job.fill, lobes=lobes, revolve_axis=job.axis, revolve_smoothing=job.smoothing,
                    prior=job.prior, prior_anchor=job.prior_anchor)
     early_ref = None
-    if job.assesses and not opts.prior:  # the built-in family's posterior depends on the samples alone
+    if job.posterior_early:  # the built-in family's posterior depends on the samples alone
         from reconstruction.assess.uncertainty import reference_posterior
 
         early_ref = helper.submit(reference_posterior, working.sorted())
@@ -336,14 +347,13 @@ def _run(job: Job, progress: Progress | None, helper: Any, renders: Any, drawer:
     if not checks["all_pass"] and not job.allow_implausible:
         raise ImplausibleError(implausible_message(rec.method, checks))
     ref, bounded = None, None
-    if job.method == "auto" and job.conservative and opts.prior:
+    if job.bounds:
         t0 = begin("conservative bound")
-        rec, table, bounded, ref = bound_where_unmeasured(rec, table, working, opts)
+        rec, table, bounded, ref = bound_where_unmeasured(rec, table, working, opts,
+                                                          early_ref() if early_ref is not None else None)
         if bounded["applied"]:
             checks = report.plausibility(rec, table)  # of the table written (only lowered: still passing)
         done("conservative", t0)
-    elif job.method == "auto" and job.conservative:
-        bounded = {"applied": False, "why": NO_BOUND_WITHOUT_PRIOR}
     spheres = None
     if job.html:  # the page's sphere renders (numpy) in a thread of their own, from now to the page's drawing
         from reconstruction.report.html import draw_table_figures
@@ -442,21 +452,20 @@ def _fall_back(job: Job, first: tuple[Reconstruction, Array, dict[str, Any], dic
     return first
 
 
-#: why auto's table is not bounded without a prior of measured materials
-NO_BOUND_WITHOUT_PRIOR = ("no --prior: the built-in analytic family is too narrow to bound a table (on the demo it "
-                          "would take 13 % of the energy from an exact fit); give a folder of measured materials")
-
-
-def bound_where_unmeasured(rec: Reconstruction, table: Array, working: Slice, opts: Options
+def bound_where_unmeasured(rec: Reconstruction, table: Array, working: Slice, opts: Options, ref: Any = None
                            ) -> tuple[Reconstruction, Array, dict[str, Any], Any]:
     """``auto``'s table kept below the reference posterior's upper credible bound where no sample rests
-    (:mod:`reconstruction.assess.guard`): (the bounded reconstruction, its table, the report's ``conservative``
-    section, the reference posterior). The benchmarks call this as the pipeline does."""
+    (:mod:`reconstruction.assess.guard`): the prior's with ``--prior``; without, the built-in analytic family's
+    (looser, and only where it takes a large share of the light). Returns (the bounded reconstruction, its
+    table, the report's ``conservative`` section, the reference posterior); ``ref``: the analytic family's
+    posterior of the samples when computed already. The benchmarks call this as the pipeline does."""
     from reconstruction.assess import guard, uncertainty
 
     s = working.sorted()
-    ref = uncertainty.reference_for(rec, s, opts.prior, tuple(opts.prior_exclude))
-    bounded, out, info = guard.conservative(rec, table, s, ref)
+    if ref is None or opts.prior or uncertainty._own_posterior(rec) is not None:
+        ref = uncertainty.reference_for(rec, s, opts.prior, tuple(opts.prior_exclude))
+    k, least = (guard.GUARD_SIGMAS, 0.0) if opts.prior else (guard.GUARD_SIGMAS_ANALYTIC, guard.ANALYTIC_MIN_ENERGY)
+    bounded, out, info = guard.conservative(rec, table, s, ref, k, least)
     # nothing lowered: the method's own reconstruction stays (an analytic fit exports its lobes); else the bounded
     # one, which every output sees (its table is no longer the model's: exports treat it as data-driven)
     return (bounded if info["applied"] else rec), out, info, ref

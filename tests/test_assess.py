@@ -252,9 +252,15 @@ def test_the_conservative_bound_lowers_only_unmeasured_cells(one_slice):
     np.testing.assert_allclose(bounded.eval(wi, wo)[:, 0], out[0][ih, idd, ip], rtol=1e-6)
     np.testing.assert_allclose(bounded.eval(wi, wo), bounded.eval(wo, wi), rtol=1e-9)
     assert bounded.method == "wrong" and bounded.report() == {"method": "wrong"}
+    # a bound that would take less than min_energy of the light is not applied: the table as the method wrote it
+    _, kept, why = guard.conservative(Wrong(), table, s, ref, min_energy=info["energy_removed"] + 0.01)
+    assert not why["applied"] and why["cells_lowered"] == 0 and why["would_remove"] == info["energy_removed"]
+    assert kept is table and "less than" in why["why"]
+    _, again, _ = guard.conservative(Wrong(), table, s, ref, min_energy=info["energy_removed"] - 0.01)
+    np.testing.assert_array_equal(again, out)
 
 
-def test_auto_reports_its_bound_with_a_prior_and_why_not_without(tmp_path, cache):
+def test_auto_reports_its_bound_with_a_prior_and_without(tmp_path, cache):
     folder = tmp_path / "prior"
     folder.mkdir()
     for k in range(4):
@@ -276,8 +282,13 @@ def test_auto_reports_its_bound_with_a_prior_and_why_not_without(tmp_path, cache
         if applied is None:
             assert "cells_lowered" in c and "reference posterior" in c["rule"] and str(folder) in c["reference"]
             assert ("conservative: " in r.stderr) == c["applied"], r.stderr
-        else:
-            assert c["applied"] is False and "no --prior" in c["why"]
+        else:  # the built-in analytic family bounds it, looser, and only a bold extrapolation
+            from reconstruction.assess import guard
+
+            assert c["reference"] == "built-in analytic family" and c["k"] == guard.GUARD_SIGMAS_ANALYTIC
+            assert ("conservative: " in r.stderr) == c["applied"], r.stderr
+            if not c["applied"]:
+                assert 0.0 < c["would_remove"] < guard.ANALYTIC_MIN_ENERGY and "less than" in c["why"]
 
 
 def test_candidates_the_model_cannot_separate_go_to_the_preferred_incidence():
