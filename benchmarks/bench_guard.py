@@ -63,7 +63,7 @@ def one(job: tuple[str, str, bool]) -> dict[str, Any]:
         rec, choice = pipeline.reconstruct(s, "auto", opts)
         table = pipeline.tabulate(rec)
         ref = uncertainty.reference_for(rec, s, prior or None, (name,))
-        written, _, _ = guard.conservative(rec, table, s, ref)  # what gonio-reconstruct writes and assesses
+        written, _, _, _ = pipeline.bound_where_unmeasured(rec, table, s, opts, ref)  # as gonio-reconstruct writes
         _, section, *_ = uncertainty.assess_table(written, s, prior or None, (name,), ref)
         out: dict[str, Any] = {"material": name, "database": B.database_of(str(folder), name), "mode": mode,
                                "used": choice["used"], "expected_linear": section["expected_linear_image_error"]}

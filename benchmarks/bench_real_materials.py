@@ -57,7 +57,7 @@ MODES = {"1": (40.0,), "2": (40.0, 70.0), "3": (20.0, 40.0, 60.0)}
 STEP_DEG, BLIND_DEG, MAX_DEG = 2.0, 4.0, 80.0
 FOLDERS = ("nbrdf-merl", "nbrdf-extra")
 DATABASES = ("MERL", "RGL", "Nielsen")
-EXTRA_METHODS = ("auto+prior", "auto+prior-unbounded", "constant")
+EXTRA_METHODS = ("auto+prior", "auto+prior-unbounded", "auto-unbounded", "constant")
 DEFAULT_METHODS = "auto,auto+prior,prior,constant"
 SHEET_MODES = ("1", "2")
 SHEET_SIZE = 16  # materials on the contact sheet
@@ -123,7 +123,7 @@ def _reconstruct(method: str, s: Slice, prior: str | None, name: str) -> tuple[n
     rec, choice = pipeline.reconstruct(s, "auto" if method.startswith("auto") else method, opts)
     table = pipeline.tabulate(rec)
     facts: dict[str, Any] = {}
-    if method == "auto+prior":  # as gonio-reconstruct writes auto's table with a prior (--no-conservative: unbounded)
+    if method in ("auto", "auto+prior"):  # as gonio-reconstruct writes auto's table (-unbounded: --no-conservative)
         rec, table, bounded, _ = pipeline.bound_where_unmeasured(rec, table, s, opts)
         facts["cells_lowered"] = bounded["cells_lowered"]
         facts["energy_removed"] = bounded["energy_removed"]

@@ -178,8 +178,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="auto: write the chosen method's table as it extrapolates, also where no sample rests on a "
                          "cell (by default auto keeps those cells below the reference posterior's median x "
                          "exp(sigma), the --prior's; without a prior, the built-in analytic family's median x "
-                         "exp(2 sigma) where that takes at least 12 %% of the light: the report's 'conservative' "
-                         "section)")
+                         "exp(3 sigma) where that takes at least 10 %% of the light and holds the samples: the "
+                         "report's 'conservative' section)")
     ap.add_argument("--allow-implausible", action="store_true",
                     help="write the table even if it fails a plausibility check (the report and the console say so)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar and no summary line")

@@ -464,8 +464,11 @@ def bound_where_unmeasured(rec: Reconstruction, table: Array, working: Slice, op
     s = working.sorted()
     if ref is None or opts.prior or uncertainty._own_posterior(rec) is not None:
         ref = uncertainty.reference_for(rec, s, opts.prior, tuple(opts.prior_exclude))
-    k, least = (guard.GUARD_SIGMAS, 0.0) if opts.prior else (guard.GUARD_SIGMAS_ANALYTIC, guard.ANALYTIC_MIN_ENERGY)
-    bounded, out, info = guard.conservative(rec, table, s, ref, k, least)
+    if opts.prior:
+        bounded, out, info = guard.conservative(rec, table, s, ref)
+    else:
+        bounded, out, info = guard.conservative(rec, table, s, ref, guard.GUARD_SIGMAS_ANALYTIC,
+                                                guard.ANALYTIC_MIN_ENERGY, guard.ANALYTIC_MAX_ABOVE)
     # nothing lowered: the method's own reconstruction stays (an analytic fit exports its lobes); else the bounded
     # one, which every output sees (its table is no longer the model's: exports treat it as data-driven)
     return (bounded if info["applied"] else rec), out, info, ref

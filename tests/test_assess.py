@@ -258,6 +258,12 @@ def test_the_conservative_bound_lowers_only_unmeasured_cells(one_slice):
     assert kept is table and "less than" in why["why"]
     _, again, _ = guard.conservative(Wrong(), table, s, ref, min_energy=info["energy_removed"] - 0.01)
     np.testing.assert_array_equal(again, out)
+    # a reference whose band does not hold the samples themselves does not bound (a mirror against lambert + GGX)
+    assert guard.samples_above(guard.upper_bound_table(ref, 3.0), s) == 0.0  # the plastic's family holds it
+    low = 0.3 * guard.upper_bound_table(ref, 0.0)  # a band far under what was measured: 70 % of its light above
+    assert 0.6 < guard.samples_above(low, s) < 0.8
+    _, kept, why = guard.conservative(Wrong(), table, s, ref, k=-4.0, max_above=0.02)
+    assert kept is table and not why["applied"] and why["samples_above"] > 0.1 and "does not describe" in why["why"]
 
 
 def test_auto_reports_its_bound_with_a_prior_and_without(tmp_path, cache):
