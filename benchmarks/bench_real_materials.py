@@ -112,21 +112,35 @@ def _as_read(table: np.ndarray) -> np.ndarray:
     return np.where(merl.valid_mask()[None], table, np.nan)
 
 
-def _reconstruct(method: str, s: Slice, prior: str | None, name: str) -> tuple[np.ndarray, dict[str, Any]]:
-    """(table, facts) of one method on the slices ``s``; ``prior`` leaves ``name`` out."""
+def _reconstruct(method: str, s: Slice, prior: str | None, name: str, shared: dict[str, Any] | None = None
+                 ) -> tuple[np.ndarray, dict[str, Any]]:
+    """(table, facts) of one method on the slices ``s``; ``prior`` leaves ``name`` out. ``shared``: a dict kept
+    for one material and case, in which a method and its ``-unbounded`` variant share one reconstruction (the
+    second's ``seconds`` fact is the first's reconstruction time plus its own)."""
     if method == "constant":
         c = np.median(s.values.reshape(len(s), -1), axis=0)
         c = np.repeat(c, 3) if c.size == 1 else c
         return np.broadcast_to(c[:, None, None, None], merl.SHAPE).copy(), {"used": "constant"}
     with_prior = method in ("prior", "auto+prior", "auto+prior-unbounded")
     opts = pipeline.Options(prior=prior if with_prior else None, prior_exclude=(name,) if with_prior else ())
-    rec, choice = pipeline.reconstruct(s, "auto" if method.startswith("auto") else method, opts)
-    table = pipeline.tabulate(rec)
+    base = method.removesuffix("-unbounded")
     facts: dict[str, Any] = {}
+    t0 = time.perf_counter()
+    if shared is not None and base in shared:
+        rec, choice, table, took = shared[base]
+        facts["shared_reconstruction"] = True
+    else:
+        rec, choice = pipeline.reconstruct(s, "auto" if method.startswith("auto") else method, opts)
+        table = pipeline.tabulate(rec)
+        took = time.perf_counter() - t0
+        if shared is not None:
+            shared[base] = (rec, choice, table, took)
+        t0 = time.perf_counter()
     if method in ("auto", "auto+prior"):  # as gonio-reconstruct writes auto's table (-unbounded: --no-conservative)
         rec, table, bounded, _ = pipeline.bound_where_unmeasured(rec, table, s, opts)
         facts["cells_lowered"] = bounded["cells_lowered"]
         facts["energy_removed"] = bounded["energy_removed"]
+    facts["seconds"] = took + (time.perf_counter() - t0)
     checks = plausibility(rec, table)
     facts.update({"used": choice["used"], "plausible": bool(checks["all_pass"]),
                   "max_albedo": float(checks["albedo"]["max"])})
@@ -189,12 +203,13 @@ def run_material(job: dict[str, Any]) -> dict[str, Any]:
             out["images"]["truth"] = _display(ref.images, ref.images)
         for mode in job["modes"]:
             s = slices_of(mat, incidences_of(mode))
+            shared: dict[str, Any] = {}  # auto and auto-unbounded: one reconstruction
             for m in job["methods"]:
                 rec: dict[str, Any] = {"material": name, "database": db, "slices": mode, "method": m}
                 t0 = time.perf_counter()
                 try:
-                    table, facts = _reconstruct(m, s, job["prior"], name)
-                    rec["seconds"] = time.perf_counter() - t0
+                    table, facts = _reconstruct(m, s, job["prior"], name, shared)
+                    rec["seconds"] = facts.pop("seconds", time.perf_counter() - t0)
                     rec.update(facts)
                     a = cmp.Brdf(m, "merl", merl.brdf_of(_as_read(table)), _as_read(table))
                     imgs = cmp.render_images(a, size)
