@@ -209,11 +209,22 @@ def test_auto_falls_back_when_the_chosen_table_fails_a_check(monkeypatch, tmp_pa
     s = synthetic_slice(PLASTIC, (20.0, 40.0, 60.0))
     path = tmp_path / "s.csv"
     write_slice(path, s)
-    rep = pipeline.run(pipeline.Job(inputs=(str(path),), out=str(tmp_path / "m.binary"), method="auto"))
+    from reconstruction.report import html as htmlreport
+
+    sent = []
+    real_draw = htmlreport.draw_sample_figures
+    monkeypatch.setattr(htmlreport, "draw_sample_figures",
+                        lambda d, w, r, *a, **k: (sent.append(r.method), real_draw(d, w, r, *a, **k))[1])
+    rep = pipeline.run(pipeline.Job(inputs=(str(path),), out=str(tmp_path / "m.binary"), method="auto",
+                                    html=str(tmp_path / "m.html")))
     assert rep["checks"]["all_pass"] and rep["method"] != "bivariate"
     assert rep["cross_validation"]["fell_back_from"] == "bivariate"
     assert "written instead" in rep["method_reason"]
     assert (tmp_path / "m.binary").is_file()
+    # the page's figures were sent for bivariate as the run went on, then again for the method written
+    assert sent == ["bivariate", rep["method"]]
+    page = (tmp_path / "m.html").read_text(encoding="utf-8")
+    assert f"<th>method used</th><td>{rep['method']}</td>" in page and page.count("data:image/png") == 12
 
 
 def test_the_conservative_bound_lowers_only_unmeasured_cells(one_slice):

@@ -382,3 +382,14 @@ def test_a_grey_table_says_how_to_get_colour(tmp_path, capsys):
     assert cli.main([str(slice_file(tmp_path / "rgb.csv", BLUE_PLASTIC)), "--method", "bivariate",
                      "--out", str(tmp_path / "n.binary")]) == 0
     assert "one band" not in capsys.readouterr().err
+
+
+def test_the_cli_keeps_freed_memory_for_reuse_on_glibc():
+    """gonio-reconstruct asks glibc to keep freed memory (reconstruction.cliutil.keep_freed_memory): applied where
+    the C library is glibc, a no-op elsewhere."""
+    import platform
+
+    from reconstruction.cliutil import keep_freed_memory
+
+    glibc = sys.platform.startswith("linux") and platform.libc_ver()[0] == "glibc"
+    assert keep_freed_memory() is glibc
