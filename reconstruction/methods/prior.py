@@ -218,12 +218,15 @@ class PriorSet:
         if self.tables.shape[-1] == g["cos"].size:
             self.tables = np.ascontiguousarray(self.tables[..., g["train"]])
 
-    def _fc(self) -> NDArray[np.float32]:
-        """f cos theta_i cos theta_o of every material and channel at the training cells, (C N, M) float32."""
-        if self._fc_cache is None:
-            g = _grid()
-            self._fc_cache = self.tables.reshape(-1, self.tables.shape[-1]) * g["cos"][g["train"]].astype(np.float32)
-        return self._fc_cache
+    def _fc(self, cache: bool = True) -> NDArray[np.float32]:
+        """f cos theta_i cos theta_o of every material and channel at the training cells, (C N, M) float32, kept
+        for the next call with ``cache``."""
+        if self._fc_cache is not None:
+            return self._fc_cache
+        g = _grid()
+        fc = self.tables.reshape(-1, self.tables.shape[-1]) * g["cos"][g["train"]].astype(np.float32)
+        self._fc_cache = fc if cache else None
+        return fc
 
     def basis(self, idx: NDArray[np.intp], w: Array, exclude: tuple[str, ...] = (), residual: bool = False
               ) -> tuple[Array, ...]:
@@ -239,11 +242,8 @@ class PriorSet:
             raise ReconstructionError(f"--prior {self.folder}: at least 2 materials are needed, {len(keep)} remain")
         nc = self.tables.shape[1]  # 3, or 1 for a grey family (the analytic prior: one row per material)
         rows = (np.asarray(keep)[:, None] * nc + np.arange(nc)).ravel()
-        if self._fc_cache is None and len(keep) == len(self.names):  # one basis of every material (a run, not a
-            g = _grid()  # leave-one-out benchmark): f cos cos made once, as this call's own copy (no cache)
-            fc = np.multiply(self.tables.reshape(-1, self.tables.shape[-1]), g["cos"][g["train"]].astype(np.float32))
-        else:
-            fc = self._fc()[rows]
+        # a run's one basis of every material (not a benchmark's leave-one-out): f cos cos made once, its own copy
+        fc = self._fc(cache=False) if self._fc_cache is None and len(keep) == len(self.names) else self._fc()[rows]
         at = np.einsum("nj,tnj->tn", w, fc[:, idx])  # (T, n) f cos cos at the samples
         scales = channel_scales(at.reshape(len(keep), nc, -1)).reshape(-1).astype(np.float32)
         y = np.divide(fc, scales[:, None], out=fc)  # in place: fc is this call's own copy (80 MB for 48 materials)
@@ -265,8 +265,7 @@ class PriorSet:
         return out
 
 
-#: cells per step where :meth:`PriorSet.basis` works through its rows in pieces (their temporaries a few MB)
-_CHUNK = 8192
+_CHUNK = 8192  #: cells per step where :meth:`PriorSet.basis` works through its rows (temporaries of a few MB)
 
 
 @lru_cache(maxsize=1)
@@ -493,7 +492,7 @@ def reconstruct_prior(s: Slice, prior: PriorSet | str | Path, exclude: tuple[str
     f[:, g["train"]] = np.maximum(np.exp(mapped) - EPS, 0.0) * scale[:, None] / g["cos"][g["train"]]
     f = np.where(g["cos"] > 0, _extend(f), 0.0)
     misfit = float(np.sqrt(np.mean((fitted - y) ** 2)))  # in the mapped space, over samples and channels
-    sigma_ln = _posterior_sigma(sb, sig, comps, resvar, misfit, f, scale)
+    sigma_ln = sigma_ln_of(mapped_sigma(posterior_covariance(sb, sig), comps, resvar, misfit), f, scale)
     fitted = (np.exp(fitted + smu[:, None]) - EPS) * scale
     resid = float(np.sqrt(np.sum((fitted - obs) ** 2) / max(np.sum(obs**2), 1e-300)))
     used = [n for n in ps.names if n not in set(exclude)]
@@ -554,11 +553,6 @@ def sigma_ln_of(sigma_y: Array, f: Array, scale: Array) -> Array:
     with np.errstate(divide="ignore", invalid="ignore"):
         out = sy * (x + EPS) / x
     return np.where(x > 0, np.minimum(out, SIGMA_LN_MAX), SIGMA_LN_MAX).astype(np.float32)
-
-
-def _posterior_sigma(sb: Array, sig: Array, comps: Array, resvar: Array, misfit: float, f: Array,
-                     scale: Array) -> NDArray[np.float32]:
-    return sigma_ln_of(mapped_sigma(posterior_covariance(sb, sig), comps, resvar, misfit), f, scale)
 
 
 def anchored(f_prior: Array, f_anchor: Array, anchor: float) -> Array:
