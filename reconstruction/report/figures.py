@@ -142,16 +142,16 @@ def can_fork() -> bool:
 
 
 class Drawer:
-    """Figures drawn in a forked child process while this one goes on (matplotlib holds the GIL: a thread would
-    not draw beside it). The child is forked when the drawer is made, as early as the run allows (the process is
-    small then, and nothing holds a lock); it imports matplotlib at once (:func:`warm_up`) and draws each figure
-    as soon as :meth:`draw` sends it: a module-level function giving the figure's data URI (:func:`png`) and its
-    arguments, pickled (numpy arrays and the samples: kilobytes). :meth:`results` gives {name: data URI}: the
-    child sends them all at once when told there is no more, then exits without cleanup (``os._exit``). A name
-    sent twice is drawn twice, the last one kept (a figure whose data changed). Without fork (:func:`can_fork`,
-    or ``enabled`` False), or when the child fails, the figures are drawn here when their results are asked for,
-    so that an error is raised in this process as without a child. A context manager: leaving it ends the child
-    (killed if its results were never asked for)."""
+    """Figures drawn in a forked child process while this one goes on (matplotlib holds the GIL: a thread would not draw
+    beside it). The child is forked when the drawer is made, as early as the run allows (the process is small then,
+    and the run's own threads have not started; the child uses none of their locks); it imports matplotlib at once
+    (:func:`warm_up`) and draws each figure as soon as :meth:`draw` sends it: a module-level function giving the
+    figure's data URI (:func:`png`) and its arguments, pickled (numpy arrays and the samples: kilobytes).
+    :meth:`results` gives {name: data URI}: the child sends them all at once when told there is no more, then exits
+    without cleanup (``os._exit``). A name sent twice is drawn twice, the last one kept (a figure whose data
+    changed). Without fork (:func:`can_fork`, or ``enabled`` False), or when the child fails, the figures are drawn
+    here when their results are asked for, so that an error is raised in this process as without a child. A context
+    manager: leaving it ends the child (killed if its results were never asked for)."""
 
     def __init__(self, enabled: bool = True) -> None:
         self.sent: dict[str, tuple[Callable[..., str], tuple[Any, ...]]] = {}
