@@ -377,10 +377,6 @@ def _os_error(e: OSError) -> str:
     return f"{where}{what}"
 
 
-#: the ``conservative`` section's ``reference`` without a prior (reconstruction.assess.guard)
-ANALYTIC_REFERENCE = "built-in analytic family"
-
-
 def _fmt(x: float | None) -> str:
     return "-" if x is None else f"{x:.3f}"
 
@@ -474,7 +470,9 @@ def _main(ap: argparse.ArgumentParser, args: argparse.Namespace) -> int:
                       f"({p['bench_time_s']:g} s, expected PSNR {p['expected_psnr_db']:.1f} dB)", file=sys.stderr)
         c = rep.get("conservative")
         if c and c.get("applied"):
-            ref = "the prior's" if c.get("reference") != ANALYTIC_REFERENCE else "the built-in analytic family's"
+            from reconstruction.assess.uncertainty import ANALYTIC_NAME
+
+            ref = "the prior's" if c.get("reference") != ANALYTIC_NAME else f"the {ANALYTIC_NAME}'s"
             print(f"{PROG}: conservative: {c['cells_lowered']:,} of {c['cells']:,} cells no sample rests on lowered to "
                   f"{ref} median x e^({c.get('k', 1):g} sigma) ({c['energy_removed']:.1%} of the table's light; "
                   "--no-conservative keeps the method's extrapolation)", file=sys.stderr)

@@ -361,7 +361,7 @@ def _run(job: Job, progress: Progress | None, helper: Any, renders: Any, drawer:
 
         spheres = renders.submit(sphere_images, np.asarray(table, dtype=np.float64), checks["albedo"])
         if rec is not drawn_for:  # a fallback or the bounded reconstruction: its figures sent again
-            others, drawn_for = _send_sample_figures(job, drawer, working, rec, choice, opts), rec
+            others, drawn_for = _send_sample_figures(job, drawer, working, rec, choice, opts, others), rec
         draw_table_figures(drawer, working.sorted(), table, checks)  # the final table's
     t0 = begin("writing table")
     outputs: dict[str, Any] = {}
@@ -524,12 +524,14 @@ def _other_methods(working: Slice, rec: Reconstruction, opts: Options) -> dict[s
 
 
 def _send_sample_figures(job: Job, drawer: Any, working: Slice, rec: Reconstruction, choice: dict[str, Any],
-                         opts: Options) -> dict[str, Reconstruction]:
+                         opts: Options, others: dict[str, Reconstruction] | None = None) -> dict[str, Reconstruction]:
     """The page's slices and polar figures sent to its drawer (:func:`reconstruction.report.html.
-    draw_sample_figures`); returns the other methods built for them."""
+    draw_sample_figures`); returns the other methods built for them (``others``, those built for an earlier
+    reconstruction of the same method, reused: the bound changes the reconstruction, not the method)."""
     from reconstruction.report.html import draw_sample_figures
 
-    others = _other_methods(working, rec, opts)
+    if others is None or rec.method in others:  # the first time, or a fallback to one of them
+        others = _other_methods(working, rec, opts)
     draw_sample_figures(drawer, working.sorted(), rec, others,
                         choice.get("held_out_predictions", {}).get(rec.method), job.blind_spot_deg or 4.0)
     return others

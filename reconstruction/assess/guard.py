@@ -145,7 +145,7 @@ def conservative(rec: Reconstruction, table: Array, s: Slice, ref: P.PriorRecons
     (``applied`` False, the table as it was, ``why`` says so) when the bound would take less than ``min_energy``
     of the table's cosine-weighted light, or, with ``max_above``, when more than that share of the samples' own
     light lies above it (the reference does not describe this material: it would bound it wrongly)."""
-    from reconstruction.assess.uncertainty import cell_classes
+    from reconstruction.assess.uncertainty import ANALYTIC_NAME, cell_classes
 
     free = cell_classes(s) > 0
     bound = upper_bound_table(ref, k)
@@ -154,25 +154,23 @@ def conservative(rec: Reconstruction, table: Array, s: Slice, ref: P.PriorRecons
     info = {"applied": bool(lowered.any()),
             "rule": f"where no sample rests on a cell, f_r is at most the reference posterior's median times "
                     f"exp({k:g} sigma) (its own sigma of ln f); measured cells are the method's",
-            "reference": ref.info.get("prior", {}).get("folder") or "built-in analytic family", "k": k,
+            "reference": ref.info.get("prior", {}).get("folder") or ANALYTIC_NAME, "k": k,
             "cells_lowered": int(lowered.sum()), "cells": int(np.sum(merl.valid_mask() & free)),
             "energy_removed": removed / before if before > 0 else 0.0}
-    out = table
     above = samples_above(bound, s) if max_above is not None and info["applied"] else 0.0
     if max_above is not None:
         info["samples_above"] = above
+    why = None
     if info["applied"] and max_above is not None and above > max_above:  # the reference misses the measurement
-        info.update({"applied": False, "cells_lowered": 0, "would_remove": info["energy_removed"],
-                     "energy_removed": 0.0,
-                     "why": f"{above:.1%} of the samples' own light lies above the reference's bound (more than "
-                            f"{max_above:.0%}): the reference does not describe this material"})
+        why = (f"{above:.1%} of the samples' own light lies above the reference's bound (more than "
+               f"{max_above:.0%}): the reference does not describe this material")
     elif info["applied"] and info["energy_removed"] < min_energy:  # within the reference's band: left as it is
+        why = (f"the bound would take {info['energy_removed']:.1%} of the light, less than {min_energy:.0%}: the "
+               "table is within the reference's band")
+    if why is not None:
         info.update({"applied": False, "cells_lowered": 0, "would_remove": info["energy_removed"],
-                     "energy_removed": 0.0,
-                     "why": f"the bound would take {info['energy_removed']:.1%} of the light, less than "
-                            f"{min_energy:.0%}: the table is within the reference's band"})
-    elif info["applied"]:
-        out = wrapped.bound_table(table)
+                     "energy_removed": 0.0, "why": why})
+    out = wrapped.bound_table(table) if info["applied"] else table
     wrapped.info = info
     return wrapped, out, info
 
@@ -191,7 +189,7 @@ def _lowering(table: Array, bound: Array, free: NDArray[np.bool_]) -> tuple[NDAr
     before = removed = 0.0
     for a in range(0, free.shape[0], _ROWS):
         sl = slice(a, a + _ROWS)
-        t, b, w = table[:, sl], bound[:, sl], np.where(valid[sl], fc[sl], 0.0)
+        t, b, w = table[:, sl], bound[:, sl], fc[sl]  # fc is 0 below the horizon; the table NaN there
         over = free[None, sl] & valid[None, sl] & (t > b)
         lowered[sl] = over.any(axis=0)
         before += float(np.sum(np.where(valid[None, sl], t, 0.0) * w))

@@ -37,7 +37,7 @@ from reconstruction.methods import priorcodec
 
 Array = NDArray[np.float64]
 
-__all__ = ["analytic_prior", "reference_posterior", "sigma_grid", "cell_classes", "expected_errors",
+__all__ = ["ANALYTIC_NAME", "analytic_prior", "reference_posterior", "sigma_grid", "cell_classes", "expected_errors",
            "assess_table", "EXPECT_SIZE", "expected_scene_errors", "scene_section"]
 
 #: The analytic family standing in for a prior when none is given: lambert albedo x GGX alpha x Fresnel f0.
@@ -71,6 +71,10 @@ def _analytic_tables() -> tuple[Array, ...]:
     return priorcodec.pack(rows, tr.reshape(P.GRID))
 
 
+#: the analytic prior's name: its ``folder``, and the ``reference`` of a bound or an uncertainty without a prior
+ANALYTIC_NAME = "built-in analytic family"
+
+
 @lru_cache(maxsize=1)
 def analytic_prior() -> P.PriorSet:
     """A prior of :data:`ANALYTIC_ALBEDOS` x :data:`ANALYTIC_ALPHAS` x :data:`ANALYTIC_F0` lambert + GGX materials
@@ -78,7 +82,7 @@ def analytic_prior() -> P.PriorSet:
     key = f"analytic v{ANALYTIC_VERSION} {P.GRID} {ANALYTIC_ALBEDOS} {ANALYTIC_ALPHAS} {ANALYTIC_F0}"
     tables = cached_decoded("analytic-prior", key, _analytic_tables,
                             lambda arrays: priorcodec.unpack(arrays, P._grid()["train"].reshape(P.GRID)))
-    return P.PriorSet("built-in analytic family", [f"m{k:03d}" for k in range(len(tables))], tables)
+    return P.PriorSet(ANALYTIC_NAME, [f"m{k:03d}" for k in range(len(tables))], tables)
 
 
 def reference_posterior(s: Slice, prior: Any = None, exclude: tuple[str, ...] = ()) -> P.PriorReconstruction:

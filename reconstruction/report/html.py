@@ -385,7 +385,7 @@ def _with_std(p: Mapping[str, Any]) -> dict[str, Any]:
 
 def draw_polar_figure(drawer: Drawer, working: Slice) -> None:
     """Send the ``polar`` figure (the samples alone) to ``drawer``: a run sends it as soon as it has read them."""
-    drawer.draw("polar", _polar_figure, working.take(np.lexsort((working.theta_o_deg, working.theta_i_deg))))
+    drawer.draw("polar", _polar_figure, working.sorted())
 
 
 def draw_sample_figures(drawer: Drawer, working: Slice, rec: Reconstruction,
@@ -452,7 +452,7 @@ def build_html(*, report: Mapping[str, Any], working: Slice, rec: Reconstruction
 def _page(report: Mapping[str, Any], working: Slice, title: str | None, fig: Mapping[str, str],
           pngs: Sequence[tuple[str, str]], sg: Array | None) -> str:
     """:func:`build_html`'s page from the figures' data URIs ``fig`` and the spheres' ``pngs``."""
-    s = working.take(np.lexsort((working.theta_o_deg, working.theta_i_deg)))
+    s = working.sorted()
     checks = report["checks"]
     name = title or str(working.meta.get("material") or Path(str(working.source)).stem or "material")
     sec: dict[str, str] = {}
