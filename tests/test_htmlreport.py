@@ -258,3 +258,50 @@ def test_a_figure_that_fails_in_the_child_raises_here_and_an_unused_drawer_leave
     if pid:  # left without asking: the child was ended and reaped
         with pytest.raises(ChildProcessError):
             os.waitpid(pid, os.WNOHANG)
+
+
+def test_a_log_axis_over_decades_draws_its_minor_grid_as_one_collection():
+    """figures.log_grid: a log axis spanning two decades or more gets no minor ticks and its minor grid lines (2..9
+    x 10^k within the limits) as one line collection; a narrower axis keeps matplotlib's minor ticks."""
+    from matplotlib.collections import LineCollection
+
+    from reconstruction.report.figures import figure, log_grid
+
+    fig = figure((4, 3))
+    wide, narrow = fig.subplots(1, 2)
+    for ax, top in ((wide, 1e3), (narrow, 5.0)):
+        ax.plot([0, 1], [1.0, top])
+        ax.set_yscale("log")
+        log_grid(ax)
+    lo, hi = wide.get_ylim()
+    lines = [c for c in wide.collections if isinstance(c, LineCollection)]
+    assert len(lines) == 1 and len(wide.yaxis.get_minorticklocs()) == 0
+    ys = sorted(seg[0][1] for seg in lines[0].get_segments())
+    expected = [m * 10.0 ** k for k in range(-2, 5) for m in range(2, 10) if lo < m * 10.0 ** k < hi]
+    np.testing.assert_allclose(ys, expected)
+    assert not narrow.collections and len(narrow.yaxis.get_minorticklocs()) > 0
+
+
+def test_the_sigma_map_is_the_median_over_phi_d_of_the_cells_above_the_horizon():
+    from reconstruction.formats import merl
+    from reconstruction.report.html import sigma_values
+
+    rng = np.random.default_rng(2)
+    sigma = rng.uniform(0.01, 2.0, merl.SHAPE).astype(np.float32)
+    sigma[0, 10, 20, :7] = np.nan  # a few cells without a value: left out as below the horizon
+    sg = np.where(merl.valid_mask(), sigma.astype(np.float64).mean(axis=0), np.nan)
+    with np.errstate(all="ignore"), __import__("warnings").catch_warnings():
+        __import__("warnings").simplefilter("ignore", RuntimeWarning)
+        expected = np.nanmedian(sg, axis=2)
+    np.testing.assert_allclose(sigma_values(sigma), expected, rtol=1e-6, equal_nan=True)
+    assert np.isnan(sigma_values(sigma)[89, 89])  # no cell of that row above the horizon
+
+
+def test_background_work_without_a_second_thread_runs_once_when_first_asked():
+    from reconstruction.executor import Background
+
+    calls = []
+    with Background(enabled=False) as bg:
+        result = bg.submit(lambda x: calls.append(x) or x * 2, 21)
+        assert calls == []  # nothing until asked
+        assert result() == 42 and result() == 42 and calls == [21]

@@ -274,3 +274,15 @@ def test_the_reciprocal_table_of_a_mirror_symmetric_function_comes_from_one_eval
     np.testing.assert_allclose(fast[:, v], slow[:, v], rtol=1e-12)
     assert np.isnan(fast[:, ~v]).all()
     assert not np.allclose(merl.tabulate(g)[:, v], slow[:, v], rtol=1e-3)  # g alone is not reciprocal
+
+
+def test_a_float32_table_is_looked_up_as_its_float64_copy():
+    """merl.lookup reads a float32 table (the uncertainty's sigma) as it is: the same values as the float64 copy."""
+    from reconstruction.core.geometry import inplane_to_dirs
+
+    rng = np.random.default_rng(5)
+    t32 = rng.uniform(0.0, 3.0, merl.SHAPE).astype(np.float32)
+    wi, wo = inplane_to_dirs(np.radians(rng.uniform(0, 80, 500)), np.radians(rng.uniform(-80, 80, 500)))
+    for interp in (False, True):
+        np.testing.assert_array_equal(merl.lookup(t32, wi, wo, interpolate=interp),
+                                      merl.lookup(t32.astype(np.float64), wi, wo, interpolate=interp))

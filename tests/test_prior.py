@@ -304,3 +304,34 @@ def test_auto_anchors_the_prior_on_a_material_outside_its_family(family):
     plain = pipeline.reconstruct(s, "prior", pipeline.Options(prior=str(folder)))[0]
     err, err_plain = (relative_rmse_cos(pipeline.tabulate(r), truth, 80) for r in (rec, plain))
     assert err < 0.5 * err_plain, (err, err_plain)  # 0.58 against 1.65
+
+
+def test_a_basis_of_every_material_is_the_same_made_once_or_from_the_kept_products():
+    """basis(): a run's one basis of every material makes f cos cos as its own array (no cache), a second call and a
+    leave-one-out call read the kept products; the numbers are the same either way, and the residual projected in
+    chunks of cells equals the whole product."""
+    rng = np.random.default_rng(3)
+    g = prior._grid()
+    m = int(g["train"].sum())
+    n = 14  # 42 rows: more than the basis's 30 components, a residual left
+    tables = rng.uniform(0.01, 2.0, (n, 3, m)).astype(np.float32)
+    idx = rng.integers(0, m, (40, 2))
+    w = np.full((40, 2), 0.5)
+    fresh = prior.PriorSet("t", [f"m{k}" for k in range(n)], tables)
+    a = fresh.basis(idx, w, residual=True)  # no cache yet: its own product
+    assert fresh._fc_cache is None
+    kept = prior.PriorSet("t", [f"m{k}" for k in range(n)], tables)
+    kept._fc()  # the products kept: every call copies its rows
+    b = kept.basis(idx, w, residual=True)
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_array_equal(x, y)
+    mu, comps, _, resvar = a
+    fc = tables.reshape(-1, m) * g["cos"][g["train"]].astype(np.float32)
+    at = np.einsum("nj,tnj->tn", w, fc[:, idx])
+    y = np.log(fc / prior.channel_scales(at.reshape(n, 3, -1)).reshape(-1, 1).astype(np.float32)
+               + np.float32(prior.EPS)) - mu.astype(np.float32)
+    whole = y - (y @ comps.T.astype(np.float32)) @ comps.astype(np.float32)
+    dof = max(y.shape[0] - comps.shape[0] - 1, 1)
+    ref = np.einsum("tm,tm->m", whole, whole, dtype=np.float64) / dof
+    assert ref.min() > 0.01  # a real residual, not round-off
+    np.testing.assert_allclose(resvar, ref, rtol=1e-4)
