@@ -305,3 +305,25 @@ def test_background_work_without_a_second_thread_runs_once_when_first_asked():
         result = bg.submit(lambda x: calls.append(x) or x * 2, 21)
         assert calls == []  # nothing until asked
         assert result() == 42 and result() == 42 and calls == [21]
+
+
+def test_the_page_reuses_the_other_methods_when_only_the_bound_changed_the_reconstruction(monkeypatch):
+    """pipeline._send_sample_figures builds every other method once; the bound (same method) reuses them, a
+    fallback to one of them builds them again."""
+    from types import SimpleNamespace
+
+    from reconstruction import pipeline
+    from reconstruction.formats.slicefile import Slice
+    from reconstruction.report import html as htmlreport
+
+    built = []
+    monkeypatch.setattr(pipeline, "_other_methods", lambda w, r, o: built.append(r.method) or {"x": r, "y": r})
+    monkeypatch.setattr(htmlreport, "draw_sample_figures", lambda *a, **k: None)
+    s = Slice(np.array([30.0, 30.0]), np.array([-20.0, 40.0]), np.array([[0.1], [0.3]]), ["value"])
+    job = pipeline.Job(inputs=("s.csv",), out=None, html="m.html")
+    others = pipeline._send_sample_figures(job, None, s, SimpleNamespace(method="fit"), {}, None)
+    assert built == ["fit"]
+    bounded = SimpleNamespace(method="fit")  # the bound: the same method, another reconstruction
+    assert pipeline._send_sample_figures(job, None, s, bounded, {}, None, others) is others and built == ["fit"]
+    pipeline._send_sample_figures(job, None, s, SimpleNamespace(method="x"), {}, None, others)  # a fallback
+    assert built == ["fit", "x"]
