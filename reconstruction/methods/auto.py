@@ -9,15 +9,15 @@
    the scene's ranges count; when the scene's budget replaced the BIC choice by a simpler model (fitted to the
    scene's samples, and so refitted in every fold), the BIC choice competes too, so that a scene never makes the
    choice worse, and a choice whose held-out error exceeds the budget is said (``over_budget``, a warning);
-3. the method with the lowest held-out relative RMSE of f cos cos whose BRDF is physically plausible (directional
-   albedo <= 1 + tolerance at every incidence) is used. With a single incidence, held-out samples of the same
-   slice cannot show how a method extrapolates to other incidences (its Fresnel rise or shadowing towards
-   grazing theta_d), so ``bivariate``, which holds the peak's microfacet content instead of extrapolating a
-   model, is preferred unless another method predicts the held-out samples at least twice as well
-   (:data:`SINGLE_SLICE_MARGIN`; on the 48 real MERL materials this lowers auto's median table error from one
-   slice from 48 % to 41 %, see docs/real-materials.md, and an exact model, such as a simulated lambert + ggx
-   material, still wins by far more). One slice read through a finite aperture (the slice's ``instrument``)
-   prefers ``microfacet`` instead (:data:`SINGLE_SLICE_APERTURE_MARGIN`: held-out cone averages cannot show the
+3. the method with the lowest held-out **image error** (the held-out samples tone-mapped as the pixels of a
+   point-lit sphere, :mod:`reconstruction.methods.crossval`) whose BRDF is physically plausible (directional
+   albedo <= 1 + tolerance at every incidence) is used; the relative RMSE of f cos cos is reported beside it.
+   The relative RMSE, which the specular peak's values dominate, ignores the dim off-specular level that covers
+   most of a rendered sphere; docs/real-materials.md has the benchmark figures of the change. One slice of point
+   readings has no preferred method (``bivariate`` was preferred by a margin of 2 while the ranking was by the
+   relative RMSE; by the image error the preference lowered the median PSNR on the real materials)
+   (:func:`preference`). One slice read through a finite aperture (the slice's ``instrument``) prefers
+   ``microfacet`` (:data:`SINGLE_SLICE_APERTURE_MARGIN`: held-out cone averages cannot show the
    cone's blur that an interpolating method writes into the table). With a prior of measured materials
    (``--prior``), ``prior`` is the preferred method instead, by :data:`PRIOR_MARGIN_SINGLE` from one slice and
    :data:`PRIOR_MARGIN_SEVERAL` from several; its variants anchored to the bivariate interpolation
@@ -70,8 +70,6 @@ HEMISPHERE_MARGIN = 2.0
 #: most points anywhere cross-validated on (every in-plane point and an even random subset of the rest)
 CV_MAX_POINTS = 3000
 CV_MAX_INCIDENCES = 24
-SINGLE_SLICE_PREFERRED = ("bivariate", "prior")
-SINGLE_SLICE_MARGIN = 2.0
 #: From one slice read through a finite aperture (a detector cone or a divergent source: the slice metadata's
 #: ``instrument``) auto prefers ``microfacet`` instead, by this margin: every reading, the held-out ones included, is
 #: a cone average, so cross-validation cannot show that an interpolating method carries the cone's blur of the peak
@@ -134,16 +132,14 @@ def preference(methods: list[str], single: bool, aperture: bool = False, anywher
     """(the preferred methods, the factor by which another must predict better to be chosen over them) among
     ``methods``: ``prior`` when it is there (:data:`PRIOR_MARGIN_SINGLE` from one slice,
     :data:`PRIOR_MARGIN_SEVERAL` from several), else with points ``anywhere`` on the hemisphere
-    :data:`HEMISPHERE_PREFERRED`, else from one slice :data:`SINGLE_SLICE_PREFERRED` (point readings) or, read
-    through a finite ``aperture``, :data:`SINGLE_SLICE_APERTURE_PREFERRED`; none else."""
+    :data:`HEMISPHERE_PREFERRED`, else from one slice read through a finite ``aperture``
+    :data:`SINGLE_SLICE_APERTURE_PREFERRED`; none else (one slice of point readings included: module doc)."""
     if "prior" in methods:  # measured materials know what one slice cannot show
         return ["prior"], PRIOR_MARGIN_SINGLE if single else PRIOR_MARGIN_SEVERAL
     if anywhere and not single:
         return [m for m in HEMISPHERE_PREFERRED if m in methods], HEMISPHERE_MARGIN
     if single and aperture:
         return [m for m in SINGLE_SLICE_APERTURE_PREFERRED if m in methods], SINGLE_SLICE_APERTURE_MARGIN
-    if single:
-        return [m for m in SINGLE_SLICE_PREFERRED if m in methods], SINGLE_SLICE_MARGIN
     return [], 1.0
 
 
@@ -155,12 +151,12 @@ def at_noise_level(scores: list[CVScore], preferred: list[str], noise: float) ->
 
 
 def rank(scores: list[CVScore], preferred: list[str], margin: float, noise: float = 0.0) -> list[CVScore]:
-    """``scores`` best first: by held-out error, that of a method not in ``preferred`` multiplied by ``margin``;
-    by the plain held-out error when the best one is within :data:`NOISE_LEVEL_FACTOR` of ``noise`` (the error the
-    samples' own noise amounts to)."""
+    """``scores`` best first: by held-out image error (:attr:`~reconstruction.methods.crossval.CVScore.criterion`),
+    that of a method not in ``preferred`` multiplied by ``margin``; by the plain criterion when the best relative
+    RMSE is within :data:`NOISE_LEVEL_FACTOR` of ``noise`` (the error the samples' own noise amounts to)."""
     if at_noise_level(scores, preferred, noise):
-        return sorted(scores, key=lambda c: c.error)
-    return sorted(scores, key=lambda c: c.error * (margin if preferred and c.method not in preferred else 1.0))
+        return sorted(scores, key=lambda c: c.criterion)
+    return sorted(scores, key=lambda c: c.criterion * (margin if preferred and c.method not in preferred else 1.0))
 
 
 def _finite_aperture(s: Slice) -> bool:
@@ -274,10 +270,11 @@ def _reconstruct_auto(s: Slice, opts: Options,
                              else fit_rec if sc.method == "fit"
                              else REGISTRY[sc.method].build(full, _options_of(sc, opts), progress))
 
-    others = ", ".join(f"{c.label} {c.error:.2%}" for c in ranked if c is not best and np.isfinite(c.error))
+    others = ", ".join(f"{c.label} {_both(c)}" for c in ranked if c is not best and np.isfinite(c.error))
     model = f" ({chosen.result.name})" if isinstance(chosen, FitReconstruction) and not best.variant else ""
     reason = (f"lowest held-out error ({scheme}): {best.label}{model} predicts the samples it did not see to "
-              f"{best.error:.2%} relative RMSE of f cos cos" + (f" (then {others})" if others else ""))
+              f"{_both(best)} (image error: the samples tone-mapped as a lit sphere's pixels, RMS; relative RMSE of "
+              f"f cos cos)" + (f" (then {others})" if others else ""))
     if at_noise:
         reason += (f"; the best predicts to within {NOISE_LEVEL_FACTOR:g}x the samples' own noise ({noise:.2%}), so "
                    "no method is preferred")
@@ -301,9 +298,10 @@ def _reconstruct_auto(s: Slice, opts: Options,
         warnings.warn(SceneBudgetWarning(f"{s.source}: {budget['over_budget_warning']}"), stacklevel=2)
     if s is not full and pts is None:
         scheme += f", on {len(s)} of the {len(full)} samples"
-    cv = {"scheme": scheme, "folds": len(masks), "metric": "relative RMSE of f cos(theta_i) cos(theta_o) over the "
-          "held-out samples" + (" inside the scene's ranges" if inside is not None else ""),
-          "scores": [c.as_dict() for c in sorted(scores, key=lambda c: c.error)], "chosen": chosen.method,
+    cv = {"scheme": scheme, "folds": len(masks), "metric": "image error of the held-out samples (tone-mapped as a "
+          "point-lit sphere's pixels, RMS; reconstruction.methods.crossval), relative RMSE of f cos(theta_i) "
+          "cos(theta_o) beside it" + (" (those inside the scene's ranges)" if inside is not None else ""),
+          "scores": [c.as_dict() for c in sorted(scores, key=lambda c: c.criterion)], "chosen": chosen.method,
           "chosen_label": best.label, **({"prior_anchor": best.anchor or 0.0} if best.method == "prior" else {}),
           "fit_model": fit_rec.result.name, "rejected": rejected, **budget,
           "single_incidence_preference": ({"method": preferred[0], "methods": preferred, "margin": margin}
@@ -315,6 +313,11 @@ def _reconstruct_auto(s: Slice, opts: Options,
                     "held_out_predictions": ({} if s is not full else  # per sample of the input (none when thinned)
                                              {c.method: c.predictions for c in reversed(scores)
                                               if c.predictions is not None and (c.method != best.method or c is best)})}
+
+
+def _both(c: CVScore) -> str:
+    """"0.021 / 5.30 %": a score's image error and relative RMSE, as the reason prints them."""
+    return (f"{c.image_error:.3f} / " if math.isfinite(c.image_error) else "") + f"{c.error:.2%}"
 
 
 def _bic_fit(s: Slice, opts: Options, fit_rec: Any, progress: Callable[[str], None] | None) -> Reconstruction:

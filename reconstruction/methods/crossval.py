@@ -16,10 +16,20 @@ exactly and can still be far off elsewhere), so methods are compared on samples 
   specular peak, and a peak predicted from its shoulders alone would rank the methods by a guess the table never
   has to make.
 
-The error is the relative RMSE of f cos(theta_i) cos(theta_o) pooled over every held-out sample and channel (the
-same weighting as the table metric). ``fit`` is cross-validated with its model structure fixed to the one chosen
-on all samples (its lobes refitted in every fold to the samples it was fitted to: those inside a scene's ranges
-when the scene's budget chose a simpler model), so the score is of that model. With a scene, only the held-out
+Two errors are pooled over every held-out sample and channel. The **image error** ranks the methods
+(:attr:`CVScore.criterion`): each sample is what a renderer shows of the material, the pixel of a sphere lit by a
+point light from its incidence and seen from its outgoing direction (radiance f cos(theta_i)), tone-mapped as the
+image metric tone-maps a render (exposed at the :data:`IMAGE_EXPOSURE_QUANTILE` quantile of every sample's radiance,
+clipped, gamma :data:`IMAGE_GAMMA`), and the error is the RMS difference of those pixel values: the dim
+off-specular level that covers most of a rendered sphere counts as a renderer counts it, where the linear error,
+dominated by the specular peak's values, ignores it (on the real materials of benchmarks/bench_real_materials.py
+a method that wrote a diffuse level 30 times the measured one off the peak of a glossy paint won on the linear
+error). The **relative RMSE** of f cos(theta_i) cos(theta_o) (the table metric's weighting) is reported beside it
+and is what a scene's error budget and the samples' noise level are compared with.
+
+``fit`` is cross-validated with its model structure fixed to the one chosen on all samples (its lobes refitted in
+every fold to the samples it was fitted to: those inside a scene's ranges when the scene's budget chose a simpler
+model), so the score is of that model. With a scene, only the held-out
 samples inside its ranges count (:func:`scene_mask`), and :func:`budget_check` compares the choice's error with
 the scene's error budget.
 """
@@ -33,7 +43,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from reconstruction.base import Reconstruction, ReconstructionError
 from reconstruction.core.samples import sample_directions
@@ -41,9 +51,16 @@ from reconstruction.formats.slicefile import Slice
 
 Array = NDArray[np.float64]
 
-__all__ = ["folds", "cross_validate", "score_predictions", "CVScore", "N_BLOCKS", "budget_check", "SceneBudgetWarning"]
+__all__ = ["folds", "cross_validate", "score_predictions", "CVScore", "N_BLOCKS", "budget_check", "SceneBudgetWarning",
+           "IMAGE_EXPOSURE_QUANTILE", "IMAGE_GAMMA", "image_values"]
 
 N_BLOCKS = 8
+#: The held-out image error's exposure: this quantile of the samples' radiance f cos(theta_i) (pooled over channels)
+#: maps to white. Chosen on the real materials (benchmarks/bench_real_materials.py, 141 materials, 1-3 slices, see
+#: docs/real-materials.md): 0.8-0.9 ranked best; lower quantiles clip the glossy shoulders, higher ones darken the rest.
+IMAGE_EXPOSURE_QUANTILE = 0.9
+#: The display gamma of the held-out image error (the image metric's, :func:`reconstruction.core.metrics.tone_map`).
+IMAGE_GAMMA = 2.2
 
 
 def folds(s: Slice, n_blocks: int = N_BLOCKS) -> tuple[str, list[NDArray[np.bool_]]]:
@@ -84,6 +101,12 @@ class CVScore:
     predictions: Array | None = None  # (N, C) each sample predicted by the fold that held it out (NaN: never)
     anchor: float | None = None  # prior: the weight of the bivariate interpolation (None: not a prior variant)
     variant: str | None = None  # another variant of the method (e.g. fit's BIC choice beside a scene's budget's)
+    image_error: float = math.nan  # RMS difference of the held-out samples tone-mapped as pixels (module doc)
+
+    @property
+    def criterion(self) -> float:
+        """What auto ranks by: the image error, or the relative RMSE where there is none (a score built by hand)."""
+        return self.image_error if not math.isnan(self.image_error) else self.error
 
     @property
     def label(self) -> str:
@@ -95,6 +118,7 @@ class CVScore:
     def as_dict(self) -> dict[str, Any]:
         return {"method": self.method, "label": self.label,
                 "held_out_relative_rmse_cos": self.error if math.isfinite(self.error) else None,
+                "held_out_image_error": self.image_error if math.isfinite(self.image_error) else None,
                 "fold_errors": [e if math.isfinite(e) else None for e in self.fold_errors],
                 "seconds": round(self.seconds, 3), **({"failure": self.failure} if self.failure else {}),
                 **({"prior_anchor": self.anchor} if self.anchor is not None else {}),
@@ -103,6 +127,24 @@ class CVScore:
 
 def _score(pred: Array, f: Array, c: Array) -> tuple[float, float]:
     return float(np.sum(((pred - f) * c) ** 2)), float(np.sum((f * c) ** 2))
+
+
+def image_values(f: ArrayLike, cos_i: ArrayLike, exposure: float) -> Array:
+    """Samples f (N, C) as a renderer's tone-mapped pixels: the radiance f cos(theta_i) (``cos_i`` (N, 1)) of a unit
+    point light over ``exposure``, clipped to [0, 1], to the power 1 / :data:`IMAGE_GAMMA`.
+
+    >>> image_values(np.array([[0.0], [0.5], [4.0]]), np.ones((3, 1)), 2.0).round(3).ravel().tolist()
+    [0.0, 0.533, 1.0]
+    """
+    x = np.maximum(np.asarray(f, dtype=np.float64), 0.0) * np.asarray(cos_i, dtype=np.float64) / exposure
+    return np.clip(x, 0.0, 1.0) ** (1.0 / IMAGE_GAMMA)
+
+
+def _exposure(f: Array, cos_i: Array) -> float:
+    """The held-out image error's exposure: :data:`IMAGE_EXPOSURE_QUANTILE` of every sample's radiance."""
+    r = np.maximum(f, 0.0) * cos_i
+    r = r[np.isfinite(r)]
+    return float(np.quantile(r, IMAGE_EXPOSURE_QUANTILE)) if r.size else 0.0
 
 
 def noise_level(s: Slice, score_mask: NDArray[np.bool_] | None = None) -> float:
@@ -157,9 +199,12 @@ def score_predictions(s: Slice, name: str, pred: Array, masks: list[NDArray[np.b
     of methods (e.g. a blend of two methods' held-out predictions) without fitting again."""
     f, _ = s.brdf()
     wi, wo = sample_directions(s)  # in-plane, or anywhere for points (reconstruction.core.samples.PointFolds)
-    c = (np.clip(wi[:, 2], 0, None) * np.clip(wo[:, 2], 0, None))[:, None]
+    ci = np.clip(wi[:, 2], 0, None)[:, None]
+    c = ci * np.clip(wo[:, 2], 0, None)[:, None]
     pred = np.broadcast_to(np.asarray(pred, dtype=np.float64), f.shape)
-    num = den = 0.0
+    exposure = _exposure(f, ci)
+    num = den = sq = 0.0
+    n = 0
     per: list[float] = []
     for held in masks:  # a handful of folds
         out = held & score_mask if score_mask is not None else held
@@ -171,7 +216,12 @@ def score_predictions(s: Slice, name: str, pred: Array, masks: list[NDArray[np.b
         num += a
         den += b
         per.append(math.sqrt(a / b) if b > 0 else math.inf)
-    return CVScore(name, math.sqrt(num / den) if den > 0 else math.inf, per, seconds, predictions=np.array(pred))
+        if exposure > 0:
+            d = image_values(pred[out], ci[out], exposure) - image_values(f[out], ci[out], exposure)
+            sq += float(np.sum(d * d))
+            n += d.size
+    return CVScore(name, math.sqrt(num / den) if den > 0 else math.inf, per, seconds, predictions=np.array(pred),
+                   image_error=math.sqrt(sq / n) if n else math.nan)
 
 
 class SceneBudgetWarning(UserWarning):
