@@ -518,14 +518,15 @@ def _page(report: Mapping[str, Any], working: Slice, title: str | None, fig: Map
     if cv:
         rows = ""
         for c in cv["scores"]:
-            err = c["held_out_relative_rmse_cos"]
+            err, img = c["held_out_relative_rmse_cos"], c.get("held_out_image_error")
             label = c.get("label", c["method"])
             cls = ' class="pass"' if label == cv.get("chosen_label", cv["chosen"]) else ""
-            rows += (f"<tr{cls}><td>{html.escape(label)}</td><td>{'-' if err is None else f'{err:.4%}'}</td>"
-                     f"<td>{c['seconds']:.2f}</td></tr>")
+            rows += (f"<tr{cls}><td>{html.escape(label)}</td><td>{'-' if img is None else f'{img:.4f}'}</td>"
+                     f"<td>{'-' if err is None else f'{err:.4%}'}</td><td>{c['seconds']:.2f}</td></tr>")
         sec["choice"] = (f"<p>{html.escape(report.get('method_reason', ''))}</p><p>Scheme: "
                          f"{html.escape(cv['scheme'])}; metric: {html.escape(cv['metric'])}.</p><table><tr><th>"
-                         "method</th><th>held-out error</th><th>seconds</th></tr>" + rows + "</table>")
+                         "method</th><th>held-out image error</th><th>held-out relative RMSE</th><th>seconds</th>"
+                         "</tr>" + rows + "</table>")
     else:
         sec["choice"] = f"<p>{html.escape(report.get('method_reason', ''))}</p>"
     sec["timings"] = _kv_table({k: f"{v:.3f} s" for k, v in report.get("timings_s", {}).items()})
