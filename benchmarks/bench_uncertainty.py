@@ -11,7 +11,7 @@ report gives it (the built-in analytic family's posterior with the two estimates
 :func:`reconstruction.assess.uncertainty.sigma_grid`); no material is left out (none is in the analytic family).
 
 Run: .venv/bin/python benchmarks/bench_uncertainty.py [--every N] [--captures 40 40/70 20/40/60] [--workers 2]
-[--no-prior]
+[--no-prior] [--scales 1,1.5,2]
 (``--every 1``: all 141 materials, about 1 s per material and capture on one core.)
 """
 
@@ -23,6 +23,7 @@ import time
 import warnings
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -76,10 +77,10 @@ def uniform_pairs(n: int = 20000, seed: int = 1) -> tuple[np.ndarray, np.ndarray
     return cap(), cap()
 
 
-def one(args: tuple[str, tuple[float, ...], bool]) -> tuple[str, str, float, float, float, float, float]:
+def one(args: tuple[str, tuple[float, ...], bool, tuple[float, ...]]) -> tuple[Any, ...]:
     global _PS
     warnings.simplefilter("ignore")
-    name, incs, no_prior = args
+    name, incs, no_prior, scales = args
     mat = material(name)
     s = bench_slice(mat, incs)
     if no_prior:
@@ -108,7 +109,8 @@ def one(args: tuple[str, tuple[float, ...], bool]) -> tuple[str, str, float, flo
     err = np.abs(np.log(np.where(ok, got, 1.0) / np.where(ok, truth, 1.0)))
     in1 = float(np.mean((err <= sd)[ok]))
     in2 = float(np.mean((err <= 2 * sd)[ok]))
-    return name, "/".join(f"{t:g}" for t in incs), cosl2, expected, in1, in2, float(np.median(sd))
+    scaled = [(float(np.mean((err <= s * sd)[ok])), float(np.mean((err <= 2 * s * sd)[ok]))) for s in scales]
+    return name, "/".join(f"{t:g}" for t in incs), cosl2, expected, in1, in2, float(np.median(sd)), scaled
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -118,7 +120,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--no-prior", action="store_true",
                     help="auto without a prior and the report's sigma (the built-in analytic family)")
+    ap.add_argument("--scales", default="", help="comma-separated factors: the shares within 1 and 2 sigma with "
+                    "sigma multiplied by each (a calibration study); with --split, for the 48 of nbrdf-merl and the "
+                    "rest apart")
     args = ap.parse_args(argv)
+    scales = tuple(float(x) for x in args.scales.split(",") if x)
     if not all(f.is_dir() for f in FOLDERS):
         print(f"bench_uncertainty: {DATA} not found (the real materials live beside the project)", file=sys.stderr)
         return 2
@@ -127,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
     names = names[:: args.every]
     caps = [tuple(float(x) for x in c.split("/")) for c in args.captures]
     t0 = time.perf_counter()
-    jobs = [(n, c, args.no_prior) for c in caps for n in names]
+    jobs = [(n, c, args.no_prior, scales) for c in caps for n in names]
     with ProcessPoolExecutor(args.workers) as ex:
         rows = list(ex.map(one, jobs))
     print(f"{len(names)} materials x {len(caps)} captures, "
@@ -141,11 +147,23 @@ def main(argv: list[str] | None = None) -> int:
 
     for c in args.captures:
         r = [x for x in rows if x[1] == c]
-        a = np.array([x[2:] for x in r])
+        a = np.array([x[2:7] for x in r])
         rho = spearmanr(a[:, 0], a[:, 1]).statistic
         print(f"| {c} deg | {a[:, 2].mean():.1%} | {a[:, 3].mean():.1%} | {np.median(a[:, 0]):.1%} / "
               f"{a[:, 0].max():.1%} ({r[int(np.argmax(a[:, 0]))][0]}) | {np.median(a[:, 1]):.1%} | {rho:.2f} | "
               f"{np.median(a[:, 4]):.3f} |")
+    if scales:
+        dev = {p.name[: -len("_fc1.npy")] for p in FOLDERS[0].glob("*_fc1.npy")}
+        print("\nsigma multiplied by a factor: share within 1 / 2 sigma (pooled over materials), all | the 48 of "
+              "nbrdf-merl | the rest")
+        for c in args.captures:
+            r = [x for x in rows if x[1] == c]
+            for k, s in enumerate(scales):
+                parts = []
+                for sel in (lambda n: True, lambda n: n in dev, lambda n: n not in dev):
+                    v = np.array([x[7][k] for x in r if sel(x[0])])
+                    parts.append(f"{v[:, 0].mean():.1%} / {v[:, 1].mean():.1%}" if v.size else "-")
+                print(f"  {c:>9} deg x{s:<4g} " + " | ".join(parts))
     return 0
 
 

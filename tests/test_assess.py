@@ -55,6 +55,21 @@ def test_sigma_is_larger_where_the_table_is_extrapolated(one_slice):
         assert np.isfinite(section[k])
 
 
+def test_without_a_prior_sigma_is_the_ensembles_times_the_calibration(one_slice):
+    """No prior: sigma = SIGMA_SCALE_ANALYTIC x sqrt(sigma_posterior^2 + d^2 / 4) (capped); with another prior than
+    the built-in family, unscaled."""
+    import dataclasses
+
+    s, rec, (sigma, section, ref, sg, f_grid) = one_slice
+    assert ref.info["prior"]["folder"] == uncertainty.ANALYTIC_NAME and uncertainty.SIGMA_SCALE_ANALYTIC > 1.0
+    other = dataclasses.replace(ref, info={**ref.info, "prior": {**ref.info["prior"], "folder": "user folder"}})
+    raw = uncertainty.sigma_grid(rec, other)
+    below = raw < prior.SIGMA_LN_MAX / uncertainty.SIGMA_SCALE_ANALYTIC
+    assert below.mean() > 0.5
+    np.testing.assert_allclose(sg[below], uncertainty.SIGMA_SCALE_ANALYTIC * raw[below], rtol=1e-12)
+    assert np.all(sg <= prior.SIGMA_LN_MAX)
+
+
 def test_more_slices_lower_the_expected_error(one_slice):
     s, rec, (_, section, *_) = one_slice
     s3 = synthetic_slice(PLASTIC, (20.0, 45.0, 70.0)).sorted()
