@@ -8,8 +8,8 @@ the written table comes from another method, the two estimates' disagreement is 
 sigma^2 = sigma_posterior^2 + (ln f_table - ln f_posterior)^2 / 4 (the variance of a two-member ensemble). The
 written sigma is that of the table's own cells (the MERL layout), as a float32 array (C, 90, 90, 180). Without a
 prior the analytic family is narrower than real materials and its sigma too small, so that sigma is multiplied by
-:data:`SIGMA_SCALE_ANALYTIC`, a calibration chosen on the 48 materials of nbrdf-merl
-(``benchmarks/bench_uncertainty.py --no-prior --scales``; docs/methods.md has the figures on all 141).
+:data:`SIGMA_SCALE_ANALYTIC`, a calibration chosen on real materials (``benchmarks/bench_uncertainty.py --no-prior
+--scales``; docs/methods.md has the figures on all 141).
 
 Cell classes (the report's ``uncertainty.median_sigma``): *measured* cells are those a sample falls in or next to
 (one bin in theta_h and theta_d, two in phi_d); *interpolated* cells lie between measured ones (their theta_h
@@ -52,9 +52,9 @@ ANALYTIC_VERSION = 3  # 2: grey, one channel per material; 3: the training cells
 EXPECT_SIZE = 32
 EXPECT_QUADRATURE = Quadrature(n_cosine=21, alphas=(0.01, 0.05, 0.2, 0.5), n_per_alpha=21)
 N_PAIRS = 20000
-#: The calibration of sigma without a prior (the built-in family as the reference): on the 48 materials of
-#: nbrdf-merl (auto's tables, 1, 2 and 3 slices) this factor brings the share of uniform direction pairs within
-#: 2 sigma to about 90 % (it was 76-80 % unscaled) and within 1 sigma to 69-74 % (52-60 % unscaled).
+#: The calibration of sigma without a prior (the built-in family as the reference): chosen on the 16 materials of
+#: nbrdf-merl among every third of the 141 (auto's tables, 1, 2 and 3 slices), where it brings the share of uniform
+#: direction pairs within 2 sigma to about 90 % (76-80 % unscaled) and within 1 sigma to about 70 % (52-60 %).
 SIGMA_SCALE_ANALYTIC = 1.65
 
 
