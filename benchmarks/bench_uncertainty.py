@@ -121,7 +121,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-prior", action="store_true",
                     help="auto without a prior and the report's sigma (the built-in analytic family)")
     ap.add_argument("--scales", default="", help="comma-separated factors: the shares within 1 and 2 sigma with "
-                    "sigma multiplied by each (a calibration study); with --split, for the 48 of nbrdf-merl and the "
+                    "sigma multiplied by each (a calibration study), for all materials, those of nbrdf-merl and the "
                     "rest apart")
     args = ap.parse_args(argv)
     scales = tuple(float(x) for x in args.scales.split(",") if x)
@@ -154,7 +154,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{np.median(a[:, 4]):.3f} |")
     if scales:
         dev = {p.name[: -len("_fc1.npy")] for p in FOLDERS[0].glob("*_fc1.npy")}
-        print("\nsigma multiplied by a factor: share within 1 / 2 sigma (pooled over materials), all | the 48 of "
+        print("\nsigma multiplied by a factor: share within 1 / 2 sigma (pooled over materials), all | those of "
               "nbrdf-merl | the rest")
         for c in args.captures:
             r = [x for x in rows if x[1] == c]

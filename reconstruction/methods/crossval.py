@@ -56,8 +56,9 @@ __all__ = ["folds", "cross_validate", "score_predictions", "CVScore", "N_BLOCKS"
 
 N_BLOCKS = 8
 #: The held-out image error's exposure: this quantile of the samples' radiance f cos(theta_i) (pooled over channels)
-#: maps to white. Chosen on the real materials (benchmarks/bench_real_materials.py, 141 materials, 1-3 slices, see
-#: docs/real-materials.md): 0.8-0.9 ranked best; lower quantiles clip the glossy shoulders, higher ones darken the rest.
+#: maps to white. Chosen by replaying auto's choice on every method's held-out predictions and rendered images for
+#: 115 of the real materials, 1-3 slices (docs/real-materials.md): 0.8-0.9 ranked best; lower quantiles clip the
+#: glossy shoulders, higher ones darken the rest.
 IMAGE_EXPOSURE_QUANTILE = 0.9
 #: The display gamma of the held-out image error (the image metric's, :func:`reconstruction.core.metrics.tone_map`).
 IMAGE_GAMMA = 2.2
