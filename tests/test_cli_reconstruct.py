@@ -278,6 +278,34 @@ def test_tabulate_refuses_negative_or_missing_cells():
         pipeline.tabulate(Bad(np.nan))
 
 
+def test_the_non_negative_check_reads_the_valid_cells_of_either_precision():
+    """min, max and missing cells over the cells above the horizon, as a reader sees them, for float64 and float32
+    tables (reduced in place, without table-sized copies)."""
+    from reconstruction.core.checks import plausibility
+    from reconstruction.formats import merl
+
+    valid = merl.valid_mask()[None]
+    rng = np.random.default_rng(1)
+    base = np.broadcast_to(rng.random((3, 90, 90, 1)) + 0.5, merl.SHAPE).copy()
+    base[:, ~merl.valid_mask()] = -7.0  # below the horizon: never read
+    bad = base.copy()
+    bad[0, 5, 5, 5], bad[1, 6, 6, 6], bad[2, 0, 0, 0] = -0.25, np.nan, np.inf
+
+    class Rec:
+        method = "test"
+
+        def eval(self, wi, wo):
+            return np.full((len(wi), 1), 0.1)
+
+    for table in (base, bad, bad.astype(np.float32)):
+        t64 = table.astype(np.float64)
+        read = np.where(valid, t64, np.nan)
+        nn = plausibility(Rec(), table)["non_negative"]
+        assert nn["missing_cells"] == int(np.sum(valid & ~np.isfinite(t64)))
+        assert nn["min_1_per_sr"] == np.nanmin(read) and nn["max_1_per_sr"] == np.nanmax(read)
+        assert nn["pass"] is (table is base)
+
+
 @pytest.mark.slow
 def test_every_method_passes_the_plausibility_checks(tmp_path):
     src = slice_file(tmp_path / "slice.csv", BLUE_PLASTIC, incidences=(20.0, 40.0, 60.0))

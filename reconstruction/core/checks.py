@@ -5,6 +5,7 @@ all use these."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import Any
 
@@ -37,13 +38,16 @@ def checked_albedo(f: Callable[[Array, Array], ArrayLike], n_theta: int, n_phi: 
 
 def plausibility(rec: Reconstruction, table: ArrayLike) -> dict[str, Any]:
     """The three checks of the module docstring on ``table`` (3, 90, 90, 180) and ``rec.eval``."""
-    t = np.asarray(table, dtype=np.float64)
+    t = np.asarray(table)
+    t = t if t.dtype in (np.float32, np.float64) else t.astype(np.float64)
     valid = merl.valid_mask()[None]
-    vals = np.where(valid, t, 0.0)
+    # reductions over the valid finite cells in place (no table-sized copies: fresh memory is dear)
     missing = int(np.sum(valid & ~np.isfinite(t)))
-    vmin = float(np.nanmin(np.where(valid, t, np.nan)))
+    read = valid & ~np.isnan(t)  # what a reader of the table sees (an infinite cell is missing and is read)
+    vmin = float(np.min(t, where=read, initial=np.inf)) if read.any() else math.nan
+    vmax = float(np.max(t, where=read, initial=0.0))  # 0: the cells below the horizon
     non_neg = {"pass": bool(missing == 0 and vmin >= 0.0), "min_1_per_sr": vmin, "missing_cells": missing,
-               "max_1_per_sr": float(np.nanmax(vals))}
+               "max_1_per_sr": vmax}
     look = lambda wi, wo: np.nan_to_num(merl.lookup(t, wi, wo, interpolate=True), nan=0.0)  # noqa: E731
     alb, quadrature = checked_albedo(look, 64, 128)
     albedo = {"pass": bool(np.all(alb <= 1.0 + ALBEDO_TOLERANCE)), "max": float(alb.max()),
