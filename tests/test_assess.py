@@ -288,6 +288,19 @@ def test_the_conservative_bound_lowers_only_unmeasured_cells(one_slice):
     assert guard.samples_above(guard.upper_bound_table(ref, 3.0), s) == 0.0  # the plastic's family holds it
     low = 0.3 * guard.upper_bound_table(ref, 0.0)  # a band far under what was measured: 70 % of its light above
     assert 0.6 < guard.samples_above(low, s) < 0.8
+    # points anywhere are judged at their own directions, not at the in-plane pair their polar angles name
+    from reconstruction.core.samples import DirectionalSlice
+    from reconstruction.formats import merl
+
+    band = np.zeros(merl.SHAPE)
+    band[:, :, 15:, :] = 1.0  # a bound of 1 from theta_d = 15 deg on, 0 below
+    v = np.full((1, 3), 0.5)
+    # polar angles 28.6 / -28.6 deg: in the plane that is the retro direction (theta_d 0, under a bound of 0); the
+    # point's own directions lie out of the plane at theta_d 19.8 deg, under a bound of 1
+    pts = DirectionalSlice(np.full(1, 28.6), np.full(1, -28.6), v, ["R", "G", "B"], np.zeros_like(v),
+                           wi=[[-np.sin(0.5), 0.0, np.cos(0.5)]], wo=[[0.0, np.sin(0.5), np.cos(0.5)]])
+    assert guard.samples_above(band, pts) == 0.0
+    assert guard.samples_above(1.0 - band, pts) == pytest.approx(1.0)
     _, kept, why = guard.conservative(Wrong(), table, s, ref, k=-4.0, max_above=0.02)
     assert kept is table and not why["applied"] and why["samples_above"] > 0.1 and "does not describe" in why["why"]
 

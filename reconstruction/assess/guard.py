@@ -126,10 +126,11 @@ class Conservative:
 
 def samples_above(bound: Array, s: Slice) -> float:
     """The share of the samples' light (f cos theta_i cos theta_o, summed over samples and channels) above
-    ``bound`` (3, 90, 90, 180) at their own directions: 0 when the reference's band holds what was measured."""
-    from reconstruction.core.geometry import inplane_to_dirs
+    ``bound`` (3, 90, 90, 180) at their own directions (in-plane, or anywhere for points on the hemisphere): 0 when
+    the reference's band holds what was measured."""
+    from reconstruction.core.samples import sample_directions
 
-    wi, wo = inplane_to_dirs(np.radians(s.theta_i_deg), np.radians(s.theta_o_deg))
+    wi, wo = sample_directions(s)
     f = np.asarray(s.values, dtype=np.float64).reshape(len(s), -1)
     b = np.nan_to_num(merl.lookup(bound, wi, wo, interpolate=True), nan=np.inf)[:, : f.shape[1]]
     w = (np.clip(wi[:, 2], 0, None) * np.clip(wo[:, 2], 0, None))[:, None]
