@@ -14,9 +14,19 @@ do better with this model. The sets of cells:
 * ``slice 40``, ``slices 20/40/60``, ``slices 40/70``: the cells the in-plane samples of those slices touch.
 
 Error: rmse80 on the reduced grid (relative RMSE of f cos cos over the cells with both angles <= 80 deg; the
-benchmark ``bench_real_materials.py`` judges on the MERL grid, the two agree to a few points). Usage::
+benchmark ``bench_real_materials.py`` judges on the MERL grid, the two agree to a few points).
+
+``--image`` judges the floors as ``bench_real_materials.py`` judges a reconstruction: every material of
+``nbrdf-merl`` and ``nbrdf-extra`` (141), a basis of the other 140, and per set of cells the PSNR of the
+tone-mapped renders (key and rim lighting, their mean) of the floor's MERL table against the truth's (the
+benchmark's cached truth tables with ``--truth-cache``, else the neural BRDF tabulated). K and the ridge weight are
+chosen with the truth by the PSNR of 64-pixel renders (K 5, 10, 20, 30; weights 0.1, 1, 10), the chosen one's
+figure from 128-pixel renders: a floor by the image (no slice of those cells does better with this model, up to
+the two render sizes). About 55 s per material and worker (``--every 3``: 47 materials in about 25 min on 2
+cores). Usage::
 
     .venv/bin/python benchmarks/bench_prior_floor.py [--data ../shared/realdata] [--materials chrome,steel]
+    .venv/bin/python benchmarks/bench_prior_floor.py --image [--truth-cache out/real-materials-cache] [--every 3]
 """
 
 from __future__ import annotations
@@ -87,12 +97,130 @@ def floors(ps: P.PriorSet, m: int, sets: dict[str, np.ndarray]) -> dict[str, flo
     return out
 
 
+IMAGE_SETS = ("all", "slice 40", "slices 40/70", "slices 20/40/60")
+IMAGE_K, IMAGE_LAM = (5, 10, 20, 30), (0.1, 1.0, 10.0)  # --image: the grid its renders choose from
+
+
+def _candidates(ps: P.PriorSet, m: int, sets: dict[str, np.ndarray]) -> dict[str, list[np.ndarray]]:
+    """Per set of cells, the floor's reduced-grid f_r (3, n_cells) for every K of :data:`IMAGE_K` and ridge weight
+    of :data:`IMAGE_LAM`, fitted to the material's own values at those cells."""
+    g = P._grid()
+    idx, w, _ = P._design(_slice(SLICE_CASES["slice 40"]))
+    mu, comps, sig = ps.basis(idx, w, exclude=(ps.names[m],))
+    fc = ps._fc()[3 * m:3 * m + 3].astype(np.float64)
+    scale = np.maximum(np.median(np.einsum("nj,cnj->cn", w, fc[:, idx]), axis=1), 1e-12)
+    y = np.log(fc / scale[:, None] + P.EPS) - mu
+    out: dict[str, list[np.ndarray]] = {}
+    for name in IMAGE_SETS:
+        obs = sets[name]
+        out[name] = []
+        for k in IMAGE_K:
+            a = comps[:k, obs].T
+            gram, rhs = a.T @ a, a.T @ y[:, obs].T
+            for lam in IMAGE_LAM:
+                coef = np.linalg.solve(gram + lam * np.diag(1.0 / sig[:k] ** 2), rhs)
+                f = np.zeros((3, g["cos"].size))
+                f[:, g["train"]] = (np.maximum(np.exp(coef.T @ comps[:k] + mu) - P.EPS, 0.0) * scale[:, None]
+                                    / g["cos"][g["train"]])
+                out[name].append(np.where(g["cos"] > 0, P._extend(f), 0.0))
+    return out
+
+
+def _image_floor(job: tuple[str, str, str | None, int]) -> dict[str, object]:
+    """Worker: one material's image floors (PSNR, dB) per set of cells: K and the ridge weight chosen by the PSNR
+    of renders of half the size, the chosen one's figure from renders of the size (128: the other benchmark's)."""
+    import warnings
+
+    from threadpoolctl import threadpool_limits
+
+    from reconstruction.core.models import Material
+    from reconstruction.formats import merl
+    from reconstruction.report import compare as cmp
+
+    warnings.simplefilter("ignore")
+    name, folders, cache, size = job
+    with threadpool_limits(1), np.errstate(all="ignore"):
+        ps = P.load_prior(folders.split(","))
+        cached = Path(cache) / f"{name}.npy" if cache else None
+        if cached is not None and cached.is_file():
+            truth = np.load(cached).astype(np.float64)
+        else:
+            folder = next(f for f in folders.split(",") if (Path(f) / f"{name}_fc1.npy").is_file())
+            mat = Material.from_dict({"name": name, "lobes": [{"type": "nbrdf", "path": str(Path(folder) / name)}]})
+            truth = merl.tabulate(mat.eval)
+        valid = merl.valid_mask()[None]
+        truth = np.where(valid, truth, np.nan)
+        tb = cmp.Brdf(name, "merl", merl.brdf_of(truth), truth)
+        small, full = cmp.reference(tb, max(size // 2, 8), n_pairs=1000), cmp.reference(tb, size, n_pairs=1000)
+
+        def psnr(f: np.ndarray, ref: cmp.Reference) -> float:
+            t = np.where(valid, P.PriorReconstruction(["R", "G", "B"], f, {}).table(), np.nan)
+            return float(cmp.image_metrics(cmp.render_images(cmp.Brdf("floor", "merl", merl.brdf_of(t), t),
+                                                             ref.size), ref.images, ref.size)["psnr_db"])
+
+        out: dict[str, object] = {"material": name}
+        for set_name, tables in _candidates(ps, ps.names.index(name), cell_sets()).items():
+            best = max(tables, key=lambda f: psnr(f, small))
+            out[set_name] = psnr(best, full)
+        return out
+
+
+def image_main(args: argparse.Namespace) -> int:
+    """``--image``: the floors' PSNR over the 141 materials (see the module docstring)."""
+    import multiprocessing
+
+    folders = [Path(args.data) / "nbrdf-merl", Path(args.data) / "nbrdf-extra"]
+    if not all(f.is_dir() for f in folders):
+        print(f"bench_prior_floor: {folders[0]} or {folders[1]} not found (see ../shared/realdata/README.md)",
+              file=sys.stderr)
+        return 2
+    t0 = time.perf_counter()
+    ps = P.load_prior([str(f) for f in folders])  # built (or read from the cache) once, before the workers
+    want = [n.strip() for n in args.materials.split(",")] if args.materials else sorted(ps.names)
+    missing = sorted(set(want) - set(ps.names))
+    if missing:
+        print(f"bench_prior_floor: unknown material(s) {missing}", file=sys.stderr)
+        return 2
+    want = want[:: max(1, args.every)]
+    jobs = [(n, ",".join(str(f) for f in folders), args.truth_cache, args.size) for n in want]
+    rows = []
+    print(f"{'material':34s} " + " ".join(f"{k:>16s}" for k in IMAGE_SETS))
+    pool = multiprocessing.get_context("fork").Pool(args.workers) if args.workers > 1 else None
+    try:
+        for r in pool.imap_unordered(_image_floor, jobs) if pool is not None else map(_image_floor, jobs):
+            rows.append(r)
+            print(f"{r['material']:34s} " + " ".join(f"{r[k]:13.1f} dB" for k in IMAGE_SETS), flush=True)
+    finally:
+        if pool is not None:
+            pool.close()
+    print(f"floors of the image PSNR with the prior's model (K and ridge weight chosen with the truth), "
+          f"{len(rows)} material(s), a basis of the other {len(ps.names) - 1} each:")
+    for k in IMAGE_SETS:
+        v = np.array([r[k] for r in rows], dtype=np.float64)
+        print(f"  {k:16s} median {np.median(v):5.1f} dB, mean {v.mean():5.1f} dB, worst {v.min():5.1f} dB; "
+              f">= 38 dB: {int(np.sum(v >= 38))}, >= 40 dB: {int(np.sum(v >= 40))}, >= 41 dB: {int(np.sum(v >= 41))}")
+    print(f"{time.perf_counter() - t0:.0f} s")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", default=str(ROOT.parent / "shared" / "realdata"),
                     help="the real-data folder (with nbrdf-merl/); default ../shared/realdata")
     ap.add_argument("--materials", help="comma-separated material names (default: all)")
+    ap.add_argument("--image", action="store_true",
+                    help="judge the floors by the rendered image (PSNR), over nbrdf-merl and nbrdf-extra (141)")
+    ap.add_argument("--truth-cache", default=None,
+                    help="with --image: the truth tables bench_real_materials.py cached (NAME.npy), e.g. "
+                         "out/real-materials-cache; else each neural BRDF is tabulated")
+    ap.add_argument("--workers", type=int, default=2, help="with --image: worker processes (default 2)")
+    ap.add_argument("--size", type=int, default=128,
+                    help="with --image: the renders' size in pixels (default 128, as bench_real_materials.py)")
+    ap.add_argument("--every", type=int, default=1,
+                    help="with --image: every N-th material in name order (default 1: all; 3 takes about 25 min)")
     args = ap.parse_args(argv)
+    if args.image:
+        return image_main(args)
     folder = Path(args.data) / "nbrdf-merl"
     if not folder.is_dir():
         print(f"bench_prior_floor: {folder} not found (see ../shared/realdata/README.md)", file=sys.stderr)

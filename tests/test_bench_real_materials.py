@@ -75,8 +75,11 @@ def test_benchmark_runs_every_case_on_a_data_folder(bench, tmp_path, capsys):
     assert all(f["psnr_db"] > 30 and f["linear"] < 0.05 for f in floors)  # the table is close to its network
     assert len(recs) == 2 * 2 * 2
     for r in recs:
-        for k in ("psnr_db", "psnr_key_db", "psnr_rim_db", "linear", "cosl2", "log", "rmse80", "grazing"):
+        for k in ("psnr_db", "psnr_key_db", "psnr_rim_db", "linear", "cosl2", "log", "rmse80", "grazing",
+                  "linear_but_brightest", "linear_key_but_brightest", "linear_rim_but_brightest"):
             assert np.isfinite(r[k]), (k, r)
+        assert r["linear_but_brightest"] == pytest.approx(
+            (r["linear_key_but_brightest"] + r["linear_rim_but_brightest"]) / 2)
     by = {(r["material"], r["slices"], r["method"]): r for r in recs}
     for m in ("synthetic-a", "rgl-synthetic"):  # two slices see more of each material than one
         assert by[(m, "30/60", "bivariate")]["rmse80"] < by[(m, "1", "bivariate")]["rmse80"]
@@ -104,7 +107,11 @@ def test_the_summary_gives_medians_worst_cases_and_databases(bench):
     text = "\n".join(lines)
     auto = next(x for x in lines if x.strip().startswith("auto"))
     assert "PSNR median  35.0 / worst  30.0 dB (a)" in auto and "linear  20.0 /   60.0 %" in auto
-    assert "linear > 50 %: 1" in auto and "[3]" in auto
+    assert "linear > 50 %: 1;" in auto and "[3]" in auto  # no count without the brightest pixel: records lack it
+    for r in records:  # b's error is its highlight's pixel
+        r["linear_but_brightest"] = 0.1 if r["material"] == "b" else r["linear"]
+    auto = next(x for x in bench.summarise(records, floors, ["auto", "constant"]) if x.strip().startswith("auto"))
+    assert "linear > 50 %: 1 (0 without the truth's brightest pixel)" in auto
     assert "    MERL                     PSNR median  35.0 / worst  30.0 dB (a)" in text  # a and b
     assert "    RGL                      PSNR median  35.0 / worst  35.0 dB (c)" in text
     assert "  all                      PSNR median  55.0 / worst  50.0 dB (a)" in text  # the floor
@@ -132,6 +139,22 @@ def test_the_prior_floor_benchmark_runs_on_a_data_folder(tmp_path, capsys, monke
     assert all(np.isfinite(v) and v >= 0 for v in f.values())
     assert f["all"] < 0.5 * f["slice 40"]  # fitted to every cell, far closer than from one slice's cells
     assert floor.main(["--data", str(data), "--materials", "nope"]) == 2
+    # --image: the floors judged by renders, over both folders (a basis of the other materials of the two)
+    assert floor.main(["--data", str(data), "--image"]) == 2  # no nbrdf-extra yet
+    assert "nbrdf-extra" in capsys.readouterr().err
+    (data / "nbrdf-extra").mkdir()
+    for k in range(4, 6):
+        write_nbrdf(data / "nbrdf-extra" / f"rgl-synthetic-{k}", k)
+    assert floor.main(["--data", str(data), "--image", "--size", "16", "--workers", "1", "--materials",
+                       "synthetic-1,synthetic-2", "--every", "2"]) == 0
+    out = capsys.readouterr().out
+    rows = [line.split() for line in out.splitlines() if line.startswith(("rgl-synthetic-", "synthetic-"))]
+    assert [r[0] for r in rows] == ["synthetic-1"]  # every second of the two named
+    for r in rows:
+        db = [float(v) for v in r[1::2]]  # all, slice 40, slices 40/70, slices 20/40/60 (dB)
+        assert len(db) == 4 and all(np.isfinite(v) and v > 0 for v in db)
+        assert db[0] > db[1]  # every cell known: a closer render than from one slice's cells
+    assert "a basis of the other 5 each" in out and "slices 40/70     median" in out
 
 
 def test_the_docs_page_leads_with_the_image_metric_and_keeps_its_notes(bench, tmp_path):

@@ -83,6 +83,7 @@ def test_a_table_twice_too_bright(files, table):
     assert res["rmse80"] == pytest.approx(1.0, rel=1e-9)
     for light in ("key", "rim"):
         assert res["image"][light]["relative_rmse"] == pytest.approx(1.0, rel=1e-9)
+        assert res["image"][light]["relative_rmse_but_brightest_pixel"] == pytest.approx(1.0, rel=1e-9)
         assert 5.0 < res["image"][light]["psnr_db"] < 40.0
     assert 0.0 < res["rmse80_grazing_share"] < 1.0
     assert 0.2 < res["log_error"] < np.log(2.0)
@@ -135,3 +136,29 @@ def test_a_bad_size_is_a_usage_error(files, capsys):
     with pytest.raises(SystemExit) as e:
         cmp.main([str(files / "a.binary"), str(files / "a.binary"), "--size", "2"])
     assert e.value.code == 2 and "--size" in capsys.readouterr().err
+
+
+def test_the_linear_error_without_the_brightest_pixel():
+    from reconstruction.core.metrics import image_relative_rmse
+
+    rng = np.random.default_rng(3)
+    truth = rng.uniform(0.5, 1.0, (8, 8, 3))
+    truth[3, 4] = 400.0  # a highlight: one pixel far above the rest
+    img = truth.copy()
+    img[3, 4] = 100.0  # the highlight a quarter as bright, every other pixel exact
+    want = np.sqrt(3 * 300.0**2 / np.sum(truth**2))
+    assert image_relative_rmse(img, truth) == pytest.approx(want, rel=1e-12)
+    assert image_relative_rmse(img, truth, leave_out_brightest=1) == 0.0
+    img[4, 3] *= 1.1  # and one dim pixel 10 % off: that one counts
+    rest = np.delete(truth.reshape(-1, 3), 3 * 8 + 4, axis=0)
+    want = np.sqrt(np.sum((0.1 * truth[4, 3]) ** 2) / np.sum(rest**2))
+    assert image_relative_rmse(img, truth, leave_out_brightest=1) == pytest.approx(want, rel=1e-12)
+    # compare's figures carry it per lighting and as the mean of the two (both pixels lie on the sphere's disk)
+    mask = cmp.view_angle_mask(8, 1.0, cmp.IMAGE_MAX_VIEW_DEG)
+    assert mask[3, 4] and mask[4, 3]
+    want = np.sqrt(np.sum((0.1 * truth[4, 3]) ** 2) / np.sum(np.delete(truth[mask], int(np.flatnonzero(
+        np.flatnonzero(mask.ravel()) == 3 * 8 + 4)[0]), axis=0) ** 2))
+    res = cmp.image_metrics({"key": img, "rim": truth}, {"key": truth, "rim": truth}, 8)
+    assert res["key"]["relative_rmse_but_brightest_pixel"] == pytest.approx(want, rel=1e-12)
+    assert res["rim"]["relative_rmse_but_brightest_pixel"] == 0.0
+    assert res["relative_rmse_but_brightest_pixel"] == pytest.approx(want / 2, rel=1e-12)

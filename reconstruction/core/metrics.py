@@ -272,10 +272,28 @@ def image_psnr(img: ArrayLike, truth: ArrayLike, mask: NDArray[np.bool_] | None 
     return 10.0 * float(np.log10(1.0 / mse)) if mse > 0 else float("inf")
 
 
-def image_relative_rmse(img: ArrayLike, truth: ArrayLike, mask: NDArray[np.bool_] | None = None) -> float:
+def image_relative_rmse(img: ArrayLike, truth: ArrayLike, mask: NDArray[np.bool_] | None = None,
+                        leave_out_brightest: int = 0) -> float:
     """Relative RMSE of the linear images: sqrt(sum (img - truth)^2 / sum truth^2) over the pixels of ``mask``
-    and every channel. Dimensionless (inf for a black truth)."""
+    and every channel. Dimensionless (inf for a black truth).
+
+    ``leave_out_brightest``: that many pixels, the brightest of ``truth`` (sum over channels), left out of both
+    sums. On a glossy sphere under a sun the linear error is the highlight's few pixels: their value is f at a
+    theta_h finer than a bench's step (merl-violet-acrylic from one 40 deg slice: 89 % with every pixel, 15 %
+    without the single brightest).
+
+    Examples
+    --------
+    >>> truth = np.array([[1.0], [1.0], [100.0]])
+    >>> round(image_relative_rmse(np.array([[1.0], [1.0], [50.0]]), truth), 3)
+    0.5
+    >>> image_relative_rmse(np.array([[1.0], [1.0], [50.0]]), truth, leave_out_brightest=1)
+    0.0
+    """
     a, b = np.broadcast_arrays(_pixels(img, mask), _pixels(truth, mask))
+    if leave_out_brightest > 0:
+        keep = np.argsort(-np.sum(b, axis=-1), kind="stable")[leave_out_brightest:]
+        a, b = a[keep], b[keep]
     den = float(np.sum(b * b))
     return float(np.sqrt(np.sum((a - b) ** 2) / den)) if den > 0 else float("inf")
 
