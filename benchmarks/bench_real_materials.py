@@ -60,6 +60,7 @@ DATABASES = ("MERL", "RGL", "Nielsen")
 EXTRA_METHODS = ("auto+prior", "auto+prior-unbounded", "auto-unbounded", "constant")
 DEFAULT_METHODS = "auto,auto+prior,prior,constant"
 SHEET_MODES = ("1", "2")
+ORACLE_METHODS = ("fit", "microfacet", "bivariate", "revolve", "prior")  # the summary's oracle: the best of these
 SHEET_SIZE = 16  # materials on the contact sheet
 
 
@@ -284,7 +285,25 @@ def summarise(records: list[dict[str, Any]], floors: list[dict[str, Any]], metho
                 dr = [r for r in ok if r.get("database") == db]
                 if dr and len(dr) < len(ok):
                     lines.append("    " + _line(db, _stats(dr)))
+        lines += _oracle_lines([r for r in records if r["slices"] == mode], methods)
     return lines
+
+
+def _oracle_lines(rs: list[dict[str, Any]], methods: list[str]) -> list[str]:
+    """With two or more single methods in the run: per material the best of them by PSNR, chosen with the truth
+    (what no selection among them can beat), its median and worst."""
+    single = [m for m in methods if m in ORACLE_METHODS]
+    if len(single) < 2:
+        return []
+    best: dict[str, float] = {}
+    for r in rs:
+        if r["method"] in single and "psnr_db" in r:
+            best[r["material"]] = max(best.get(r["material"], -np.inf), float(r["psnr_db"]))
+    if not best:
+        return []
+    v = np.array(list(best.values()))
+    return [f"  {'oracle':11s} the best of {', '.join(single)} per material, chosen with the truth: PSNR median "
+            f"{np.median(v):5.1f} / worst {v.min():5.1f} dB [{v.size}]"]
 
 
 # --- the docs page and the contact sheet ------------------------------------------------------------------------

@@ -112,6 +112,11 @@ def test_the_summary_gives_medians_worst_cases_and_databases(bench):
         r["linear_but_brightest"] = 0.1 if r["material"] == "b" else r["linear"]
     auto = next(x for x in bench.summarise(records, floors, ["auto", "constant"]) if x.strip().startswith("auto"))
     assert "linear > 50 %: 1 (0 without the truth's brightest pixel)" in auto
+    assert not any("oracle" in x for x in lines)  # one single method (constant is none): no oracle
+    two = records + [_rec("a", "fit", 33.0, 0.1), _rec("b", "fit", 20.0, 0.1), _rec("a", "revolve", 31.0, 0.1),
+                     _rec("b", "revolve", 25.0, 0.1)]
+    oracle = next(x for x in bench.summarise(two, floors, ["auto", "fit", "revolve"]) if "oracle" in x)
+    assert "the best of fit, revolve per material" in oracle and "median  29.0 / worst  25.0 dB [2]" in oracle
     assert "    MERL                     PSNR median  35.0 / worst  30.0 dB (a)" in text  # a and b
     assert "    RGL                      PSNR median  35.0 / worst  35.0 dB (c)" in text
     assert "  all                      PSNR median  55.0 / worst  50.0 dB (a)" in text  # the floor
@@ -174,3 +179,24 @@ def test_the_docs_page_leads_with_the_image_metric_and_keeps_its_notes(bench, tm
     second = (tmp_path / "real-materials.md").read_text(encoding="utf-8")
     assert "NEW SUMMARY" in second and "SUMMARY LINE" not in second  # the figures are rewritten ...
     assert second.count(notes) == 1 and "No notes yet" not in second  # ... the notes kept, once
+
+
+def test_the_peak_isotropy_benchmark(tmp_path, capsys):
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_peak_isotropy.py"
+    spec = importlib.util.spec_from_file_location("bench_peak_isotropy", path)
+    iso = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(iso)
+    from reconstruction.core.models import Material
+
+    ggx = Material.from_dict({"name": "g", "lobes": [{"type": "lambert", "albedo": 0.1},
+                                                     {"type": "ggx", "alpha": 0.01, "specular": 1.0}]})
+    peak, inp, across = iso.peak_ratios(ggx, 40.0, 0.25)
+    assert peak > inp > 0.1  # 0.25 deg off the mirror's half vector: on the lobe's shoulder
+    assert across == pytest.approx(inp, rel=0.02)  # a lobe of theta_h alone: alike across the plane and in it
+    assert iso.main(["--data", str(tmp_path)]) == 2 and "nbrdf-merl" in capsys.readouterr().err
+    (tmp_path / "nbrdf-merl").mkdir()
+    for k in range(2):
+        write_nbrdf(tmp_path / "nbrdf-merl" / f"synthetic-{k}", k)
+    assert iso.main(["--data", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "synthetic-0" in out and "synthetic-1" in out and "2 materials; ratio median" in out
