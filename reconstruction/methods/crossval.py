@@ -46,6 +46,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from reconstruction.base import Reconstruction, ReconstructionError
+from reconstruction.core.metrics import IMAGE_GAMMA, tone_map
 from reconstruction.core.samples import sample_directions
 from reconstruction.formats.slicefile import Slice
 
@@ -60,8 +61,6 @@ N_BLOCKS = 8
 #: 115 of the real materials, 1-3 slices (docs/real-materials.md): 0.8-0.9 ranked best; lower quantiles clip the
 #: glossy shoulders, higher ones darken the rest.
 IMAGE_EXPOSURE_QUANTILE = 0.9
-#: The display gamma of the held-out image error (the image metric's, :func:`reconstruction.core.metrics.tone_map`).
-IMAGE_GAMMA = 2.2
 
 
 def folds(s: Slice, n_blocks: int = N_BLOCKS) -> tuple[str, list[NDArray[np.bool_]]]:
@@ -132,13 +131,14 @@ def _score(pred: Array, f: Array, c: Array) -> tuple[float, float]:
 
 def image_values(f: ArrayLike, cos_i: ArrayLike, exposure: float) -> Array:
     """Samples f (N, C) as a renderer's tone-mapped pixels: the radiance f cos(theta_i) (``cos_i`` (N, 1)) of a unit
-    point light over ``exposure``, clipped to [0, 1], to the power 1 / :data:`IMAGE_GAMMA`.
+    point light, the radiance ``exposure`` mapped to white, as the image metric tone-maps a render
+    (:func:`reconstruction.core.metrics.tone_map`: clipped to [0, 1], to the power 1 / :data:`IMAGE_GAMMA`).
 
     >>> image_values(np.array([[0.0], [0.5], [4.0]]), np.ones((3, 1)), 2.0).round(3).ravel().tolist()
     [0.0, 0.533, 1.0]
     """
-    x = np.maximum(np.asarray(f, dtype=np.float64), 0.0) * np.asarray(cos_i, dtype=np.float64) / exposure
-    return np.clip(x, 0.0, 1.0) ** (1.0 / IMAGE_GAMMA)
+    radiance = np.maximum(np.asarray(f, dtype=np.float64), 0.0) * np.asarray(cos_i, dtype=np.float64)
+    return tone_map(radiance, 1.0 / exposure)
 
 
 def _exposure(f: Array, cos_i: Array) -> float:
