@@ -34,6 +34,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -73,28 +74,38 @@ def cell_sets() -> dict[str, np.ndarray]:
     return out
 
 
+def _setup(ps: P.PriorSet, m: int) -> tuple[np.ndarray, ...]:
+    """Material ``m`` of ``ps`` and the basis of the others: (mean, components, standard deviations, its f cos cos
+    (3, M) at the training cells, its scale s (3,), its mapped values y (3, M))."""
+    idx, w, _ = P._design(_slice(SLICE_CASES["slice 40"]))  # the scale s: as the prior sets it from a 40 deg slice
+    mu, comps, sig = ps.basis(idx, w, exclude=(ps.names[m],))
+    fc = ps._fc()[3 * m:3 * m + 3].astype(np.float64)
+    scale = np.maximum(np.median(np.einsum("nj,cnj->cn", w, fc[:, idx]), axis=1), 1e-12)
+    return mu, comps, sig, fc, scale, np.log(fc / scale[:, None] + P.EPS) - mu
+
+
+def _fits(setup: tuple[np.ndarray, ...], obs: np.ndarray, ks: tuple[int, ...], lams: tuple[float, ...]
+          ) -> Iterator[np.ndarray]:
+    """The material of :func:`_setup` fitted to its own exact values at the training cells ``obs``, for every K of
+    ``ks`` and ridge weight of ``lams``: each fit's f cos cos (3, M), one at a time."""
+    mu, comps, sig, _, scale, y = setup
+    for k in ks:
+        a = comps[:k, obs].T
+        gram, rhs = a.T @ a, a.T @ y[:, obs].T
+        for lam in lams:
+            coef = np.linalg.solve(gram + lam * np.diag(1.0 / sig[:k] ** 2), rhs)  # (k, 3)
+            yield np.maximum(np.exp(coef.T @ comps[:k] + mu) - P.EPS, 0.0) * scale[:, None]
+
+
 def floors(ps: P.PriorSet, m: int, sets: dict[str, np.ndarray]) -> dict[str, float]:
     """rmse80 floor of material ``m`` of ``ps`` (basis: the others) for each set of observed cells."""
     g = P._grid()
     within = g["within"][g["train"]]
-    idx, w, _ = P._design(_slice(SLICE_CASES["slice 40"]))  # the scale s: as the prior sets it from a 40 deg slice
-    mu, comps, sig = ps.basis(idx, w, exclude=(ps.names[m],))
-    fc = ps._fc()[3 * m:3 * m + 3].astype(np.float64)  # (3, M) f cos cos at the training cells
-    scale = np.maximum(np.median(np.einsum("nj,cnj->cn", w, fc[:, idx]), axis=1), 1e-12)
-    y = np.log(fc / scale[:, None] + P.EPS) - mu
+    setup = _setup(ps, m)
+    fc = setup[3]
     den = np.sqrt(np.sum(fc[:, within] ** 2))
-    out = {}
-    for name, obs in sets.items():
-        best = np.inf
-        for k in K_GRID:
-            a = comps[:k, obs].T
-            gram, rhs = a.T @ a, a.T @ y[:, obs].T
-            for lam in LAM_GRID:
-                coef = np.linalg.solve(gram + lam * np.diag(1.0 / sig[:k] ** 2), rhs)  # (k, 3)
-                fh = np.maximum(np.exp(coef.T @ comps[:k] + mu) - P.EPS, 0.0) * scale[:, None]
-                best = min(best, float(np.sqrt(np.sum((fh - fc)[:, within] ** 2)) / den))
-        out[name] = best
-    return out
+    return {name: min(float(np.sqrt(np.sum((fh - fc)[:, within] ** 2)) / den)
+                      for fh in _fits(setup, obs, K_GRID, LAM_GRID)) for name, obs in sets.items()}
 
 
 IMAGE_SETS = ("all", "slice 40", "slices 40/70", "slices 20/40/60")
@@ -105,24 +116,14 @@ def _candidates(ps: P.PriorSet, m: int, sets: dict[str, np.ndarray]) -> dict[str
     """Per set of cells, the floor's reduced-grid f_r (3, n_cells) for every K of :data:`IMAGE_K` and ridge weight
     of :data:`IMAGE_LAM`, fitted to the material's own values at those cells."""
     g = P._grid()
-    idx, w, _ = P._design(_slice(SLICE_CASES["slice 40"]))
-    mu, comps, sig = ps.basis(idx, w, exclude=(ps.names[m],))
-    fc = ps._fc()[3 * m:3 * m + 3].astype(np.float64)
-    scale = np.maximum(np.median(np.einsum("nj,cnj->cn", w, fc[:, idx]), axis=1), 1e-12)
-    y = np.log(fc / scale[:, None] + P.EPS) - mu
+    setup = _setup(ps, m)
     out: dict[str, list[np.ndarray]] = {}
     for name in IMAGE_SETS:
-        obs = sets[name]
         out[name] = []
-        for k in IMAGE_K:
-            a = comps[:k, obs].T
-            gram, rhs = a.T @ a, a.T @ y[:, obs].T
-            for lam in IMAGE_LAM:
-                coef = np.linalg.solve(gram + lam * np.diag(1.0 / sig[:k] ** 2), rhs)
-                f = np.zeros((3, g["cos"].size))
-                f[:, g["train"]] = (np.maximum(np.exp(coef.T @ comps[:k] + mu) - P.EPS, 0.0) * scale[:, None]
-                                    / g["cos"][g["train"]])
-                out[name].append(np.where(g["cos"] > 0, P._extend(f), 0.0))
+        for fh in _fits(setup, sets[name], IMAGE_K, IMAGE_LAM):
+            f = np.zeros((3, g["cos"].size))
+            f[:, g["train"]] = fh / g["cos"][g["train"]]
+            out[name].append(np.where(g["cos"] > 0, P._extend(f), 0.0))
     return out
 
 
