@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextvars
 import os
+import threading
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor, as_completed
 from contextlib import contextmanager
@@ -15,7 +16,7 @@ from typing import Any, TypeVar
 
 T = TypeVar("T")
 
-__all__ = ["make_executor", "run_all", "Background"]
+__all__ = ["make_executor", "run_all", "Background", "SpareCore", "release_spare_core"]
 
 
 @contextmanager
@@ -104,3 +105,50 @@ class Background:
             return here
         fut = self.pool.submit(contextvars.copy_context().run, fn, *args)
         return fut.result
+
+
+_SPARE: contextvars.ContextVar[threading.Event | None] = contextvars.ContextVar("spare_core", default=None)
+
+
+class SpareCore:
+    """Work that can wait until the second core is free: within this block, :meth:`later` wraps a function so that
+    it first waits until :func:`release_spare_core` is called (by ``auto`` once its background cross-validation is
+    done) or the block ends. On the 2-core machine a third busy thread only slows the other two: the run's
+    critical path (fit's model search in the main thread) then shares two cores with two helpers. ``hold`` False:
+    nothing waits (a method without background work of its own)."""
+
+    def __init__(self, hold: bool = True) -> None:
+        self.gate = threading.Event()
+        if not hold:
+            self.gate.set()
+        self._token: contextvars.Token[threading.Event | None] | None = None
+
+    def __enter__(self) -> SpareCore:
+        self._token = _SPARE.set(self.gate)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.gate.set()
+        if self._token is not None:
+            _SPARE.reset(self._token)
+
+    def release(self) -> None:
+        """Let the waiting work run."""
+        self.gate.set()
+
+    def later(self, fn: Callable[..., T]) -> Callable[..., T]:
+        """``fn``, first waiting for the spare core (at most a minute: a guard against a lost release)."""
+        gate = self.gate
+
+        def waiting(*args: Any, **kwargs: Any) -> T:
+            gate.wait(timeout=60.0)
+            return fn(*args, **kwargs)
+
+        return waiting
+
+
+def release_spare_core() -> None:
+    """Called where background work of a method's own is done: the work a :class:`SpareCore` holds may start."""
+    gate = _SPARE.get()
+    if gate is not None:
+        gate.set()

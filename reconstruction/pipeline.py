@@ -269,6 +269,7 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
 def _run(job: Job, progress: Progress | None, helper: Any, renders: Any, drawer: Any) -> dict[str, Any]:
     from reconstruction.core import colour
     from reconstruction.core.scene import LOBE_KINDS, load_scene
+    from reconstruction.executor import SpareCore
     from reconstruction.formats import brdffile, exports, inputs, merl, zemax
     from reconstruction.principled.outputs import wants as wants_principled
     from reconstruction.principled.outputs import write_outputs as write_principled
@@ -323,12 +324,16 @@ def _run(job: Job, progress: Progress | None, helper: Any, renders: Any, drawer:
     opts = Options(scene=scene, fill=job.fill, lobes=lobes, revolve_axis=job.axis, revolve_smoothing=job.smoothing,
                    prior=job.prior, prior_anchor=job.prior_anchor)
     early_ref = None
+    # auto cross-validates the methods that do not wait for fit in a background thread of its own: the posterior
+    # below waits until that is done (a third busy thread on two cores would slow fit, the critical path)
+    spare = SpareCore(hold=job.method == "auto")
     if job.posterior_early:  # the built-in family's posterior depends on the samples alone
         from reconstruction.assess.uncertainty import reference_posterior
 
-        early_ref = helper.submit(reference_posterior, working.sorted())
-    rec, choice = reconstruct(working, job.method, opts,
-                              progress=(lambda name: progress.begin(f"fitting {name}")) if progress else None)
+        early_ref = helper.submit(spare.later(reference_posterior), working.sorted())
+    with spare:
+        rec, choice = reconstruct(working, job.method, opts,
+                                  progress=(lambda name: progress.begin(f"fitting {name}")) if progress else None)
     done("reconstruct", t0)
     others: dict[str, Reconstruction] = {}
     drawn_for = rec  # the reconstruction the sample figures were sent for

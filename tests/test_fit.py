@@ -272,3 +272,25 @@ def test_fit_table_is_the_tabulated_eval_with_theta_h_averages(n_channels):
     assert np.max(np.abs(fast[ok] - slow[ok]) / np.maximum(slow[ok], 1e-12)) < 1e-6
     centre = merl.tabulate(rec.eval)  # the averages matter here: the test would not pass on bin centres
     assert np.nanmax(np.abs(centre[:, :rows] - slow[:, :rows]) / slow[:, :rows].clip(1e-12)) > 0.05
+
+
+def test_fit_table_in_half_diff_angles_equals_the_table_of_its_material():
+    """fit's bin-centre table is computed from the half-diff angles when every lobe has that form (lambert, ggx,
+    beckmann, retro): the values of merl.tabulate(material.eval) to rounding, NaN in the same cells; a lobe
+    without it (Oren-Nayar) takes the general path."""
+    from reconstruction.core.models import Colour, Lambert, Material, Microfacet, OrenNayar, Retro
+    from reconstruction.formats import merl
+    from reconstruction.methods.fit.report import FitReconstruction
+
+    mats = [Material("rgb", [Lambert(Colour(np.array([0.2, 0.3, 0.4]))),
+                             Microfacet(Colour(np.array([0.5])), alpha=0.2, distribution="beckmann", f0=0.04),
+                             Retro(Colour(np.array([0.1])), exponent=7.0)]),
+            Material("grey", [Lambert(Colour(np.array([0.3]))), Microfacet(Colour(np.array([0.6])), alpha=0.05)]),
+            Material("other", [OrenNayar(Colour(np.array([0.5])), sigma_deg=20.0)])]
+    for m in mats:
+        rec = object.__new__(FitReconstruction)
+        rec.__dict__["material"] = m  # only the material is read
+        got, want = rec._centre_table(), merl.tabulate(m.eval)
+        assert got.shape == merl.SHAPE
+        np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-15, equal_nan=True)

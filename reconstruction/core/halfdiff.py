@@ -13,11 +13,12 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import NDArray
 
+from reconstruction.core.models import Lambert, Lobe, Microfacet, Retro
 from reconstruction.formats.merl import N_PD, N_TD, N_TH, cell_angles, theta_h_index
 
 Array = NDArray[np.float64]
 
-__all__ = ["cell_cosines", "average_theta_h_half_diff"]
+__all__ = ["cell_cosines", "average_theta_h_half_diff", "lobe_half_diff"]
 
 
 def cell_cosines() -> tuple[Array, Array]:
@@ -59,3 +60,18 @@ def average_theta_h_half_diff(f_hd: Callable[[Array, Array, Array, Array], Array
         out[r] = np.einsum("hdps,hdps->hdp", w, f_hd(th, td, ci, co)) / np.maximum(wsum, 1e-300)
         covered[r] = wsum > 0
     return rows, out, covered
+
+
+def lobe_half_diff(lobe: Lobe, theta_h: Array, theta_d: Array, cos_i: Array, cos_o: Array) -> Array | None:
+    """A lobe's shape (before its colour) from the half-diff angles (radians) and cos theta_i, cos theta_o
+    (broadcast against each other; :func:`cell_cosines` on the table's grid), or None for a lobe without this
+    form: lambert, the microfacet lobes (ggx, beckmann) and retro (wi . wo = cos 2 theta_d)."""
+    up = (cos_i > 0) & (cos_o > 0)
+    if isinstance(lobe, Microfacet):
+        return lobe.shape_half_diff(theta_h, theta_d, cos_i, cos_o)
+    if type(lobe) is Lambert:
+        return np.where(up, 1.0 / np.pi, 0.0)
+    if type(lobe) is Retro:
+        dot = np.cos(2.0 * np.asarray(theta_d, dtype=np.float64))
+        return np.where(up, (lobe.exponent + 2.0) / (2.0 * np.pi) * np.maximum(dot, 0.0) ** lobe.exponent, 0.0)
+    return None

@@ -42,6 +42,7 @@ from reconstruction.base import Reconstruction, ReconstructionError
 from reconstruction.core.checks import ALBEDO_INCIDENCES_DEG, ALBEDO_TOLERANCE, checked_albedo
 from reconstruction.core.samples import PointFolds, everywhere, points_anywhere
 from reconstruction.executor import Background as _Background
+from reconstruction.executor import release_spare_core
 from reconstruction.formats.slicefile import Slice
 from reconstruction.methods import REGISTRY, Options, get
 from reconstruction.methods.crossval import (
@@ -204,6 +205,7 @@ def _reconstruct_auto(s: Slice, opts: Options,
               if name in BACKGROUND_METHODS and m.usable(opts)]
     with _Background(enabled=len(others) > 0) as bg:
         pending = {name: bg.submit(cross_validate, s, name, build, masks, inside) for name, build in others}
+        bg.submit(release_spare_core)  # then the core is free for the work that waits for it (the posterior)
         fit_rec = get("fit").build(full, opts, progress)
         assert isinstance(fit_rec, FitReconstruction)
         specs = fit_rec.result.specs

@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.interpolate import PchipInterpolator
 
-from reconstruction.bench.instrument import Instrument, instrument_average_dirs, unit_lobe_averages
+from reconstruction.bench.instrument import Instrument, instrument_average_dirs, unit_lobe_tables
 from reconstruction.core.models import Material, schlick
 
 Array = NDArray[np.float64]
@@ -36,6 +36,8 @@ __all__ = ["Blur", "ALPHA_FLOOR", "resolution_alpha"]
 ALPHA_FLOOR = 1e-4
 #: alpha nodes of the tabulated cone averages (log-spaced from ALPHA_FLOOR to 1.5)
 N_ALPHA = 20
+#: the distributions whose cone averages are tabulated together (the model search tries both)
+TABLE_KINDS = ("ggx", "beckmann")
 #: samples within this many cone half angles (or 3 deg) of the mirror direction use cone averages
 NEAR_CONES = 15.0
 #: a lobe whose half width (in theta_o) is under this fraction of the cone's half angle is below the resolution
@@ -83,9 +85,12 @@ class Blur:
         root = self._root
         if kind not in root._tables:
             wi, wo = root.wi[root.near], root.wo[root.near]
-            # N_ALPHA cone integrals of the near samples, once (shared with other fits inside shared_cone_averages)
-            vals = unit_lobe_averages(wi, wo, root.instrument, root.alphas, kind).T
-            root._tables[kind] = PchipInterpolator(np.log(root.alphas), np.log(np.maximum(vals, 1e-300)), axis=0)
+            # N_ALPHA cone integrals of the near samples, once (shared with other fits inside shared_cone_averages),
+            # both distributions in one pass (the model search tries both; the second costs about half the first)
+            kinds = (kind,) + tuple(k for k in TABLE_KINDS if k != kind and k not in root._tables)
+            tables = unit_lobe_tables(wi, wo, root.instrument, root.alphas, kinds)
+            for k, vals in tables.items():
+                root._tables[k] = PchipInterpolator(np.log(root.alphas), np.log(np.maximum(vals.T, 1e-300)), axis=0)
         return root._tables[kind]
 
     def column(self, kind: str, alpha: float, f0: float | None, point: Array) -> Array:
