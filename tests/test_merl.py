@@ -286,3 +286,17 @@ def test_a_float32_table_is_looked_up_as_its_float64_copy():
     for interp in (False, True):
         np.testing.assert_array_equal(merl.lookup(t32, wi, wo, interpolate=interp),
                                       merl.lookup(t32.astype(np.float64), wi, wo, interpolate=interp))
+
+
+def test_cell_cosines_are_the_cell_directions_z_components_bit_for_bit():
+    """valid_mask and cell_cosines come from the closed form without the 70 MB of direction vectors: the same bits
+    as the bin-centre directions' z components, and read-only (a caller cannot change the cached copy)."""
+    wi, wo = merl._cell_dirs()
+    ci, co = merl.cell_cosines()
+    np.testing.assert_array_equal(ci, wi[..., 2])
+    np.testing.assert_array_equal(co, wo[..., 2])
+    m = merl.valid_mask()
+    np.testing.assert_array_equal(m, (wi[..., 2] > 0) & (wo[..., 2] > 0))
+    assert int(m.sum()) == merl.N_CELLS - 361784  # the doctest of tabulate: 361,784 cells below the horizon
+    with pytest.raises(ValueError):
+        m[0, 0, 0] = False

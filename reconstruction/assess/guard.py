@@ -201,6 +201,6 @@ def _lowering(table: Array, bound: Array, free: NDArray[np.bool_]) -> tuple[NDAr
 @lru_cache(maxsize=1)
 def _cos_weights() -> Array:
     """(90, 90, 180) cos theta_i cos theta_o at the bin centres (the weight of a cell's light in a render), from
-    the table's cached bin-centre directions."""
-    wi, wo = merl._cell_dirs()
-    return np.clip(wi[..., 2], 0, None) * np.clip(wo[..., 2], 0, None)
+    the table's cached bin-centre cosines."""
+    ci, co = merl.cell_cosines()
+    return np.clip(ci, 0, None) * np.clip(co, 0, None)

@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 
 from reconstruction.core.models import Lambert, Lobe, Microfacet, Retro
 from reconstruction.formats.merl import N_PD, N_TD, N_TH, cell_angles, theta_h_index
+from reconstruction.formats.merl import cell_cosines as merl_cell_cosines
 
 Array = NDArray[np.float64]
 
@@ -24,11 +25,8 @@ __all__ = ["cell_cosines", "average_theta_h_half_diff", "lobe_half_diff"]
 def cell_cosines() -> tuple[Array, Array]:
     """cos theta_i and cos theta_o (90, 90, 180) at the bin centres, from the angles in closed form (phi_h = 0, as
     :func:`reconstruction.core.geometry.dirs_from_half_diff`; ``> 0`` in both is
-    :func:`reconstruction.formats.merl.valid_mask`)."""
-    th, td, pd = cell_angles()
-    ctd = np.cos(td)
-    ci = np.cos(th) * ctd - np.sin(th) * (np.sin(td) * np.cos(pd))
-    return ci, (2.0 * ctd) * np.cos(th) - ci
+    :func:`reconstruction.formats.merl.valid_mask`): :func:`reconstruction.formats.merl.cell_cosines`, read-only."""
+    return merl_cell_cosines()
 
 
 def average_theta_h_half_diff(f_hd: Callable[[Array, Array, Array, Array], Array], theta_h_max: float, n: int = 8,

@@ -6,7 +6,8 @@ On disk (see ../shared/reference/merl-format.md): an int32 header ``90 90 180``,
 all blue as little-endian float64, each divided by its channel scale; invalid cells are stored as -1.
 
 A cell stands for its bin centre: theta_h = ((i + 0.5) / 90)^2 * 90 deg, theta_d = (j + 0.5) deg,
-phi_d = (k + 0.5) deg, with phi_h = 0.
+phi_d = (k + 0.5) deg, with phi_h = 0. The grid's indices, angles, directions and cosines are in
+:mod:`reconstruction.formats.merlgrid` and re-exported here.
 """
 
 from __future__ import annotations
@@ -14,7 +15,6 @@ from __future__ import annotations
 import os
 import warnings
 from collections.abc import Callable
-from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -22,10 +22,25 @@ from numpy.typing import ArrayLike, NDArray
 
 from reconstruction.atomic import atomic_open
 from reconstruction.core.geometry import dirs_from_half_diff, half_diff_from_dirs
+from reconstruction.formats.merlgrid import (  # noqa: F401  (the grid's names, re-exported)
+    N_PD,
+    N_TD,
+    N_TH,
+    _cell_dirs,
+    _continuous_index,
+    _grid_dirs,
+    cell_angles,
+    cell_cosines,
+    cell_to_dirs,
+    dirs_to_cell,
+    phi_d_index,
+    theta_d_index,
+    theta_h_index,
+    valid_mask,
+)
 
 Array = NDArray[np.float64]
 
-N_TH, N_TD, N_PD = 90, 90, 180
 SHAPE = (3, N_TH, N_TD, N_PD)
 N_CELLS = N_TH * N_TD * N_PD  # 1,458,000
 FILE_SIZE = 12 + 3 * N_CELLS * 8  # 34,992,012 bytes
@@ -34,156 +49,11 @@ _HEADER = np.array([N_TH, N_TD, N_PD], dtype="<i4").tobytes()
 
 __all__ = ["SHAPE", "N_CELLS", "FILE_SIZE", "SCALES", "MerlError", "MerlWarning", "MAX_CELL_VALUE", "read", "write",
            "theta_h_index", "theta_d_index", "phi_d_index", "cell_angles", "cell_to_dirs", "dirs_to_cell",
-           "valid_mask", "lookup", "brdf_of", "lookup_cells", "tabulate"]
+           "valid_mask", "cell_cosines", "lookup", "brdf_of", "lookup_cells", "tabulate"]
 
 
 class MerlError(ValueError):
     """A MERL file or table is invalid; the message names the file and the problem."""
-
-
-# --- index functions (the reference reader's) ------------------------------------------------------------
-
-
-def theta_h_index(theta_h: ArrayLike) -> NDArray[np.intp]:
-    """Cell index of theta_h (radians): int(sqrt(theta_h / (pi/2)) * 90), 0 for theta_h <= 0, in [0, 89].
-
-    Examples
-    --------
-    >>> theta_h_index(np.radians([0.0, 1.0, 45.0, 89.9])).tolist()
-    [0, 9, 63, 89]
-    """
-    th = np.asarray(theta_h, dtype=np.float64)
-    u = np.sqrt(np.maximum(th, 0.0) / (np.pi / 2)) * N_TH
-    return np.clip(np.floor(u), 0, N_TH - 1).astype(np.intp)
-
-
-def theta_d_index(theta_d: ArrayLike) -> NDArray[np.intp]:
-    """Cell index of theta_d (radians): int(theta_d / (pi/2) * 90) in [0, 89].
-
-    Examples
-    --------
-    >>> theta_d_index(np.radians([0.0, 30.5, 89.9])).tolist()
-    [0, 30, 89]
-    """
-    td = np.asarray(theta_d, dtype=np.float64)
-    return np.clip(np.floor(td / (np.pi / 2) * N_TD), 0, N_TD - 1).astype(np.intp)
-
-
-def phi_d_index(phi_d: ArrayLike) -> NDArray[np.intp]:
-    """Cell index of phi_d (radians): fold phi_d < 0 by +pi, then int(phi_d / pi * 180) in [0, 179].
-
-    Examples
-    --------
-    >>> phi_d_index(np.radians([0.0, 90.0, -90.0, 179.9])).tolist()  # phi_d < 0 folds by +180 deg
-    [0, 90, 90, 179]
-    """
-    pd = np.asarray(phi_d, dtype=np.float64)
-    pd = np.where(pd < 0, pd + np.pi, pd)
-    return np.clip(np.floor(pd / np.pi * N_PD), 0, N_PD - 1).astype(np.intp)
-
-
-def _continuous_index(theta_h: Array, theta_d: Array, phi_d: Array) -> tuple[Array, Array, Array]:
-    """Fractional cell coordinates whose integer values are bin centres (x = index + 0.5 at the centre)."""
-    xh = np.sqrt(np.maximum(theta_h, 0.0) / (np.pi / 2)) * N_TH - 0.5
-    xd = theta_d / (np.pi / 2) * N_TD - 0.5
-    pd = np.mod(phi_d, np.pi)  # reciprocity: phi_d and phi_d + pi are the same cell
-    xp = pd / np.pi * N_PD - 0.5
-    return xh, xd, xp
-
-
-@lru_cache(maxsize=1)
-def cell_angles() -> tuple[Array, Array, Array]:
-    """Bin-centre angles (theta_h, theta_d, phi_d) in radians, each broadcastable to (90, 90, 180).
-
-    Examples
-    --------
-    >>> th, td, pd = cell_angles()
-    >>> th.shape, td.shape, pd.shape
-    ((90, 1, 1), (1, 90, 1), (1, 1, 180))
-    >>> round(float(np.degrees(td[0, 0, 0])), 6), round(float(np.degrees(pd[0, 0, 1])), 6)
-    (0.5, 1.5)
-    """
-    i = np.arange(N_TH, dtype=np.float64)
-    th = ((i + 0.5) / N_TH) ** 2 * (np.pi / 2)
-    td = (np.arange(N_TD) + 0.5) / N_TD * (np.pi / 2)
-    pd = (np.arange(N_PD) + 0.5) / N_PD * np.pi
-    return th[:, None, None], td[None, :, None], pd[None, None, :]
-
-
-def cell_to_dirs(i: ArrayLike, j: ArrayLike, k: ArrayLike) -> tuple[Array, Array]:
-    """Direction pairs (wi, wo), (..., 3), standing for cells (i, j, k): their bin centres with phi_h = 0.
-
-    Examples
-    --------
-    >>> wi, wo = cell_to_dirs(0, 30, 90)
-    >>> wi.shape, bool(wi[2] > 0 and wo[2] > 0)
-    ((3,), True)
-    """
-    i = np.asarray(i, dtype=np.float64)
-    j = np.asarray(j, dtype=np.float64)
-    k = np.asarray(k, dtype=np.float64)
-    th = ((i + 0.5) / N_TH) ** 2 * (np.pi / 2)
-    td = (j + 0.5) / N_TD * (np.pi / 2)
-    pd = (k + 0.5) / N_PD * np.pi
-    return dirs_from_half_diff(th, np.zeros_like(th), td, pd)
-
-
-def dirs_to_cell(wi: ArrayLike, wo: ArrayLike) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp]]:
-    """Cell indices (i, j, k) of direction pairs (..., 3), with the reference reader's index functions.
-
-    Examples
-    --------
-    >>> wi, wo = cell_to_dirs(10, 30, 90)
-    >>> [int(x) for x in dirs_to_cell(wi, wo)]
-    [10, 30, 90]
-    """
-    th, _, td, pd = half_diff_from_dirs(wi, wo)
-    return theta_h_index(th), theta_d_index(td), phi_d_index(pd)
-
-
-def _grid_dirs(th: Array, td: Array, pd: Array) -> tuple[Array, Array]:
-    """Direction pairs (len(th), len(td), len(pd), 3) on a grid of 1-D angle arrays (radians), phi_h = 0.
-
-    Separable: d depends on (theta_d, phi_d) only, and wi is d rotated by theta_h about y.
-    """
-    th = np.asarray(th, dtype=np.float64).reshape(-1, 1, 1, 1)
-    td = np.asarray(td, dtype=np.float64).reshape(1, -1, 1)
-    pd = np.asarray(pd, dtype=np.float64).reshape(1, 1, -1)
-    st, ct = np.sin(td), np.cos(td)
-    dx, dy, dz = st * np.cos(pd), np.broadcast_to(st * np.sin(pd), (1, td.shape[1], pd.shape[2])), ct
-    c, s = np.cos(th), np.sin(th)
-    shape = (th.shape[0], td.shape[1], pd.shape[2], 3)
-    wi = np.empty(shape)
-    wi[..., 0] = c[..., 0] * dx + s[..., 0] * dz
-    wi[..., 1] = dy
-    wi[..., 2] = -s[..., 0] * dx + c[..., 0] * dz
-    # wo = 2 (wi . h) h - wi with h = (sin th, 0, cos th) and wi . h = d_z = cos theta_d
-    h = np.concatenate([s, np.zeros_like(s), c], axis=-1)
-    wo = 2.0 * np.broadcast_to(dz, (1,) + dz.shape[1:])[..., None] * h - wi
-    return wi, wo
-
-
-@lru_cache(maxsize=1)
-def _cell_dirs() -> tuple[Array, Array]:
-    """Bin-centre direction pairs (90, 90, 180, 3), read-only and cached."""
-    th, td, pd = cell_angles()
-    wi, wo = _grid_dirs(th.ravel(), td.ravel(), pd.ravel())
-    wi.setflags(write=False)
-    wo.setflags(write=False)
-    return wi, wo
-
-
-def valid_mask() -> NDArray[np.bool_]:
-    """(90, 90, 180) bool: cells whose bin-centre directions both lie above the horizon.
-
-    Examples
-    --------
-    >>> m = valid_mask()
-    >>> m.shape, bool(m[0, 0, 0]), bool(m[89, 89, 0])
-    ((90, 90, 180), True, False)
-    """
-    wi, wo = _cell_dirs()
-    return (wi[..., 2] > 0) & (wo[..., 2] > 0)
 
 
 # --- lookups ---------------------------------------------------------------------------------------------
@@ -214,7 +84,10 @@ def lookup(table: ArrayLike, wi: ArrayLike, wo: ArrayLike, interpolate: bool = F
     shape = np.broadcast_shapes(wi.shape, wo.shape)
     idx, w = lookup_cells(np.broadcast_to(wi, shape).reshape(-1, 3), np.broadcast_to(wo, shape).reshape(-1, 3),
                           interpolate)
-    v = t.reshape(3, -1)[:, idx].astype(np.float64, copy=False)  # (3, N, K) the cells' values
+    # (3, N, K) the cells' values; a table that is not one block (a grey table broadcast to three channels) read
+    # channel by channel, not copied whole
+    v = (t.reshape(3, -1)[:, idx] if t.flags.c_contiguous
+         else np.stack([t[c].reshape(-1)[idx] for c in range(3)])).astype(np.float64, copy=False)
     ok = np.isfinite(v)
     w = w[None] * ok  # NaN neighbours ignored
     acc = np.sum(w * np.where(ok, v, 0.0), axis=-1)
