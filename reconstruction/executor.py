@@ -8,7 +8,12 @@ from __future__ import annotations
 
 import contextvars
 import os
+import pickle
+import signal
+import struct
+import sys
 import threading
+import warnings
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor, as_completed
 from contextlib import contextmanager
@@ -16,7 +21,7 @@ from typing import Any, TypeVar
 
 T = TypeVar("T")
 
-__all__ = ["make_executor", "run_all", "Background", "SpareCore", "release_spare_core"]
+__all__ = ["make_executor", "run_all", "Background", "SpareCore", "release_spare_core", "Forked", "forked", "can_fork"]
 
 
 @contextmanager
@@ -152,3 +157,186 @@ def release_spare_core() -> None:
     gate = _SPARE.get()
     if gate is not None:
         gate.set()
+
+
+# --- a forked child for work that holds the GIL --------------------------------------------------------------------
+
+_FORKED: contextvars.ContextVar[Forked | None] = contextvars.ContextVar("forked", default=None)
+
+
+def can_fork() -> bool:
+    """Whether work may run in a forked child: on Linux (fork is what the standard library's process pools use
+    there; macOS's system libraries are not fork-safe), with a second core, unless ``GONIO_FORK=0``."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return (sys.platform.startswith("linux") and hasattr(os, "fork") and cores > 1
+            and os.environ.get("GONIO_FORK", "1") != "0")
+
+
+class Forked:
+    """A child process forked when this is made (as early as a run allows: the process is small and its own
+    threads have not started) that runs tasks in the order they are sent, beside this process: work that holds the
+    GIL (fits of many small solves) runs truly beside the main thread's, where a second thread would take turns
+    with it. :meth:`submit` sends a module-level function and picklable arguments and returns a function that
+    gives the result (blocking, without holding the GIL). Without fork (:func:`can_fork`, ``enabled`` False), when
+    the child is gone, or when a task fails there (its error may not pickle), the task runs here when its result is
+    asked for, so that an error is raised in this process as without a child. Within the block, :func:`forked`
+    gives it to the code the run calls (auto's cross-validation). Leaving the block ends the child."""
+
+    def __init__(self, enabled: bool = True) -> None:
+        self._pid = 0
+        self._to = self._back = -1
+        self._lock = threading.Lock()
+        self._sent = 0  # tasks submitted
+        self._order: list[int] = []  # those sent to the child, in order: its answers come in this order
+        self._got: dict[int, tuple[str, Any]] = {}
+        self._token: contextvars.Token[Forked | None] | None = None
+        if not (enabled and can_fork()):
+            return
+        to_r, to_w = os.pipe()
+        back_r, back_w = os.pipe()
+        try:
+            with warnings.catch_warnings():  # Python 3.12 warns of fork in a process with threads: the child
+                warnings.simplefilter("ignore", DeprecationWarning)  # takes none of their locks
+                pid = os.fork()
+        except OSError:
+            for fd in (to_r, to_w, back_r, back_w):
+                os.close(fd)
+            return
+        if pid == 0:
+            os.close(to_w)
+            os.close(back_r)
+            _forked_child(to_r, back_w)  # never returns
+        os.close(to_r)
+        os.close(back_w)
+        self._pid, self._to, self._back = pid, to_w, back_r
+
+    @property
+    def alive(self) -> bool:
+        """Whether tasks go to a child."""
+        return self._pid != 0
+
+    def submit(self, fn: Callable[..., T], *args: Any) -> Callable[[], T]:
+        done: list[T] = []
+
+        def here() -> T:
+            if not done:
+                done.append(fn(*args))
+            return done[0]
+
+        if not self._pid:
+            return here
+        n = self._sent
+        self._sent += 1
+        try:
+            data = pickle.dumps((fn, args), protocol=pickle.HIGHEST_PROTOCOL)
+            _write_all(self._to, struct.pack(">Q", len(data)) + data)  # the child reads it when it is free
+            self._order.append(n)
+        except (OSError, pickle.PicklingError, AttributeError, TypeError):
+            self._got[n] = ("here", None)  # not sent: run here when asked for
+
+        answer: list[tuple[str, Any]] = []
+
+        def result() -> T:
+            if not answer:
+                answer.append(self._answer(n))
+            status, value = answer[0]
+            return value if status == "ok" else here()  # type: ignore[no-any-return]
+
+        return result
+
+    def _answer(self, n: int) -> tuple[str, Any]:
+        """The child's answer to task ``n``: ("ok", value), or ("here", None) when it must run here."""
+        with self._lock:  # answers come in the order the tasks were sent: read until n's
+            while n not in self._got:
+                msg = _read_message(self._back) if self._back >= 0 else None
+                k = self._order.pop(0)
+                if msg is None:  # the child is gone: this and every later task run here
+                    self._got.update({x: ("here", None) for x in [k, *self._order]})
+                    self._order.clear()
+                    break
+                try:
+                    self._got[k] = pickle.loads(msg)
+                except Exception:  # noqa: BLE001 - an answer that does not unpickle: run here
+                    self._got[k] = ("here", None)
+            return self._got.pop(n)
+
+    def close(self) -> None:
+        """End the child (it exits once the tasks sent are done; killed if it does not)."""
+        for fd in (self._to, self._back):
+            if fd >= 0:
+                os.close(fd)
+        self._to = self._back = -1
+        if self._pid:
+            try:
+                os.kill(self._pid, signal.SIGKILL)
+            except OSError:
+                pass
+            os.waitpid(self._pid, 0)
+            self._pid = 0
+
+    def __enter__(self) -> Forked:
+        self._token = _FORKED.set(self if self._pid else None)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._token is not None:
+            _FORKED.reset(self._token)
+        self.close()
+
+
+def forked() -> Forked | None:
+    """The run's forked child (:class:`Forked`) when there is one."""
+    return _FORKED.get()
+
+
+def _write_all(fd: int, data: bytes) -> None:
+    view = memoryview(data)
+    while view:
+        view = view[os.write(fd, view):]
+
+
+def _read_message(fd: int) -> bytes | None:
+    """One length-prefixed message from ``fd``, or None at its end."""
+    head = _read_exactly(fd, 8)
+    return None if head is None else _read_exactly(fd, struct.unpack(">Q", head)[0])
+
+
+def _read_exactly(fd: int, n: int) -> bytes | None:
+    parts, left = [], n
+    while left:
+        chunk = os.read(fd, min(left, 1 << 20))
+        if not chunk:
+            return None
+        parts.append(chunk)
+        left -= len(chunk)
+    return b"".join(parts)
+
+
+def _forked_child(inbox: int, outbox: int) -> None:
+    """The child of :class:`Forked`: only its two pipes (and standard streams) open, one BLAS thread; each task run
+    in turn, its answer ("ok", value) or ("here", None) sent back; exits without cleanup (``os._exit``) at the end of
+    its input."""
+    code = 1
+    try:
+        from threadpoolctl import threadpool_limits
+
+        # the parent's other descriptors closed: a pipe to another child (the HTML page's drawer) held open here
+        # would keep that child from seeing the end of its input
+        for name in os.listdir("/proc/self/fd"):  # Linux (can_fork); a few dozen
+            if int(name) not in (0, 1, 2, inbox, outbox):
+                try:
+                    os.close(int(name))
+                except OSError:  # the listing's own descriptor, already closed
+                    pass
+        warnings.simplefilter("ignore")
+        threadpool_limits(1, user_api="blas")
+        while (msg := _read_message(inbox)) is not None:
+            try:
+                fn, args = pickle.loads(msg)
+                answer = pickle.dumps(("ok", fn(*args)), protocol=pickle.HIGHEST_PROTOCOL)
+            except Exception:  # noqa: BLE001 - run again in the parent, which raises the error there
+                answer = pickle.dumps(("here", None))
+            _write_all(outbox, struct.pack(">Q", len(answer)) + answer)
+        code = 0
+    finally:
+        os._exit(code)

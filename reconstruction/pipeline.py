@@ -253,16 +253,18 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
     from threadpoolctl import threadpool_limits
 
     from reconstruction.bench.instrument import shared_cone_averages
-    from reconstruction.executor import Background
+    from reconstruction.executor import Background, Forked
 
     # the built-in family's posterior beside the reconstruction: one BLAS thread for the whole run, so that the
     # limits fit sets and lifts around its own solves (process-wide) never change the posterior's threads midway
     from reconstruction.report.figures import Drawer
 
     blas = threadpool_limits(1, user_api="blas") if job.posterior_early else nullcontext()
-    # the page's drawer first: its child is forked before any thread of the run starts
-    with Drawer(enabled=bool(job.html)) as drawer, blas, shared_cone_averages(), \
-            Background(enabled=job.assesses or job.bounds) as helper, Background(enabled=bool(job.html)) as renders:
+    # the page's drawer and auto's child for the cross-validation of the methods that do not wait for fit first:
+    # they are forked before any thread of the run starts
+    with Drawer(enabled=bool(job.html)) as drawer, Forked(enabled=job.method == "auto"), blas, \
+            shared_cone_averages(), Background(enabled=job.assesses or job.bounds) as helper, \
+            Background(enabled=bool(job.html)) as renders:
         return _run(job, progress, helper, renders, drawer)
 
 

@@ -80,6 +80,7 @@ def test_auto_starts_the_bound_posterior_after_its_background_cross_validation(t
     from reconstruction.methods import auto
 
     monkeypatch.setattr(executor.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    monkeypatch.setenv("GONIO_FORK", "0")  # the second thread's work (the forked child's is the next test's)
     events: list[str] = []  # in the order they happened
     real_cv, real_post = auto.cross_validate, uncertainty.reference_posterior
 
@@ -99,3 +100,86 @@ def test_auto_starts_the_bound_posterior_after_its_background_cross_validation(t
     assert rep["conservative"] is not None
     assert {"cv microfacet", "cv revolve", "cv bivariate", "posterior"} <= set(events)
     assert events.index("posterior") > max(events.index(f"cv {m}") for m in ("microfacet", "revolve", "bivariate"))
+
+
+def _pid_and(x):
+    import os
+
+    return os.getpid(), x
+
+
+def _fails(x):
+    raise ValueError(f"bad {x}")
+
+
+def test_forked_child_runs_tasks_beside_this_process_and_falls_back_here():
+    """Forked: a task runs in the child (another pid) and its result comes back in order; a task that fails there
+    runs again here and raises here; a task that does not pickle runs here; with the child gone, or without fork,
+    the tasks run here."""
+    import os
+
+    from reconstruction import executor
+
+    with executor.Forked() as child:
+        assert child.alive and executor.forked() is child
+        a, b = child.submit(_pid_and, 1), child.submit(_pid_and, 2)
+        assert b() == (b()[0], 2) and a()[1] == 1 and a()[0] != os.getpid() and a()[0] == b()[0]
+        bad = child.submit(_fails, 3)
+        with pytest.raises(ValueError, match="bad 3"):
+            bad()
+        local = child.submit(lambda: os.getpid())  # a lambda does not pickle: run here
+        assert local() == os.getpid()
+        os.kill(child._pid, 9)
+        late = child.submit(_pid_and, 4)
+        assert late() == (os.getpid(), 4)
+    assert executor.forked() is None
+    with executor.Forked(enabled=False) as none:
+        assert not none.alive and executor.forked() is None
+        assert none.submit(_pid_and, 5)() == (os.getpid(), 5)
+
+
+def test_auto_cross_validates_in_the_forked_child_with_the_same_result(tmp_path, monkeypatch):
+    """In a run on two cores, auto's microfacet, revolve and bivariate are cross-validated in the run's forked
+    child (their fits hold the GIL); the scores, the choice and the table are those of the same run without the
+    child (GONIO_FORK=0: in a second thread)."""
+    from reconstruction import executor
+    from reconstruction.methods import auto
+
+    monkeypatch.setattr(executor.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    here: list[str] = []  # cross-validations run in this process (the child's calls stay in the child)
+    real = auto.cross_validate
+
+    def cv(s, name, *args, **kw):
+        here.append(name)
+        return real(s, name, *args, **kw)
+
+    monkeypatch.setattr(auto, "cross_validate", cv)
+    src = slice_file(tmp_path / "slice.csv", BLUE_PLASTIC, incidences=(20.0, 50.0), step=4.0)
+    reps = {}
+    for fork in ("1", "0"):
+        monkeypatch.setenv("GONIO_FORK", fork)
+        here.clear()
+        out = tmp_path / f"m{fork}.binary"
+        reps[fork] = pipeline.run(pipeline.Job(inputs=(str(src),), out=str(out), method="auto"))
+        assert ("microfacet" in here) == (fork == "0") and "fit" in here
+    def scores(rep):
+        return [{k: v for k, v in x.items() if k != "seconds"} for x in rep["cross_validation"]["scores"]]
+
+    assert scores(reps["1"]) == scores(reps["0"]) and len(scores(reps["1"])) == 4
+    assert (tmp_path / "m1.binary").read_bytes() == (tmp_path / "m0.binary").read_bytes()
+
+
+def test_auto_with_the_html_page_ends_with_both_children(tmp_path):
+    """auto with --html forks two children, the page's drawer and auto's cross-validation: each must hold only
+    its own pipes, or the drawer never sees the end of its input and the run waits forever (a separate process
+    with a timeout, so that a regression fails instead of hanging the suite)."""
+    import subprocess
+    import sys
+
+    src = slice_file(tmp_path / "slice.csv", BLUE_PLASTIC, incidences=(20.0, 50.0), step=4.0)
+    env = {k: v for k, v in __import__("os").environ.items() if k not in ("GONIO_FORK", "GONIO_HTML_FORK")}
+    done = subprocess.run([sys.executable, "-m", "reconstruction.cli", str(src), "--method", "auto", "--out",
+                           str(tmp_path / "m.binary"), "--html", str(tmp_path / "m.html"), "--quiet"],
+                          capture_output=True, text=True, timeout=300, env=env)
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "m.html").stat().st_size > 10_000

@@ -42,7 +42,7 @@ from reconstruction.base import Reconstruction, ReconstructionError
 from reconstruction.core.checks import ALBEDO_INCIDENCES_DEG, ALBEDO_TOLERANCE, checked_albedo
 from reconstruction.core.samples import PointFolds, everywhere, points_anywhere
 from reconstruction.executor import Background as _Background
-from reconstruction.executor import release_spare_core
+from reconstruction.executor import forked, release_spare_core
 from reconstruction.formats.slicefile import Slice
 from reconstruction.methods import REGISTRY, Options, get
 from reconstruction.methods.crossval import (
@@ -203,8 +203,13 @@ def _reconstruct_auto(s: Slice, opts: Options,
     # threadpool limit changes for the whole process while it runs (and with it the last digits of prior's results)
     others = [(name, lambda tr, m=m: m.build(tr, opts, None)) for name, m in REGISTRY.items()
               if name in BACKGROUND_METHODS and m.usable(opts)]
+    child = forked()
     with _Background(enabled=len(others) > 0) as bg:
-        pending = {name: bg.submit(cross_validate, s, name, build, masks, inside) for name, build in others}
+        if child is not None and others:  # in the run's forked child (their fits hold the GIL), this thread waiting
+            answer = bg.submit(child.submit(_cross_validate_methods, s, [n for n, _ in others], opts, masks, inside))
+            pending = {name: (lambda name=name: answer()[name]) for name, _ in others}
+        else:
+            pending = {name: bg.submit(cross_validate, s, name, build, masks, inside) for name, build in others}
         bg.submit(release_spare_core)  # then the core is free for the work that waits for it (the posterior)
         fit_rec = get("fit").build(full, opts, progress)
         assert isinstance(fit_rec, FitReconstruction)
@@ -315,6 +320,17 @@ def _reconstruct_auto(s: Slice, opts: Options,
                     "held_out_predictions": ({} if s is not full else  # per sample of the input (none when thinned)
                                              {c.method: c.predictions for c in reversed(scores)
                                               if c.predictions is not None and (c.method != best.method or c is best)})}
+
+
+def _cross_validate_methods(s: Slice, names: list[str], opts: Options, masks: list[NDArray[np.bool_]],
+                            inside: NDArray[np.bool_] | None) -> dict[str, CVScore]:
+    """{method: its cross-validation} of the registered methods ``names`` (auto's background methods), their cone
+    integrals shared: what the run's forked child computes (:class:`reconstruction.executor.Forked`)."""
+    from reconstruction.bench.instrument import shared_cone_averages
+
+    with shared_cone_averages():
+        return {name: cross_validate(s, name, lambda tr, m=REGISTRY[name]: m.build(tr, opts, None), masks, inside)
+                for name in names}  # three
 
 
 def _both(c: CVScore) -> str:
