@@ -23,7 +23,7 @@ from reconstruction.formats import merl
 from reconstruction.formats.inputs import check_slice
 from reconstruction.formats.slicefile import Slice
 from reconstruction.methods import REGISTRY, Options, get
-from reconstruction.methods.auto import reconstruct_auto
+from reconstruction.methods.auto import KEEP_BUILDS, reconstruct_auto
 
 Array = NDArray[np.float64]
 
@@ -333,14 +333,19 @@ def _run(job: Job, progress: Progress | None, helper: Any, renders: Any, drawer:
         from reconstruction.assess.uncertainty import reference_posterior
 
         early_ref = helper.submit(spare.later(reference_posterior), working.sorted())
-    with spare:
-        rec, choice = reconstruct(working, job.method, opts,
-                                  progress=(lambda name: progress.begin(f"fitting {name}")) if progress else None)
+    keep = KEEP_BUILDS.set(bool(job.html))  # the page draws every method: auto's child builds its own
+    try:
+        with spare:
+            rec, choice = reconstruct(working, job.method, opts,
+                                      progress=(lambda name: progress.begin(f"fitting {name}")) if progress else None)
+    finally:
+        KEEP_BUILDS.reset(keep)
     done("reconstruct", t0)
+    built = choice.pop("built", None)  # auto's forked child's builds of its methods (with the page)
     others: dict[str, Reconstruction] = {}
     drawn_for = rec  # the reconstruction the sample figures were sent for
     if job.html:  # the page's figures of the samples and methods, drawn by its child while the run goes on
-        others = _send_sample_figures(job, drawer, working, rec, choice, opts)
+        others = _send_sample_figures(job, drawer, working, rec, choice, opts, built=built() if built else None)
     t0 = begin("tabulating" + (f" (supersample {job.supersample})" if job.supersample else ""))
     energy: dict[str, Any] = {}
     table = tabulate(rec, job.supersample, energy)
@@ -517,28 +522,32 @@ def _name(job: Job, working: Slice) -> str:
                                                     or job.gltf or job.blender or "material").stem)
 
 
-def _other_methods(working: Slice, rec: Reconstruction, opts: Options) -> dict[str, Reconstruction]:
-    """Every other registered method built on the same samples (the page draws their predictions)."""
+def _other_methods(working: Slice, rec: Reconstruction, opts: Options,
+                   built: dict[str, Reconstruction] | None = None) -> dict[str, Reconstruction]:
+    """Every other registered method built on the same samples (the page draws their predictions); ``built``:
+    those built already (by auto's forked child)."""
     ordered = working.sorted()
     others: dict[str, Reconstruction] = {}
     for name, m in REGISTRY.items():
         if name != rec.method:
             try:
-                others[name] = m.build(ordered, opts, None)
+                others[name] = (built or {}).get(name) or m.build(ordered, opts, None)
             except (ReconstructionError, ValueError):
                 pass
     return others
 
 
 def _send_sample_figures(job: Job, drawer: Any, working: Slice, rec: Reconstruction, choice: dict[str, Any],
-                         opts: Options, others: dict[str, Reconstruction] | None = None) -> dict[str, Reconstruction]:
+                         opts: Options, others: dict[str, Reconstruction] | None = None,
+                         built: dict[str, Reconstruction] | None = None) -> dict[str, Reconstruction]:
     """The page's slices and polar figures sent to its drawer (:func:`reconstruction.report.html.
     draw_sample_figures`); returns the other methods built for them (``others``, those built for an earlier
-    reconstruction of the same method, reused: the bound changes the reconstruction, not the method)."""
+    reconstruction of the same method, reused: the bound changes the reconstruction, not the method; ``built``,
+    those auto's forked child built)."""
     from reconstruction.report.html import draw_sample_figures
 
     if others is None or rec.method in others:  # the first time, or a fallback to one of them
-        others = _other_methods(working, rec, opts)
+        others = _other_methods(working, rec, opts, built)
     draw_sample_figures(drawer, working.sorted(), rec, others,
                         choice.get("held_out_predictions", {}).get(rec.method), job.blind_spot_deg or 4.0)
     return others

@@ -319,7 +319,8 @@ def test_the_page_reuses_the_other_methods_when_only_the_bound_changed_the_recon
     from reconstruction.report import html as htmlreport
 
     built = []
-    monkeypatch.setattr(pipeline, "_other_methods", lambda w, r, o: built.append(r.method) or {"x": r, "y": r})
+    monkeypatch.setattr(pipeline, "_other_methods",
+                        lambda w, r, o, b=None: built.append(r.method) or {"x": r, "y": r})
     monkeypatch.setattr(htmlreport, "draw_sample_figures", lambda *a, **k: None)
     s = Slice(np.array([30.0, 30.0]), np.array([-20.0, 40.0]), np.array([[0.1], [0.3]]), ["value"])
     job = pipeline.Job(inputs=("s.csv",), out=None, html="m.html")

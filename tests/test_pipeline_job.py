@@ -140,8 +140,12 @@ def test_forked_child_runs_tasks_beside_this_process_and_falls_back_here():
 
 def test_auto_cross_validates_in_the_forked_child_with_the_same_result(tmp_path, monkeypatch):
     """In a run on two cores, auto's microfacet, revolve and bivariate are cross-validated in the run's forked
-    child (their fits hold the GIL); the scores, the choice and the table are those of the same run without the
-    child (GONIO_FORK=0: in a second thread)."""
+    child (their fits hold the GIL), and with the HTML page built there on all samples too; the scores, the
+    choice, the table and the page's figures are those of the same run without the child (GONIO_FORK=0: in a
+    second thread, and the page's methods built here)."""
+    import dataclasses
+    import re
+
     from reconstruction import executor
     from reconstruction.methods import auto
 
@@ -154,14 +158,24 @@ def test_auto_cross_validates_in_the_forked_child_with_the_same_result(tmp_path,
         return real(s, name, *args, **kw)
 
     monkeypatch.setattr(auto, "cross_validate", cv)
+    mf = auto.REGISTRY["microfacet"]
+    real_build = mf.build
+
+    def build(s, *args, **kw):
+        here.append("microfacet built")
+        return real_build(s, *args, **kw)
+
+    monkeypatch.setitem(auto.REGISTRY, "microfacet", dataclasses.replace(mf, build=build))
     src = slice_file(tmp_path / "slice.csv", BLUE_PLASTIC, incidences=(20.0, 50.0), step=4.0)
-    reps = {}
+    reps, pages = {}, {}
     for fork in ("1", "0"):
         monkeypatch.setenv("GONIO_FORK", fork)
         here.clear()
-        out = tmp_path / f"m{fork}.binary"
-        reps[fork] = pipeline.run(pipeline.Job(inputs=(str(src),), out=str(out), method="auto"))
-        assert ("microfacet" in here) == (fork == "0") and "fit" in here
+        out, page = tmp_path / f"m{fork}.binary", tmp_path / f"m{fork}.html"
+        reps[fork] = pipeline.run(pipeline.Job(inputs=(str(src),), out=str(out), method="auto", html=str(page)))
+        assert ("microfacet" in here) == ("microfacet built" in here) == (fork == "0") and "fit" in here
+        pages[fork] = re.findall(r"data:image/png;base64,[^\"']+", page.read_text())
+    assert len(pages["1"]) == 12 and pages["1"] == pages["0"]
     def scores(rep):
         return [{k: v for k, v in x.items() if k != "seconds"} for x in rep["cross_validation"]["scores"]]
 

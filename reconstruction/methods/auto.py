@@ -33,6 +33,7 @@ import dataclasses
 import math
 import warnings
 from collections.abc import Callable, Iterator
+from contextvars import ContextVar
 from typing import Any
 
 import numpy as np
@@ -205,9 +206,12 @@ def _reconstruct_auto(s: Slice, opts: Options,
               if name in BACKGROUND_METHODS and m.usable(opts)]
     child = forked()
     with _Background(enabled=len(others) > 0) as bg:
+        built: Callable[[], dict[str, Reconstruction]] | None = None
         if child is not None and others:  # in the run's forked child (their fits hold the GIL), this thread waiting
             answer = bg.submit(child.submit(_cross_validate_methods, s, [n for n, _ in others], opts, masks, inside))
             pending = {name: (lambda name=name: answer()[name]) for name, _ in others}
+            if KEEP_BUILDS.get():  # then, in the child, the same methods on all samples: asked for when drawn
+                built = child.submit(_build_methods, full, [n for n, _ in others], opts)
         else:
             pending = {name: bg.submit(cross_validate, s, name, build, masks, inside) for name, build in others}
         bg.submit(release_spare_core)  # then the core is free for the work that waits for it (the posterior)
@@ -316,10 +320,16 @@ def _reconstruct_auto(s: Slice, opts: Options,
           "preference": ({"methods": preferred, "margin": margin, "noise_level": noise, "applied": not at_noise}
                          if preferred else None)}
     return chosen, {"requested": "auto", "used": chosen.method, "reason": reason, "cross_validation": cv,
-                    "fallbacks": fallbacks,
+                    "fallbacks": fallbacks, **({"built": built} if built is not None else {}),
                     "held_out_predictions": ({} if s is not full else  # per sample of the input (none when thinned)
                                              {c.method: c.predictions for c in reversed(scores)
                                               if c.predictions is not None and (c.method != best.method or c is best)})}
+
+
+#: Within a run that draws every method (the HTML page: ``pipeline`` sets it), the forked child also builds its
+#: methods on all samples once they are cross-validated (beside the run), and auto's choice carries them as
+#: ``built``: a function giving {method: reconstruction} (it waits for the child).
+KEEP_BUILDS: ContextVar[bool] = ContextVar("auto_keep_builds", default=False)
 
 
 def _cross_validate_methods(s: Slice, names: list[str], opts: Options, masks: list[NDArray[np.bool_]],
@@ -331,6 +341,18 @@ def _cross_validate_methods(s: Slice, names: list[str], opts: Options, masks: li
     with shared_cone_averages():
         return {name: cross_validate(s, name, lambda tr, m=REGISTRY[name]: m.build(tr, opts, None), masks, inside)
                 for name in names}  # three
+
+
+def _build_methods(s: Slice, names: list[str], opts: Options) -> dict[str, Reconstruction]:
+    """{method: built on ``s``} of the registered methods ``names`` (those that cannot are left out, as the HTML
+    page's own builds): the forked child's second task when the page draws every method."""
+    built: dict[str, Reconstruction] = {}
+    for name in names:  # three
+        try:
+            built[name] = REGISTRY[name].build(s, opts, None)
+        except (ReconstructionError, ValueError):
+            pass
+    return built
 
 
 def _both(c: CVScore) -> str:
