@@ -261,11 +261,25 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
 
     blas = threadpool_limits(1, user_api="blas") if job.posterior_early else nullcontext()
     # the page's drawer and auto's child for the cross-validation of the methods that do not wait for fit first:
-    # they are forked before any thread of the run starts
-    with Drawer(enabled=bool(job.html)) as drawer, Forked(enabled=job.method == "auto"), blas, \
-            shared_cone_averages(), Background(enabled=job.assesses or job.bounds) as helper, \
-            Background(enabled=bool(job.html)) as renders:
-        return _run(job, progress, helper, renders, drawer)
+    # they are forked before any thread of the run starts; the drawer while the process is small, auto's child once
+    # the methods' modules (scipy's) are imported, which the run imports anyway and the child then does not
+    with Drawer(enabled=bool(job.html)) as drawer:
+        if job.method == "auto":
+            _import_methods()
+        with Forked(enabled=job.method == "auto"), blas, shared_cone_averages(), \
+                Background(enabled=job.assesses or job.bounds) as helper, \
+                Background(enabled=bool(job.html)) as renders:
+            return _run(job, progress, helper, renders, drawer)
+
+
+def _import_methods() -> None:
+    """Import the modules of auto's methods (about half a second, most of it scipy's optimize and interpolate):
+    before auto's child is forked, so that it inherits them instead of importing them again itself."""
+    import importlib
+
+    for name in ("reconstruction.formats.brdffile", "reconstruction.methods.fit", "reconstruction.methods.microfacet",
+                 "reconstruction.methods.revolve", "reconstruction.methods.bivariate"):
+        importlib.import_module(name)
 
 
 def _run(job: Job, progress: Progress | None, helper: Any, renders: Any, drawer: Any) -> dict[str, Any]:
