@@ -11,12 +11,17 @@ other jobs on the machine do not inflate), and the ratios the targets are about:
 * auto / bivariate, whole process: at most 2;
 * auto --html / auto: at most 1.5 (the HTML report adds at most 50 %).
 
+``--prior DIR`` (repeatable: the folders of one prior) also times ``--method prior --prior DIR ...`` on the demo
+capture with an empty cache (a fresh ``XDG_CACHE_HOME``: the prior's folders tabulated and cached, target 10 s on
+an idle machine), then again from that cache, and gives the cache's size (target 20 MB for the 141 real
+materials).
+
 ``--suite`` also times the README's second command (``python3 -m venv .venv && .venv/bin/pip install -q -e
 '.[test]' && .venv/bin/python -m pytest -q``) from a clean clone of this repository's HEAD in a temporary folder:
 install and tests, wall time, target 5 minutes on the 2-core machine. The load average (1 / 5 / 15 min) is printed
 beside the figures: absolute times are only comparable on an idle machine, the ratios on any.
 
-Run: .venv/bin/python benchmarks/bench_speed.py [--repeats 5] [--capture out/demo] [--suite]
+Run: .venv/bin/python benchmarks/bench_speed.py [--repeats 5] [--capture out/demo] [--prior DIR ...] [--suite]
 """
 
 from __future__ import annotations
@@ -48,11 +53,11 @@ def tool(name: str) -> list[str]:
     return [str(exe)] if exe.exists() else [sys.executable, "-m", module]
 
 
-def timed(argv: list[str], cwd: Path) -> tuple[float, float]:
+def timed(argv: list[str], cwd: Path, env: dict[str, str] | None = None) -> tuple[float, float]:
     """(wall seconds, CPU seconds of the child: user + system) of one run of ``argv``; exits on failure."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    p = subprocess.run(argv, cwd=cwd, capture_output=True, text=True)
+    p = subprocess.run(argv, cwd=cwd, capture_output=True, text=True, env=env)
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if p.returncode != 0:
@@ -80,6 +85,20 @@ def reconstruction_runs(capture: Path, work: Path, repeats: int) -> dict[str, li
     return out
 
 
+def prior_runs(capture: Path, work: Path, folders: list[Path]) -> tuple[tuple[float, float], tuple[float, float],
+                                                                         int]:
+    """((wall, cpu) of the first run, with an empty cache; (wall, cpu) of a run from that cache; the cache's bytes)
+    of ``--method prior`` with ``folders`` on the demo capture."""
+    cache = work / "cache"
+    env = {**os.environ, "XDG_CACHE_HOME": str(cache)}
+    argv = [*tool("gonio-reconstruct"), str(capture / "slice.csv"), "--method", "prior", "--out", "p.binary"]
+    for f in folders:  # one or two
+        argv += ["--prior", str(f.resolve())]
+    first = timed(argv, work, env)
+    size = sum(p.stat().st_size for p in cache.rglob("*") if p.is_file())
+    return first, timed(argv, work, env), size
+
+
 def suite(work: Path) -> tuple[float, int]:
     """(wall seconds, exit status) of the README's second command in a clean clone of HEAD."""
     clone = work / "clone"
@@ -97,6 +116,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeats", type=int, default=5, help="rounds of the three reconstructions (default 5)")
     ap.add_argument("--capture", type=Path, help="a finished demo capture (default: captured anew)")
+    ap.add_argument("--prior", type=Path, action="append", default=[], metavar="DIR",
+                    help="also time --method prior with these folders, first with an empty cache (repeatable)")
     ap.add_argument("--suite", action="store_true", help="also time the README's test command from a clean clone")
     args = ap.parse_args()
     print(f"{os.cpu_count()} CPUs; load average {load()} (1 / 5 / 15 min) at the start")
@@ -127,6 +148,15 @@ def main() -> None:
             ok = "ok" if r[0] <= TARGETS[name] else "OVER"
             print(f"{name:<20} {r[0]:>12.2f} {r[1]:>10.2f} {r[2]:>6.2f} {'<= ' + format(TARGETS[name], 'g'):>8} "
                   f"{ok}")
+        if args.prior:
+            missing = [str(f) for f in args.prior if not f.is_dir()]
+            if missing:
+                sys.exit(f"bench_speed: --prior {', '.join(missing)}: not a folder")
+            first, again, size = prior_runs(capture.resolve(), work, args.prior)
+            print(f"\n--method prior with {', '.join(str(f) for f in args.prior)} (load average {load()} after):")
+            print(f"{'first run (empty cache)':<24} {first[0]:>8.2f} s wall {first[1]:>6.2f} s CPU (target <= 10 s)")
+            print(f"{'from the cache':<24} {again[0]:>8.2f} s wall {again[1]:>6.2f} s CPU")
+            print(f"{'cache':<24} {size / 1e6:>8.1f} MB (target <= 20 MB for the 141 real materials)")
         if args.suite:
             if shutil.which("git") is None:
                 sys.exit("bench_speed: --suite needs git (it clones HEAD)")

@@ -200,3 +200,30 @@ def test_the_peak_isotropy_benchmark(tmp_path, capsys):
     assert iso.main(["--data", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert "synthetic-0" in out and "synthetic-1" in out and "2 materials; ratio median" in out
+
+
+@pytest.mark.slow
+def test_the_speed_benchmark_times_a_prior_first_from_an_empty_cache(tmp_path):
+    """bench_speed --prior: the first run tabulates the folder into a fresh cache (its bytes counted), the second
+    reads it; a run that fails ends the benchmark with its error."""
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_speed.py"
+    spec = importlib.util.spec_from_file_location("bench_speed", path)
+    speed = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(speed)
+    from tests.test_cli_reconstruct import BLUE_PLASTIC, slice_file
+
+    folder = tmp_path / "prior"
+    folder.mkdir()
+    for k in range(3):
+        write_nbrdf(folder / f"synthetic-{k}", k)
+    capture = tmp_path / "demo"
+    capture.mkdir()
+    slice_file(capture / "slice.csv", BLUE_PLASTIC)
+    work = tmp_path / "work"
+    work.mkdir()
+    first, again, size = speed.prior_runs(capture, work, [folder])
+    assert first[0] > 0 and again[0] > 0 and first[1] > 0
+    cached = list((work / "cache").rglob("*"))
+    assert size == sum(p.stat().st_size for p in cached if p.is_file()) and size > 1000
+    with pytest.raises(SystemExit, match="failed"):
+        speed.prior_runs(capture, work, [tmp_path / "nowhere"])

@@ -98,7 +98,8 @@ NOISE_LEVEL_FACTOR = 1.5
 #: and from 20/40/60 deg from 169 % to 86 %; the medians move by about a point either way (28.0 -> 27.3 %,
 #: 16.8 -> 18.0 %, 15.4 -> 16.4 % from 20/50/75, 17.2 -> 15.4 % from 40/70; README: Real materials).
 PRIOR_ANCHORS = (0.25, 0.5)
-#: The methods cross-validated in a second thread while fit searches its model (when the machine has two cores).
+#: The methods cross-validated beside fit's model search (when the machine has two cores): in the run's forked child
+#: (:class:`reconstruction.executor.Forked`: their fits hold the GIL) when there is one, else in a second thread.
 BACKGROUND_METHODS = ("microfacet", "revolve", "bivariate")
 
 def max_albedo(rec: Reconstruction) -> tuple[float, float]:
@@ -198,8 +199,8 @@ def _reconstruct_auto(s: Slice, opts: Options,
     inside = scene_mask(s, opts.scene)
     if inside is not None and not inside.any():
         inside = None  # no sample inside the scene: judge on all of them
-    # microfacet, revolve and bivariate do not depend on fit's choice: they are cross-validated in a second thread
-    # while fit searches its model on all samples (their cone integrals and array work run beside its small solves).
+    # microfacet, revolve and bivariate do not depend on fit's choice: they are cross-validated in the run's forked
+    # child (or a second thread) while fit searches its model on all samples; this thread's helper waits for them.
     # prior stays in this thread, after fit: its large least-squares problems use BLAS threads, whose number fit's
     # threadpool limit changes for the whole process while it runs (and with it the last digits of prior's results)
     others = [(name, lambda tr, m=m: m.build(tr, opts, None)) for name, m in REGISTRY.items()
@@ -235,7 +236,7 @@ def _reconstruct_auto(s: Slice, opts: Options,
                 builders.append((name, None, lambda tr, m=m: m.build(tr, dataclasses.replace(opts, prior_anchor=0.0),
                                                                      None)))
             elif name in pending:
-                builders.append((name, None, lambda tr: None))  # cross-validated in the second thread (above)
+                builders.append((name, None, lambda tr: None))  # cross-validated beside fit (above)
             else:
                 builders.append((name, None, lambda tr, m=m: m.build(tr, opts, None)))
         scores: list[CVScore] = []
