@@ -23,7 +23,7 @@ from reconstruction.formats import merl
 from reconstruction.formats.inputs import check_slice
 from reconstruction.formats.slicefile import Slice
 from reconstruction.methods import REGISTRY, Options, get
-from reconstruction.methods.auto import KEEP_BUILDS, reconstruct_auto
+from reconstruction.methods.auto import KEEP_BUILDS, import_methods, reconstruct_auto, start_child
 
 Array = NDArray[np.float64]
 
@@ -252,7 +252,7 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
 
     from threadpoolctl import threadpool_limits
 
-    from reconstruction.bench.instrument import shared_cone_averages
+    from reconstruction.bench.instrument import seed_shared_cone_averages, shared_cone_averages
     from reconstruction.executor import Background, Forked
 
     # the built-in family's posterior beside the reconstruction: one BLAS thread for the whole run, so that the
@@ -261,25 +261,18 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
 
     blas = threadpool_limits(1, user_api="blas") if job.posterior_early else nullcontext()
     # the page's drawer and auto's child for the cross-validation of the methods that do not wait for fit first:
-    # they are forked before any thread of the run starts; the drawer while the process is small, auto's child once
-    # the methods' modules (scipy's) are imported, which the run imports anyway and the child then does not
+    # they are forked before any thread of the run starts and before scipy is imported (half a second): the drawer
+    # imports matplotlib meanwhile, auto's child computes fit's cone tables of the samples and imports the methods
     with Drawer(enabled=bool(job.html)) as drawer:
+        child = Forked(enabled=job.method == "auto")
+        seed = start_child(child, job.inputs, job.quantity, job.columns, job.blind_spot_deg) if child.alive else None
         if job.method == "auto":
-            _import_methods()
-        with Forked(enabled=job.method == "auto"), blas, shared_cone_averages(), \
-                Background(enabled=job.assesses or job.bounds) as helper, \
+            import_methods()
+        with child, blas, shared_cone_averages(), Background(enabled=job.assesses or job.bounds) as helper, \
                 Background(enabled=bool(job.html)) as renders:
+            if seed is not None:
+                seed_shared_cone_averages(seed())
             return _run(job, progress, helper, renders, drawer)
-
-
-def _import_methods() -> None:
-    """Import the modules of auto's methods (about half a second, most of it scipy's optimize and interpolate):
-    before auto's child is forked, so that it inherits them instead of importing them again itself."""
-    import importlib
-
-    for name in ("reconstruction.formats.brdffile", "reconstruction.methods.fit", "reconstruction.methods.microfacet",
-                 "reconstruction.methods.revolve", "reconstruction.methods.bivariate"):
-        importlib.import_module(name)
 
 
 def _run(job: Job, progress: Progress | None, helper: Any, renders: Any, drawer: Any) -> dict[str, Any]:

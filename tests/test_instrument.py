@@ -208,3 +208,50 @@ def test_shared_cone_averages_compute_each_direction_pair_once(monkeypatch):
     np.testing.assert_allclose(other, fresh[:3, :2], rtol=1e-12)
     ins.unit_lobe_averages(wi[:4], wo[:4], inst, alphas)  # the block is over: its memory is gone
     assert computed[-1] == 4
+
+
+def test_fit_tables_prefetched_in_another_process_seed_the_shared_cone_averages(monkeypatch):
+    """aperture.prefetch_tables computes fit's cone tables of a slice's near-mirror samples as fit does; seeded into
+    a shared_cone_averages block (as auto's forked child's answer is), fit's tables are then looked up, not
+    computed, with the same values. A point instrument has none to prefetch."""
+    from reconstruction.bench import instrument as ins
+    from reconstruction.formats.slicefile import Slice
+    from reconstruction.methods.fit.aperture import Blur, prefetch_tables
+
+    ti = np.repeat([20.0, 45.0], 9)
+    to = ti + np.tile([-30.0, -6.0, -1.0, -0.4, 0.0, 0.5, 1.2, 5.0, 25.0], 2)
+    meta = {"instrument": {"detector_solid_angle_sr": 1e-3, "source_divergence_deg": 0.25}}
+    s = Slice(ti, to, np.ones((ti.size, 1)), ["value"], meta=meta)
+    entries = prefetch_tables(s)
+    assert len(entries) == 2  # ggx and beckmann
+    wi, wo = inplane_to_dirs(np.radians(ti), np.radians(to))
+    inst = Instrument.from_meta(meta["instrument"])
+    fresh = Blur(inst, wi, wo)
+    want = {k: fresh._table(k) for k in ("ggx", "beckmann")}
+    computed: list[int] = []
+    real = ins._average_dirs
+    monkeypatch.setattr(ins, "_average_dirs", lambda *a, **k: computed.append(1) or real(*a, **k))
+    with ins.shared_cone_averages():
+        ins.seed_shared_cone_averages(entries)
+        seeded = Blur(inst, wi, wo)
+        for k in ("ggx", "beckmann"):
+            x = np.linspace(np.log(1e-4), np.log(1.5), 7)
+            np.testing.assert_array_equal(seeded._table(k)(x), want[k](x))
+    assert computed == []
+    assert prefetch_tables(Slice(ti, to, np.ones((ti.size, 1)), ["value"])) == {}
+
+
+def test_reading_a_slice_and_bivariate_import_no_scipy_optimize(tmp_path):
+    """A run of bivariate on a slice file imports neither scipy.optimize nor scipy.interpolate (half a second of a
+    one-second run); auto's forked child starts on fit's cone tables before the run imports them."""
+    import subprocess
+    import sys
+
+    from tests.test_cli_reconstruct import BLUE_PLASTIC, slice_file
+
+    src = slice_file(tmp_path / "slice.csv", BLUE_PLASTIC)
+    code = ("import sys; from reconstruction import cli; "
+            f"rc = cli.main([{str(src)!r}, '--method', 'bivariate', '--out', {str(tmp_path / 'b.binary')!r}, "
+            "'--quiet']); print(rc, 'scipy.optimize' in sys.modules, 'scipy.interpolate' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.stdout.split() == ["0", "False", "False"], out.stderr

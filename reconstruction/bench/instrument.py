@@ -34,7 +34,8 @@ Array = NDArray[np.float64]
 BrdfFn = Callable[[Array, Array], Array]
 
 __all__ = ["Instrument", "InstrumentError", "instrument_average", "instrument_average_dirs", "INSTRUMENT_KEYS",
-           "unit_lobe_averages", "unit_lobe_tables", "shared_cone_averages"]
+           "unit_lobe_averages", "unit_lobe_tables", "shared_cone_averages", "shared_cone_entries",
+           "seed_shared_cone_averages"]
 
 
 # Quadrature sizes: the smooth polar rule (radial Gauss in r^2 x uniform azimuth), the lobe rule (rays x radial
@@ -489,6 +490,24 @@ def shared_cone_averages() -> Iterator[None]:
         yield
     finally:
         _SHARED.reset(token)
+
+
+def shared_cone_entries() -> dict[Any, tuple[Array, Array]]:
+    """What the current :func:`shared_cone_averages` block holds ({key: (direction pairs (n, 6), readings)}; empty
+    outside one): to send to another process's block (:func:`seed_shared_cone_averages`)."""
+    return dict(_SHARED.get() or {})
+
+
+def seed_shared_cone_averages(entries: Mapping[Any, tuple[Array, Array]]) -> None:
+    """Add ``entries`` (:func:`shared_cone_entries` of another process) to the current block's memory: auto's forked
+    child computes fit's tables while this process imports scipy. Outside a block, nothing happens."""
+    memo = _SHARED.get()
+    if memo is None:
+        return
+    for key, (pairs, vals) in entries.items():  # a few
+        known = memo.get(key)
+        memo[key] = (pairs, vals) if known is None else (np.concatenate([known[0], pairs]),
+                                                         np.concatenate([known[1], vals]))
 
 
 def unit_lobe_averages(wi: ArrayLike, wo: ArrayLike, instrument: Instrument, alphas: ArrayLike,

@@ -29,7 +29,6 @@ from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.interpolate import RegularGridInterpolator
 
 from reconstruction.base import ReconstructionError
 from reconstruction.core.geometry import inplane_to_dirs
@@ -147,6 +146,8 @@ def zemax_brdf(z: zemax.ZemaxBSDF) -> tuple[Callable[[Array, Array], Array], lis
     if inc.size == 1:  # a single incidence: constant in theta_i
         inc = np.array([inc[0], inc[0] + 1e-6])
         vals = np.concatenate([vals, vals], axis=1)
+    from scipy.interpolate import RegularGridInterpolator  # here: reading a slice file needs no scipy
+
     interp = RegularGridInterpolator((inc, az, z.radial_deg), np.moveaxis(vals, 0, -1), bounds_error=False,
                                      fill_value=None)
     lo, hi = float(inc[0]), float(inc[-1])

@@ -57,7 +57,8 @@ from reconstruction.methods.crossval import (
     score_predictions,
 )
 
-__all__ = ["reconstruct_auto", "max_albedo", "thin_for_cv", "preference", "at_noise_level", "rank"]
+__all__ = ["reconstruct_auto", "max_albedo", "thin_for_cv", "preference", "at_noise_level", "rank", "import_methods",
+           "start_child"]
 
 CV_MAX_SAMPLES = 3000
 #: With points anywhere on the hemisphere at several incidences (a Zemax or RGL file) auto prefers ``bivariate``,
@@ -354,6 +355,39 @@ def _build_methods(s: Slice, names: list[str], opts: Options) -> dict[str, Recon
         except (ReconstructionError, ValueError):
             pass
     return built
+
+
+def import_methods() -> None:
+    """Import the modules of auto's methods (about half a second, most of it scipy's optimize and interpolate)."""
+    import importlib
+
+    for name in ("reconstruction.formats.brdffile", "reconstruction.methods.fit", "reconstruction.methods.microfacet",
+                 "reconstruction.methods.revolve", "reconstruction.methods.bivariate"):
+        importlib.import_module(name)
+
+
+def start_child(child: Any, inputs: tuple[str, ...], quantity: str | None, columns: str | None,
+                blind_spot_deg: float | None) -> Callable[[], dict[Any, Any]] | None:
+    """Give auto's forked child (:class:`reconstruction.executor.Forked`, forked before scipy's import) its first
+    work while the run imports the methods: fit's cone tables of the samples
+    (:func:`reconstruction.methods.fit.aperture.prefetch_tables`), then the same imports. Returns the tables' getter
+    (entries for :func:`reconstruction.bench.instrument.seed_shared_cone_averages`), or None when the inputs are
+    not slice files (.csv) or cannot be read quietly here (the run reads them again and says what is wrong)."""
+    from reconstruction.formats import inputs as readers
+    from reconstruction.methods.fit.aperture import prefetch_tables
+
+    seed = None
+    if inputs and all(str(p).lower().endswith(".csv") for p in inputs):
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                s = readers.load_inputs(list(inputs), quantity=quantity, columns=readers.parse_columns(columns),
+                                        blind_spot_deg=blind_spot_deg).slice
+            seed = child.submit(prefetch_tables, s)
+        except Exception:  # noqa: BLE001 - whatever it is, the run itself reads the inputs and says it
+            seed = None
+    child.submit(import_methods)
+    return seed
 
 
 def _both(c: CVScore) -> str:

@@ -20,17 +20,18 @@ and :func:`resolution_alpha`, and the lobe's energy (its amplitude) as fitted.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.interpolate import PchipInterpolator
 
 from reconstruction.bench.instrument import Instrument, instrument_average_dirs, unit_lobe_tables
 from reconstruction.core.models import Material, schlick
+from reconstruction.formats.slicefile import Slice
 
 Array = NDArray[np.float64]
 
-__all__ = ["Blur", "ALPHA_FLOOR", "resolution_alpha"]
+__all__ = ["Blur", "ALPHA_FLOOR", "resolution_alpha", "prefetch_tables"]
 
 #: the smallest alpha a fit with a finite aperture may use (a lobe far narrower than any cone)
 ALPHA_FLOOR = 1e-4
@@ -60,7 +61,7 @@ class Blur:
             mirror = wi * np.array([-1.0, -1.0, 1.0])
             ang = np.arccos(np.clip(np.sum(mirror * wo, axis=-1), -1.0, 1.0))
             self.near = np.nonzero(ang < max(NEAR_CONES * a, math.radians(3.0)))[0]
-            self._tables: dict[str, PchipInterpolator] = {}
+            self._tables: dict[str, Any] = {}  # PCHIP interpolators (scipy's, imported when first made)
             self.alphas = np.geomspace(ALPHA_FLOOR, 1.5, N_ALPHA)
             rows = np.arange(len(wi))
         else:
@@ -81,7 +82,9 @@ class Blur:
         """The view on the samples ``mask`` (N,) of this view."""
         return Blur(self.instrument, self.wi[mask], self.wo[mask], _root=self._root, _rows=self.rows[mask])
 
-    def _table(self, kind: str) -> PchipInterpolator:
+    def _table(self, kind: str) -> Any:
+        from scipy.interpolate import PchipInterpolator
+
         root = self._root
         if kind not in root._tables:
             wi, wo = root.wi[root.near], root.wo[root.near]
@@ -110,6 +113,28 @@ class Blur:
         if self.pos.size:
             out[self.pos] = instrument_average_dirs(material, self.wi[self.pos], self.wo[self.pos], self.instrument)
         return out
+
+
+def prefetch_tables(s: Slice) -> dict[Any, tuple[Array, Array]]:
+    """fit's cone tables of the samples of ``s`` near a mirror direction (both distributions), computed as fit
+    computes them, as entries of the shared cone averages
+    (:func:`reconstruction.bench.instrument.seed_shared_cone_averages`): what auto's forked child computes while
+    the run imports scipy. Empty for a point instrument (or malformed metadata: fit reports it)."""
+    from reconstruction.bench.instrument import InstrumentError, shared_cone_averages, shared_cone_entries
+    from reconstruction.core.samples import sample_directions
+
+    try:
+        inst = Instrument.from_meta(s.meta.get("instrument"))
+    except InstrumentError:
+        return {}
+    if inst.detector_solid_angle_sr == 0.0 and inst.source_divergence_deg == 0.0:
+        return {}
+    wi, wo = sample_directions(s)
+    with shared_cone_averages():
+        b = Blur(inst, wi, wo)
+        if b.near.size:
+            unit_lobe_tables(wi[b.near], wo[b.near], inst, b.alphas, TABLE_KINDS)
+        return shared_cone_entries()
 
 
 def resolution_alpha(half_angle_deg: float) -> float:

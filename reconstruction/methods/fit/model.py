@@ -15,7 +15,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import least_squares, nnls
 
 from reconstruction.base import ReconstructionError
 from reconstruction.bench.instrument import Instrument, InstrumentError
@@ -202,6 +201,8 @@ def _nl_bounds(spec: LobeSpec, alpha_min: float, exponent_max: float = EXP_MAX) 
 
 def _weighted_nnls(cols: Array, f: Array, sigma: Array) -> tuple[Array, float]:
     """Amplitudes (L, C) >= 0 minimising sum(((cols @ a - f) / sigma)^2) per channel, and that chi^2."""
+    from scipy.optimize import nnls  # here: importing fit without scipy lets a forked child start before it
+
     n_l, n_c = cols.shape[1], f.shape[1]
     amps = np.zeros((n_l, n_c))
     chi2 = 0.0
@@ -425,6 +426,8 @@ def _problem(s: Slice, relative_sigma: float, alpha_min: float) -> _Problem:
 def fit_model(specs: Sequence[LobeSpec], prob: _Problem, *, loss: str = "soft_l1", f_scale: float = 2.0,
               max_nfev: int = 400) -> FitResult:
     """Fit one candidate model (sum of ``specs`` lobes) to the problem's samples."""
+    from scipy.optimize import least_squares
+
     specs = tuple(specs)
     n_c = prob.f.shape[1]
     nl0, amps0 = _start(specs, prob)
