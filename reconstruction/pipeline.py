@@ -333,8 +333,9 @@ def _run(job: Job, progress: Progress | None, helper: Any, renders: Any, drawer:
     opts = Options(scene=scene, fill=job.fill, lobes=lobes, revolve_axis=job.axis, revolve_smoothing=job.smoothing,
                    prior=job.prior, prior_anchor=job.prior_anchor)
     early_ref = None
-    # auto cross-validates the methods that do not wait for fit in a background thread of its own: the posterior
-    # below waits until that is done (a third busy thread on two cores would slow fit, the critical path)
+    # auto cross-validates the methods that do not wait for fit beside it (in its forked child, or a thread of its
+    # own): the posterior below waits until that is done (a third busy worker on two cores would slow fit, the
+    # critical path)
     spare = SpareCore(hold=job.method == "auto")
     if job.posterior_early:  # the built-in family's posterior depends on the samples alone
         from reconstruction.assess.uncertainty import reference_posterior
@@ -538,7 +539,7 @@ def _other_methods(working: Slice, rec: Reconstruction, opts: Options,
     for name, m in REGISTRY.items():
         if name != rec.method:
             try:
-                others[name] = (built or {}).get(name) or m.build(ordered, opts, None)
+                others[name] = built[name] if built and name in built else m.build(ordered, opts, None)
             except (ReconstructionError, ValueError):
                 pass
     return others
