@@ -313,9 +313,9 @@ def _read_exactly(fd: int, n: int) -> bytes | None:
 
 
 def _forked_child(inbox: int, outbox: int) -> None:
-    """The child of :class:`Forked`: only its two pipes (and standard streams) open, one BLAS thread; each task run
-    in turn, its answer ("ok", value) or ("here", None) sent back; exits without cleanup (``os._exit``) at the end of
-    its input."""
+    """The child of :class:`Forked`: only its two pipes (and standard streams) open, one BLAS thread; a thread reads
+    the tasks as they come, each is run in turn and its answer ("ok", value) or ("here", None) sent back; exits
+    without cleanup (``os._exit``) at the end of its input."""
     code = 1
     try:
         from threadpoolctl import threadpool_limits
@@ -330,7 +330,17 @@ def _forked_child(inbox: int, outbox: int) -> None:
                     pass
         warnings.simplefilter("ignore")
         threadpool_limits(1, user_api="blas")
-        while (msg := _read_message(inbox)) is not None:
+        import queue
+
+        todo: queue.Queue[bytes | None] = queue.Queue()
+
+        def read() -> None:  # tasks read as they come: the parent's write of a large one never waits for a task
+            while (m := _read_message(inbox)) is not None:
+                todo.put(m)
+            todo.put(None)
+
+        threading.Thread(target=read, daemon=True).start()
+        while (msg := todo.get()) is not None:
             try:
                 fn, args = pickle.loads(msg)
                 answer = pickle.dumps(("ok", fn(*args)), protocol=pickle.HIGHEST_PROTOCOL)

@@ -197,3 +197,40 @@ def test_auto_with_the_html_page_ends_with_both_children(tmp_path):
                           capture_output=True, text=True, timeout=300, env=env)
     assert done.returncode == 0, done.stderr
     assert (tmp_path / "m.html").stat().st_size > 10_000
+
+
+def _wait_for(path, x):
+    """A task that runs until ``path`` exists (at most 30 s)."""
+    import os
+    import time
+
+    for _ in range(3000):
+        if os.path.exists(path):
+            return x
+        time.sleep(0.01)
+    return None
+
+
+def test_a_large_task_is_sent_while_the_child_is_busy(tmp_path):
+    """The forked child reads tasks as they come: sending one larger than a pipe's buffer while it runs another
+    does not wait for that one to end (the parent's main thread sends auto's cross-validation while the child is
+    still importing). The first task here ends only once the second is sent."""
+    import threading
+
+    from reconstruction import executor
+
+    flag = tmp_path / "sent"
+    with executor.Forked() as child:
+        first = child.submit(_wait_for, str(flag), 1)
+        sent = threading.Event()
+
+        def send():
+            child.submit(_pid_and, b"x" * (1 << 20))
+            sent.set()
+
+        t = threading.Thread(target=send, daemon=True)
+        t.start()
+        ok = sent.wait(20.0)  # a child that read only between tasks would hold it until the first one ends
+        flag.touch()
+        assert ok and first() == 1
+        t.join(20.0)
