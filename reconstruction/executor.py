@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextvars
 import os
 import pickle
+import queue
 import signal
 import struct
 import sys
@@ -21,7 +22,8 @@ from typing import Any, TypeVar
 
 T = TypeVar("T")
 
-__all__ = ["make_executor", "run_all", "Background", "SpareCore", "release_spare_core", "Forked", "forked", "can_fork"]
+__all__ = ["make_executor", "run_all", "Background", "SpareCore", "release_spare_core", "Forked", "forked", "can_fork",
+           "fork_child", "end_child", "write_all", "incoming"]
 
 
 @contextmanager
@@ -80,6 +82,19 @@ def run_all(executor: Executor, fn: Callable[..., T], cases: Iterable[Any],
     return futures
 
 
+def once(fn: Callable[..., T], *args: Any) -> Callable[[], T]:
+    """A function that gives ``fn(*args)``, computed when first asked for and only then (the work a second
+    thread or a child would have done, here)."""
+    done: list[T] = []
+
+    def here() -> T:
+        if not done:
+            done.append(fn(*args))
+        return done[0]
+
+    return here
+
+
 class Background:
     """A second thread for independent work when the machine has a second core (else the work runs when its result
     is asked for); ``submit`` returns a function that gives the result (or raises the work's exception). The
@@ -100,14 +115,7 @@ class Background:
 
     def submit(self, fn: Callable[..., T], *args: Any) -> Callable[[], T]:
         if self.pool is None:  # run when first asked for, once
-            done: list[T] = []
-
-            def here() -> T:
-                if not done:
-                    done.append(fn(*args))
-                return done[0]
-
-            return here
+            return once(fn, *args)
         fut = self.pool.submit(contextvars.copy_context().run, fn, *args)
         return fut.result
 
@@ -164,12 +172,50 @@ def release_spare_core() -> None:
 _FORKED: contextvars.ContextVar[Forked | None] = contextvars.ContextVar("forked", default=None)
 
 
-def can_fork() -> bool:
+def can_fork(switch: str = "GONIO_FORK") -> bool:
     """Whether work may run in a forked child: on Linux (fork is what the standard library's process pools use
-    there; macOS's system libraries are not fork-safe), with a second core, unless ``GONIO_FORK=0``."""
+    there; macOS's system libraries are not fork-safe), with a second core, unless the environment variable
+    ``switch`` is ``0`` (``GONIO_FORK`` for auto's child, ``GONIO_HTML_FORK`` for the HTML page's drawer)."""
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     return (sys.platform.startswith("linux") and hasattr(os, "fork") and cores > 1
-            and os.environ.get("GONIO_FORK", "1") != "0")
+            and os.environ.get(switch, "1") != "0")
+
+
+def fork_child(child: Callable[[int, int], None]) -> tuple[int, int, int]:
+    """Fork a child process that runs ``child(inbox, outbox)`` (which must end it with ``os._exit``), with a pipe
+    each way: (its pid, the write end of its inbox, the read end of its outbox), or (0, -1, -1) when fork fails.
+    Python 3.12 warns of fork in a process with threads: the children here take none of their locks."""
+    to_r, to_w = os.pipe()
+    back_r, back_w = os.pipe()
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            pid = os.fork()
+    except OSError:
+        for fd in (to_r, to_w, back_r, back_w):
+            os.close(fd)
+        return 0, -1, -1
+    if pid == 0:
+        os.close(to_w)
+        os.close(back_r)
+        child(to_r, back_w)  # never returns
+    os.close(to_r)
+    os.close(back_w)
+    return pid, to_w, back_r
+
+
+def end_child(pid: int, *fds: int) -> None:
+    """Close this side's pipes to a forked child (those >= 0) and end it: killed (its answers are no longer
+    wanted) and waited for, so that it leaves no process behind. ``pid`` 0: pipes only."""
+    for fd in fds:
+        if fd >= 0:
+            os.close(fd)
+    if pid:
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except OSError:
+            pass
+        os.waitpid(pid, 0)
 
 
 class Forked:
@@ -190,25 +236,8 @@ class Forked:
         self._order: list[int] = []  # those sent to the child, in order: its answers come in this order
         self._got: dict[int, tuple[str, Any]] = {}
         self._token: contextvars.Token[Forked | None] | None = None
-        if not (enabled and can_fork()):
-            return
-        to_r, to_w = os.pipe()
-        back_r, back_w = os.pipe()
-        try:
-            with warnings.catch_warnings():  # Python 3.12 warns of fork in a process with threads: the child
-                warnings.simplefilter("ignore", DeprecationWarning)  # takes none of their locks
-                pid = os.fork()
-        except OSError:
-            for fd in (to_r, to_w, back_r, back_w):
-                os.close(fd)
-            return
-        if pid == 0:
-            os.close(to_w)
-            os.close(back_r)
-            _forked_child(to_r, back_w)  # never returns
-        os.close(to_r)
-        os.close(back_w)
-        self._pid, self._to, self._back = pid, to_w, back_r
+        if enabled and can_fork():
+            self._pid, self._to, self._back = fork_child(_forked_child)
 
     @property
     def alive(self) -> bool:
@@ -216,20 +245,14 @@ class Forked:
         return self._pid != 0
 
     def submit(self, fn: Callable[..., T], *args: Any) -> Callable[[], T]:
-        done: list[T] = []
-
-        def here() -> T:
-            if not done:
-                done.append(fn(*args))
-            return done[0]
-
+        here = once(fn, *args)
         if not self._pid:
             return here
         n = self._sent
         self._sent += 1
         try:
             data = pickle.dumps((fn, args), protocol=pickle.HIGHEST_PROTOCOL)
-            _write_all(self._to, struct.pack(">Q", len(data)) + data)  # the child reads it when it is free
+            write_all(self._to, struct.pack(">Q", len(data)) + data)  # the child's reader takes it at once
             self._order.append(n)
         except (OSError, pickle.PicklingError, AttributeError, TypeError):
             self._got[n] = ("here", None)  # not sent: run here when asked for
@@ -261,18 +284,9 @@ class Forked:
             return self._got.pop(n)
 
     def close(self) -> None:
-        """End the child (it exits once the tasks sent are done; killed if it does not)."""
-        for fd in (self._to, self._back):
-            if fd >= 0:
-                os.close(fd)
-        self._to = self._back = -1
-        if self._pid:
-            try:
-                os.kill(self._pid, signal.SIGKILL)
-            except OSError:
-                pass
-            os.waitpid(self._pid, 0)
-            self._pid = 0
+        """End the child (:func:`end_child`: its pipes closed, the process killed and waited for)."""
+        end_child(self._pid, self._to, self._back)
+        self._pid, self._to, self._back = 0, -1, -1
 
     def __enter__(self) -> Forked:
         self._token = _FORKED.set(self if self._pid else None)
@@ -289,10 +303,25 @@ def forked() -> Forked | None:
     return _FORKED.get()
 
 
-def _write_all(fd: int, data: bytes) -> None:
+def write_all(fd: int, data: bytes) -> None:
+    """Write all of ``data`` to the descriptor ``fd`` (a pipe may take it in parts)."""
     view = memoryview(data)
     while view:
         view = view[os.write(fd, view):]
+
+
+def incoming(fd: int) -> queue.Queue[bytes | None]:
+    """The length-prefixed messages of the pipe ``fd``, read by a thread as they come into the queue returned,
+    None at the pipe's end: a forked child's inbox, so that the parent's writes never wait for the child's work."""
+    todo: queue.Queue[bytes | None] = queue.Queue()
+
+    def read() -> None:
+        while (m := _read_message(fd)) is not None:
+            todo.put(m)
+        todo.put(None)
+
+    threading.Thread(target=read, daemon=True).start()
+    return todo
 
 
 def _read_message(fd: int) -> bytes | None:
@@ -330,23 +359,14 @@ def _forked_child(inbox: int, outbox: int) -> None:
                     pass
         warnings.simplefilter("ignore")
         threadpool_limits(1, user_api="blas")
-        import queue
-
-        todo: queue.Queue[bytes | None] = queue.Queue()
-
-        def read() -> None:  # tasks read as they come: the parent's write of a large one never waits for a task
-            while (m := _read_message(inbox)) is not None:
-                todo.put(m)
-            todo.put(None)
-
-        threading.Thread(target=read, daemon=True).start()
+        todo = incoming(inbox)  # tasks read as they come: the parent's write of a large one never waits for a task
         while (msg := todo.get()) is not None:
             try:
                 fn, args = pickle.loads(msg)
                 answer = pickle.dumps(("ok", fn(*args)), protocol=pickle.HIGHEST_PROTOCOL)
             except Exception:  # noqa: BLE001 - run again in the parent, which raises the error there
                 answer = pickle.dumps(("here", None))
-            _write_all(outbox, struct.pack(">Q", len(answer)) + answer)
+            write_all(outbox, struct.pack(">Q", len(answer)) + answer)
         code = 0
     finally:
         os._exit(code)

@@ -11,12 +11,13 @@ import io
 import json
 import os
 import pickle
-import signal
 import struct
-import sys
 import warnings
 from collections.abc import Callable
 from typing import Any
+
+from reconstruction.executor import can_fork as fork_ok
+from reconstruction.executor import end_child, fork_child, incoming, write_all
 
 __all__ = ["DPI", "PNG_COMPRESS_LEVEL", "png", "figure", "margins", "plain", "plain_log_ticks", "log_grid", "warm_up",
            "Drawer", "can_fork"]
@@ -134,11 +135,9 @@ def warm_up() -> None:
 
 
 def can_fork() -> bool:
-    """Whether figures may be drawn in a forked child: on Linux (fork is what the standard library's process pools
-    use there; macOS's system libraries are not fork-safe), with a second core, unless ``GONIO_HTML_FORK=0``."""
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return (sys.platform.startswith("linux") and hasattr(os, "fork") and cores > 1
-            and os.environ.get("GONIO_HTML_FORK", "1") != "0")
+    """Whether figures may be drawn in a forked child (:func:`reconstruction.executor.can_fork`), unless
+    ``GONIO_HTML_FORK=0``."""
+    return fork_ok("GONIO_HTML_FORK")
 
 
 class Drawer:
@@ -157,25 +156,8 @@ class Drawer:
         self.sent: dict[str, tuple[Callable[..., str], tuple[Any, ...]]] = {}
         self._pid = 0
         self._to = self._back = -1
-        if not (enabled and can_fork()):
-            return
-        to_r, to_w = os.pipe()
-        back_r, back_w = os.pipe()
-        try:
-            with warnings.catch_warnings():  # Python 3.12 warns of fork in a process with threads: the child
-                warnings.simplefilter("ignore", DeprecationWarning)  # draws only and never takes their locks
-                pid = os.fork()
-        except OSError:
-            for fd in (to_r, to_w, back_r, back_w):
-                os.close(fd)
-            return
-        if pid == 0:
-            os.close(to_w)
-            os.close(back_r)
-            _child(to_r, back_w)  # never returns
-        os.close(to_r)
-        os.close(back_w)
-        self._pid, self._to, self._back = pid, to_w, back_r
+        if enabled and can_fork():
+            self._pid, self._to, self._back = fork_child(_child)
 
     def draw(self, name: str, fn: Callable[..., str], *args: Any) -> None:
         """Send figure ``name``: ``fn(*args)`` gives its data URI (``fn`` a module-level function; ``args``
@@ -184,7 +166,7 @@ class Drawer:
         if self._to >= 0:
             data = pickle.dumps((name, fn, args), protocol=pickle.HIGHEST_PROTOCOL)
             try:
-                _write_all(self._to, struct.pack(">Q", len(data)) + data)
+                write_all(self._to, struct.pack(">Q", len(data)) + data)
             except OSError:  # the child is gone: drawn here instead
                 self._end()
 
@@ -207,17 +189,8 @@ class Drawer:
         return {k: got[k] if isinstance(got.get(k), str) else fn(*args) for k, (fn, args) in self.sent.items()}
 
     def _end(self) -> None:
-        for fd in (self._to, self._back):
-            if fd >= 0:
-                os.close(fd)
-        self._to = self._back = -1
-        if self._pid:
-            try:
-                os.kill(self._pid, signal.SIGKILL)
-            except OSError:
-                pass
-            os.waitpid(self._pid, 0)
-            self._pid = 0
+        end_child(self._pid, self._to, self._back)
+        self._pid, self._to, self._back = 0, -1, -1
 
     def __enter__(self) -> Drawer:
         return self
@@ -226,33 +199,13 @@ class Drawer:
         self._end()
 
 
-def _write_all(fd: int, data: bytes) -> None:
-    view = memoryview(data)
-    while view:
-        view = view[os.write(fd, view):]
-
-
 def _child(inbox: int, outbox: int) -> None:
     """The drawer's child: import matplotlib, then draw each figure as it arrives (a thread reads the pipe, so
     the parent's writes never wait for a drawing), and at the end of the input send {name: data URI or None}."""
     code = 1
     try:
-        import queue
-        import threading
-
         warnings.simplefilter("ignore")
-        todo: queue.Queue[Any] = queue.Queue()
-
-        def read() -> None:
-            with os.fdopen(inbox, "rb") as fh:
-                while True:
-                    head = fh.read(8)
-                    if len(head) < 8:
-                        break
-                    todo.put(fh.read(struct.unpack(">Q", head)[0]))
-            todo.put(None)
-
-        threading.Thread(target=read, daemon=True).start()
+        todo = incoming(inbox)
         warm_up()
         out: dict[str, str | None] = {}
         while (msg := todo.get()) is not None:
