@@ -332,15 +332,13 @@ def _run(job: Job, progress: Progress | None, helper: Any, renders: Any, drawer:
     t0 = begin("reconstructing")
     opts = Options(scene=scene, fill=job.fill, lobes=lobes, revolve_axis=job.axis, revolve_smoothing=job.smoothing,
                    prior=job.prior, prior_anchor=job.prior_anchor)
-    early_ref = None
+    early = None
     # auto cross-validates the methods that do not wait for fit beside it (in its forked child, or a thread of its
     # own): the posterior below waits until that is done (a third busy worker on two cores would slow fit, the
     # critical path)
     spare = SpareCore(hold=job.method == "auto")
-    if job.posterior_early:  # the built-in family's posterior depends on the samples alone
-        from reconstruction.assess.uncertainty import reference_posterior
-
-        early_ref = helper.submit(spare.later(reference_posterior), working.sorted())
+    if job.posterior_early:  # the built-in family's posterior (and auto's bound from it) depend on the samples alone
+        early = helper.submit(spare.later(_early_reference), working.sorted(), job.bounds)
     keep = KEEP_BUILDS.set(bool(job.html))  # the page draws every method: auto's child builds its own
     try:
         with spare:
@@ -369,8 +367,8 @@ def _run(job: Job, progress: Progress | None, helper: Any, renders: Any, drawer:
     ref, bounded = None, None
     if job.bounds:
         t0 = begin("conservative bound")
-        rec, table, bounded, ref = bound_where_unmeasured(rec, table, working, opts,
-                                                          early_ref() if early_ref is not None else None)
+        rec, table, bounded, ref = bound_where_unmeasured(
+            rec, table, working, opts, *(early() if early is not None else ()))
         if bounded["applied"]:
             checks = report.plausibility(rec, table)  # of the table written (only lowered: still passing)
         done("conservative", t0)
@@ -397,8 +395,8 @@ def _run(job: Job, progress: Progress | None, helper: Any, renders: Any, drawer:
         done("preview", t0)
     principled = None
     if wants_principled(job):
-        if early_ref is not None:  # its fit sets the process's BLAS threads, as the posterior does: one at a time
-            ref = early_ref()
+        if early is not None:  # its fit sets the process's BLAS threads, as the posterior does: one at a time
+            ref = early()[0]
         t0 = begin("principled material")
         files, principled = write_principled(job, rec, _name(job, working))
         outputs.update(files)
@@ -427,7 +425,7 @@ def _run(job: Job, progress: Progress | None, helper: Any, renders: Any, drawer:
     if job.assesses:
         t0 = begin("uncertainty")
         sigma_table = _assess(job, rep, working, rec, opts, begin, done,
-                              ref if ref is not None or early_ref is None else early_ref())
+                              ref if ref is not None or early is None else early()[0])
         done("uncertainty", t0)
     if not checks["all_pass"]:
         rep["implausible_table_written"] = "written with --allow-implausible: " + implausible_message(rec.method,
@@ -472,23 +470,35 @@ def _fall_back(job: Job, first: tuple[Reconstruction, Array, dict[str, Any], dic
     return first
 
 
-def bound_where_unmeasured(rec: Reconstruction, table: Array, working: Slice, opts: Options, ref: Any = None
-                           ) -> tuple[Reconstruction, Array, dict[str, Any], Any]:
+def _early_reference(s: Slice, bounds: bool) -> tuple[Any, Array | None]:
+    """(the built-in analytic family's posterior of the samples ``s`` (sorted), with ``bounds`` its upper bound
+    table for auto's table (:func:`reconstruction.assess.guard.upper_bound_table`) else None): what the run's
+    helper thread computes beside the reconstruction."""
+    from reconstruction.assess import guard
+    from reconstruction.assess.uncertainty import reference_posterior
+
+    ref = reference_posterior(s)
+    return ref, (guard.upper_bound_table(ref, guard.GUARD_SIGMAS_ANALYTIC) if bounds else None)
+
+
+def bound_where_unmeasured(rec: Reconstruction, table: Array, working: Slice, opts: Options, ref: Any = None,
+                           bound: Array | None = None) -> tuple[Reconstruction, Array, dict[str, Any], Any]:
     """``auto``'s table kept below the reference posterior's upper credible bound where no sample rests
     (:mod:`reconstruction.assess.guard`): the prior's with ``--prior``; without, the built-in analytic family's
     (looser, and only where it takes a large share of the light). Returns (the bounded reconstruction, its
     table, the report's ``conservative`` section, the reference posterior); ``ref``: the analytic family's
-    posterior of the samples when computed already. The benchmarks call this as the pipeline does."""
+    posterior of the samples when computed already, ``bound`` its upper bound table if computed too. The
+    benchmarks call this as the pipeline does."""
     from reconstruction.assess import guard, uncertainty
 
     s = working.sorted()
     if ref is None or opts.prior or uncertainty._own_posterior(rec) is not None:
-        ref = uncertainty.reference_for(rec, s, opts.prior, tuple(opts.prior_exclude))
+        ref, bound = uncertainty.reference_for(rec, s, opts.prior, tuple(opts.prior_exclude)), None
     if opts.prior:
         bounded, out, info = guard.conservative(rec, table, s, ref)
     else:
         bounded, out, info = guard.conservative(rec, table, s, ref, guard.GUARD_SIGMAS_ANALYTIC,
-                                                guard.ANALYTIC_MIN_ENERGY, guard.ANALYTIC_MAX_ABOVE)
+                                                guard.ANALYTIC_MIN_ENERGY, guard.ANALYTIC_MAX_ABOVE, bound=bound)
     # nothing lowered: the method's own reconstruction stays (an analytic fit exports its lobes); else the bounded
     # one, which every output sees (its table is no longer the model's: exports treat it as data-driven)
     return (bounded if info["applied"] else rec), out, info, ref

@@ -84,6 +84,25 @@ def test_lambert_albedo_is_exact_and_ggx_near_one_at_normal_incidence():
     assert 0.9 < a[0, 0] <= 1.0  # single-scattering GGX loses a few % to shadowing
 
 
+def test_mirror_albedo_is_the_whole_grids_from_half_the_evaluations():
+    m = mat({"type": "ggx", "alpha": 0.3, "specular": 1.0})
+    sizes = []
+
+    def counted(wi, wo):
+        sizes.append(len(wo))
+        return m.eval(wi, wo)
+
+    ti = np.radians([0, 35, 70, 85])
+    whole = directional_albedo(counted, ti, 48, 96)
+    n_whole = sum(sizes)
+    sizes.clear()
+    half = directional_albedo(counted, ti, 48, 96, mirror=True)
+    np.testing.assert_allclose(half, whole, rtol=1e-12)
+    assert sum(sizes) * 2 == n_whole
+    with pytest.raises(ValueError, match="even"):
+        directional_albedo(m.eval, ti, 8, 15, mirror=True)
+
+
 @pytest.mark.parametrize("lobe", LOBES, ids=lambda d: d["type"])
 def test_reciprocity(lobe):
     assert reciprocity_error(mat(lobe).eval) < 1e-12

@@ -234,3 +234,32 @@ def test_a_large_task_is_sent_while_the_child_is_busy(tmp_path):
         flag.touch()
         assert ok and first() == 1
         t.join(20.0)
+
+
+def test_autos_bound_table_is_made_beside_the_run_once_with_the_same_result(tmp_path, monkeypatch):
+    """The analytic family's upper bound table is computed by the helper thread with its posterior (not on the
+    main thread after the checks), once per run, and the bound it gives is the one computed in line."""
+    import threading
+
+    from reconstruction import executor
+    from reconstruction.assess import guard
+
+    src = slice_file(tmp_path / "slice.csv", BLUE_PLASTIC)
+    monkeypatch.setenv("GONIO_FORK", "0")
+    made = []
+    real = guard.upper_bound_table
+
+    def recorded(ref, k=guard.GUARD_SIGMAS):
+        made.append(threading.current_thread() is threading.main_thread())
+        return real(ref, k)
+
+    monkeypatch.setattr(guard, "upper_bound_table", recorded)
+    outs = {}
+    for cores in ({0, 1}, {0}):  # a helper thread, then none (the work runs when asked for, on the main thread)
+        monkeypatch.setattr(executor.os, "sched_getaffinity", lambda pid, c=cores: c, raising=False)
+        made.clear()
+        out = tmp_path / f"m{len(cores)}.binary"
+        rep = pipeline.run(pipeline.Job(inputs=(str(src),), out=str(out), method="auto"))
+        assert made == [len(cores) == 1], made
+        outs[len(cores)] = (out.read_bytes(), rep["conservative"])
+    assert outs[2] == outs[1]

@@ -139,17 +139,18 @@ def samples_above(bound: Array, s: Slice) -> float:
 
 
 def conservative(rec: Reconstruction, table: Array, s: Slice, ref: P.PriorReconstruction,
-                 k: float = GUARD_SIGMAS, min_energy: float = 0.0, max_above: float | None = None
-                 ) -> tuple[Conservative, Array, dict[str, Any]]:
+                 k: float = GUARD_SIGMAS, min_energy: float = 0.0, max_above: float | None = None,
+                 bound: Array | None = None) -> tuple[Conservative, Array, dict[str, Any]]:
     """(the bounded reconstruction, its table, the report's ``conservative`` section) of ``rec`` and its
     ``table`` (3, 90, 90, 180) from the samples ``s``, with ``ref`` the reference posterior. Nothing is lowered
     (``applied`` False, the table as it was, ``why`` says so) when the bound would take less than ``min_energy``
     of the table's cosine-weighted light, or, with ``max_above``, when more than that share of the samples' own
-    light lies above it (the reference does not describe this material: it would bound it wrongly)."""
+    light lies above it (the reference does not describe this material: it would bound it wrongly). ``bound``:
+    :func:`upper_bound_table` of ``ref`` and ``k`` when computed already (the pipeline's helper thread)."""
     from reconstruction.assess.uncertainty import ANALYTIC_NAME, cell_classes
 
     free = cell_classes(s) > 0
-    bound = upper_bound_table(ref, k)
+    bound = upper_bound_table(ref, k) if bound is None else bound
     wrapped = Conservative(rec, bound, free)
     lowered, before, removed = _lowering(table, bound, free)
     info = {"applied": bool(lowered.any()),

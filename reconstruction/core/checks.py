@@ -28,9 +28,11 @@ ALBEDO_INCIDENCES_DEG = np.arange(0.0, 86.0, 5.0)
 def checked_albedo(f: Callable[[Array, Array], ArrayLike], n_theta: int, n_phi: int) -> tuple[Array, str]:
     """Directional albedo (len(ALBEDO_INCIDENCES_DEG), C) of the BRDF ``f`` at the checked incidences, and how it
     was integrated: on an ``n_theta`` x ``n_phi`` hemisphere grid, or, when that exceeds 1 + ALBEDO_TOLERANCE, over
-    the half vector (a peak narrower than the grid, a mirror-like lobe, aliases on it)."""
+    the half vector (a peak narrower than the grid, a mirror-like lobe, aliases on it). ``f`` is isotropic (every
+    reconstruction and table here is): the grid's half on one side of the plane of incidence is evaluated, at
+    twice the weight."""
     ti = np.radians(ALBEDO_INCIDENCES_DEG)
-    alb = directional_albedo(f, ti, n_theta, n_phi)
+    alb = directional_albedo(f, ti, n_theta, n_phi, mirror=True)
     if np.all(alb <= 1.0 + ALBEDO_TOLERANCE):
         return alb, f"hemisphere, {n_theta} x {n_phi}"
     return halfvector_albedo(f, ti), "half vector (a peak narrower than the hemisphere grid)"

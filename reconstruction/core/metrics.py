@@ -34,13 +34,22 @@ def hemisphere_quadrature(n_theta: int = 128, n_phi: int = 256) -> tuple[Array, 
     return dirs, w.reshape(-1)
 
 
-def directional_albedo(f: BRDF, theta_i: ArrayLike, n_theta: int = 128, n_phi: int = 256) -> Array:
+def directional_albedo(f: BRDF, theta_i: ArrayLike, n_theta: int = 128, n_phi: int = 256,
+                       mirror: bool = False) -> Array:
     """Directional albedo a(theta_i) = integral of f(wi, wo) cos theta_o d wo, shape (len(theta_i), C).
 
     ``theta_i`` in radians; ``f(wi, wo) -> (N, C)`` vectorised. A passive, energy-conserving BRDF has a <= 1.
+    With ``mirror`` (``f`` symmetric about the plane of incidence, as every isotropic BRDF is) only the nodes of
+    phi in (0, pi) are evaluated, at twice the weight: the same sum as the whole grid's (``n_phi`` even) for half
+    the evaluations.
     """
     ti = np.atleast_1d(np.asarray(theta_i, dtype=np.float64))
     wo, w = hemisphere_quadrature(n_theta, n_phi)
+    if mirror:  # the midpoint nodes k and n_phi - 1 - k are mirror images (phi and 2 pi - phi)
+        if n_phi % 2:
+            raise ValueError(f"directional_albedo: mirror needs an even n_phi, got {n_phi}")
+        wo = wo.reshape(n_theta, n_phi, 3)[:, : n_phi // 2].reshape(-1, 3)
+        w = 2.0 * w.reshape(n_theta, n_phi)[:, : n_phi // 2].reshape(-1)
     out = []
     for t in ti:  # one vectorised hemisphere integral per incidence
         wi, _ = inplane_to_dirs(t, 0.0)

@@ -388,8 +388,8 @@ def write(path: str | Path, f: ArrayLike, require_above_horizon: bool = False) -
         missing = np.isnan(t) & valid_mask()[None]
         if missing.any():
             raise MerlError(f"{path}: no value (NaN) above the horizon in {_describe_cells(missing)}")
-    stored = t / SCALES[:, None, None, None]
-    stored = np.where(np.isnan(stored), -1.0, stored).astype("<f8", copy=False)
+    stored = np.divide(t, SCALES[:, None, None, None], dtype="<f8")  # one table-sized array, NaN -> -1 in place
+    np.copyto(stored, -1.0, where=np.isnan(stored))
     with atomic_open(path, "wb") as fh:
         fh.write(_HEADER)
         fh.write(memoryview(np.ascontiguousarray(stored)).cast("B"))
