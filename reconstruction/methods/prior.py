@@ -254,12 +254,13 @@ class PriorSet:
         ev, vec = np.linalg.eigh((y @ y.T).astype(np.float64))  # (T, T): components from the small Gram matrix
         order = np.argsort(ev)[::-1][: min(MAX_COMPONENTS, len(ev) - 1)]
         sv = np.sqrt(np.maximum(ev[order], 1e-30))
-        comps = (vec[:, order].T.astype(np.float32) @ y).astype(np.float64) / sv[:, None]
+        comps = np.divide(vec[:, order].T.astype(np.float32) @ y, sv[:, None])  # float64, one allocation
         out = (mu.astype(np.float64), comps, sv / np.sqrt(max(y.shape[0] - 1, 1)))
         if residual:  # y minus its projection on the components, in place (y is this call's own), a few
-            coef = y @ comps.T.astype(np.float32)  # thousand cells at a time: no second copy of y
+            comps32 = comps.astype(np.float32)  # thousand cells at a time: no second copy of y
+            coef = y @ comps32.T
             for a in range(0, y.shape[1], _CHUNK):
-                y[:, a:a + _CHUNK] -= coef @ comps[:, a:a + _CHUNK].astype(np.float32)
+                y[:, a:a + _CHUNK] -= coef @ comps32[:, a:a + _CHUNK]
             dof = max(y.shape[0] - comps.shape[0] - 1, 1)
             out += (np.einsum("tm,tm->m", y, y, dtype=np.float64) / dof,)
         return out
