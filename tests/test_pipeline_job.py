@@ -263,3 +263,19 @@ def test_autos_bound_table_is_made_beside_the_run_once_with_the_same_result(tmp_
         assert made == [len(cores) == 1], made
         outs[len(cores)] = (out.read_bytes(), rep["conservative"])
     assert outs[2] == outs[1]
+
+
+def test_import_methods_imports_the_registered_methods_modules_ahead():
+    """What auto imports ahead (while its child works) comes from the registry: every always-tried method's
+    declared modules, scipy's optimize among them; a method that needs an option (prior) is not imported."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from reconstruction.methods import REGISTRY; from reconstruction.methods.auto import "
+            "import_methods; before = set(sys.modules); import_methods(); "
+            "want = [mod for m in REGISTRY.values() if m.available is None for mod in m.modules]; "
+            "print(len(want), all(w in sys.modules for w in want), 'scipy.optimize' in set(sys.modules) - before, "
+            "'reconstruction.methods.prior' in sys.modules)")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    n, all_in, scipy_new, prior_in = r.stdout.split()
+    assert int(n) >= 4 and all_in == "True" and scipy_new == "True" and prior_in == "False", r.stdout

@@ -99,6 +99,9 @@ class Method:
     options: type[msgspec.Struct] = NoOptions
     common: Mapping[str, str] = field(default_factory=dict)
     available: Callable[[Options], bool] | None = None  # None: always; else whether ``auto`` may try it
+    #: the modules ``build`` imports (scipy's among them): what a run that builds it may import ahead
+    #: (:func:`reconstruction.methods.auto.import_methods`, while its forked child works)
+    modules: tuple[str, ...] = ()
 
     def usable(self, opts: Options) -> bool:
         """Whether this method can run with ``opts`` (``auto`` skips the others, e.g. ``prior`` without --prior)."""
@@ -228,12 +231,15 @@ def _prior(s: Slice, o: Options, progress: Callable[[str], None] | None) -> Reco
 
 
 register(Method("fit", "analytic lobes (lambert, ggx/beckmann with Fresnel, retro) chosen by BIC, energy-constrained",
-                _fit, FitOptions, {"lobes": "lobes"}))
+                _fit, FitOptions, {"lobes": "lobes"}, modules=("reconstruction.methods.fit",)))
 register(Method("microfacet", "non-parametric microfacet: tabulated NDF, Smith G from it, physical Fresnel",
-                _microfacet))
+                _microfacet, modules=("reconstruction.methods.microfacet",)))
 register(Method("revolve", "the thesis's solids of revolution, extended to every incidence", _revolve,
-                RevolveOptions, {"axis": "revolve_axis", "smoothing": "revolve_smoothing", "fill": "fill"}))
+                RevolveOptions, {"axis": "revolve_axis", "smoothing": "revolve_smoothing", "fill": "fill"},
+                modules=("reconstruction.methods.revolve",)))
 register(Method("bivariate", "f(theta_h, theta_d) interpolated between the measured lines", _bivariate,
-                BivariateOptions, {"fill": "fill", "cos_power": "cos_power"}))
+                BivariateOptions, {"fill": "fill", "cos_power": "cos_power"},
+                modules=("reconstruction.methods.bivariate",)))
 register(Method("prior", "completed from a basis of measured materials (--prior DIR), fitted to the slices",
-                _prior, PriorOptions, {"prior": "prior", "anchor": "prior_anchor"}, available=lambda o: bool(o.prior)))
+                _prior, PriorOptions, {"prior": "prior", "anchor": "prior_anchor"}, available=lambda o: bool(o.prior),
+                modules=("reconstruction.methods.prior",)))

@@ -358,11 +358,13 @@ def _build_methods(s: Slice, names: list[str], opts: Options) -> dict[str, Recon
 
 
 def import_methods() -> None:
-    """Import the modules of auto's methods (about half a second, most of it scipy's optimize and interpolate)."""
+    """Import the modules of the methods auto always tries (each registered method's ``modules``; those that need
+    an option, as ``prior`` its folder, import theirs when built) and the readers of the inputs: about half a
+    second, most of it scipy's optimize and interpolate."""
     import importlib
 
-    for name in ("reconstruction.formats.brdffile", "reconstruction.methods.fit", "reconstruction.methods.microfacet",
-                 "reconstruction.methods.revolve", "reconstruction.methods.bivariate"):
+    for name in ("reconstruction.formats.brdffile", *(mod for m in REGISTRY.values() if m.available is None
+                                                      for mod in m.modules)):
         importlib.import_module(name)
 
 
