@@ -257,8 +257,7 @@ class PriorSet:
         comps = np.divide(vec[:, order].T.astype(np.float32) @ y, sv[:, None])  # float64, one allocation
         out = (mu.astype(np.float64), comps, sv / np.sqrt(max(y.shape[0] - 1, 1)))
         if residual:  # y minus its projection on the components, in place (y is this call's own), a few
-            comps32 = comps.astype(np.float32)  # thousand cells at a time: no second copy of y
-            coef = y @ comps32.T
+            coef = y @ (comps32 := comps.astype(np.float32)).T  # thousand cells at a time: no second copy of y
             for a in range(0, y.shape[1], _CHUNK):
                 y[:, a:a + _CHUNK] -= coef @ comps32[:, a:a + _CHUNK]
             dof = max(y.shape[0] - comps.shape[0] - 1, 1)
