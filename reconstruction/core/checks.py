@@ -18,24 +18,38 @@ from reconstruction.formats import merl
 
 Array = NDArray[np.float64]
 
-__all__ = ["ALBEDO_TOLERANCE", "RECIPROCITY_TOLERANCE", "ALBEDO_INCIDENCES_DEG", "checked_albedo", "plausibility"]
+__all__ = ["ALBEDO_TOLERANCE", "RECIPROCITY_TOLERANCE", "ALBEDO_INCIDENCES_DEG", "checked_albedo", "plausibility",
+           "mirror_symmetric"]
 
 ALBEDO_TOLERANCE = 0.01
 RECIPROCITY_TOLERANCE = 1e-6
 ALBEDO_INCIDENCES_DEG = np.arange(0.0, 86.0, 5.0)
 
 
-def checked_albedo(f: Callable[[Array, Array], ArrayLike], n_theta: int, n_phi: int) -> tuple[Array, str]:
+def checked_albedo(f: Callable[[Array, Array], ArrayLike], n_theta: int, n_phi: int, mirror: bool = False
+                   ) -> tuple[Array, str]:
     """Directional albedo (len(ALBEDO_INCIDENCES_DEG), C) of the BRDF ``f`` at the checked incidences, and how it
     was integrated: on an ``n_theta`` x ``n_phi`` hemisphere grid, or, when that exceeds 1 + ALBEDO_TOLERANCE, over
-    the half vector (a peak narrower than the grid, a mirror-like lobe, aliases on it). ``f`` is isotropic (every
-    reconstruction and table here is): the grid's half on one side of the plane of incidence is evaluated, at
-    twice the weight."""
+    the half vector (a peak narrower than the grid, a mirror-like lobe, aliases on it). With ``mirror`` (``f``
+    symmetric about the plane of incidence: :func:`mirror_symmetric` of a table) the grid's half on one side of
+    the plane is evaluated, at twice the weight."""
     ti = np.radians(ALBEDO_INCIDENCES_DEG)
-    alb = directional_albedo(f, ti, n_theta, n_phi, mirror=True)
+    alb = directional_albedo(f, ti, n_theta, n_phi, mirror=mirror)
     if np.all(alb <= 1.0 + ALBEDO_TOLERANCE):
         return alb, f"hemisphere, {n_theta} x {n_phi}"
     return halfvector_albedo(f, ti), "half vector (a peak narrower than the hemisphere grid)"
+
+
+def mirror_symmetric(table: Array, rtol: float = 1e-12) -> bool:
+    """Whether ``table`` (3, 90, 90, 180) reads the same at phi_d and pi - phi_d in every cell (to ``rtol`` of its
+    largest value; cells without a value, NaN, left out): then its lookups at a direction and at its mirror image
+    about the plane of incidence agree, as an isotropic, reciprocal BRDF's do (fit, microfacet, revolve and
+    bivariate tables are; the prior's reduced grid is not exactly, by up to a few percent)."""
+    with np.errstate(invalid="ignore"):
+        d = np.subtract(table, table[..., ::-1])
+        np.abs(d, out=d)
+        worst = float(np.max(d, where=~np.isnan(d), initial=0.0))
+    return worst <= rtol * float(np.max(table, where=~np.isnan(table), initial=0.0))
 
 
 def plausibility(rec: Reconstruction, table: ArrayLike) -> dict[str, Any]:
@@ -51,7 +65,7 @@ def plausibility(rec: Reconstruction, table: ArrayLike) -> dict[str, Any]:
     non_neg = {"pass": bool(missing == 0 and vmin >= 0.0), "min_1_per_sr": vmin, "missing_cells": missing,
                "max_1_per_sr": vmax}
     look = lambda wi, wo: np.nan_to_num(merl.lookup(t, wi, wo, interpolate=True), nan=0.0)  # noqa: E731
-    alb, quadrature = checked_albedo(look, 64, 128)
+    alb, quadrature = checked_albedo(look, 64, 128, mirror=mirror_symmetric(t))
     albedo = {"pass": bool(np.all(alb <= 1.0 + ALBEDO_TOLERANCE)), "max": float(alb.max()),
               "theta_i_deg": ALBEDO_INCIDENCES_DEG.tolist(), "albedo": np.round(alb, 5).tolist(),
               "tolerance": ALBEDO_TOLERANCE, "of": "the written table", "quadrature": quadrature}
