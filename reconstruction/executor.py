@@ -16,14 +16,14 @@ import sys
 import threading
 import warnings
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor, as_completed
+from concurrent.futures import Executor, Future, ThreadPoolExecutor, as_completed
 from contextlib import contextmanager
 from typing import Any, TypeVar
 
 T = TypeVar("T")
 
 __all__ = ["make_executor", "run_all", "Background", "SpareCore", "release_spare_core", "Forked", "forked", "can_fork",
-           "fork_child", "end_child", "write_all", "incoming"]
+           "fork_child", "end_child", "write_message", "incoming", "usable_cores"]
 
 
 @contextmanager
@@ -53,6 +53,8 @@ def make_executor(scheduler: str | None = None, workers: int | None = None,
         finally:
             client.close()
         return
+    from concurrent.futures import ProcessPoolExecutor  # here: it imports multiprocessing, which little else needs
+
     n = workers or os.cpu_count() or 1
     pool: Executor = ThreadPoolExecutor(1) if n == 1 else ProcessPoolExecutor(n, initializer=_one_blas_thread)
     try:
@@ -82,6 +84,11 @@ def run_all(executor: Executor, fn: Callable[..., T], cases: Iterable[Any],
     return futures
 
 
+def usable_cores() -> int:
+    """The cores this process may run on (its CPU affinity where the system says it, else the machine's)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
 def once(fn: Callable[..., T], *args: Any) -> Callable[[], T]:
     """A function that gives ``fn(*args)``, computed when first asked for and only then (the work a second
     thread or a child would have done, here)."""
@@ -103,8 +110,7 @@ class Background:
     that do not wait for fit, and the pipeline's uncertainty and HTML page beside the main thread."""
 
     def __init__(self, enabled: bool = True) -> None:
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-        self.pool = ThreadPoolExecutor(max_workers=1) if enabled and cores > 1 else None
+        self.pool = ThreadPoolExecutor(max_workers=1) if enabled and usable_cores() > 1 else None
 
     def __enter__(self) -> Background:
         return self
@@ -145,10 +151,6 @@ class SpareCore:
         if self._token is not None:
             _SPARE.reset(self._token)
 
-    def release(self) -> None:
-        """Let the waiting work run."""
-        self.gate.set()
-
     def later(self, fn: Callable[..., T]) -> Callable[..., T]:
         """``fn``, first waiting for the spare core (at most a minute: a guard against a lost release)."""
         gate = self.gate
@@ -176,8 +178,7 @@ def can_fork(switch: str = "GONIO_FORK") -> bool:
     """Whether work may run in a forked child: on Linux (fork is what the standard library's process pools use
     there; macOS's system libraries are not fork-safe), with a second core, unless the environment variable
     ``switch`` is ``0`` (``GONIO_FORK`` for auto's child, ``GONIO_HTML_FORK`` for the HTML page's drawer)."""
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return (sys.platform.startswith("linux") and hasattr(os, "fork") and cores > 1
+    return (sys.platform.startswith("linux") and hasattr(os, "fork") and usable_cores() > 1
             and os.environ.get(switch, "1") != "0")
 
 
@@ -252,7 +253,7 @@ class Forked:
         self._sent += 1
         try:
             data = pickle.dumps((fn, args), protocol=pickle.HIGHEST_PROTOCOL)
-            write_all(self._to, struct.pack(">Q", len(data)) + data)  # the child's reader takes it at once
+            write_message(self._to, data)  # the child's reader takes it at once
             self._order.append(n)
         except (OSError, pickle.PicklingError, AttributeError, TypeError):
             self._got[n] = ("here", None)  # not sent: run here when asked for
@@ -303,9 +304,10 @@ def forked() -> Forked | None:
     return _FORKED.get()
 
 
-def write_all(fd: int, data: bytes) -> None:
-    """Write all of ``data`` to the descriptor ``fd`` (a pipe may take it in parts)."""
-    view = memoryview(data)
+def write_message(fd: int, data: bytes) -> None:
+    """Write ``data`` to the descriptor ``fd`` as one length-prefixed message (what :func:`incoming` reads), all of
+    it (a pipe may take it in parts)."""
+    view = memoryview(struct.pack(">Q", len(data)) + data)
     while view:
         view = view[os.write(fd, view):]
 
@@ -366,7 +368,7 @@ def _forked_child(inbox: int, outbox: int) -> None:
                 answer = pickle.dumps(("ok", fn(*args)), protocol=pickle.HIGHEST_PROTOCOL)
             except Exception:  # noqa: BLE001 - run again in the parent, which raises the error there
                 answer = pickle.dumps(("here", None))
-            write_all(outbox, struct.pack(">Q", len(answer)) + answer)
+            write_message(outbox, answer)
         code = 0
     finally:
         os._exit(code)

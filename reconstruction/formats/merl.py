@@ -22,6 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from reconstruction.atomic import atomic_open
 from reconstruction.core.geometry import dirs_from_half_diff, half_diff_from_dirs
+from reconstruction.executor import usable_cores
 from reconstruction.formats.merlgrid import (  # noqa: F401  (the grid's names, re-exported)
     N_PD,
     N_TD,
@@ -173,11 +174,7 @@ def _threads() -> int:
     env = os.environ.get("GONIO_THREADS", "")
     if env.isdigit() and int(env) > 0:
         return int(env)
-    try:
-        n = len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        n = os.cpu_count() or 1
-    return max(1, min(4, n))
+    return max(1, min(4, usable_cores()))
 
 
 def _eval(f: Callable[[Array, Array], ArrayLike], wi: Array, wo: Array, chunk: int) -> Array:

@@ -49,6 +49,7 @@ from reconstruction.base import ReconstructionError
 from reconstruction.cache import cached_decoded, report_build
 from reconstruction.core.geometry import dirs_from_half_diff, half_diff_from_dirs
 from reconstruction.core.samples import everywhere, sample_directions
+from reconstruction.executor import usable_cores
 from reconstruction.formats.slicefile import Slice
 from reconstruction.methods import priorcodec
 
@@ -278,8 +279,7 @@ def train_index() -> NDArray[np.intp]:
 
 
 #: threads that tabulate a prior's materials (one material and one BLAS thread each)
-PRIOR_BUILD_THREADS = max(1, min(4, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
-                                 else (os.cpu_count() or 1)))
+PRIOR_BUILD_THREADS = max(1, min(4, usable_cores()))
 
 
 @lru_cache(maxsize=4)

@@ -11,13 +11,12 @@ import io
 import json
 import os
 import pickle
-import struct
 import warnings
 from collections.abc import Callable
 from typing import Any
 
 from reconstruction.executor import can_fork as fork_ok
-from reconstruction.executor import end_child, fork_child, incoming, write_all
+from reconstruction.executor import end_child, fork_child, incoming, write_message
 
 __all__ = ["DPI", "PNG_COMPRESS_LEVEL", "png", "figure", "margins", "plain", "plain_log_ticks", "log_grid", "warm_up",
            "Drawer", "can_fork"]
@@ -166,7 +165,7 @@ class Drawer:
         if self._to >= 0:
             data = pickle.dumps((name, fn, args), protocol=pickle.HIGHEST_PROTOCOL)
             try:
-                write_all(self._to, struct.pack(">Q", len(data)) + data)
+                write_message(self._to, data)
             except OSError:  # the child is gone: drawn here instead
                 self._end()
 
