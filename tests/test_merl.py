@@ -243,7 +243,7 @@ def test_half_diff_cosines_and_theta_h_averages_match_the_direction_pairs():
     from reconstruction.core import halfdiff
     from reconstruction.core.models import Microfacet
 
-    ci, co = halfdiff.cell_cosines()
+    ci, co = merl.cell_cosines()
     wi, wo = merl._cell_dirs()
     assert np.array_equal(ci, wi[..., 2]) and np.array_equal(co, wo[..., 2])
     assert np.array_equal((ci > 0) & (co > 0), merl.valid_mask())

@@ -15,18 +15,10 @@ from numpy.typing import NDArray
 
 from reconstruction.core.models import Lambert, Lobe, Microfacet, Retro
 from reconstruction.formats.merl import N_PD, N_TD, N_TH, cell_angles, theta_h_index
-from reconstruction.formats.merl import cell_cosines as merl_cell_cosines
 
 Array = NDArray[np.float64]
 
-__all__ = ["cell_cosines", "average_theta_h_half_diff", "lobe_half_diff"]
-
-
-def cell_cosines() -> tuple[Array, Array]:
-    """cos theta_i and cos theta_o (90, 90, 180) at the bin centres, from the angles in closed form (phi_h = 0, as
-    :func:`reconstruction.core.geometry.dirs_from_half_diff`; ``> 0`` in both is
-    :func:`reconstruction.formats.merl.valid_mask`): :func:`reconstruction.formats.merl.cell_cosines`, read-only."""
-    return merl_cell_cosines()
+__all__ = ["average_theta_h_half_diff", "lobe_half_diff"]
 
 
 def average_theta_h_half_diff(f_hd: Callable[[Array, Array, Array, Array], Array], theta_h_max: float, n: int = 8,
@@ -62,14 +54,14 @@ def average_theta_h_half_diff(f_hd: Callable[[Array, Array, Array, Array], Array
 
 def lobe_half_diff(lobe: Lobe, theta_h: Array, theta_d: Array, cos_i: Array, cos_o: Array) -> Array | None:
     """A lobe's shape (before its colour) from the half-diff angles (radians) and cos theta_i, cos theta_o
-    (broadcast against each other; :func:`cell_cosines` on the table's grid), or None for a lobe without this
-    form: lambert, the microfacet lobes (ggx, beckmann) and retro (wi . wo = cos 2 theta_d)."""
-    up = (cos_i > 0) & (cos_o > 0)
+    (broadcast against each other; :func:`reconstruction.formats.merl.cell_cosines` on the table's grid) for
+    lambert, the microfacet lobes (ggx, beckmann) and retro (wi . wo = cos 2 theta_d); None for any other lobe."""
     if isinstance(lobe, Microfacet):
         return lobe.shape_half_diff(theta_h, theta_d, cos_i, cos_o)
     if type(lobe) is Lambert:
-        return np.where(up, 1.0 / np.pi, 0.0)
+        return np.where((cos_i > 0) & (cos_o > 0), 1.0 / np.pi, 0.0)
     if type(lobe) is Retro:
         dot = np.cos(2.0 * np.asarray(theta_d, dtype=np.float64))
-        return np.where(up, (lobe.exponent + 2.0) / (2.0 * np.pi) * np.maximum(dot, 0.0) ** lobe.exponent, 0.0)
+        return np.where((cos_i > 0) & (cos_o > 0),
+                        (lobe.exponent + 2.0) / (2.0 * np.pi) * np.maximum(dot, 0.0) ** lobe.exponent, 0.0)
     return None

@@ -168,7 +168,7 @@ class MicrofacetReconstruction:
         from reconstruction.formats import merl
 
         th, td, _ = merl.cell_angles()
-        ci, co = halfdiff.cell_cosines()
+        ci, co = merl.cell_cosines()
         valid = (ci > 0) & (co > 0)  # merl.valid_mask()
         rgb = self.rho if self.rho.size == 3 else np.repeat(self.rho[:1], 3)
         ks = self.ks if self.ks.size == 3 else np.repeat(self.ks[:1], 3)

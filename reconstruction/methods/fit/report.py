@@ -58,7 +58,7 @@ class FitReconstruction:
         th, td, _ = merl.cell_angles()
         m = self.material
         rows = int(min(merl.N_TH, merl.theta_h_index(sharp) + 1))
-        cic, coc = (c[:rows] for c in halfdiff.cell_cosines())
+        cic, coc = (c[:rows] for c in merl.cell_cosines())
         valid = (cic > 0) & (coc > 0)
         covered = np.ones_like(valid)
         for lb in m.lobes:
@@ -79,7 +79,7 @@ class FitReconstruction:
 
         m = self.material
         th, td, _ = merl.cell_angles()
-        ci, co = halfdiff.cell_cosines()
+        ci, co = merl.cell_cosines()
         shapes = [halfdiff.lobe_half_diff(lb, th, td, ci, co) for lb in m.lobes] if m.n_channels in (1, 3) else [None]
         if any(x is None for x in shapes):
             return merl.tabulate(m.eval)
