@@ -210,6 +210,27 @@ def test_shared_cone_averages_compute_each_direction_pair_once(monkeypatch):
     assert computed[-1] == 4
 
 
+def test_two_distributions_that_know_different_pairs_each_keep_the_pairs_once():
+    """A table of ggx and beckmann where ggx knows some pairs already: both come out whole (ggx's known rows as they
+    were), and each distribution's memory holds every pair once (the pass computes the union for both)."""
+    from reconstruction.bench import instrument as ins
+
+    wi, wo = _near_mirror_pairs()
+    inst = Instrument.from_half_angle(1.0)
+    alphas = np.array([2e-3, 0.05, 0.3])
+    fresh = ins.unit_lobe_tables(wi, wo, inst, alphas, ("ggx", "beckmann"))
+    with ins.shared_cone_averages():
+        first = ins.unit_lobe_averages(wi[:10], wo[:10], inst, alphas, "ggx")
+        both = ins.unit_lobe_tables(wi, wo, inst, alphas, ("ggx", "beckmann"))
+        memory = ins.shared_cone_entries()
+    np.testing.assert_array_equal(both["ggx"][:10], first)
+    for dn in ("ggx", "beckmann"):
+        np.testing.assert_allclose(both[dn], fresh[dn], rtol=1e-12)
+        (pairs, vals), = [v for k, v in memory.items() if k[1] == dn]
+        assert len(pairs) == len(np.unique(pairs, axis=0)) == len(np.unique(np.concatenate([wi, wo], axis=1),
+                                                                            axis=0))
+
+
 def test_fit_tables_prefetched_in_another_process_seed_the_shared_cone_averages(monkeypatch):
     """aperture.prefetch_tables computes fit's cone tables of a slice's near-mirror samples as fit does; seeded into
     a shared_cone_averages block (as auto's forked child's answer is), fit's tables are then looked up, not

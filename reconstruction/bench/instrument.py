@@ -551,12 +551,15 @@ def unit_lobe_tables(wi: ArrayLike, wo: ArrayLike, instrument: Instrument, alpha
         # a direction pair may repeat (repeated samples): compute each distinct pair once, every distribution that
         # misses one of them in the same pass
         uq, back = np.unique(q[miss], axis=0, return_inverse=True)
+        at = np.full(len(q), -1)
+        at[miss] = back.reshape(-1)  # each missing pair's row of uq
         need = [dn for dn in dists if todo[dn][3].size]
         new = _compute_tables(uq[:, :3], uq[:, 3:], instrument, al, need)
-        for dn in need:
-            key, known, vals, _ = todo[dn]
-            out[dn][miss] = new[dn][back.reshape(-1)]
-            memo[key] = (np.concatenate([known, uq]), np.concatenate([vals, new[dn]]))
+        for dn in need:  # each distribution takes (and keeps) only the pairs it did not know
+            key, known, vals, own = todo[dn]
+            out[dn][own] = new[dn][at[own]]
+            rows = np.unique(at[own])
+            memo[key] = (np.concatenate([known, uq[rows]]), np.concatenate([vals, new[dn][rows]]))
     return out
 
 
