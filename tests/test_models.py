@@ -205,7 +205,7 @@ def test_the_albedo_check_halves_its_lookups_only_on_a_mirror_symmetric_table():
     for t in (sym, asym):
         look = merl.brdf_of(t)
         rec = SimpleNamespace(method="table", eval=look)
-        full = directional_albedo(lambda a, b: np.nan_to_num(look(a, b), nan=0.0), ti, 64, 128)
+        full = directional_albedo(lambda a, b, look=look: np.nan_to_num(look(a, b), nan=0.0), ti, 64, 128)
         got = np.asarray(plausibility(rec, t)["albedo"]["albedo"])
         np.testing.assert_allclose(got, np.round(full, 5), atol=1.5e-5)
     half = directional_albedo(lambda a, b: np.nan_to_num(merl.brdf_of(asym)(a, b), nan=0.0), ti, 64, 128,
