@@ -9,10 +9,11 @@ pseudo-terminals it prints. This package never imports ``simulator``.
         result = bench.capture(bench.plan(), out="out/run1")
 """
 
-from .bench import Bench, SimulatorProcess
-from .calibration import Calibration, Reading
-from .config import BenchConfig, config_from_dict, load_config
-from .errors import (
+
+from acquisition.bench import Bench, SimulatorProcess
+from acquisition.calibration import Calibration, Reading
+from acquisition.config import BenchConfig, config_from_dict, load_config
+from acquisition.errors import (
     AcquisitionError,
     CaptureInterrupted,
     CommError,
@@ -22,7 +23,29 @@ from .errors import (
     PlanError,
     SaturationWarning,
 )
-from .plan import Geometry, Plan, PlanCheck, Reason, Scene, load_scene, order_points, path_time
+from acquisition.plans.plan import Geometry, Plan, PlanCheck, Reason, Scene, load_scene, order_points, path_time
+from reconstruction.moved import keep_old_names
+
+#: Today's module names of the flat layout before the rooms, kept for lab scripts (``acquisition.plan``, ...).
+keep_old_names({
+    "acquisition.protocols": "acquisition.devices.protocols",
+    "acquisition.dynamixel": "acquisition.devices.dynamixel",
+    "acquisition.serial_link": "acquisition.devices.serial_link",
+    "acquisition.messages": "acquisition.plans.messages",
+    "acquisition.plan": "acquisition.plans.plan",
+    "acquisition.planconfig": "acquisition.plans.planconfig",
+    "acquisition.ordering": "acquisition.plans.ordering",
+    "acquisition.refine": "acquisition.plans.refine",
+    "acquisition.geometry": "acquisition.plans.geometry",
+    "acquisition.engine": "acquisition.run.engine",
+    "acquisition.capture": "acquisition.run.capture",
+    "acquisition.record": "acquisition.run.record",
+    "acquisition.outdir": "acquisition.run.outdir",
+    "acquisition.lock": "acquisition.run.lock",
+    "acquisition.fingerprint": "acquisition.run.fingerprint",
+    "acquisition.interrupts": "acquisition.run.interrupts",
+    "acquisition.dryrun": "acquisition.run.dryrun",
+})
 
 __all__ = [
     "AcquisitionError",
@@ -57,7 +80,7 @@ __all__ = [
 
 #: Names imported when first used: a capture's machinery is not loaded by ``gonio-capture --check`` (which
 #: returns in well under a second for the largest plan).
-_LAZY = {"RunEngine": "capture", "Engine": "engine", "CaptureResult": "record", "Stop": "record"}
+_LAZY = {"RunEngine": "run.capture", "Engine": "run.engine", "CaptureResult": "run.record", "Stop": "run.record"}
 
 
 def __getattr__(name: str) -> object:

@@ -53,8 +53,8 @@ from typing import Protocol
 
 import numpy as np
 
-from .calibration import Reading, pool
-from .errors import DeviceError
+from acquisition.calibration import Reading, pool
+from acquisition.errors import DeviceError
 
 log = logging.getLogger("acquisition.autorange")
 

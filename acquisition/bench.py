@@ -33,14 +33,14 @@ import warnings
 from pathlib import Path
 from typing import IO, Any
 
-from .autorange import AutoRanger
-from .calibration import Reading
-from .config import BenchConfig, load_config
-from .dynamixel import DynamixelAxes
-from .errors import CommError, ConfigError, DeviceError, SaturationWarning
-from .plan import Geometry, Plan, PlanCheck, Point, Reason, load_scene
-from .protocols import Devices, MoveStatus
-from .serial_link import SerialAxes, SerialDetector, SerialLink
+from acquisition.autorange import AutoRanger
+from acquisition.calibration import Reading
+from acquisition.config import BenchConfig, load_config
+from acquisition.devices.dynamixel import DynamixelAxes
+from acquisition.devices.protocols import Devices, MoveStatus
+from acquisition.devices.serial_link import SerialAxes, SerialDetector, SerialLink
+from acquisition.errors import CommError, ConfigError, DeviceError, SaturationWarning
+from acquisition.plans.plan import Geometry, Plan, PlanCheck, Point, Reason, load_scene
 
 log = logging.getLogger("acquisition.bench")
 
@@ -455,7 +455,7 @@ class Bench:
         measures the last recorded points again and stops (``result.exit_code`` 2) if the sample does not read as
         recorded; ``force``: go on all the same (a deliberate change, recorded in capture.json).
         """
-        from .capture import RunEngine
+        from acquisition.run.capture import RunEngine
 
         if out is None:
             out = Path("out") / time.strftime("capture-%Y%m%d-%H%M%S")

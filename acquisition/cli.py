@@ -23,7 +23,7 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-from .record import exit_status  # noqa: F401 - the exit status of a capture, here since the CLI gives it
+from acquisition.run.record import exit_status  # noqa: F401 - the exit status of a capture, here since the CLI gives it
 
 #: 2-opt budget of the time estimate that ``--check`` prints (the capture uses plan.TWO_OPT_MAX_EVALUATIONS).
 CHECK_TWO_OPT_EVALUATIONS = 500_000
@@ -91,7 +91,7 @@ def main(argv: list[str] | None = None, *, process: bool | None = None) -> int:
     args = parser.parse_args(argv)
     if args.force and not args.resume:
         parser.error("--force goes with --resume (it accepts another sample in a capture being resumed)")
-    from .interrupts import SignalGuard
+    from acquisition.run.interrupts import SignalGuard
 
     # once a signal stopped the capture this run ends: a second one while it prints where to resume, or in the
     # instant before the process exits, is ignored (SignalGuard.__exit__); an in-process caller gets the handlers
@@ -154,13 +154,13 @@ def _time_summary(r: Any) -> str:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from .bench import Bench, SimulatorCheck
-    from .config import MAX_PLAN_POINTS
-    from .dryrun import estimate
-    from .errors import CommError, ConfigError, PlanError
-    from .lock import OutDirLocked
-    from .outdir import out_dir_problem
-    from .record import result_dict
+    from acquisition.bench import Bench, SimulatorCheck
+    from acquisition.config import MAX_PLAN_POINTS
+    from acquisition.errors import CommError, ConfigError, PlanError
+    from acquisition.run.dryrun import estimate
+    from acquisition.run.lock import OutDirLocked
+    from acquisition.run.outdir import out_dir_problem
+    from acquisition.run.record import result_dict
 
     sim_check = None
     try:
@@ -196,7 +196,7 @@ def _run(args: argparse.Namespace) -> int:
                 print(f"gonio-capture: {e}", file=sys.stderr)
                 return 1
         print(chk.describe(limit=1000))
-        from .optics import footprint_warning
+        from acquisition.optics import footprint_warning
 
         warn = footprint_warning(bench.cfg, [p[0] for p in chk.measurable])
         if warn:
@@ -240,7 +240,7 @@ def _run(args: argparse.Namespace) -> int:
                          f"listed in {Path(args.out) / 'capture.log'}")
             ranged = ""
             if result.auto_ranged:
-                from .autorange import ranged_wording
+                from acquisition.autorange import ranged_wording
 
                 settings = "; ".join(f"{k}{'' if 'gain' in k else ' s'}: {v}"
                                      for k, v in result.auto_range_settings.items())

@@ -25,6 +25,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from acquisition.errors import ConfigError
+from acquisition.plans.planconfig import (  # noqa: F401 - names of this module before [plan] moved out
+    MAX_PLAN_POINTS,
+    AdaptiveConfig,
+    PlanConfig,
+    _count,
+    _frange,
+    _Table,  # one reader of a table against its schema, errors as ConfigError
+    read_plan,
+    resolution_deg,
+)
+from acquisition.sections import AxisConfig, BenchSection, CalibrationConfig, DetectorConfig, MotionConfig
 from reconstruction.schema import SchemaError, files
 from reconstruction.schema import describe as _describe
 from reconstruction.schema.bench import (
@@ -39,19 +51,6 @@ from reconstruction.schema.bench import (
     DetectorTable,
     MotionTable,
 )
-
-from .errors import ConfigError
-from .planconfig import (  # noqa: F401 - names of this module before [plan] moved out
-    MAX_PLAN_POINTS,
-    AdaptiveConfig,
-    PlanConfig,
-    _count,
-    _frange,
-    _Table,  # one reader of a table against its schema, errors as ConfigError
-    read_plan,
-    resolution_deg,
-)
-from .sections import AxisConfig, BenchSection, CalibrationConfig, DetectorConfig, MotionConfig
 
 if sys.version_info >= (3, 11):
     import tomllib

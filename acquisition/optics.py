@@ -11,10 +11,9 @@ from typing import Any
 
 import numpy as np
 
+from acquisition.config import BenchConfig
 from reconstruction.bench.instrument import Instrument
 from reconstruction.schema.optics import band_name, footprint_fraction, footprint_limit_deg
-
-from .config import BenchConfig
 
 __all__ = ["instrument_of", "band_of", "footprint_losses", "footprint_warning", "footprint_meta",
            "MIN_CORRECTABLE_FRACTION"]

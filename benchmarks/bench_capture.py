@@ -49,7 +49,7 @@ from reconstruction.formats.slicefile import read_slice  # noqa: E402
 def _forget_orders() -> None:
     """Empty order_points' memory of recent orders (a capture reuses the order its estimate computed)."""
     try:
-        from acquisition.ordering import _ORDERED
+        from acquisition.plans.ordering import _ORDERED
     except ImportError:  # an older version without it
         return
     _ORDERED.clear()

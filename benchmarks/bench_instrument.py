@@ -34,7 +34,7 @@ sys.path.insert(0, str(REPO))
 
 from reconstruction.bench.instrument import Instrument  # noqa: E402
 from simulator.config import config_from_dict  # noqa: E402
-from simulator.physics import BenchPhysics  # noqa: E402
+from simulator.world.physics import BenchPhysics  # noqa: E402
 
 MIRROR = {"name": "mirror", "lobes": [{"type": "lambert", "albedo": 0.02},
                                       {"type": "ggx", "alpha": 1e-3, "specular": [0.97, 0.95, 0.9]}]}

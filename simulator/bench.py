@@ -7,12 +7,12 @@ import threading
 
 import numpy as np
 
-from .clock import SimClock
-from .config import BenchConfig
-from .dxl_device import DynamixelBus, Servo
-from .faults import FaultInjector
-from .physics import BRDF, BenchPhysics
-from .serial_controller import SerialController, StepperAxis
+from simulator.config import BenchConfig
+from simulator.devices.dxl_device import DynamixelBus, Servo
+from simulator.devices.serial_controller import SerialController, StepperAxis
+from simulator.world.clock import SimClock
+from simulator.world.faults import FaultInjector
+from simulator.world.physics import BRDF, BenchPhysics
 
 log = logging.getLogger("simulator.bench")
 

@@ -127,7 +127,7 @@ def build_parser() -> argparse.ArgumentParser:
 def _bench(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from .study import MATERIALS, grid, materials_from_dir, run_study
+    from simulator.study import MATERIALS, grid, materials_from_dir, run_study
 
     if not Path(args.config).is_file():
         print(f"gonio-sim bench: --config {args.config}: no such file", file=sys.stderr)
@@ -146,7 +146,7 @@ def _bench(args: argparse.Namespace) -> int:
         return 2
     merge: list = []
     if args.merge:
-        from .study import read_rows
+        from simulator.study import read_rows
 
         try:
             merge = read_rows(args.merge)
@@ -157,7 +157,7 @@ def _bench(args: argparse.Namespace) -> int:
     command = "gonio-sim bench" + (" --quick" if args.quick else "") + (" --reduced" if args.reduced else "") + (
         f" --material-dir {args.material_dir}" if args.material_dir else "") + (
         f" --materials {args.materials}" if args.materials else "") + (f" --merge {args.merge}" if args.merge else "")
-    from .study import METHODS, estimate_seconds
+    from simulator.study import METHODS, estimate_seconds
 
     workers = args.workers or (os.cpu_count() or 1)
     est = estimate_seconds(cases, 1 if args.scheduler else workers)
@@ -182,8 +182,8 @@ def _bench(args: argparse.Namespace) -> int:
 def _load_bench(config: str, seed: int | None = None, time_scale: float | None = None,
                 motion: str | None = None, attempt: int = 0):
     """(config, VirtualBench) for ``config``; raises ValueError with a message naming the file."""
-    from .bench import VirtualBench
-    from .config import load_config
+    from simulator.bench import VirtualBench
+    from simulator.config import load_config
 
     try:
         cfg = load_config(config, seed=seed, time_scale=time_scale)
@@ -207,7 +207,7 @@ def _check(args: argparse.Namespace) -> int:
 
 
 def _serve(args: argparse.Namespace) -> int:
-    from .transports import PtyServer
+    from simulator.ports.transports import PtyServer
 
     try:
         cfg, bench = _load_bench(args.config, args.seed, args.time_scale, args.motion, args.attempt)

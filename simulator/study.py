@@ -262,9 +262,8 @@ def photodiode_weights(cfg_path: Path) -> np.ndarray:
     (its responsivity x source spectrum over the Mallett-Yuksel spectra of R, G, B; they sum to 1); the mean when
     the bench names no band."""
     from reconstruction.schema.optics import BAND_NM
-
-    from .config import load_config
-    from .physics import _srgb_basis
+    from simulator.config import load_config
+    from simulator.world.physics import _srgb_basis
 
     w = load_config(cfg_path).detector.band_weights
     return np.full(3, 1.0 / 3.0) if w is None else np.asarray(w, float) @ _srgb_basis(BAND_NM)

@@ -12,8 +12,8 @@ from dynamixel_sdk import PacketHandler, PortHandler
 
 from acquisition import CommError
 from acquisition.config import config_from_dict
-from acquisition.dynamixel import DynamixelAxes
-from acquisition.serial_link import ControllerError, SerialDetector, SerialLink
+from acquisition.devices.dynamixel import DynamixelAxes
+from acquisition.devices.serial_link import ControllerError, SerialDetector, SerialLink
 from tests.test_acq_support import make_raw
 
 

@@ -20,9 +20,9 @@ import pytest
 from acquisition.autorange import read_clean
 from acquisition.calibration import Reading, pool
 from acquisition.cli import main
+from acquisition.devices.serial_link import SerialDetector
 from acquisition.errors import CommError
-from acquisition.lock import LOCK_NAME
-from acquisition.serial_link import SerialDetector
+from acquisition.run.lock import LOCK_NAME
 from tests.helpers import planned, unprivileged
 from tests.test_acq_signals import rows, wait_for_rows
 from tests.test_acq_support import (
@@ -99,7 +99,7 @@ def test_kill_9_of_the_lock_holder_then_resume(tmp_path):
 def test_in_process_captures_of_one_folder_exclude_each_other(tmp_path):
     """The lock is an flock on an open file: a second engine in the same process is refused as well."""
     from acquisition import Bench
-    from acquisition.lock import OutDirLocked, OutLock
+    from acquisition.run.lock import OutDirLocked, OutLock
 
     out = tmp_path / "out"
     out.mkdir()
@@ -350,7 +350,7 @@ def test_a_reading_whose_long_reply_keeps_failing_is_read_in_pieces():
             v = np.full(n, 1000.0) + np.arange(n)
             fields = {"n": str(n), "mean": f"{v.mean():.6f}", "std": f"{v.std(ddof=1) if n > 1 else 0.0:.6f}",
                       "sat": "0", "values": ",".join(f"{x:g}" for x in v)}
-            from acquisition.serial_link import Reply
+            from acquisition.devices.serial_link import Reply
 
             check(Reply(fields, []))
 

@@ -13,8 +13,8 @@ from hypothesis import strategies as st
 from acquisition import ConfigError, Plan, PlanError
 from acquisition.calibration import Calibration, Reading, reference_rho
 from acquisition.config import config_from_dict
-from acquisition.plan import Geometry, _trapezoid_time, order_points, path_time, refine_points
-from acquisition.plan import load_scene as acq_load_scene
+from acquisition.plans.plan import Geometry, _trapezoid_time, order_points, path_time, refine_points
+from acquisition.plans.plan import load_scene as acq_load_scene
 from reconstruction.core.scene import Scene, load_scene
 from tests.test_acq_support import REPO, make_raw
 

@@ -8,9 +8,9 @@ import importlib.util
 import pytest
 
 from acquisition import Bench, Plan, PlanError, Reason
-from acquisition.dryrun import estimate
-from acquisition.engine import Engine
-from acquisition.messages import Move, Settle
+from acquisition.plans.messages import Move, Settle
+from acquisition.run.dryrun import estimate
+from acquisition.run.engine import Engine
 from tests.test_acq_support import REPO, make_raw, write_config
 
 
@@ -42,7 +42,7 @@ def test_the_dry_run_checks_limits_and_models_time(tmp_path):
     with pytest.raises(PlanError, match=r"refusing to move to \(30, 89\): theta_o 89 outside"):
         estimate(plan, g, 0.01, [(30.0, 10.0), (30.0, 89.0)])
     # the engine throws a device's failure into the plan, whose own clean-up still runs
-    from acquisition.dryrun import DryRunBench
+    from acquisition.run.dryrun import DryRunBench
 
     seen = []
 

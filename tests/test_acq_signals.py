@@ -115,7 +115,7 @@ def test_a_signal_arriving_inside_a_log_record_does_not_log_from_the_handler():
     import logging
     import threading
 
-    from acquisition.interrupts import SignalGuard
+    from acquisition.run.interrupts import SignalGuard
 
     lg = logging.getLogger("acquisition")
     seen: list[str] = []
@@ -172,7 +172,7 @@ def test_a_lab_script_gets_the_previous_handlers_back():
     """A capture that ends normally, or one stopped by a signal in a program that goes on (a lab script, a test
     worker: ignore_after_signal unset), leaves SIGINT/SIGTERM as they were before it; the children it starts
     later do not inherit an ignored SIGTERM."""
-    from acquisition.interrupts import SignalGuard
+    from acquisition.run.interrupts import SignalGuard
 
     assert SignalGuard.ignore_after_signal is False  # only gonio-capture's main sets it
     old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}

@@ -17,8 +17,8 @@ from hypothesis import strategies as st
 from simulator import dxl_codec as c
 from simulator.bench import VirtualBench
 from simulator.config import config_from_dict
-from simulator.sdk_port import SimPortHandler
-from simulator.transports import register_bench, unregister_bench
+from simulator.ports.sdk_port import SimPortHandler
+from simulator.ports.transports import register_bench, unregister_bench
 
 
 @pytest.fixture

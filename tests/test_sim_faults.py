@@ -12,8 +12,8 @@ import simulator  # noqa: F401 - registers sim://
 from simulator import dxl_codec as c
 from simulator.bench import VirtualBench
 from simulator.config import config_from_dict
-from simulator.sdk_port import SimPortHandler
-from simulator.transports import PtyServer, register_bench, unregister_bench
+from simulator.ports.sdk_port import SimPortHandler
+from simulator.ports.transports import PtyServer, register_bench, unregister_bench
 from tests.helpers import units
 
 

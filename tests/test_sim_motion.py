@@ -9,11 +9,11 @@ import pytest
 from dynamixel_sdk import COMM_SUCCESS, PacketHandler
 
 from simulator.bench import VirtualBench
-from simulator.clock import SimClock
 from simulator.config import config_from_dict
-from simulator.motion import AxisMotion, TrapezoidProfile, dxl_profile_to_units
-from simulator.sdk_port import SimPortHandler
-from simulator.transports import register_bench, unregister_bench
+from simulator.ports.sdk_port import SimPortHandler
+from simulator.ports.transports import register_bench, unregister_bench
+from simulator.world.clock import SimClock
+from simulator.world.motion import AxisMotion, TrapezoidProfile, dxl_profile_to_units
 
 
 def test_profile_units():
@@ -60,9 +60,9 @@ def test_scaled_clock_flows(monkeypatch):
     clk.advance(1.0)  # 1 simulated second = 0.1 s wall
     assert time.monotonic() - w0 >= 0.1 - 1e-9 and clk.now() - s0 >= 1.0 - 1e-9
     slept: list[float] = []
-    import simulator.clock
+    import simulator.world.clock
 
-    monkeypatch.setattr(simulator.clock.time, "sleep", slept.append)
+    monkeypatch.setattr(simulator.world.clock.time, "sleep", slept.append)
     clk.advance(1.0)
     clk.advance(0.0)
     clk.advance(-1.0)

@@ -9,7 +9,7 @@ import serial
 import tomli_w
 
 import simulator  # noqa: F401 - registers sim://
-from simulator.transports import register_bench, unregister_bench
+from simulator.ports.transports import register_bench, unregister_bench
 from tests.helpers import units as steps  # the simulated stepper counts the same units
 
 

@@ -15,7 +15,7 @@ import tomli_w
 
 from acquisition import Bench
 from reconstruction.bench.timing import AxisTiming, MoveTiming, dxl_profile_units, trapezoid_duration
-from simulator.motion import AxisMotion, TrapezoidProfile
+from simulator.world.motion import AxisMotion, TrapezoidProfile
 
 if sys.version_info >= (3, 11):
     import tomllib

@@ -13,8 +13,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from reconstruction.base import Reconstruction
+from reconstruction.core import merltable as merl
 from reconstruction.core.metrics import directional_albedo, halfvector_albedo, reciprocity_error
-from reconstruction.formats import merl
 
 Array = NDArray[np.float64]
 

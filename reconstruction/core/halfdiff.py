@@ -13,8 +13,8 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import NDArray
 
+from reconstruction.core.merltable import N_PD, N_TD, N_TH, cell_angles, theta_h_index
 from reconstruction.core.models import Lambert, Lobe, Microfacet, Retro
-from reconstruction.formats.merl import N_PD, N_TD, N_TH, cell_angles, theta_h_index
 
 Array = NDArray[np.float64]
 

@@ -100,7 +100,7 @@ def reciprocity_error(f: BRDF, n: int = 4096, seed: int = 0) -> float:
 
 def _table_cosines() -> Array:
     """cos(theta_i) cos(theta_o) at every MERL cell's bin-centre directions, (90, 90, 180); 0 below the horizon."""
-    from reconstruction.formats.merl import _cell_dirs  # cached bin-centre directions (the table's own convention)
+    from reconstruction.core.merltable import _cell_dirs  # cached bin-centre directions (the table's own convention)
 
     wi, wo = _cell_dirs()
     return np.clip(wi[..., 2], 0.0, None) * np.clip(wo[..., 2], 0.0, None)
@@ -109,7 +109,7 @@ def _table_cosines() -> Array:
 def within_angle_mask(max_theta_deg: float | None = None) -> NDArray[np.bool_]:
     """(90, 90, 180) bool: MERL cells above the horizon whose bin-centre theta_i and theta_o are both
     <= ``max_theta_deg`` (all cells above the horizon when None)."""
-    from reconstruction.formats.merl import _cell_dirs, valid_mask
+    from reconstruction.core.merltable import _cell_dirs, valid_mask
 
     m = valid_mask()
     if max_theta_deg is None:
@@ -136,7 +136,7 @@ def relative_rmse_cos_by_theta_d(table: ArrayLike, truth_table: ArrayLike, max_t
     (len(edges_deg) - 1,) parts e_k = sqrt(sum over band k of (f - g)^2 c^2 / sum over all cells of g^2 c^2), so
     that sum(e_k^2) = relative_rmse_cos^2. Shows where an error comes from (grazing theta_d, which no
     low-incidence slice sees, or the measured range). Dimensionless."""
-    from reconstruction.formats.merl import SHAPE
+    from reconstruction.core.merltable import SHAPE
 
     f = np.asarray(table, dtype=np.float64)
     g = np.asarray(truth_table, dtype=np.float64)
@@ -189,7 +189,7 @@ def log_rmse(table: ArrayLike, truth_table: ArrayLike, eps: float = 1e-3) -> flo
     ``eps`` (1/sr) keeps the logarithm finite where a BRDF is 0; the metric weighs a lobe's shape and the dim
     floor alike, unlike :func:`relative_rmse_cos`, which the peak dominates. Pooled over the 3 channels.
     """
-    from reconstruction.formats.merl import valid_mask
+    from reconstruction.core.merltable import valid_mask
 
     f = np.asarray(table, dtype=np.float64)
     g = np.asarray(truth_table, dtype=np.float64)
@@ -206,8 +206,8 @@ def sphere_relative_error(table: ArrayLike, truth_table: ArrayLike, size: int = 
     The sphere and light of the preview (:func:`reconstruction.core.render.render_point_light`); tables read with
     interpolation.
     """
+    from reconstruction.core.merltable import brdf_of
     from reconstruction.core.render import render_point_light
-    from reconstruction.formats.merl import brdf_of
 
     a = render_point_light(brdf_of(table), size).astype(np.float64)
     b = render_point_light(brdf_of(truth_table), size).astype(np.float64)
@@ -221,7 +221,7 @@ def albedo_error(table: ArrayLike, truth_table: ArrayLike,
 
     Returns ``theta_i_deg``, ``albedo`` and ``truth_albedo`` (channel means) and ``max_abs_error``.
     """
-    from reconstruction.formats.merl import brdf_of
+    from reconstruction.core.merltable import brdf_of
 
     ti = np.radians(np.asarray(theta_i_deg, dtype=np.float64))
     a = directional_albedo(brdf_of(table, interpolate=False), ti).mean(axis=1)

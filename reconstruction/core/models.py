@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 import sys
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
@@ -343,6 +343,10 @@ def _rgb_on(rgb: Array, n_channels: int, what: str) -> Array:
     raise MaterialError(f"{what} gives RGB; it cannot be mixed with spectral lobes")
 
 
+#: path -> MERL table (3, 90, 90, 180) in 1/sr for :class:`Tabulated`: formats.merl.read, registered on import.
+TABLE_READER: Callable[[str], Array] | None = None
+
+
 @dataclass
 class Tabulated(Lobe):
     """A measured MERL table (linear RGB), looked up with trilinear interpolation; ``scale`` multiplies it."""
@@ -354,9 +358,8 @@ class Tabulated(Lobe):
 
     def _table(self) -> Array:
         if self.table is None:
-            from reconstruction.formats import merl
-
-            self.table = merl.read(self.path)
+            assert TABLE_READER is not None, "importing reconstruction registers the MERL reader"
+            self.table = TABLE_READER(self.path)
         return self.table
 
     def shape(self, wi: Array, wo: Array) -> Array:  # pragma: no cover - eval is overridden
@@ -364,11 +367,10 @@ class Tabulated(Lobe):
 
     def eval(self, wi: ArrayLike, wo: ArrayLike, n_channels: int = 0, wavelengths_nm: Array | None = None
              ) -> Array:
-        from reconstruction.formats import merl
+        from reconstruction.core import merltable
 
-        wi = np.asarray(wi, dtype=np.float64)
-        wo = np.asarray(wo, dtype=np.float64)
-        rgb = np.nan_to_num(merl.lookup(self._table(), wi, wo, interpolate=True), nan=0.0)
+        wi, wo = np.asarray(wi, dtype=np.float64), np.asarray(wo, dtype=np.float64)
+        rgb = np.nan_to_num(merltable.lookup(self._table(), wi, wo, interpolate=True), nan=0.0)
         return _rgb_on(rgb * self.colour.on(3, None), n_channels, "a tabulated lobe")
 
     def params(self) -> dict[str, Any]:
@@ -445,9 +447,7 @@ class Nbrdf(Lobe):
 
     def eval(self, wi: ArrayLike, wo: ArrayLike, n_channels: int = 0, wavelengths_nm: Array | None = None
              ) -> Array:
-        wi = np.asarray(wi, dtype=np.float64)
-        wo = np.asarray(wo, dtype=np.float64)
-        wi, wo = np.broadcast_arrays(wi, wo)
+        wi, wo = np.broadcast_arrays(np.asarray(wi, dtype=np.float64), np.asarray(wo, dtype=np.float64))
         rgb = nbrdf_forward(nbrdf_features(wi, wo), self._weights())
         up = (wi[..., 2] > 0) & (wo[..., 2] > 0)
         return _rgb_on(np.where(up[..., None], rgb, 0.0) * self.colour.on(3, None), n_channels, "a neural BRDF")

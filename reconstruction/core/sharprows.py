@@ -46,8 +46,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from reconstruction.cache import cached_arrays
 from reconstruction.core.geometry import half_diff_from_dirs, inplane_to_dirs
-from reconstruction.core.metrics import halfvector_albedo
-from reconstruction.formats.merl import (
+from reconstruction.core.merltable import (
     N_PD,
     N_TD,
     N_TH,
@@ -58,6 +57,7 @@ from reconstruction.formats.merl import (
     theta_h_index,
     valid_mask,
 )
+from reconstruction.core.metrics import halfvector_albedo
 
 Array = NDArray[np.float64]
 

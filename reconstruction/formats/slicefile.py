@@ -21,31 +21,36 @@ import io
 import json
 import math
 import os
-import re
 import warnings
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
 from reconstruction.atomic import atomic_open
+from reconstruction.core.slicedata import (  # noqa: F401  (the slice's names, re-exported)
+    SHOW_CHARS,
+    Slice,
+    SliceError,
+    _show_list,
+    channel_kind,
+    shorten,
+    to_brdf,
+    wavelengths_of,
+)
 from reconstruction.schema.slice_meta import FORMAT_VERSION, QUANTITIES, check_instrument  # the metadata's schema
 
 Array = NDArray[np.float64]
 
 MAGIC = "# gonio-brdf slice"
 META_PREFIX = "# meta: "
-_WAVELENGTH = re.compile(r"^(\d+(?:\.\d+)?)nm$")
 #: Largest input file (slice file or generic table) the readers accept, in bytes; a larger one is refused with a
 #: message (read in memory: a 100 MB table takes a few seconds and about 0.5 GB).
 MAX_INPUT_BYTES = 256 * 1024 * 1024
 #: Largest ``repeats`` a row may give (far above any detector's; beyond it the count is not one).
 MAX_REPEATS = 10**9
-#: Names and cells longer than this are cut in messages.
-SHOW_CHARS = 60
 
 __all__ = [
     "FORMAT_VERSION",
@@ -64,22 +69,10 @@ __all__ = [
 ]
 
 
-class SliceError(ValueError):
-    """A slice file or slice is invalid; the message names file, line and column where it can."""
 
 
-def shorten(text: str, limit: int = SHOW_CHARS) -> str:
-    """``text`` for a message: as it is when short, else its start and end with the length (a 200 KB column name
-    must not fill the terminal)."""
-    if len(text) <= limit:
-        return text
-    return f"{text[:limit - 20]}...{text[-8:]} ({len(text)} characters)"
 
 
-def _show_list(names: Sequence[str], limit: int = 8) -> str:
-    shown = [repr(shorten(n)) for n in list(names)[:limit]]
-    more = f", ... ({len(names)} in all)" if len(names) > limit else ""
-    return f"[{', '.join(shown)}{more}]"
 
 
 def read_input_text(path: str | Path, error: type[ValueError] = ValueError, what: str = "a CSV file") -> str:
@@ -143,132 +136,12 @@ def parse_rows(lines: Sequence[str], n_cols: int, delimiter: str = ",", quotecha
     return a
 
 
-def channel_kind(channels: Sequence[str]) -> str:
-    """"grey" for ``["value"]``, "rgb" for ``["R", "G", "B"]``, "spectral" for wavelength names."""
-    ch = list(channels)
-    if ch == ["value"]:
-        return "grey"
-    if ch == ["R", "G", "B"]:
-        return "rgb"
-    if ch and all(_WAVELENGTH.match(c) for c in ch):
-        return "spectral"
-    raise SliceError(
-        f"value columns {_show_list(ch)} are not one of: value | R,G,B | wavelength columns such as 550nm"
-    )
 
 
-def wavelengths_of(channels: Sequence[str]) -> Array | None:
-    """Wavelengths in nm of spectral channel names, or None for grey/RGB."""
-    if channel_kind(channels) != "spectral":
-        return None
-    return np.array([float(_WAVELENGTH.match(c).group(1)) for c in channels])  # type: ignore[union-attr]
 
 
-def to_brdf(values: ArrayLike, theta_o_deg: ArrayLike, quantity: str) -> Array:
-    """Convert ``values`` (N, C) of ``quantity`` to f_r in 1/sr (theta_o in degrees)."""
-    v = np.asarray(values, dtype=np.float64)
-    if quantity == "brdf":
-        return v
-    if quantity == "reflectance_factor":
-        return v / np.pi
-    if quantity == "brdf_cos":
-        c = np.cos(np.radians(np.asarray(theta_o_deg, dtype=np.float64)))
-        return v / np.maximum(c, 1e-6)[:, None]
-    raise SliceError(f"unknown quantity {quantity!r}; expected one of {', '.join(QUANTITIES)}")
 
 
-@dataclass
-class Slice:
-    """One or more in-plane slices: N samples with C value channels.
-
-    ``theta_i_deg``, ``theta_o_deg``: (N,) degrees; ``values``, ``std``: (N, C) in the unit of
-    ``meta["quantity"]``; ``repeats``: (N,) ints; ``unix_time_s``: (N,) seconds since the epoch.
-    """
-
-    theta_i_deg: Array
-    theta_o_deg: Array
-    values: Array
-    channels: list[str]
-    std: Array | None = None
-    repeats: NDArray[np.int64] | None = None
-    unix_time_s: Array | None = None
-    meta: dict[str, Any] = field(default_factory=dict)
-    source: str = "<memory>"
-
-    def __post_init__(self) -> None:
-        self.theta_i_deg = np.asarray(self.theta_i_deg, dtype=np.float64).reshape(-1)
-        self.theta_o_deg = np.asarray(self.theta_o_deg, dtype=np.float64).reshape(-1)
-        n = self.theta_i_deg.size
-        channel_kind(self.channels)
-        values = np.asarray(self.values, dtype=np.float64)
-        if self.theta_o_deg.size != n or values.size != n * len(self.channels):
-            raise SliceError(f"{self.source}: {n} theta_i, {self.theta_o_deg.size} theta_o and {values.size} values "
-                             f"do not make {n} samples of channels {self.channels}")
-        self.values = values.reshape(n, len(self.channels))
-        self.std = (np.zeros_like(self.values) if self.std is None
-                    else np.asarray(self.std, dtype=np.float64).reshape(self.values.shape))
-        self.repeats = (np.ones(n, dtype=np.int64) if self.repeats is None
-                        else np.asarray(self.repeats, dtype=np.int64).reshape(n))
-        self.unix_time_s = (np.zeros(n) if self.unix_time_s is None
-                            else np.asarray(self.unix_time_s, dtype=np.float64).reshape(n))
-        self.meta = {"format_version": FORMAT_VERSION, "quantity": "brdf", **dict(self.meta)}
-        if self.meta["quantity"] not in QUANTITIES:
-            raise SliceError(f"{self.source}: unknown quantity {self.meta['quantity']!r}; "
-                             f"expected one of {', '.join(QUANTITIES)}")
-
-    def __len__(self) -> int:
-        return int(self.theta_i_deg.size)
-
-    @property
-    def quantity(self) -> str:
-        return str(self.meta["quantity"])
-
-    @property
-    def kind(self) -> str:
-        """"grey", "rgb" or "spectral"."""
-        return channel_kind(self.channels)
-
-    @property
-    def wavelengths_nm(self) -> Array | None:
-        return wavelengths_of(self.channels)
-
-    def brdf(self) -> tuple[Array, Array]:
-        """(f_r, std of f_r), each (N, C) in 1/sr, whatever quantity the file holds."""
-        return (to_brdf(self.values, self.theta_o_deg, self.quantity),
-                to_brdf(self.std, self.theta_o_deg, self.quantity))
-
-    def incidences(self) -> Array:
-        """Sorted distinct theta_i (degrees)."""
-        return np.unique(self.theta_i_deg)
-
-    def take(self, idx: ArrayLike) -> Slice:
-        """A new Slice holding the samples ``idx`` (index array or boolean mask)."""
-        idx = np.asarray(idx)
-        assert self.std is not None and self.repeats is not None and self.unix_time_s is not None
-        return Slice(self.theta_i_deg[idx], self.theta_o_deg[idx], self.values[idx], list(self.channels),
-                     self.std[idx], self.repeats[idx], self.unix_time_s[idx], dict(self.meta), self.source)
-
-    def sorted(self) -> Slice:
-        """Samples sorted by (theta_i, theta_o)."""
-        return self.take(np.lexsort((self.theta_o_deg, self.theta_i_deg)))
-
-    def validate(self) -> None:
-        """Raise :class:`SliceError` for non-finite values, angles outside (-90, 90) or duplicate samples."""
-        for name, arr in (("theta_i_deg", self.theta_i_deg), ("theta_o_deg", self.theta_o_deg)):
-            bad = ~np.isfinite(arr) | (np.abs(arr) >= 90.0)
-            if bad.any():
-                i = int(np.argmax(bad))
-                raise SliceError(f"{self.source}: sample {i}: {name} = {arr[i]} is outside (-90, 90) degrees")
-        bad_v = ~np.isfinite(self.values)
-        if bad_v.any():
-            i, c = (int(x) for x in np.argwhere(bad_v)[0])
-            raise SliceError(f"{self.source}: sample {i}, column {self.channels[c]}: value is {self.values[i, c]}")
-        key = np.stack([self.theta_i_deg, self.theta_o_deg], axis=1)
-        _, first, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
-        if (counts > 1).any():
-            i = int(first[np.argmax(counts > 1)])
-            raise SliceError(f"{self.source}: duplicate sample theta_i_deg = {self.theta_i_deg[i]}, "
-                             f"theta_o_deg = {self.theta_o_deg[i]}")
 
 
 # --- writing ---------------------------------------------------------------------------------------------

@@ -1,0 +1,320 @@
+"""Bench physics: what the detector reads for given arm angles.
+
+Signal model (counts at gain 1, before noise)::
+
+    S = source_power * Omega_d * R(theta_i, theta_o) * cos(theta_o) * frac(theta_i) * (t_int / t_int_ref)
+
+with ``Omega_d`` the detector cone (``[detector].solid_angle_sr``), ``t_int_ref`` = ``[detector].integration_time_s``
+(so ``source_power`` is "counts per (1/sr * sr) at gain 1 and the configured integration time"). ``R`` is the
+physical reading (:func:`reconstruction.bench.instrument.instrument_average`): the integral of f cos(theta_o) over the
+detector's cone and the source's divergence (``[bench].source_divergence_deg``), over ``Omega_d cos(theta_o)``,
+so f at the centre for a smooth BRDF and the lobe's energy for a mirror. ``frac`` is the part of the illuminated
+spot that falls on the sample (:func:`reconstruction.schema.optics.footprint_fraction`): the light lost where
+the spot, growing as 1 / cos theta_i, overfills it.
+
+A reading at gain g is ``round(g * (S + shot + input_offset + input_noise) + dark_offset + read_noise)`` clipped
+to ``[0, min(saturation, 2**adc_bits - 1)]``: each gain has its own offset (``g * input_offset``) and noise
+(``sqrt(read_noise**2 + (g * input_noise)**2)``); ``shot`` is Poisson(S e) / e - S with ``e`` =
+``electrons_per_count`` when ``shot_noise`` is on. ``[detector].gains`` lists the gains ``GAIN`` accepts. The
+source arm shadows the detector when ``|theta_i + theta_o| < blind_spot_half_width_deg``: then S = 0.
+
+Channels: a photodiode sees one channel, the material's reflectance weighted by the band (``[detector]
+.responsivity`` x ``[bench].source_spectrum``, :mod:`reconstruction.schema.optics`), an RGB material (linear sRGB)
+becoming spectra through the Mallett-Yuksel (2019) sRGB basis of colour-science. A spectrometer evaluates a
+spectral material on its own grid (linear interpolation, clamped at the ends) and an RGB one through the same
+basis, which converts back to the same RGB under D65; a grey material is flat.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from simulator.config import BenchConfig
+
+log = logging.getLogger("simulator.physics")
+
+#: Angle pairs whose physical reading is remembered per material (then the memory starts afresh).
+_CACHE_SIZE = 20000
+
+
+
+def _interp_matrix(grid: np.ndarray, src: np.ndarray) -> np.ndarray:
+    """(len(grid), len(src)) matrix of linear interpolation from wavelengths ``src`` to ``grid`` (clamped)."""
+    eye = np.eye(src.size)
+    return np.stack([np.interp(grid, src, eye[j]) for j in range(src.size)], axis=1)
+
+
+@lru_cache(maxsize=1)
+def _mallett2019() -> tuple[np.ndarray, np.ndarray]:
+    """colour-science's MSDS_BASIS_FUNCTIONS_sRGB_MALLETT2019: (wavelengths (W,) in nm, values (W, 3)), read
+    through the disk cache (:mod:`reconstruction.cache`, keyed by colour-science's version): importing colour
+    takes about 0.7 s (it imports matplotlib), most of a simulator's start, for 81 x 3 numbers."""
+    from importlib.metadata import version
+
+    from reconstruction.cache import cached_arrays
+
+    def build() -> tuple[np.ndarray, np.ndarray]:
+        from colour.recovery import MSDS_BASIS_FUNCTIONS_sRGB_MALLETT2019 as basis
+
+        return np.asarray(basis.wavelengths, dtype=float), np.asarray(basis.values, dtype=float)
+
+    wl, values = cached_arrays("srgb-basis-mallett2019", f"colour-science {version('colour-science')}", build)
+    return wl, values
+
+
+def _srgb_basis(grid: np.ndarray) -> np.ndarray:
+    """(len(grid), 3): reflectance spectra of linear sRGB R, G, B (Mallett and Yuksel 2019, colour-science).
+
+    A linear-sRGB albedo (r, g, b) becomes the spectrum r B_R + g B_G + b B_B, which converts back to (r, g, b)
+    under D65 with the CIE 1931 observer, and (1, 1, 1) is a flat reflectance of 1.
+    """
+    wl, values = _mallett2019()
+    return _interp_matrix(grid, wl) @ values
+
+
+class BRDF(Protocol):
+    """What the physics needs from a material (``reconstruction.core.models.Material`` satisfies it)."""
+
+    n_channels: int
+    wavelengths_nm: Any
+
+    def eval(self, wi: np.ndarray, wo: np.ndarray) -> np.ndarray: ...
+
+
+def load_material(cfg: BenchConfig) -> BRDF:
+    """The ground-truth material of the config's ``[material]`` table; the tables of ``tabulated`` lobes are read
+    now (a simulator that cannot load its material refuses the config before serving, rather than answering
+    ``error:1`` to a reading later). Raises ValueError naming the lobe."""
+    from reconstruction.core.models import Material
+    from reconstruction.formats import merl
+
+    mat = Material.from_dict(cfg.material, cfg.base_dir)
+    for i, lobe in enumerate(mat.lobes):
+        if getattr(lobe, "type_name", "") == "tabulated":
+            try:
+                lobe.table = merl.read(lobe.path)  # type: ignore[attr-defined]
+            except merl.MerlError as e:
+                raise ValueError(f"[material].lobes[{i}].path: {e}") from None
+    return mat
+
+
+def white_reference(cfg: BenchConfig) -> BRDF:
+    """Lambertian white reference: ``reference_reflectance`` (grey) or ``reference_spectrum`` (CSV
+    ``wavelength_nm,reflectance``, relative to the config file)."""
+    from reconstruction.core.models import Material
+
+    if cfg.reference_spectrum:
+        path = Path(cfg.reference_spectrum)
+        if not path.is_absolute():
+            path = cfg.base_dir / path
+        from reconstruction.schema.files import read_spectrum_csv  # the one reader, as gonio-capture's
+
+        wl, val = read_spectrum_csv(path, "[calibration].reference_spectrum")
+        albedo: Any = {"wavelengths_nm": list(wl), "values": list(val)}
+    else:
+        albedo = float(cfg.reference_reflectance)
+    return Material.from_dict({"name": "white-reference", "lobes": [{"type": "lambert", "albedo": albedo}]},
+                              cfg.base_dir)
+
+
+@dataclass
+class Detector:
+    """Detector state that the serial protocol can change (integration time, gain)."""
+
+    type: str
+    integration_time_s: float
+    ref_integration_time_s: float
+    gain: float
+    adc_bits: int
+    saturation: float
+    wavelengths_nm: np.ndarray | None = None
+
+    @property
+    def max_code(self) -> float:
+        return float(min(self.saturation, 2 ** int(self.adc_bits) - 1))
+
+    @property
+    def n_channels(self) -> int:
+        return 1 if self.wavelengths_nm is None else int(self.wavelengths_nm.size)
+
+
+class BenchPhysics:
+    """Turns arm angles (degrees) into detector readings; noise from ``rng``, saturation faults from ``faults``."""
+
+    def __init__(self, cfg: BenchConfig, rng: np.random.Generator, faults=None, material: BRDF | None = None,
+                 reference: BRDF | None = None) -> None:
+        self.cfg = cfg
+        s = cfg.sim
+        self.rng = rng
+        self.faults = faults
+        self.material = material if material is not None else load_material(cfg)
+        self._reference = reference
+        self.sample = "TARGET"
+        wl = s.spectrometer.grid() if cfg.detector.type == "spectrometer" else None
+        self.detector = Detector(
+            type=cfg.detector.type,
+            integration_time_s=float(cfg.detector.integration_time_s),
+            ref_integration_time_s=float(cfg.detector.integration_time_s),
+            gain=float(s.gain),
+            adc_bits=int(s.adc_bits),
+            saturation=float(cfg.detector.saturation),
+            wavelengths_nm=wl,
+        )
+        self.source_power = float(s.source_power)
+        self.solid_angle = float(cfg.detector.solid_angle_sr)
+        self.dark_offset = float(s.dark_offset)
+        self.read_noise = float(s.read_noise)
+        self.input_noise = float(s.input_noise)
+        self.input_offset = float(s.input_offset)
+        self.electrons_per_count = float(s.electrons_per_count)
+        self.shot_noise = bool(s.shot_noise)
+        self.blind_half_width = float(cfg.blind_spot_half_width_deg)
+        self.gains = cfg.detector.gains
+        from reconstruction.bench.instrument import Instrument
+
+        self.instrument = Instrument(self.solid_angle, float(cfg.source_divergence_deg), cfg.beam_diameter_mm,
+                                     cfg.sample_diameter_mm)
+        self._band_cache: dict[int, np.ndarray] = {}
+        self._fc_cache: dict[int, dict[tuple[float, float], np.ndarray]] = {}
+
+    def warm_up(self) -> None:
+        """Do the slow first-time work now (``gonio-sim serve`` calls it before the ports serve: imports, the
+        band's sRGB basis, the first integration): a first reading must not take longer than a controller's reply
+        deadline."""
+        for mat in (self.material, self.reference):
+            self.f_cos(30.0, 20.0, mat)
+
+    @property
+    def reference(self) -> BRDF:
+        if self._reference is None:
+            self._reference = white_reference(self.cfg)
+        return self._reference
+
+    @property
+    def active_material(self) -> BRDF:
+        return self.reference if self.sample == "REF" else self.material
+
+    # -- channels ----------------------------------------------------------------------------------------------
+    def to_detector_channels(self, f: np.ndarray, mat: BRDF) -> np.ndarray:
+        """Map material channels (..., C) to detector channels (..., n_det)."""
+        det = self.detector
+        if det.wavelengths_nm is None:
+            return f @ self._band_vector(f.shape[-1], mat)[:, None]
+        grid = det.wavelengths_nm
+        c = f.shape[-1]
+        wl = getattr(mat, "wavelengths_nm", None)
+        if c == 1:
+            return np.broadcast_to(f, f.shape[:-1] + (grid.size,)).copy()
+        if wl is not None and np.asarray(wl).size == c:
+            m = _interp_matrix(np.asarray(grid, dtype=float), np.asarray(wl, dtype=float))
+        elif c == 3:
+            m = _srgb_basis(np.asarray(grid, dtype=float))
+        else:
+            raise ValueError(f"cannot map {c} material channels to a spectrometer grid")
+        return f @ m.T  # linear in the channels: (..., C) -> (..., n_det)
+
+    def _band_vector(self, c: int, mat: BRDF) -> np.ndarray:
+        """(C,) weights of the material's channels in the photodiode's one channel (they sum to 1)."""
+        v = self._band_cache.get(id(mat))
+        if v is not None and v.size == c:
+            return v
+        from reconstruction.schema.optics import BAND_NM
+
+        w = self.cfg.detector.band_weights
+        wl = getattr(mat, "wavelengths_nm", None)
+        if c == 1:
+            v = np.ones(1)
+        elif w is None:  # no band known: the mean of the channels
+            v = np.full(c, 1.0 / c)
+        elif wl is not None and np.asarray(wl).size == c:
+            v = w @ _interp_matrix(BAND_NM, np.asarray(wl, dtype=float))
+        elif c == 3:
+            v = w @ _srgb_basis(BAND_NM)
+        else:
+            raise ValueError(f"cannot map {c} material channels to the photodiode's band")
+        self._band_cache[id(mat)] = v
+        return v
+
+    # -- geometry ----------------------------------------------------------------------------------------------
+    def f_cos(self, theta_i_deg, theta_o_deg, mat: BRDF | None = None) -> np.ndarray:
+        """The physical reading R(theta_i, theta_o) * cos(theta_o) (1/sr; see the module docstring) on the
+        detector channels: (..., n_det). Angles in degrees; each angle pair is integrated once and remembered
+        (the arms stop at whole controller units, so a capture reads the same pairs again)."""
+        from reconstruction.bench.instrument import instrument_average
+
+        mat = mat if mat is not None else self.active_material
+        ti, to = np.broadcast_arrays(np.asarray(theta_i_deg, dtype=float), np.asarray(theta_o_deg, dtype=float))
+        pairs = np.stack([ti.ravel(), to.ravel()], axis=1)
+        uniq, inv = np.unique(pairs, axis=0, return_inverse=True)
+        cache = self._fc_cache.setdefault(id(mat), {})
+        keys = [(float(a), float(b)) for a, b in uniq]
+        todo = [i for i, k in enumerate(keys) if k not in cache]
+        if todo:
+            if len(cache) > _CACHE_SIZE:
+                cache.clear()
+            u = uniq[todo]
+            r = np.asarray(instrument_average(mat, u[:, 0], u[:, 1], self.instrument), dtype=float)
+            fc = r * np.clip(np.cos(np.radians(u[:, 1])), 0.0, None)[:, None]
+            for i, row in zip(todo, self.to_detector_channels(fc, mat), strict=True):
+                cache[keys[i]] = row
+        out = np.stack([cache[k] for k in keys])[np.asarray(inv).ravel()]
+        return out.reshape(ti.shape + out.shape[-1:])
+
+    def expected_signal(self, theta_i_deg, theta_o_deg, source_on: bool = True,
+                        integration_time_s: float | None = None) -> np.ndarray:
+        """Noise-free signal S in counts at gain 1, before dark offset: (..., n_det); 0 in the blind spot."""
+        t_int = self.detector.integration_time_s if integration_time_s is None else integration_time_s
+        ti = np.asarray(theta_i_deg, dtype=float)
+        to = np.asarray(theta_o_deg, dtype=float)
+        if not source_on:
+            return np.zeros(np.broadcast_shapes(ti.shape, to.shape) + (self.detector.n_channels,))
+        fc = self.f_cos(ti, to)
+        from reconstruction.schema.optics import footprint_fraction
+
+        s = self.source_power * fc * self.solid_angle * (t_int / self.detector.ref_integration_time_s)
+        s = s * footprint_fraction(ti, self.cfg.beam_diameter_mm, self.cfg.sample_diameter_mm)[..., None]
+        blind = np.abs(ti + to) < self.blind_half_width
+        s = np.where(blind[..., None], 0.0, s)
+        if not source_on:
+            s = np.zeros_like(s)
+        return s
+
+    def expected_reading(self, theta_i_deg, theta_o_deg, source_on: bool = True) -> np.ndarray:
+        """Noise-free reading (counts): gain * S + dark, clipped to the detector range (not quantised)."""
+        s = self.expected_signal(theta_i_deg, theta_o_deg, source_on)
+        return np.clip(self.detector.gain * (s + self.input_offset) + self.dark_offset, 0.0, self.detector.max_code)
+
+    def noise_rms(self, gain: float | None = None) -> float:
+        """Dark-reading noise (counts rms) at ``gain`` (default: the present one): ADC and amplifier."""
+        g = self.detector.gain if gain is None else gain
+        return float(np.hypot(self.read_noise, g * self.input_noise))
+
+    def read(self, theta_i_deg, theta_o_deg, source_on: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """Noisy readings for arrays of angles (one per repeat): (codes (n, n_det) float, saturated (n,) bool)."""
+        ti = np.atleast_1d(np.asarray(theta_i_deg, dtype=float))
+        to = np.atleast_1d(np.asarray(theta_o_deg, dtype=float))
+        s = self.expected_signal(ti, to, source_on)
+        det = self.detector
+        if self.shot_noise:
+            e = self.electrons_per_count
+            s = self.rng.poisson(np.maximum(s, 0.0) * e).astype(float) / e if e != 1.0 else \
+                self.rng.poisson(np.maximum(s, 0.0)).astype(float)
+        if self.input_noise > 0:
+            s = s + self.input_noise * self.rng.standard_normal(s.shape)
+        x = det.gain * (s + self.input_offset) + self.dark_offset
+        if self.read_noise > 0:
+            x = x + self.read_noise * self.rng.standard_normal(x.shape)
+        x = np.round(x)
+        top = det.max_code
+        forced = self.faults.saturate(x.shape[0]) if self.faults is not None else np.zeros(x.shape[0], bool)
+        if forced.any():
+            x[forced] = top
+        sat = (x >= top).any(axis=-1) | forced
+        x = np.clip(x, 0.0, top)
+        return x, sat
