@@ -7,12 +7,10 @@ result, and :func:`run`, the whole way from input files to a table, a preview an
 
 from __future__ import annotations
 
-import os
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,6 +20,14 @@ from reconstruction.core import sharprows
 from reconstruction.formats import merl
 from reconstruction.formats.inputs import check_slice
 from reconstruction.formats.slicefile import Slice
+from reconstruction.job import (  # noqa: F401  (the job's names, re-exported: pipeline.Job)
+    ImplausibleError,
+    Job,
+    Progress,
+    check_output,
+    check_outputs,
+    implausible_message,
+)
 from reconstruction.methods import REGISTRY, Options, get
 from reconstruction.methods.auto import KEEP_BUILDS, import_methods, reconstruct_auto, start_child
 
@@ -83,158 +89,6 @@ def tabulate(rec: Reconstruction, supersample: tuple[int, int, int] | str | None
 # --- the end-to-end pipeline: input files -> table, preview, report ---------------------------------------------
 
 
-class ImplausibleError(ReconstructionError):
-    """The reconstruction fails a plausibility check; nothing was written."""
-
-
-@dataclass(frozen=True)
-class Job:
-    """One reconstruction, from input files to outputs: what one ``gonio-reconstruct`` command line asks.
-
-    ``inputs``: slice files or generic tables (merged); ``out``: the MERL table (``.binary``); ``preview``: an
-    ``.exr`` (and the PNG beside it); ``report``: the JSON report. The other fields are the command's flags of the
-    same names (angles in degrees): ``columns`` as ``"theta_i=NAME,theta_o=NAME"``, ``lobes`` as kinds,
-    ``axis`` / ``smoothing`` for revolve, ``supersample`` as (nh, nd, np) or ``"adaptive"``.
-    """
-
-    inputs: tuple[str, ...]
-    out: str
-    method: str = "auto"
-    preview: str | None = None
-    report: str | None = None
-    supersample: tuple[int, int, int] | str | None = None
-    quantity: str | None = None
-    columns: str | None = None
-    blind_spot_deg: float | None = None
-    illuminant: str = "D65"
-    scene: str | None = None
-    lobes: tuple[str, ...] | None = None
-    fill: str = "interpolate"
-    axis: str = "auto"
-    smoothing: float | None = None
-    allow_implausible: bool = False
-    conservative: bool = True  # auto: bounded where no sample rests (reconstruction.assess.guard); --no-conservative
-    html: str | None = None
-    # other formats (reconstruction.formats.exports; README: Formats); ``out`` may be "" when one of them is asked for
-    rgl: str | None = None
-    zemax: str | None = None
-    zemax_incidences: str | None = None
-    zemax_azimuths: str | None = None
-    zemax_radials: str | None = None
-    export_mitsuba: str | None = None
-    export_json: str | None = None
-    preview_renderer: str = "builtin"
-    prior: str | None = None  # --prior DIR: the folder of prior materials (method prior; auto tries it when given)
-    prior_anchor: float = 0.0  # --prior-anchor A: method prior's blend with the bivariate interpolation (0..1)
-    uncertainty: str | None = None  # --uncertainty SIGMA.npy: sigma of ln f per cell (reconstruction.assess)
-    advise: bool = False  # --advise: rank the incidences to measure next
-    bench: str | None = None  # --bench CONFIG.toml: the bench whose limits and timing --advise uses
-    budget_s: float | None = None  # --budget-s T: --advise plans further slices within T s of bench time
-    # the closest principled material (reconstruction.principled; docs/formats.md)
-    principled: str | None = None
-    materialx: str | None = None
-    gltf: str | None = None
-    blender: str | None = None
-
-    @property
-    def steps(self) -> list[str]:
-        """The steps :func:`run` reports to its ``progress`` (for a progress bar's total)."""
-        from reconstruction.principled.outputs import wants
-
-        return (["read", "colour", "reconstruct", "tabulate", "checks"]
-                + (["conservative"] if self.bounds else [])
-                + ["write"] + (["preview"] if self.preview else [])
-                + (["uncertainty"] if self.assesses else []) + (["advice"] if self.advise else [])
-                + (["principled"] if wants(self) else []) + (["html"] if self.html else []))
-
-    @property
-    def assesses(self) -> bool:
-        """Whether the run computes the per-cell uncertainty (asked for, for the advice or the HTML page)."""
-        return bool(self.uncertainty or self.advise or self.html)
-
-    @property
-    def bounds(self) -> bool:
-        """Whether auto's table is bounded where no sample rests (:func:`bound_where_unmeasured`)."""
-        return self.method == "auto" and self.conservative
-
-    @property
-    def posterior_early(self) -> bool:
-        """Whether the built-in analytic family's posterior of the samples (the reference of the uncertainty and
-        of the bound without a prior) is computed beside the reconstruction."""
-        return (self.assesses or self.bounds) and not self.prior
-
-
-class Progress(Protocol):
-    """What :func:`run` tells about its progress: a step (or a sub-step, a method being fitted) begins; one of
-    :attr:`Job.steps` is done."""
-
-    def begin(self, label: str) -> None: ...
-
-    def done(self, step: str) -> None: ...
-
-
-def check_output(path: Path, suffix: str | None, flag: str) -> None:
-    """An output path must name a file (``suffix``) in an existing, writable folder; checked before any work."""
-    if suffix is not None and path.suffix.lower() != suffix:
-        raise ReconstructionError(f"{flag} {path}: expected a file name ending in {suffix}")
-    if path.is_dir():
-        raise ReconstructionError(f"{flag} {path}: is a folder; give a file name"
-                                  + (f" ending in {suffix}" if suffix else ""))
-    parent = path.parent if str(path.parent) else Path(".")
-    if not parent.is_dir():
-        raise ReconstructionError(f"{flag} {path}: the folder {parent} does not exist")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise ReconstructionError(f"{flag} {path}: the folder {parent} is not writable")
-    if path.exists() and not path.is_file():
-        raise ReconstructionError(f"{flag} {path}: exists and is not a regular file")
-
-
-def implausible_message(method: str, checks: dict[str, Any]) -> str:
-    """One line: which plausibility checks of ``checks`` failed, with figures, and what to try."""
-    why = []
-    if not checks["non_negative"]["pass"]:
-        c = checks["non_negative"]
-        why.append(f"non_negative: {c['missing_cells']} cell(s) without a value, minimum {c['min_1_per_sr']:.3g} 1/sr")
-    if not checks["albedo"]["pass"]:
-        c = checks["albedo"]
-        alb = np.asarray(c["albedo"], dtype=np.float64)
-        k = int(np.argmax(alb.max(axis=1)))
-        why.append(f"albedo: the table reflects more light than it receives (directional albedo {alb.max():.3g} > "
-                   f"1 + {c['tolerance']:g} at theta_i = {c['theta_i_deg'][k]:g} deg)")
-    if not checks["reciprocity"]["pass"]:
-        why.append(f"reciprocity: relative error {checks['reciprocity']['relative_error']:.3g}")
-    return (f"method {method}: the table fails the plausibility check(s) " + "; ".join(why)
-            + "; nothing written. Try --method fit or microfacet (energy-conserving by construction), slices at "
-              "more incidences, or --allow-implausible to write it anyway")
-
-
-def _check_outputs(job: Job) -> None:
-    from reconstruction.formats import exports
-
-    if job.out:
-        check_output(Path(job.out), ".binary", "--out")
-    elif not exports.asks_output(job):
-        raise ReconstructionError("give --out MATERIAL.binary (or another output: --preview, --html, --report, --rgl, "
-                                  "--zemax, --export-mitsuba, --export-json, --uncertainty, --principled, "
-                                  "--materialx, --gltf, --blender)")
-    exports.check_arguments(job)
-    if job.preview:
-        check_output(Path(job.preview), ".exr", "--preview")
-        png = Path(job.preview).with_suffix(".png")
-        if png.is_dir():
-            raise ReconstructionError(f"--preview {job.preview}: {png} (the PNG beside it) is a folder")
-    if job.report:
-        check_output(Path(job.report), None, "--report")
-    if job.html:
-        check_output(Path(job.html), ".html", "--html")
-    if job.uncertainty:
-        check_output(Path(job.uncertainty), ".npy", "--uncertainty")
-    if job.bench and not Path(job.bench).is_file():
-        raise ReconstructionError(f"--bench {job.bench}: no such file (expected a bench file, configs/*.toml)")
-    if (job.bench or job.budget_s is not None) and not job.advise:
-        raise ReconstructionError("--bench and --budget-s are for --advise")
-
-
 def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
     """Reconstruct ``job``: read and merge the inputs, convert colour, reconstruct with the job's method (through
     the registry), tabulate, check plausibility, write the table (atomically), the preview and the report.
@@ -275,36 +129,64 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
             return _run(job, progress, helper, renders, drawer)
 
 
-def _run(job: Job, progress: Progress | None, helper: Any, renders: Any, drawer: Any) -> dict[str, Any]:
-    from reconstruction.core import colour
-    from reconstruction.core.scene import LOBE_KINDS, load_scene
-    from reconstruction.executor import SpareCore
-    from reconstruction.formats import brdffile, exports, inputs, merl, zemax
-    from reconstruction.principled.outputs import wants as wants_principled
-    from reconstruction.principled.outputs import write_outputs as write_principled
-    from reconstruction.report import preview
-    from reconstruction.report import summary as report
+class _Steps:
+    """The run's named steps: each begun (shown on the progress bar) and done (its time in ``timings``, s)."""
 
-    _check_outputs(job)
-    out = Path(job.out) if job.out else None
-    lobes = list(job.lobes) if job.lobes else None
-    if lobes:
-        unknown = [x for x in lobes if x not in LOBE_KINDS]
-        if unknown:
-            raise ReconstructionError(f"--lobes: unknown kind(s) {unknown}; expected {', '.join(LOBE_KINDS)}")
-    timings: dict[str, float] = {}
+    def __init__(self, progress: Progress | None) -> None:
+        self.progress = progress
+        self.timings: dict[str, float] = {}
 
-    def begin(label: str) -> float:
-        if progress is not None:
-            progress.begin(label)
+    def begin(self, label: str) -> float:
+        if self.progress is not None:
+            self.progress.begin(label)
         return time.perf_counter()
 
-    def done(step: str, t0: float) -> None:
-        timings[step] = time.perf_counter() - t0
-        if progress is not None:
-            progress.done(step)
+    def done(self, step: str, t0: float) -> None:
+        self.timings[step] = time.perf_counter() - t0
+        if self.progress is not None:
+            self.progress.done(step)
 
-    t0 = begin("reading inputs")
+
+def _run(job: Job, progress: Progress | None, helper: Any, renders: Any, drawer: Any) -> dict[str, Any]:
+    """Read, reconstruct, tabulate, check, bound, write and report: the run's steps in order."""
+    check_outputs(job)
+    steps = _Steps(progress)
+    loaded, scene = _read_inputs(job, steps)
+    working, colour_info = _to_working(job, loaded, steps, drawer)
+    rec, choice, opts, early, others = _reconstruct_step(job, steps, working, scene, helper, drawer)
+    drawn_for = rec  # the reconstruction the sample figures were sent for
+    rec, table, checks, energy, bounded, ref = _table_step(job, steps, rec, choice, working, opts, early)
+    spheres = None
+    if job.html:  # the page's sphere renders (numpy) in a thread of their own, from now to the page's drawing
+        from reconstruction.report.html import draw_table_figures
+        from reconstruction.report.spheres import sphere_images
+
+        spheres = renders.submit(sphere_images, np.asarray(table, dtype=np.float64), checks["albedo"])
+        if rec is not drawn_for:  # a fallback or the bounded reconstruction: its figures sent again
+            others = _send_sample_figures(job, drawer, working, rec, choice, opts, others)
+        draw_table_figures(drawer, working.sorted(), table, checks)  # the final table's
+    outputs, principled, ref = _write_step(job, steps, rec, table, working, early, ref)
+    rep = _report(job, steps, loaded, scene, rec, choice, working, table, checks, colour_info, energy, outputs)
+    if principled is not None:
+        rep["principled"] = principled
+    if bounded is not None:
+        rep["conservative"] = bounded
+    sigma_table = None
+    if job.assesses:
+        t0 = steps.begin("uncertainty")
+        sigma_table = _assess(job, rep, working, rec, opts, steps.begin, steps.done,
+                              ref if ref is not None or early is None else early()[0])
+        steps.done("uncertainty", t0)
+    _finish(job, steps, rep, outputs, checks, working, rec, table, others, choice, sigma_table, spheres, drawer)
+    return rep
+
+
+def _read_inputs(job: Job, steps: _Steps) -> tuple[Any, Any]:
+    """The inputs (``inputs.Loaded``: the slice, files, quantities, notes) and the scene (or None)."""
+    from reconstruction.core.scene import load_scene
+    from reconstruction.formats import brdffile, inputs, zemax
+
+    t0 = steps.begin("reading inputs")
     loaded = zemax.load_inputs(list(job.inputs), job.quantity, job.columns) or brdffile.load_inputs(
         list(job.inputs), job.quantity, job.columns) or inputs.load_inputs(
         list(job.inputs), quantity=job.quantity, columns=inputs.parse_columns(job.columns),
@@ -318,18 +200,40 @@ def _run(job: Job, progress: Progress | None, helper: Any, renders: Any, drawer:
             scene = load_scene(sp)
         except RecursionError:
             raise ReconstructionError(f"--scene {sp}: invalid TOML: nested too deeply") from None
-    done("read", t0)
-    t0 = begin("colour")
+    steps.done("read", t0)
+    return loaded, scene
+
+
+def _to_working(job: Job, loaded: Any, steps: _Steps, drawer: Any) -> tuple[Slice, dict[str, Any]]:
+    """The samples in the working channels (grey or linear RGB) and what the colour conversion did."""
+    from reconstruction.core import colour
+
+    t0 = steps.begin("colour")
     try:
         working, colour_info = colour.to_working_channels(loaded.slice, job.illuminant)
     except ReconstructionError as e:  # e.g. spectral channels outside the observer: say which input
         raise ReconstructionError(f"{', '.join(loaded.files)}: {e}") from None
-    done("colour", t0)
+    steps.done("colour", t0)
     if job.html:  # the page's figure of the samples alone, drawn by its child while they are reconstructed
         from reconstruction.report.html import draw_polar_figure
 
         draw_polar_figure(drawer, working)
-    t0 = begin("reconstructing")
+    return working, colour_info
+
+
+def _reconstruct_step(job: Job, steps: _Steps, working: Slice, scene: Any, helper: Any, drawer: Any
+                      ) -> tuple[Reconstruction, dict[str, Any], Options, Any, dict[str, Any]]:
+    """The chosen method's reconstruction, auto's choice, the options, the early posterior's future (or None) and
+    the page's other methods."""
+    from reconstruction.core.scene import LOBE_KINDS
+    from reconstruction.executor import SpareCore
+
+    lobes = list(job.lobes) if job.lobes else None
+    if lobes:
+        unknown = [x for x in lobes if x not in LOBE_KINDS]
+        if unknown:
+            raise ReconstructionError(f"--lobes: unknown kind(s) {unknown}; expected {', '.join(LOBE_KINDS)}")
+    t0 = steps.begin("reconstructing")
     opts = Options(scene=scene, fill=job.fill, lobes=lobes, revolve_axis=job.axis, revolve_smoothing=job.smoothing,
                    prior=job.prior, prior_anchor=job.prior_anchor)
     early = None
@@ -340,68 +244,91 @@ def _run(job: Job, progress: Progress | None, helper: Any, renders: Any, drawer:
     if job.posterior_early:  # the built-in family's posterior (and auto's bound from it) depend on the samples alone
         early = helper.submit(spare.later(_early_reference), working.sorted(), job.bounds)
     keep = KEEP_BUILDS.set(bool(job.html))  # the page draws every method: auto's child builds its own
+    progress = steps.progress
     try:
         with spare:
             rec, choice = reconstruct(working, job.method, opts,
                                       progress=(lambda name: progress.begin(f"fitting {name}")) if progress else None)
     finally:
         KEEP_BUILDS.reset(keep)
-    done("reconstruct", t0)
+    steps.done("reconstruct", t0)
     built = choice.pop("built", None)  # auto's forked child's builds of its methods (with the page)
-    others: dict[str, Reconstruction] = {}
-    drawn_for = rec  # the reconstruction the sample figures were sent for
+    others: dict[str, Any] = {}
     if job.html:  # the page's figures of the samples and methods, drawn by its child while the run goes on
         others = _send_sample_figures(job, drawer, working, rec, choice, opts, built=built() if built else None)
-    t0 = begin("tabulating" + (f" (supersample {job.supersample})" if job.supersample else ""))
+    return rec, choice, opts, early, others
+
+
+def _table_step(job: Job, steps: _Steps, rec: Reconstruction, choice: dict[str, Any], working: Slice, opts: Options,
+                early: Any) -> tuple[Reconstruction, Array, dict[str, Any], dict[str, Any], Any, Any]:
+    """Tabulate, check (falling back when auto has fallbacks), bound where no sample rests: (rec, table, checks,
+    energy, the conservative section or None, the posterior reference or None)."""
+    from reconstruction.report import summary as report
+
+    t0 = steps.begin("tabulating" + (f" (supersample {job.supersample})" if job.supersample else ""))
     energy: dict[str, Any] = {}
     table = tabulate(rec, job.supersample, energy)
-    done("tabulate", t0)
-    t0 = begin("plausibility checks")
+    steps.done("tabulate", t0)
+    t0 = steps.begin("plausibility checks")
     checks = report.plausibility(rec, table)
     fallbacks = choice.pop("fallbacks", None)
     if not checks["all_pass"] and not job.allow_implausible and fallbacks is not None:
-        rec, table, checks, energy = _fall_back(job, (rec, table, checks, energy), choice, fallbacks, progress)
-    done("checks", t0)
+        rec, table, checks, energy = _fall_back(job, (rec, table, checks, energy), choice, fallbacks, steps.progress)
+    steps.done("checks", t0)
     if not checks["all_pass"] and not job.allow_implausible:
         raise ImplausibleError(implausible_message(rec.method, checks))
     ref, bounded = None, None
     if job.bounds:
-        t0 = begin("conservative bound")
+        t0 = steps.begin("conservative bound")
         rec, table, bounded, ref = bound_where_unmeasured(
             rec, table, working, opts, *(early() if early is not None else ()))
         if bounded["applied"]:
             checks = report.plausibility(rec, table)  # of the table written (only lowered: still passing)
-        done("conservative", t0)
-    spheres = None
-    if job.html:  # the page's sphere renders (numpy) in a thread of their own, from now to the page's drawing
-        from reconstruction.report.html import draw_table_figures
-        from reconstruction.report.spheres import sphere_images
+        steps.done("conservative", t0)
+    return rec, table, checks, energy, bounded, ref
 
-        spheres = renders.submit(sphere_images, np.asarray(table, dtype=np.float64), checks["albedo"])
-        if rec is not drawn_for:  # a fallback or the bounded reconstruction: its figures sent again
-            others, drawn_for = _send_sample_figures(job, drawer, working, rec, choice, opts, others), rec
-        draw_table_figures(drawer, working.sorted(), table, checks)  # the final table's
-    t0 = begin("writing table")
+
+def _write_step(job: Job, steps: _Steps, rec: Reconstruction, table: Array, working: Slice, early: Any, ref: Any
+                ) -> tuple[dict[str, Any], Any, Any]:
+    """Write the table, the exports, the preview and the principled material: (outputs, principled section or
+    None, the posterior reference)."""
+    from reconstruction.formats import exports, merl
+    from reconstruction.principled.outputs import wants as wants_principled
+    from reconstruction.principled.outputs import write_outputs as write_principled
+    from reconstruction.report import preview
+
+    out = Path(job.out) if job.out else None
+    t0 = steps.begin("writing table")
     outputs: dict[str, Any] = {}
     if out is not None:
         merl.write(out, table, require_above_horizon=True)
         outputs.update({"table": str(out), "table_bytes": out.stat().st_size})
-    outputs.update(exports.write_outputs(job, rec, timings))
-    done("write", t0)
+    outputs.update(exports.write_outputs(job, rec, steps.timings))
+    steps.done("write", t0)
     if job.preview:
-        t0 = begin("preview")
+        t0 = steps.begin("preview")
         outputs["preview"] = (exports.mitsuba_preview(job, rec, outputs) if job.preview_renderer == "mitsuba"
                               else preview.write_preview(job.preview, table))
-        done("preview", t0)
+        steps.done("preview", t0)
     principled = None
     if wants_principled(job):
         if early is not None:  # its fit sets the process's BLAS threads, as the posterior does: one at a time
             ref = early()[0]
-        t0 = begin("principled material")
+        t0 = steps.begin("principled material")
         files, principled = write_principled(job, rec, _name(job, working))
         outputs.update(files)
-        done("principled", t0)
-    rep = report.build_report(
+        steps.done("principled", t0)
+    return outputs, principled, ref
+
+
+def _report(job: Job, steps: _Steps, loaded: Any, scene: Any, rec: Reconstruction, choice: dict[str, Any],
+            working: Slice, table: Array, checks: dict[str, Any], colour_info: dict[str, Any],
+            energy: dict[str, Any], outputs: dict[str, Any]) -> dict[str, Any]:
+    """The JSON report's body (docs/formats.md)."""
+    from reconstruction.formats import merl
+    from reconstruction.report import summary as report
+
+    return report.build_report(
         rec=rec, choice=choice, working=working, table=table, checks=checks,
         inputs={"files": loaded.files, "quantities": loaded.quantities, "notes": loaded.notes,
                 "columns": job.columns, "scene": job.scene,
@@ -416,17 +343,15 @@ def _run(job: Job, progress: Progress | None, helper: Any, renders: Any, drawer:
                                     else job.supersample),
                     "bin_centres": "theta_h = ((i + 0.5) / 90)^2 * 90 deg, theta_d = j + 0.5 deg, "
                                    "phi_d = k + 0.5 deg"},
-        outputs=outputs, timings=timings, dropped_blind_spot=loaded.dropped_blind_spot)
-    if principled is not None:
-        rep["principled"] = principled
-    if bounded is not None:
-        rep["conservative"] = bounded
-    sigma_table = None
-    if job.assesses:
-        t0 = begin("uncertainty")
-        sigma_table = _assess(job, rep, working, rec, opts, begin, done,
-                              ref if ref is not None or early is None else early()[0])
-        done("uncertainty", t0)
+        outputs=outputs, timings=steps.timings, dropped_blind_spot=loaded.dropped_blind_spot)
+
+
+def _finish(job: Job, steps: _Steps, rep: dict[str, Any], outputs: dict[str, Any], checks: dict[str, Any],
+            working: Slice, rec: Reconstruction, table: Array, others: dict[str, Any], choice: dict[str, Any],
+            sigma_table: Any, spheres: Any, drawer: Any) -> None:
+    """The report's last words, the JSON report and the HTML page written."""
+    from reconstruction.report import summary as report
+
     if not checks["all_pass"]:
         rep["implausible_table_written"] = "written with --allow-implausible: " + implausible_message(rec.method,
                                                                                                       checks)
@@ -438,11 +363,10 @@ def _run(job: Job, progress: Progress | None, helper: Any, renders: Any, drawer:
         rep["outputs"]["report"] = str(job.report)
         report.write_json(job.report, rep)
     if job.html:
-        t0 = begin("html report")
+        t0 = steps.begin("html report")
         _write_html(job, rep, working, rec, table, others, choice, sigma_table, spheres, drawer)
         rep["timings_s"]["html"] = round(time.perf_counter() - t0, 4)
-        done("html", t0)
-    return rep
+        steps.done("html", t0)
 
 
 def _fall_back(job: Job, first: tuple[Reconstruction, Array, dict[str, Any], dict[str, Any]], choice: dict[str, Any],

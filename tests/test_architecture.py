@@ -188,7 +188,7 @@ LAYERS = [
               "moved")),
     ("methods", ("methods",)),
     ("assess and report", ("assess", "report", "principled", "formats.exports")),
-    ("pipeline and cli", ("pipeline", "cli")),
+    ("pipeline and cli", ("pipeline", "job", "cli")),
 ]
 
 
@@ -280,3 +280,21 @@ def test_the_rooms_drawing_is_up_to_date():
     r = subprocess.run([sys.executable, str(REPO / "scripts" / "draw_rooms.py"), "--check"], cwd=REPO,
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
+
+
+#: No function of the three packages may be longer than this many lines (issue 37: a reader can hold it).
+MAX_FUNCTION_LINES = 120
+
+
+def test_no_function_is_longer_than_120_lines():
+    import ast
+
+    long = {}
+    for pkg in PACKAGES:
+        for p in sorted((REPO / pkg).rglob("*.py")):
+            for n in ast.walk(ast.parse(p.read_text(encoding="utf-8"))):
+                if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                    start = n.decorator_list[0].lineno if n.decorator_list else n.lineno
+                    if n.end_lineno - start + 1 > MAX_FUNCTION_LINES:
+                        long[f"{p.relative_to(REPO)}:{n.name}"] = n.end_lineno - start + 1
+    assert long == {}, f"functions over {MAX_FUNCTION_LINES} lines: {long}"

@@ -209,6 +209,48 @@ def read_table(path: str | Path, *, quantity: str | None, columns: Mapping[str, 
     if quantity not in QUANTITIES:
         raise InputError(f"--quantity: unknown quantity {quantity!r}; expected one of {', '.join(QUANTITIES)}")
     lines = text.splitlines()
+    h, delim, header, role = _header_roles(path, lines, columns)
+    hline = h + 1
+    value_cols, channels, std_cols = _value_channels(path, hline, header, role)
+    names_by_role = {r: header[k] for k, r in role.items()}
+    del text
+    data, line_of = _read_rows(path, lines, h, header, delim)
+    lines_arr = np.asarray(line_of)
+    ti = data[:, [k for k, r in role.items() if r == "theta_i"][0]]
+    to = data[:, [k for k, r in role.items() if r == "theta_o"][0]]
+    for name, arr in (("theta_i", ti), ("theta_o", to)):
+        out = np.abs(arr) >= 90.0
+        if out.any():
+            r = int(np.argmax(out))
+            raise InputError(f"{path}:{line_of[r]}, column {shorten(names_by_role[name])}: {arr[r]} is outside "
+                             f"(-90, 90) degrees")
+    _check_order(path, ti, to, lines_arr, shorten(names_by_role["theta_i"]), shorten(names_by_role["theta_o"]))
+    values = data[:, value_cols]
+    std = np.zeros_like(values)
+    for c, k in std_cols.items():
+        std[:, channels.index(c)] = data[:, k]
+    if (std < 0).any():
+        r, c = (int(x) for x in np.argwhere(std < 0)[0])
+        raise InputError(f"{path}:{line_of[r]}, column {shorten(header[std_cols[channels[c]]])}: a standard "
+                         f"deviation must be >= 0, got {std[r, c]}")
+    repeats = data[:, [k for k, r in role.items() if r == "repeats"][0]] if "repeats" in role.values() else None
+    times = data[:, [k for k, r in role.items() if r == "unix_time_s"][0]] if "unix_time_s" in role.values() \
+        else None
+    if repeats is not None:
+        badr = ~((repeats >= 1) & (repeats <= MAX_REPEATS)) | (repeats != np.round(repeats))
+        if badr.any():
+            r = int(np.argmax(badr))
+            raise InputError(f"{path}:{line_of[r]}, column repeats: expected a positive integer, got {repeats[r]}")
+    s = Slice(ti, to, values, channels, std, repeats, times,
+              meta={"quantity": quantity, "source_kind": "generic table"},
+              source=str(path))
+    return s
+
+
+def _header_roles(path: Path, lines: list[str], columns: dict[str, str]
+                  ) -> tuple[int, str, list[str], dict[int, str]]:
+    """The header line's index, the delimiter, the column names and each column's role ("theta_i", "theta_o", a
+    value channel, "<channel>_std", "repeats", "unix_time_s"), from the names and ``--columns``."""
     h = _find_header(lines, path)
     hline = h + 1
     delim = _delimiter(lines[h])
@@ -263,6 +305,12 @@ def read_table(path: str | Path, *, quantity: str | None, columns: Mapping[str, 
                              f"columns, value, R,G,B or wavelength columns such as 450nm (with optional _std "
                              f"columns), repeats, unix_time_s; map other names with --columns theta_i=NAME,"
                              f"theta_o=NAME")
+    return h, delim, header, role
+
+
+def _value_channels(path: Path, hline: int, header: list[str], role: dict[int, str]
+                    ) -> tuple[list[int], list[str], dict[str, int]]:
+    """The value columns in channel order, the channel names, and each channel's _std column."""
     value_cols = [k for k in range(len(header)) if role[k] in ("value", "R", "G", "B") or role[k].endswith("nm")]
     channels = [role[k] for k in value_cols]
     if not channels:
@@ -286,12 +334,15 @@ def read_table(path: str | Path, *, quantity: str | None, columns: Mapping[str, 
         if c not in channels:
             raise InputError(f"{path}:{hline}, column {shorten(header[std_cols[c]])}: a _std column without its "
                              f"value column")
-    names_by_role = {r: header[k] for k, r in role.items()}
+    return value_cols, channels, std_cols
 
+
+def _read_rows(path: Path, lines: list[str], h: int, header: list[str], delim: str
+               ) -> tuple[NDArray[np.float64], list[int]]:
+    """The table's rows below the header (h) as floats (rows, columns), each with its 1-based line number."""
     # rows: parsed in one vectorised pass; only a table that fails is read again line by line, for the message
     line_of = [k + 1 for k in range(h + 1, len(lines)) if (t := lines[k].strip()) and not t.startswith("#")]
     rows = [lines[k - 1] for k in line_of]
-    del lines, text
     if not rows:
         raise InputError(f"{path}: no samples (the table has a header but no rows)")
     data = parse_rows(rows, len(header), delimiter=delim, quotechar='"')
@@ -303,36 +354,7 @@ def read_table(path: str | Path, *, quantity: str | None, columns: Mapping[str, 
         cell = _cells(path, rows[r], line_of[r], delim)[k].strip()
         raise InputError(f"{path}:{line_of[r]}, column {shorten(header[k])}: value is {shorten(cell)!r}; NaN and "
                          f"infinity are not allowed (leave missing samples out)")
-    lines_arr = np.asarray(line_of)
-    ti = data[:, [k for k, r in role.items() if r == "theta_i"][0]]
-    to = data[:, [k for k, r in role.items() if r == "theta_o"][0]]
-    for name, arr in (("theta_i", ti), ("theta_o", to)):
-        out = np.abs(arr) >= 90.0
-        if out.any():
-            r = int(np.argmax(out))
-            raise InputError(f"{path}:{line_of[r]}, column {shorten(names_by_role[name])}: {arr[r]} is outside "
-                             f"(-90, 90) degrees")
-    _check_order(path, ti, to, lines_arr, shorten(names_by_role["theta_i"]), shorten(names_by_role["theta_o"]))
-    values = data[:, value_cols]
-    std = np.zeros_like(values)
-    for c, k in std_cols.items():
-        std[:, channels.index(c)] = data[:, k]
-    if (std < 0).any():
-        r, c = (int(x) for x in np.argwhere(std < 0)[0])
-        raise InputError(f"{path}:{line_of[r]}, column {shorten(header[std_cols[channels[c]]])}: a standard "
-                         f"deviation must be >= 0, got {std[r, c]}")
-    repeats = data[:, [k for k, r in role.items() if r == "repeats"][0]] if "repeats" in role.values() else None
-    times = data[:, [k for k, r in role.items() if r == "unix_time_s"][0]] if "unix_time_s" in role.values() \
-        else None
-    if repeats is not None:
-        badr = ~((repeats >= 1) & (repeats <= MAX_REPEATS)) | (repeats != np.round(repeats))
-        if badr.any():
-            r = int(np.argmax(badr))
-            raise InputError(f"{path}:{line_of[r]}, column repeats: expected a positive integer, got {repeats[r]}")
-    s = Slice(ti, to, values, channels, std, repeats, times,
-              meta={"quantity": quantity, "source_kind": "generic table"},
-              source=str(path))
-    return s
+    return data, line_of
 
 
 def _check_order(path: Path, ti: Array, to: Array, line_of: NDArray[np.int_], ti_name: str, to_name: str

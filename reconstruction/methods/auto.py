@@ -186,8 +186,6 @@ def reconstruct_auto(s: Slice, opts: Options,
 
 def _reconstruct_auto(s: Slice, opts: Options,
                       progress: Callable[[str], None] | None) -> tuple[Reconstruction, dict[str, Any]]:
-    from reconstruction.methods.fit import FitReconstruction, model_name, reconstruct_fit
-
     full = s
     pts = points_anywhere(full)
     # cross-validation of a large input on a subsample; the chosen method uses every sample. Points anywhere (a
@@ -200,6 +198,48 @@ def _reconstruct_auto(s: Slice, opts: Options,
     inside = scene_mask(s, opts.scene)
     if inside is not None and not inside.any():
         inside = None  # no sample inside the scene: judge on all of them
+    fit_rec, scores, names, built = _score_methods(s, full, opts, masks, inside, progress)
+    scores += _anchored_scores(s, scores, masks, inside)
+    single = np.unique(s.theta_i_deg).size == 1
+    preferred, margin = preference(names, single, _finite_aperture(s), pts is not None)
+    noise = noise_level(s, inside)
+    ranked = rank(scores, preferred, margin, noise)
+    at_noise = at_noise_level(scores, preferred, noise)
+    chosen, best, rejected = _choose(s, full, opts, fit_rec, ranked, scores, progress)
+    rest = [c for c in ranked[ranked.index(best) + 1:] if np.isfinite(c.error)]
+
+    def fallbacks() -> Iterator[tuple[str, Reconstruction]]:
+        """The next methods in auto's order, built on all samples: what the pipeline writes instead when the
+        chosen method's table fails a plausibility check (the check of the written table is finer than
+        :func:`max_albedo`)."""
+        for sc in rest:  # a handful
+            yield sc.label, (_bic_fit(full, opts, fit_rec, progress) if sc.method == "fit" and sc.variant
+                             else fit_rec if sc.method == "fit"
+                             else REGISTRY[sc.method].build(full, _options_of(sc, opts), progress))
+
+    reason = _reason(scheme, chosen, best, ranked, rejected, preferred, margin, single, at_noise, noise)
+    budget = budget_check(opts.scene, best, scores, noise)
+    if budget.get("over_budget"):
+        reason += "; " + budget["over_budget_warning"]
+        warnings.warn(SceneBudgetWarning(f"{s.source}: {budget['over_budget_warning']}"), stacklevel=2)
+    if s is not full and pts is None:
+        scheme += f", on {len(s)} of the {len(full)} samples"
+    cv = _cv_section(scheme, masks, inside, scores, chosen, best, fit_rec, rejected, budget, preferred, margin,
+                     single, at_noise, noise)
+    return chosen, {"requested": "auto", "used": chosen.method, "reason": reason, "cross_validation": cv,
+                    "fallbacks": fallbacks, **({"built": built} if built is not None else {}),
+                    "held_out_predictions": ({} if s is not full else  # per sample of the input (none when thinned)
+                                             {c.method: c.predictions for c in reversed(scores)
+                                              if c.predictions is not None and (c.method != best.method or c is best)})}
+
+
+def _score_methods(s: Slice, full: Slice, opts: Options, masks: list[Any], inside: Any,
+                   progress: Callable[[str], None] | None
+                   ) -> tuple[Any, list[CVScore], list[str], Callable[[], dict[str, Reconstruction]] | None]:
+    """fit on all samples and every usable method's held-out score on ``s``: (fit's reconstruction, the scores,
+    the methods' names in the registry's order, the forked child's builds of its methods or None)."""
+    from reconstruction.methods.fit import FitReconstruction, model_name, reconstruct_fit
+
     # microfacet, revolve and bivariate do not depend on fit's choice: they are cross-validated in the run's forked
     # child (or a second thread) while fit searches its model on all samples; this thread's helper waits for them.
     # prior stays in this thread, after fit: its large least-squares problems use BLAS threads, whose number fit's
@@ -248,12 +288,13 @@ def _reconstruct_auto(s: Slice, opts: Options,
             sc.anchor = 0.0 if name == "prior" else None  # built with anchor 0 (above)
             sc.variant = variant
             scores.append(sc)
-    scores += _anchored_scores(s, scores, masks, inside)
-    single = np.unique(s.theta_i_deg).size == 1
-    preferred, margin = preference([b[0] for b in builders], single, _finite_aperture(s), pts is not None)
-    noise = noise_level(s, inside)
-    ranked = rank(scores, preferred, margin, noise)
-    at_noise = at_noise_level(scores, preferred, noise)
+    return fit_rec, scores, [b[0] for b in builders], built
+
+
+def _choose(s: Slice, full: Slice, opts: Options, fit_rec: Any, ranked: list[CVScore], scores: list[CVScore],
+            progress: Callable[[str], None] | None) -> tuple[Reconstruction, CVScore, list[str]]:
+    """The best-ranked method whose reconstruction on all samples reflects no more than it receives: (it, its
+    score, why the better-ranked ones were not used)."""
     rejected: list[str] = []
     chosen: Reconstruction | None = None
     best = ranked[0]
@@ -272,16 +313,13 @@ def _reconstruct_auto(s: Slice, opts: Options,
     if chosen is None:
         raise ReconstructionError(f"{s.source}: no method gives a physically plausible BRDF from these samples ("
                                   + "; ".join(rejected or [f"{c.method}: {c.failure}" for c in scores]) + ")")
-    rest = [c for c in ranked[ranked.index(best) + 1:] if np.isfinite(c.error)]
+    return chosen, best, rejected
 
-    def fallbacks() -> Iterator[tuple[str, Reconstruction]]:
-        """The next methods in auto's order, built on all samples: what the pipeline writes instead when the
-        chosen method's table fails a plausibility check (the check of the written table is finer than
-        :func:`max_albedo`)."""
-        for sc in rest:  # a handful
-            yield sc.label, (_bic_fit(full, opts, fit_rec, progress) if sc.method == "fit" and sc.variant
-                             else fit_rec if sc.method == "fit"
-                             else REGISTRY[sc.method].build(full, _options_of(sc, opts), progress))
+
+def _reason(scheme: str, chosen: Reconstruction, best: CVScore, ranked: list[CVScore], rejected: list[str],
+            preferred: list[str], margin: float, single: bool, at_noise: bool, noise: float) -> str:
+    """The report's sentence on why ``chosen`` was chosen."""
+    from reconstruction.methods.fit import FitReconstruction
 
     others = ", ".join(f"{c.label} {_both(c)}" for c in ranked if c is not best and np.isfinite(c.error))
     model = f" ({chosen.result.name})" if isinstance(chosen, FitReconstruction) and not best.variant else ""
@@ -305,12 +343,13 @@ def _reconstruct_auto(s: Slice, opts: Options,
                    f"half/difference angles) is preferred unless another method predicts {margin:g} times better")
     if rejected:
         reason += "; not used: " + "; ".join(rejected)
-    budget = budget_check(opts.scene, best, scores, noise)
-    if budget.get("over_budget"):
-        reason += "; " + budget["over_budget_warning"]
-        warnings.warn(SceneBudgetWarning(f"{s.source}: {budget['over_budget_warning']}"), stacklevel=2)
-    if s is not full and pts is None:
-        scheme += f", on {len(s)} of the {len(full)} samples"
+    return reason
+
+
+def _cv_section(scheme: str, masks: list[Any], inside: Any, scores: list[CVScore], chosen: Reconstruction,
+                best: CVScore, fit_rec: Any, rejected: list[str], budget: dict[str, Any], preferred: list[str],
+                margin: float, single: bool, at_noise: bool, noise: float) -> dict[str, Any]:
+    """The report's ``cross_validation`` section."""
     cv = {"scheme": scheme, "folds": len(masks), "metric": "image error of the held-out samples (tone-mapped as a "
           "point-lit sphere's pixels, RMS; reconstruction.methods.crossval), relative RMSE of f cos(theta_i) "
           "cos(theta_o) beside it" + (" (those inside the scene's ranges)" if inside is not None else ""),
@@ -321,11 +360,7 @@ def _reconstruct_auto(s: Slice, opts: Options,
                                           if single and preferred else None),
           "preference": ({"methods": preferred, "margin": margin, "noise_level": noise, "applied": not at_noise}
                          if preferred else None)}
-    return chosen, {"requested": "auto", "used": chosen.method, "reason": reason, "cross_validation": cv,
-                    "fallbacks": fallbacks, **({"built": built} if built is not None else {}),
-                    "held_out_predictions": ({} if s is not full else  # per sample of the input (none when thinned)
-                                             {c.method: c.predictions for c in reversed(scores)
-                                              if c.predictions is not None and (c.method != best.method or c is best)})}
+    return cv
 
 
 #: Within a run that draws every method (the HTML page: ``pipeline`` sets it), the forked child also builds its
