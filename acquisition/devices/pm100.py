@@ -101,6 +101,7 @@ class Pm100Detector(BoardBacked):
         self.range_w = float("inf")
         self.averages = 1
         self.saturation = float("inf")
+        self._found: list[str] = []
 
     # -- the SCPI dialogue ---------------------------------------------------------------------------------------
     def _query(self, cmd: str) -> str:
@@ -137,10 +138,8 @@ class Pm100Detector(BoardBacked):
             found = list(self.rm.list_resources())
         except Exception as e:  # noqa: BLE001
             raise DeviceError(f"{self.name}: pyvisa cannot list instruments ({e}); {INSTALL_HINT}") from None
+        self._found = found
         if self.resource:
-            if found and self.resource not in found:
-                log.warning("%s: %s is not among the listed resources (%s); trying it", self.name, self.resource,
-                            ", ".join(found))
             return self.resource
         meters = [r for r in found if THORLABS_VENDOR in r.lower() or "pm100" in r.lower()]
         if not meters:
@@ -161,11 +160,14 @@ class Pm100Detector(BoardBacked):
             self.inst = self.rm.open_resource(self.resource)
         except Exception as e:  # noqa: BLE001
             raise DeviceError(f"{self.name}: cannot open {self.resource} ({e}): plug the meter in, or check "
-                              "[detector].resource") from None
+                              f"[detector].resource (resources: {', '.join(self._found) or 'none'})") from None
         self.inst.timeout = self.timeout_s * 1000.0
         self.inst.read_termination = "\n"
         self.inst.write_termination = "\n"
         self.idn = self._query("*IDN?")
+        if "thorlabs" not in self.idn.lower():
+            raise DeviceError(f"{self.name}: {self.resource} answers *IDN? with {self.idn!r}: not a Thorlabs power "
+                              f"meter; check [detector].resource (resources: {', '.join(self._found) or 'none'})")
         self.sensor = self._query("SYST:SENS:IDN?")
         fields = [f.strip() for f in self.sensor.split(",")]
         flags = int(fields[5]) if len(fields) > 5 and fields[5].lstrip("+-").isdigit() else 1
@@ -180,6 +182,7 @@ class Pm100Detector(BoardBacked):
         self.top_range_w = self._number("SENS:POW:RANG? MAX")
         self.saturation = self.top_range_w * COUNTS_PER_WATT
         if self.gains:
+            self._write("SENS:POW:RANG:AUTO OFF")
             self.set_gain(self.start_gain)  # type: ignore[arg-type]
         self._check_errors("its settings")
         self.connect_board()

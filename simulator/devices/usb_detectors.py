@@ -36,7 +36,7 @@ from simulator.world.physics import BenchPhysics
 
 log = logging.getLogger("simulator.usb")
 
-__all__ = ["UsbDetector", "WATTS_PER_COUNT", "OVER_RANGE", "PM100_RANGES_W", "PM100_SAMPLE_S",
+__all__ = ["UsbDetector", "WATTS_PER_COUNT", "OVER_RANGE", "PM100_RANGES_W", "PM100_SAMPLE_S", "RANGE_NOISE",
            "SPECTROMETER_LIMITS_US"]
 
 #: Watts of one count of the simulated physics (a gain-1 count at the reference integration time).
@@ -45,6 +45,8 @@ WATTS_PER_COUNT = 1e-9
 OVER_RANGE = 9.9e37
 #: The simulated PM100's power ranges (upper limits, W): decades from 5 nW to 50 mW.
 PM100_RANGES_W = tuple(5e-9 * 10.0 ** k for k in range(8))
+#: Noise of one sample of the simulated meter, relative to its range's upper limit.
+RANGE_NOISE = 1e-4
 #: Time of one averaged sample of the simulated meter (s); ``SENS:AVER:COUN n`` reads for n of them.
 PM100_SAMPLE_S = 3e-3
 #: Integration time limits of the simulated spectrometer (microseconds), as a USB2000+'s.
@@ -151,14 +153,16 @@ class UsbDetector:
         ph = self.physics
         ti, to = self._angles(n * PM100_SAMPLE_S)
         s = float(ph.expected_signal(ti, to, ph.source_on, ph.detector.ref_integration_time_s)[..., 0])
-        sd = math.sqrt(ph.noise_rms(1.0) ** 2 + (max(s, 0.0) / ph.electrons_per_count if ph.shot_noise else 0.0))
-        x = s + ph.dark_offset + ph.input_offset + sd / math.sqrt(n) * float(ph.rng.standard_normal())
+        x = s + ph.dark_offset + ph.input_offset  # the offset: the head's dark current, what a dark reads
+        rng = next((r for r in PM100_RANGES_W if x * WATTS_PER_COUNT <= r), None) if self.auto_range \
+            else self.range_w
         self._advance(n * PM100_SAMPLE_S)
-        p = max(x, 0.0) * WATTS_PER_COUNT
-        rng = next((r for r in PM100_RANGES_W if p <= r), None) if self.auto_range else self.range_w
-        if rng is None or p > rng:
+        if rng is None or x * WATTS_PER_COUNT > rng:
             return OVER_RANGE
-        return p
+        # noise of one sample: RANGE_NOISE of the range (the amplifier and converter) and the light's shot noise
+        floor = RANGE_NOISE * rng / WATTS_PER_COUNT
+        sd = math.sqrt(floor ** 2 + (max(s, 0.0) / ph.electrons_per_count if ph.shot_noise else 0.0))
+        return max(x + sd / math.sqrt(n) * float(ph.rng.standard_normal()), 0.0) * WATTS_PER_COUNT
 
     def _scpi(self, text: str) -> str | None:
         head, _, arg = text.partition(" ")
