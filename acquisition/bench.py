@@ -457,21 +457,22 @@ class Bench:
 
     def capture(self, plan: Plan | None = None, out: str | Path | None = None, resume: bool = False,
                 progress: bool | None = None, handle_signals: bool = True,
-                points_plan: Any = None, force: bool = False):  # -> CaptureResult
+                points_plan: Any = None, force: bool = False, live: bool = False):  # -> CaptureResult
         """Capture ``plan`` (default: the config's) into ``out``/slice.csv; see :class:`acquisition.capture.RunEngine`.
 
         Opens the bench if needed (and then closes it again). Returns a :class:`~acquisition.record.CaptureResult`
         (``result.ok``; ``result.raise_for_status()``). ``points_plan``: the plan that measures the points
         (default :func:`acquisition.plans.measure_points`; e.g. ``examples/reference_every_n.py``). A resume first
         measures the last recorded points again and stops (``result.exit_code`` 2) if the sample does not read as
-        recorded; ``force``: go on all the same (a deliberate change, recorded in capture.json).
+        recorded; ``force``: go on all the same (a deliberate change, recorded in capture.json); ``live``: write
+        ``out``/progress.json for a live view (acquisition.live).
         """
         from acquisition.run.capture import RunEngine
 
         if out is None:
             out = Path("out") / time.strftime("capture-%Y%m%d-%H%M%S")
         eng = RunEngine(self, plan if plan is not None else self.plan(), out, resume=resume, progress=progress,
-                        handle_signals=handle_signals, points_plan=points_plan, force=force)
+                        handle_signals=handle_signals, points_plan=points_plan, force=force, live=live)
         return eng.run()
 
 

@@ -232,7 +232,7 @@ def test_reconstruction_has_at_most_15_modules_at_its_top():
 # --- the rooms ----------------------------------------------------------------------------------------------------
 
 #: The rooms of acquisition/ and simulator/ (docs/architecture.md); each a package with its own import contract.
-ROOMS = {"acquisition": ("devices", "plans", "run"), "simulator": ("devices", "world", "ports")}
+ROOMS = {"acquisition": ("devices", "live", "plans", "run"), "simulator": ("devices", "world", "ports")}
 
 
 @pytest.mark.parametrize("package", sorted(ROOMS))
