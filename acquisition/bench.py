@@ -37,7 +37,7 @@ from acquisition.autorange import AutoRanger
 from acquisition.calibration import Reading
 from acquisition.config import BenchConfig, load_config
 from acquisition.devices.dynamixel import DynamixelAxes
-from acquisition.devices.external import external_detector
+from acquisition.devices.external import external_detector, external_library
 from acquisition.devices.protocols import Devices, MoveStatus
 from acquisition.devices.serial_link import SerialAxes, SerialDetector, SerialLink
 from acquisition.errors import CommError, ConfigError, DeviceError, SaturationWarning
@@ -279,11 +279,13 @@ class Bench:
                     raise CommError("simulated bench: the simulator offers no Dynamixel port (is [bench].motion "
                                     "consistent?)")
                 dxl_port, ser_port = ports.get("dynamixel") or "", ports.get("serial") or ""
+            if not cfg.detector.on_board:  # seabreeze, pm100 (acquisition.devices.external): the library first
+                lib = self.detector_library(self.sim.ports if self.sim else {}) if self.detector_library else \
+                    external_library(cfg, simulated=self.sim is not None)
             self.link = SerialLink(ser_port, b.serial_baudrate, b.serial_timeout_s, cfg.motion.retries) \
                 if ser_port or cfg.detector.on_board else None
-            if not cfg.detector.on_board:  # seabreeze, pm100: acquisition.devices.external
-                lib = self.detector_library(self.sim.ports) if self.detector_library and self.sim else None
-                self.detector = external_detector(cfg, self.link, lib, simulated=self.sim is not None)
+            if not cfg.detector.on_board:
+                self.detector = external_detector(cfg, self.link, lib)
             else:
                 self.detector = SerialDetector(self.link, cfg.detector.type, cfg.detector.integration_time_s,
                                                cfg.detector.saturation, cfg.detector.gains,

@@ -220,6 +220,14 @@ def _run(args: argparse.Namespace) -> int:
             except CommError as e:
                 print(f"gonio-capture: {e}", file=sys.stderr)
                 return 1
+        if not bench.cfg.detector.on_board and bench.cfg.bench.transport != "simulated":
+            from acquisition.devices.external import external_library
+
+            try:  # the detector's library (seabreeze, pyvisa) is installed: the capture will need it
+                external_library(bench.cfg)
+            except ConfigError as e:
+                print(f"gonio-capture: {e}\nnothing was moved.", file=sys.stderr)
+                return 2
         print(chk.describe(limit=1000))
         from acquisition.optics import footprint_warning
 

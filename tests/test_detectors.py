@@ -216,9 +216,31 @@ def test_a_simulated_external_detector_without_its_stand_in_is_one_line(tmp_path
     from acquisition.cli import main
 
     cfg = config_file({"detector": {"type": "seabreeze"}, "plan": {"theta_i_deg": [30.0]}})
-    assert main(["--config", str(cfg), "--out", str(tmp_path / "o"), "--no-progress"]) == 1
+    assert main(["--config", str(cfg), "--out", str(tmp_path / "o"), "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert "Traceback" not in err and "Bench.detector_library" in err and "docs/detectors.md" in err, err
+    assert err.strip().splitlines()[-1] == "nothing was moved.", err
+
+
+@pytest.mark.parametrize(("kind", "module", "extra"), [("seabreeze", "seabreeze", "seabreeze"),
+                                                        ("pm100", "pyvisa", "pm100")])
+def test_check_says_which_package_a_real_bench_lacks(tmp_path, repo_root, monkeypatch, capsys, kind, module, extra):
+    import tomllib
+
+    from acquisition.cli import main
+
+    raw = tomllib.loads((repo_root / "configs" / "dynamixel-bench.toml").read_text())
+    raw["detector"].update(type=kind)
+    raw["detector"].pop("saturation", None)
+    raw["bench"]["serial_port"] = ""  # a USB detector on a Dynamixel bench needs no detector board
+    cfg = tmp_path / "bench.toml"
+    cfg.write_text(tomli_w.dumps(raw))
+    monkeypatch.setitem(sys.modules, module, None)
+    monkeypatch.setitem(sys.modules, f"{module}.spectrometers", None)
+    assert main(["--config", str(cfg), "--check"]) == 2
+    err = capsys.readouterr().err
+    assert f"pip install 'gonio-brdf[{extra}]'" in err and "Traceback" not in err, err
+    assert len(err.strip().splitlines()) == 2, err  # the line, and "nothing was moved."
 
 
 def test_dark_ways_that_the_bench_lacks_are_refused():
