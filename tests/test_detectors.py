@@ -98,9 +98,11 @@ def _capture(base: dict[str, Any], tmp: Path, kind: str, over: dict[str, Any] | 
     from reconstruction.formats.slicefile import read_slice
     from tests.helpers import deep_merge
 
-    cfg = deep_merge(base, {"detector": {"type": kind}, "material": GLOSSY, "simulator": {
-        "seed": 11, "spectrometer": {"wl_step_nm": 20.0}}, "plan": {"theta_i_deg": [20.0, 50.0],
-                                                                     "theta_o_step_deg": 5.0}, **(over or {})})
+    # stepper arms on the text protocol (retried on a late reply): the Dynamixel SDK's wall-clock deadline is
+    # what a machine under load misses, not what is tested here
+    cfg = deep_merge(base, {"bench": {"motion": "serial"}, "detector": {"type": kind}, "material": GLOSSY,
+                            "simulator": {"seed": 11, "spectrometer": {"wl_step_nm": 20.0}},
+                            "plan": {"theta_i_deg": [20.0, 50.0], "theta_o_step_deg": 5.0}, **(over or {})})
     cfg["material"] = GLOSSY
     if kind in ("seabreeze", "pm100"):
         del cfg["detector"]["saturation"]  # read from the device
@@ -260,3 +262,18 @@ def test_dark_ways_that_the_bench_lacks_are_refused():
     b.connect_board()
     b.with_source_off(lambda n: None, 4)  # type: ignore[arg-type,return-value]
     assert b.dark_way == "shutter" and closed == [False, True]  # closed for the dark, open again after
+
+
+def test_the_seabreeze_stand_in_has_the_librarys_signatures():
+    """Where python-seabreeze is installed (the [seabreeze] extra), the stand-in's calls take the same parameters
+    with the same defaults as the library's (checked by hand against python-seabreeze 2.11's source otherwise)."""
+    import inspect
+
+    real = pytest.importorskip("seabreeze.spectrometers", reason="python-seabreeze is not installed here (it is the "
+                                                                 "optional [seabreeze] extra, not a test dependency)")
+    from simulator.devices.seabreeze_standin import StandInSpectrometer
+
+    for name in ("intensities", "integration_time_micros", "wavelengths", "close", "from_serial_number"):
+        want = inspect.signature(getattr(real.Spectrometer, name)).parameters
+        have = inspect.signature(getattr(StandInSpectrometer, name)).parameters
+        assert [(p.name, p.default) for p in have.values()] == [(p.name, p.default) for p in want.values()], name

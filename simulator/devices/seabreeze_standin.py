@@ -20,13 +20,14 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 import serial
 
-__all__ = ["library", "StandInSeaBreezeError", "StandInLink"]
+__all__ = ["library", "StandInSpectrometer", "StandInSeaBreezeError", "StandInLink"]
 
 
 class StandInSeaBreezeError(Exception):
@@ -84,90 +85,93 @@ class _Device:
         self.info = info
 
 
+class StandInSpectrometer:
+    """Stand-in of ``seabreeze.spectrometers.Spectrometer`` (not the device); :func:`library` binds it to the
+    devices of one simulated bench."""
+
+    _devices: Callable[[], list[_Device]] = staticmethod(lambda: [])
+
+    def __init__(self, device: _Device) -> None:
+        if not isinstance(device, _Device):
+            raise TypeError(f"`device` has to be a `SeaBreezeDevice` instance, got {device!r}")
+        self._dev = device
+        device.is_open = True
+        self._dp = device.info.get("dark_pixels") == "1"
+        self._wavelengths = np.array([float(x) for x in device.link.ask("WL?").split(" ", 1)[1].split(",")])
+        self.f = SimpleNamespace(shutter=None)  # the feature accessor: this model has no shutter
+
+    @classmethod
+    def from_first_available(cls) -> StandInSpectrometer:
+        for dev in cls._devices():
+            if not dev.is_open:
+                return cls(dev)
+        raise StandInSeaBreezeError("No unopened device found.")
+
+    @classmethod
+    def from_serial_number(cls, serial: str | None = None) -> StandInSpectrometer:
+        if serial is None:
+            return cls.from_first_available()
+        for dev in cls._devices():
+            if dev.serial_number == str(serial):
+                if dev.is_open:
+                    raise StandInSeaBreezeError("Device already opened.")
+                return cls(dev)
+        raise StandInSeaBreezeError(f"No device attached with serial number '{serial}'.")
+
+    def wavelengths(self) -> np.ndarray:
+        return self._wavelengths
+
+    def intensities(self, correct_dark_counts: bool = False, correct_nonlinearity: bool = False) -> np.ndarray:
+        if correct_dark_counts and not self._dp:
+            raise StandInSeaBreezeError("This device does not support dark count correction.")
+        if correct_nonlinearity:  # the simulated device stores no coefficients
+            raise StandInSeaBreezeError("This device does not support nonlinearity correction.")
+        head, values = self._dev.link.ask("SPECTRUM").rsplit(" ", 1)
+        dark = float(_fields(head, "SPECTRUM")["dark"])
+        out = np.array([float(x) for x in values.split(",")])
+        if correct_dark_counts:  # as python-seabreeze: the electrical dark pixels' mean
+            out -= dark
+        return out
+
+    @property
+    def max_intensity(self) -> float:
+        return float(self._dev.info["max"])
+
+    def integration_time_micros(self, integration_time_micros: int) -> None:
+        if self._dev.link.ask(f"INT {int(integration_time_micros)}") != "ok":
+            raise StandInSeaBreezeError("[Fix] Specified integration time is out of range.")
+
+    @property
+    def integration_time_micros_limits(self) -> tuple[int, int]:
+        return int(self._dev.info["tmin_us"]), int(self._dev.info["tmax_us"])
+
+    @property
+    def serial_number(self) -> str:
+        return self._dev.serial_number
+
+    @property
+    def model(self) -> str:
+        return self._dev.model
+
+    @property
+    def pixels(self) -> int:
+        return int(self._wavelengths.size)
+
+    def close(self) -> None:
+        self._dev.is_open = False
+
+
 def library(ports: dict[str, str | None]) -> Any:
     """The stand-in of the module ``seabreeze.spectrometers`` for the simulated bench whose ports are ``ports``
     (``gonio-sim serve``'s port line; the spectrometer's world is on ``ports["usb"]``)."""
     port = ports.get("usb")
     if not port:
         raise StandInSeaBreezeError("the simulated bench serves no usb port: is [detector] type = \"seabreeze\"?")
-    device = _Device(StandInLink(port))
-
-    class Spectrometer:
-        """Stand-in of ``seabreeze.spectrometers.Spectrometer`` (not the device)."""
-
-        def __init__(self, dev: _Device) -> None:
-            if not isinstance(dev, _Device):
-                raise TypeError(f"`device` has to be a `SeaBreezeDevice` instance, got {dev!r}")
-            self._dev = dev
-            dev.is_open = True
-            self._dp = dev.info.get("dark_pixels") == "1"
-            self._wavelengths = np.array([float(x) for x in dev.link.ask("WL?").split(" ", 1)[1].split(",")])
-            self.f = SimpleNamespace(shutter=None)  # the feature accessor: this model has no shutter
-
-        @classmethod
-        def from_first_available(cls) -> Spectrometer:
-            for dev in list_devices():
-                if not dev.is_open:
-                    return cls(dev)
-            raise StandInSeaBreezeError("No unopened device found.")
-
-        @classmethod
-        def from_serial_number(cls, serial: str | None = None) -> Spectrometer:
-            if serial is None:
-                return cls.from_first_available()
-            for dev in list_devices():
-                if dev.serial_number == str(serial):
-                    if dev.is_open:
-                        raise StandInSeaBreezeError("Device already opened.")
-                    return cls(dev)
-            raise StandInSeaBreezeError(f"No device attached with serial number '{serial}'.")
-
-        def wavelengths(self) -> np.ndarray:
-            return self._wavelengths
-
-        def intensities(self, correct_dark_counts: bool = False, correct_nonlinearity: bool = False) -> np.ndarray:
-            if correct_dark_counts and not self._dp:
-                raise StandInSeaBreezeError("This device does not support dark count correction.")
-            if correct_nonlinearity:
-                raise StandInSeaBreezeError("This device does not support nonlinearity correction.")
-            reply = self._dev.link.ask("SPECTRUM")
-            head, values = reply.rsplit(" ", 1)
-            dark = float(_fields(head, "SPECTRUM")["dark"])
-            out = np.array([float(x) for x in values.split(",")])
-            if correct_dark_counts:
-                out -= dark
-            return out
-
-        @property
-        def max_intensity(self) -> float:
-            return float(self._dev.info["max"])
-
-        def integration_time_micros(self, integration_time_micros: int) -> None:
-            reply = self._dev.link.ask(f"INT {int(integration_time_micros)}")
-            if reply != "ok":
-                raise StandInSeaBreezeError("[Fix] Specified integration time is out of range.")
-
-        @property
-        def integration_time_micros_limits(self) -> tuple[int, int]:
-            return int(self._dev.info["tmin_us"]), int(self._dev.info["tmax_us"])
-
-        @property
-        def serial_number(self) -> str:
-            return self._dev.serial_number
-
-        @property
-        def model(self) -> str:
-            return self._dev.model
-
-        @property
-        def pixels(self) -> int:
-            return int(self._wavelengths.size)
-
-        def close(self) -> None:
-            self._dev.is_open = False
+    devices = [_Device(StandInLink(port))]
 
     def list_devices() -> list[_Device]:
-        return [device]
+        return list(devices)
 
-    return SimpleNamespace(list_devices=list_devices, Spectrometer=Spectrometer,
+    spectrometer = type("Spectrometer", (StandInSpectrometer,), {"_devices": staticmethod(list_devices)})
+    return SimpleNamespace(list_devices=list_devices, Spectrometer=spectrometer,
                            SeaBreezeError=StandInSeaBreezeError, __name__="seabreeze.spectrometers (stand-in)")
