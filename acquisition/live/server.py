@@ -95,24 +95,38 @@ class SliceTail:
             self.rows.append([vals[0], vals[1], sum(f) / len(f), sum(s) / len(s) if s else 0.0])
 
 
-def _read_json(path: Path) -> dict[str, Any] | None:
+_CACHE: dict[Path, tuple[tuple[int, int], dict[str, Any]]] = {}
+_CACHE_LOCK = threading.Lock()
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    """The JSON object in ``path`` ({} when missing or unreadable), read again only when it changed (the run
+    replaces its files atomically, so a read sees the old or the new one whole)."""
     try:
+        st = path.stat()
+        key = (st.st_mtime_ns, st.st_size)
+        with _CACHE_LOCK:
+            hit = _CACHE.get(path)
+        if hit is not None and hit[0] == key:
+            return hit[1]
         with open(path, encoding="utf-8") as fh:
             d = json.load(fh)
-        return d if isinstance(d, dict) else None
     except (OSError, ValueError):
-        return None
+        return {}
+    d = d if isinstance(d, dict) else {}
+    with _CACHE_LOCK:
+        _CACHE[path] = (key, d)
+    return d
 
 
 def state_of(folder: Path, tail: SliceTail) -> dict[str, Any]:
     """What the page draws (see the module docstring)."""
     rows = tail.poll()
-    progress = _read_json(folder / PROGRESS) or {}
-    record = _read_json(folder / RECORD) or {}
-    est = (record.get("plan") or {}).get("estimate") if isinstance(record.get("plan"), dict) else None
-    return {"folder": folder.name, "samples": rows, "progress": progress,
-            "record": {"status": record.get("status"), "estimate_s": (est or {}).get("total_s")
-                       if isinstance(est, dict) else None},
+    record = _read_json(folder / RECORD)
+    est = record.get("estimate")
+    return {"folder": folder.name, "samples": rows, "progress": _read_json(folder / PROGRESS),
+            "record": {"status": record.get("status"),
+                       "estimate_s": est.get("total_s") if isinstance(est, dict) else None},
             "channels": (len(tail.columns) - 4) // 2 if tail.columns else 0}
 
 
