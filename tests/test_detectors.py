@@ -277,3 +277,13 @@ def test_the_seabreeze_stand_in_has_the_librarys_signatures():
         want = inspect.signature(getattr(real.Spectrometer, name)).parameters
         have = inspect.signature(getattr(StandInSpectrometer, name)).parameters
         assert [(p.name, p.default) for p in have.values()] == [(p.name, p.default) for p in want.values()], name
+
+
+@pytest.mark.parametrize(("name", "kind"), [("ocean-insight-bench", "seabreeze"), ("pm100-bench", "pm100")])
+def test_the_example_benches_validate(repo_root, name, kind):
+    from acquisition.config import load_config
+
+    cfg = load_config(repo_root / "configs" / f"{name}.toml")
+    assert cfg.detector.type == kind and not cfg.detector.on_board and cfg.detector.saturation is None
+    if kind == "pm100":  # ranges over its ranges, not over averaging
+        assert cfg.detector.min_integration_time_s == cfg.detector.integration_time_s and cfg.detector.gains
