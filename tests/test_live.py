@@ -10,6 +10,7 @@ import os
 import re
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
@@ -134,6 +135,17 @@ def test_it_changes_nothing(served, method):
 def test_another_host_name_is_refused(served):
     srv, _, _ = served
     assert _request(srv, "GET", "/state.json", host="evil.example:80")[0] == 403
+
+
+def test_a_live_view_that_cannot_start_is_a_warning(tmp_path, caplog):
+    from acquisition.live import LiveView
+
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        view = LiveView(tmp_path, "127.0.0.1", busy.getsockname()[1])
+        assert view.start() is None
+    assert "live view did not start" in caplog.text and "the capture goes on without it" in caplog.text
 
 
 def test_progress_file(tmp_path):

@@ -19,6 +19,7 @@ import json
 import logging
 import math
 import os
+import socket
 import threading
 import urllib.parse
 from http import HTTPStatus
@@ -191,6 +192,8 @@ class LiveServer(ThreadingHTTPServer):
     def __init__(self, folder: str | Path, host: str = "127.0.0.1", port: int = 0) -> None:
         self.folder = Path(folder).resolve()
         self.tail = SliceTail(self.folder / SLICE)
+        if ":" in host:  # an IPv6 address
+            self.address_family = socket.AF_INET6
         super().__init__((host, port), _Handler)
         h, p = self.server_address[:2]
         shown = f"[{h}]" if ":" in str(h) else str(h)

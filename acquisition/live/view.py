@@ -50,9 +50,14 @@ class LiveView:
             r, _, _ = select.select([fd], [], [], max(deadline - time.monotonic(), 0.0))
             ch = os.read(fd, 1) if r else b""
             if not ch:
-                self.stop()
+                if r:  # end of its output: it is exiting, and its stderr is complete once it has
+                    try:
+                        self.proc.wait(timeout_s)
+                    except subprocess.TimeoutExpired:
+                        pass
                 self._err.seek(0)
                 err = self._err.read().decode(errors="replace").strip()
+                self.stop()
                 log.warning("live view did not start (%s); the capture goes on without it",
                             err.splitlines()[-1] if err else "no answer")
                 return None
