@@ -37,6 +37,7 @@ from acquisition.autorange import AutoRanger
 from acquisition.calibration import Reading
 from acquisition.config import BenchConfig, load_config
 from acquisition.devices.dynamixel import DynamixelAxes
+from acquisition.devices.external import external_detector, external_library
 from acquisition.devices.protocols import Devices, MoveStatus
 from acquisition.devices.serial_link import SerialAxes, SerialDetector, SerialLink
 from acquisition.errors import CommError, ConfigError, DeviceError, SaturationWarning
@@ -228,7 +229,10 @@ class Bench:
         self.simulator_log = simulator_log
         self.sim: SimulatorProcess | None = None
         self.link: SerialLink | None = None
-        self.detector: SerialDetector | None = None
+        self.detector: Any = None  # SerialDetector, or an external one (acquisition.devices.external)
+        #: test hook (docs/detectors.md): a function of the simulator's ports returning the stand-in of the
+        #: detector's library (seabreeze.spectrometers, pyvisa.ResourceManager); None: the real library
+        self.detector_library: Any = None
         self.motion: DynamixelAxes | SerialAxes | None = None
         #: extra arguments of ``gonio-sim serve`` (the engine passes ``--attempt N`` on a resumed capture)
         self.sim_args: tuple[str, ...] = ()
@@ -275,11 +279,18 @@ class Bench:
                     raise CommError("simulated bench: the simulator offers no Dynamixel port (is [bench].motion "
                                     "consistent?)")
                 dxl_port, ser_port = ports.get("dynamixel") or "", ports.get("serial") or ""
-            self.link = SerialLink(ser_port, b.serial_baudrate, b.serial_timeout_s, cfg.motion.retries)
-            self.detector = SerialDetector(self.link, cfg.detector.type, cfg.detector.integration_time_s,
-                                           cfg.detector.saturation, cfg.detector.gains,
-                                           start_gain=max(cfg.detector.gains) if cfg.detector.gains
-                                           and cfg.detector.auto_range else None)
+            if not cfg.detector.on_board:  # seabreeze, pm100 (acquisition.devices.external): the library first
+                lib = self.detector_library(self.sim.ports if self.sim else {}) if self.detector_library else \
+                    external_library(cfg, simulated=self.sim is not None)
+            self.link = SerialLink(ser_port, b.serial_baudrate, b.serial_timeout_s, cfg.motion.retries) \
+                if ser_port or cfg.detector.on_board else None
+            if not cfg.detector.on_board:
+                self.detector = external_detector(cfg, self.link, lib)
+            else:
+                self.detector = SerialDetector(self.link, cfg.detector.type, cfg.detector.integration_time_s,
+                                               cfg.detector.saturation, cfg.detector.gains,
+                                               start_gain=max(cfg.detector.gains) if cfg.detector.gains
+                                               and cfg.detector.auto_range else None)
             if sys.stdin is not None and sys.stdin.isatty():
                 self.detector.manual_swap = _prompt_swap
             self.detector.connect()
@@ -302,6 +313,8 @@ class Bench:
         """Close ports and stop the simulator (does not move anything: see :meth:`shutdown`)."""
         if self.motion is not None and isinstance(self.motion, DynamixelAxes):
             self.motion.close()
+        if self.detector is not None and hasattr(self.detector, "close"):
+            self.detector.close()
         if self.link is not None:
             self.link.close()
         if self.sim is not None:
@@ -344,7 +357,7 @@ class Bench:
             self.close()
 
     # -- operations --------------------------------------------------------------------------------------------
-    def _need(self) -> tuple[DynamixelAxes | SerialAxes, SerialDetector]:
+    def _need(self) -> tuple[DynamixelAxes | SerialAxes, Any]:
         if self.motion is None or self.detector is None:
             raise DeviceError("the bench is not open: use `with Bench.from_config(...) as bench:` or bench.open()")
         return self.motion, self.detector
@@ -411,7 +424,7 @@ class Bench:
             self._ranger.ref_dark = rd
         return rd
 
-    def _auto_ranger(self, det: SerialDetector) -> AutoRanger:
+    def _auto_ranger(self, det: Any) -> AutoRanger:
         """The auto-ranging of :meth:`read` (one per opening of the bench)."""
         if self._ranger is None:
             d = self.cfg.detector
@@ -446,21 +459,22 @@ class Bench:
 
     def capture(self, plan: Plan | None = None, out: str | Path | None = None, resume: bool = False,
                 progress: bool | None = None, handle_signals: bool = True,
-                points_plan: Any = None, force: bool = False):  # -> CaptureResult
+                points_plan: Any = None, force: bool = False, live: bool = False):  # -> CaptureResult
         """Capture ``plan`` (default: the config's) into ``out``/slice.csv; see :class:`acquisition.capture.RunEngine`.
 
         Opens the bench if needed (and then closes it again). Returns a :class:`~acquisition.record.CaptureResult`
         (``result.ok``; ``result.raise_for_status()``). ``points_plan``: the plan that measures the points
         (default :func:`acquisition.plans.measure_points`; e.g. ``examples/reference_every_n.py``). A resume first
         measures the last recorded points again and stops (``result.exit_code`` 2) if the sample does not read as
-        recorded; ``force``: go on all the same (a deliberate change, recorded in capture.json).
+        recorded; ``force``: go on all the same (a deliberate change, recorded in capture.json); ``live``: write
+        ``out``/progress.json for a live view (acquisition.live).
         """
         from acquisition.run.capture import RunEngine
 
         if out is None:
             out = Path("out") / time.strftime("capture-%Y%m%d-%H%M%S")
         eng = RunEngine(self, plan if plan is not None else self.plan(), out, resume=resume, progress=progress,
-                        handle_signals=handle_signals, points_plan=points_plan, force=force)
+                        handle_signals=handle_signals, points_plan=points_plan, force=force, live=live)
         return eng.run()
 
 

@@ -32,6 +32,7 @@ EPILOG = """\
 examples:
   gonio-capture --config configs/simulated.toml --out out/demo
   gonio-capture --config configs/simulated.toml --out out/demo --resume
+  gonio-capture --config configs/simulated.toml --out out/demo --live    # watch it at the URL printed
   gonio-capture --config configs/simulated.toml --out out/demo --resume --force   # another sample, on purpose
   gonio-capture --config configs/simulated.toml --out out/paint --scene configs/scenes/glossy-product.toml
   gonio-capture --config configs/dynamixel-bench.toml --check
@@ -64,6 +65,13 @@ def build_parser() -> argparse.ArgumentParser:
     prog.add_argument("--progress", dest="progress", action="store_true", default=None,
                       help="always show the progress bar (default: only on a terminal)")
     prog.add_argument("--no-progress", dest="progress", action="store_false", help="never show it")
+    p.add_argument("--live", action="store_true",
+                   help="serve a live view of the capture (the slice as it grows, the time left, the last sample) "
+                        "on http://127.0.0.1:PORT/ while it runs; the URL is printed when it starts")
+    p.add_argument("--live-port", type=int, metavar="PORT", help="the live view's port (default: a free one)")
+    p.add_argument("--live-host", metavar="ADDRESS",
+                   help="serve the live view on this address instead of 127.0.0.1 (reachable from the network: "
+                        "on purpose only)")
     p.add_argument("--json", action="store_true", help="print the result as one JSON object on stdout")
     p.add_argument("--log-level", default="warning", choices=("debug", "info", "warning", "error"),
                    help="stderr log level (the log file always gets info)")
@@ -153,6 +161,23 @@ def _time_summary(r: Any) -> str:
             f"and white reference {other:.2f} s ({e.get('calibration_s', 0.0):.2f} s)")
 
 
+def _start_live(args: argparse.Namespace) -> Any:
+    """The live view of ``--live`` (``--live-port``/``--live-host`` imply it), started in a child process: its URL is
+    printed; one that cannot start is a warning, and the capture goes on."""
+    if not (args.live or args.live_port is not None or args.live_host):
+        return None
+    from acquisition.live import LiveView
+
+    view = LiveView(args.out, args.live_host or "127.0.0.1", args.live_port or 0)
+    url = view.start()
+    if url is None:
+        return None
+    where = "" if (args.live_host or "127.0.0.1") in ("127.0.0.1", "localhost", "::1") else \
+        f" (on {args.live_host}: reachable from the network)"
+    print(f"gonio-capture: live view at {url}{where}; it ends with the capture", file=sys.stderr, flush=True)
+    return view
+
+
 def _run(args: argparse.Namespace) -> int:
     from acquisition.bench import Bench, SimulatorCheck
     from acquisition.config import MAX_PLAN_POINTS
@@ -195,6 +220,14 @@ def _run(args: argparse.Namespace) -> int:
             except CommError as e:
                 print(f"gonio-capture: {e}", file=sys.stderr)
                 return 1
+        if not bench.cfg.detector.on_board and bench.cfg.bench.transport != "simulated":
+            from acquisition.devices.external import external_library
+
+            try:  # the detector's library (seabreeze, pyvisa) is installed: the capture will need it
+                external_library(bench.cfg)
+            except ConfigError as e:
+                print(f"gonio-capture: {e}\nnothing was moved.", file=sys.stderr)
+                return 2
         print(chk.describe(limit=1000))
         from acquisition.optics import footprint_warning
 
@@ -219,15 +252,19 @@ def _run(args: argparse.Namespace) -> int:
     except OSError as e:
         print(f"gonio-capture: --out {out_dir_problem(Path(args.out), e)}", file=sys.stderr)
         return 2
+    view = _start_live(args)
     try:
         result = bench.capture(plan, out=Path(args.out), resume=args.resume, progress=args.progress,
-                               force=args.force)
+                               force=args.force, live=view is not None)
     except OutDirLocked as e:  # one line: the folder and the PID holding it
         print(f"gonio-capture: {e}", file=sys.stderr)
         return 2
     except (ConfigError, PlanError) as e:
         print(f"gonio-capture: {e}\nnothing was moved.", file=sys.stderr)
         return 2
+    finally:
+        if view is not None:
+            view.stop()  # the live view ends with the capture
     if args.json:
         print(json.dumps(result_dict(result), sort_keys=True))
     if result.ok and result.exit_code == 0:

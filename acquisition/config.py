@@ -133,7 +133,7 @@ class BenchConfig:
 # --- section readers -----------------------------------------------------------------------------------------
 
 
-def _read_bench(src: str, raw: Any) -> BenchSection:
+def _read_bench(src: str, raw: Any, board_detector: bool = True) -> BenchSection:
     t = _Table(src, "bench", raw, BenchTable)
     transport = t["transport"]
     motion = t["motion"]
@@ -148,7 +148,7 @@ def _read_bench(src: str, raw: Any) -> BenchSection:
         if transport == "dynamixel" and not t["dynamixel_port"]:
             raise t.error("dynamixel_port", "missing: a Dynamixel bench needs the servo bus port, e.g. "
                                             '"/dev/ttyUSB0"')
-        if not t["serial_port"]:
+        if not t["serial_port"] and (board_detector or transport == "serial"):
             raise t.error("serial_port", "missing: the serial controller (detector"
                                          + (" and stepper axes" if transport == "serial" else "")
                                          + ') needs a port, e.g. "/dev/ttyACM0"')
@@ -231,8 +231,16 @@ def _read_detector(src: str, raw: Any, base_dir: Path, source_spectrum: str, sim
                               "[detector].solid_angle_sr now; remove the old key")
         if isinstance(old, (int, float)) and not isinstance(old, bool) and 0 <= old <= 0.5:
             values["solid_angle_sr"] = float(old)  # an older file: the simulator's key keeps working
+    if t["saturation"] is None and t["type"] in ("photodiode", "spectrometer"):
+        raise t.error("saturation", "missing key: the detector's saturation (raw counts); only the seabreeze and "
+                                    "pm100 types read it from the device")
+    if t["type"] == "pm100" and t["min_integration_time_s"] != t["integration_time_s"]:
+        if t.given("min_integration_time_s"):
+            log.info("%s: [detector].min_integration_time_s: a power meter ranges over its power ranges, not "
+                     "over averaging; ignored", src)
+        values["min_integration_time_s"] = t["integration_time_s"]
     weights = None
-    if t["type"] == "photodiode":
+    if t["type"] in ("photodiode", "pm100"):
         try:
             weights = band_weights(spectrum_of(t["responsivity"], "responsivity", base_dir,
                                                f"{src}: [detector].responsivity"),
@@ -240,7 +248,7 @@ def _read_detector(src: str, raw: Any, base_dir: Path, source_spectrum: str, sim
         except SchemaError as e:
             raise ConfigError(str(e)) from None
     gains = tuple(sorted(t["gains"])) if t["gains"] is not None else None
-    if gains is not None and t["type"] != "photodiode":
+    if gains is not None and t["type"] not in ("photodiode", "pm100"):
         log.info("%s: [detector].gains: a spectrometer ranges over integration time only; the gains (a photodiode "
                  "amplifier's) are not used", src)
         gains = None
@@ -302,7 +310,9 @@ def config_from_dict(raw: Mapping[str, Any], path: str | Path = "<config>") -> B
     for sec in ("bench", "axes", "motion", "detector", "calibration", "plan"):
         if sec not in raw:
             raise ConfigError(f"{src}: [{sec}]: missing section (required)")
-    bench = _read_bench(src, raw["bench"])
+    det_raw = raw["detector"]
+    board = not (isinstance(det_raw, Mapping) and det_raw.get("type") in ("seabreeze", "pm100"))
+    bench = _read_bench(src, raw["bench"], board)
     axes_raw = raw["axes"]
     if not isinstance(axes_raw, Mapping):
         raise ConfigError(f"{src}: [axes]: expected tables [axes.light], [axes.detector]")
@@ -400,7 +410,7 @@ def _check_cross(cfg: BenchConfig) -> None:
     if park_sep < cfg.bench.min_separation_deg:
         raise ConfigError(f"{src}: [axes.detector].park_deg: parked arms would be {park_sep:g} deg apart, "
                           f"closer than min_separation_deg = {cfg.bench.min_separation_deg:g}")
-    if cfg.detector.saturation <= 0:  # pragma: no cover - checked by the field
+    if cfg.detector.saturation is not None and cfg.detector.saturation <= 0:  # pragma: no cover - the field
         raise ConfigError(f"{src}: [detector].saturation: must be > 0")
 
 

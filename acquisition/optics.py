@@ -25,7 +25,7 @@ MIN_CORRECTABLE_FRACTION = 0.25
 
 def band_of(cfg: BenchConfig) -> str:
     """What the value channels are: "silicon x halogen-3000K" (a photodiode's band) or "spectral"."""
-    if cfg.detector.type == "spectrometer":
+    if cfg.detector.type in ("spectrometer", "seabreeze"):
         return "spectral"
     return band_name(cfg.detector.responsivity, cfg.bench.source_spectrum)
 

@@ -93,7 +93,7 @@ class DetectorConfig:
     type: str
     integration_time_s: float
     repeats: int
-    saturation: float
+    saturation: float | None                   # None: read from the device (seabreeze, pm100)
     dark_repeats: int
     auto_range: bool = True
     min_integration_time_s: float = 1e-5
@@ -102,6 +102,17 @@ class DetectorConfig:
     responsivity: str = "silicon"
     gains: tuple[float, ...] | None = None     # the amplifier's gains, ascending; None: the gain is not switched
     band_weights: Any = field(default=None, repr=False)  # photodiode: weights on reconstruction.schema.optics.BAND_NM
+    serial_number: str | None = None           # seabreeze: the spectrometer (None: the first found)
+    correct_dark_counts: bool = True           # seabreeze: electrical-dark correction when the device offers it
+    correct_nonlinearity: bool = True          # seabreeze: non-linearity correction when the device offers it
+    source_off: str = "auto"                   # seabreeze, pm100: "auto", "board", "shutter" or "prompt"
+    resource: str | None = None                # pm100: the VISA resource (None: the first PM100 found)
+    wavelength_nm: float | None = None         # pm100: SENS:CORR:WAV (nm); None: the band's centroid
+
+    @property
+    def on_board(self) -> bool:
+        """True for the detector board's own detectors (photodiode, spectrometer: the serial protocol)."""
+        return self.type in ("photodiode", "spectrometer")
 
     @property
     def acceptance_sr(self) -> float:

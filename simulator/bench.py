@@ -10,6 +10,7 @@ import numpy as np
 from simulator.config import BenchConfig
 from simulator.devices.dxl_device import DynamixelBus, Servo
 from simulator.devices.serial_controller import SerialController, StepperAxis
+from simulator.devices.usb_detectors import UsbDetector
 from simulator.world.clock import SimClock
 from simulator.world.faults import FaultInjector
 from simulator.world.physics import BRDF, BenchPhysics
@@ -66,6 +67,9 @@ class VirtualBench:
             cfg, self.clock, self.physics, self.serial_comm_faults, self.motion_faults, steppers,
             arm_angles=self.arm_angles if self.bus is not None else None, collision=self.collides,
         )
+        #: the detector that is not the board's (seabreeze, pm100), on its own port for its stand-in
+        self.usb = UsbDetector(cfg, self.clock, self.physics, self.arm_angles) \
+            if cfg.detector.device in ("seabreeze", "pm100") else None
 
     # -- geometry --------------------------------------------------------------------------------------------
     def collides(self, goals_deg: dict[str, float]) -> bool:
@@ -91,7 +95,8 @@ class VirtualBench:
     @property
     def ports(self) -> tuple[str, ...]:
         """Names of the ports this bench offers."""
-        return ("dynamixel", "serial") if self.bus is not None else ("serial",)
+        names = ("dynamixel", "serial") if self.bus is not None else ("serial",)
+        return names + ("usb",) if self.usb is not None else names
 
     def check_vanish(self) -> None:
         """Mark ports as vanished once simulated time passes ``port_vanish_after_s``."""
@@ -115,6 +120,11 @@ class VirtualBench:
                     if self.bus is None:
                         return b""
                     out += self.bus.process(data)
+                elif port == "usb":
+                    if self.usb is None:
+                        return b""
+                    out += self.usb.process(data)
+                    wait = self.usb.take_wait()
                 else:
                     out += self.controller.process(data)
                     wait = self.controller.take_wait()

@@ -31,6 +31,8 @@ examples:
 protocols:
   dynamixel port: Dynamixel Protocol 2.0 (X-series control table), open with dynamixel_sdk.PortHandler
   serial port:    text protocol of docs/serial-protocol.md (detector; axes on a stepper bench), 115200 8N1
+  usb port:       [detector] type = "seabreeze" or "pm100" only: their world, for the test suite's stand-ins of
+                  python-seabreeze and pyvisa (simulator/devices/usb_detectors.py, docs/detectors.md)
 """
 
 

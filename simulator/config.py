@@ -87,6 +87,9 @@ class DetectorConfig:
     gains: tuple[float, ...] | None = None
     responsivity: str = "silicon"
     band_weights: Any = field(default=None, repr=False)
+    #: the bench file's [detector].type: "seabreeze" (simulated as a spectrometer) and "pm100" (as a photodiode
+    #: head) are served on the "usb" port (simulator.devices.usb_detectors) to their stand-ins
+    device: str = "photodiode"
 
 
 @dataclass
@@ -185,7 +188,10 @@ def config_from_dict(raw: dict[str, Any], base_dir: Path | None = None, source: 
     base = Path(base_dir) if base_dir is not None else Path.cwd()
     solid = _solid_angle(src, det, sim.detector_solid_angle_sr)
     weights = None
-    if det["type"] == "photodiode":
+    device = det["type"]
+    kind = {"seabreeze": "spectrometer", "pm100": "photodiode"}.get(device, device)
+    saturation = det["saturation"] if det["saturation"] is not None else float(2 ** int(sim.adc_bits) - 1)
+    if kind == "photodiode":
         from reconstruction.schema.optics import band_weights, spectrum_of
 
         try:
@@ -203,10 +209,10 @@ def config_from_dict(raw: dict[str, Any], base_dir: Path | None = None, source: 
         min_separation_deg=bench["min_separation_deg"],
         blind_spot_half_width_deg=bench["blind_spot_half_width_deg"],
         axes=axes,
-        detector=DetectorConfig(**{k: det[k] for k in ("type", "integration_time_s", "repeats", "saturation",
-                                                       "responsivity")}, solid_angle_sr=solid,
-                                gains=tuple(sorted(det["gains"])) if det["gains"] and det["type"] == "photodiode"
-                                else None, band_weights=weights),
+        detector=DetectorConfig(**{k: det[k] for k in ("integration_time_s", "repeats", "responsivity")},
+                                type=kind, saturation=saturation, solid_angle_sr=solid,
+                                gains=tuple(sorted(det["gains"])) if det["gains"] and device == "photodiode"
+                                else None, band_weights=weights, device=device),
         sim=sim,
         material=dict(_table(src, "material", raw.get("material"))),
         reference_reflectance=float(ref) if isinstance(ref, (int, float)) else 0.99,
@@ -220,7 +226,7 @@ def config_from_dict(raw: dict[str, Any], base_dir: Path | None = None, source: 
     )
     if cfg.motion not in ("dynamixel", "serial"):
         raise ConfigError(f"{src}: [bench].motion: must be \"dynamixel\" or \"serial\", got {_describe(cfg.motion)}")
-    if cfg.detector.type not in ("photodiode", "spectrometer"):
+    if cfg.detector.type not in ("photodiode", "spectrometer"):  # pragma: no cover - the schema's choices
         raise ConfigError(f"{src}: [detector].type: must be \"photodiode\" or \"spectrometer\", got "
                           f"{_describe(cfg.detector.type)}")
     return cfg

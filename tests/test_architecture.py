@@ -21,7 +21,8 @@ def test_import_contracts_hold():
     exe = Path(sys.executable).with_name("lint-imports")
     r = subprocess.run([str(exe), "--no-cache"], cwd=REPO, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stdout + r.stderr
-    assert "8 kept, 0 broken" in r.stdout, r.stdout
+    n = (REPO / "pyproject.toml").read_text().count("[[tool.importlinter.contracts]]")
+    assert f"{n} kept, 0 broken" in r.stdout, r.stdout
 
 
 def test_no_module_is_longer_than_600_lines():
@@ -232,7 +233,7 @@ def test_reconstruction_has_at_most_15_modules_at_its_top():
 # --- the rooms ----------------------------------------------------------------------------------------------------
 
 #: The rooms of acquisition/ and simulator/ (docs/architecture.md); each a package with its own import contract.
-ROOMS = {"acquisition": ("devices", "plans", "run"), "simulator": ("devices", "world", "ports")}
+ROOMS = {"acquisition": ("devices", "live", "plans", "run"), "simulator": ("devices", "world", "ports")}
 
 
 @pytest.mark.parametrize("package", sorted(ROOMS))

@@ -68,6 +68,7 @@ from acquisition.run.outdir import (
     make_out_dir,
     out_dir_problem,
 )
+from acquisition.run.progress import PROGRESS_NAME, ProgressFile
 from acquisition.run.record import (
     SIDECAR_NAME,
     AutoRangeRecord,
@@ -120,11 +121,14 @@ class _LogFile(logging.FileHandler):
 class _Bar:
     """The capture's progress bar (tqdm on stderr; by default only on a terminal)."""
 
-    def __init__(self, progress: bool | None) -> None:
+    def __init__(self, progress: bool | None, watch: ProgressFile | None = None) -> None:
         self.enabled = sys.stderr.isatty() if progress is None else bool(progress)
         self.pbar: Any = None
+        self.watch = watch  # progress.json of the live view
 
     def announce(self, total: int, done: int) -> None:
+        if self.watch is not None:
+            self.watch.announce(total, done)
         if self.pbar is None:
             from tqdm import tqdm
 
@@ -147,9 +151,10 @@ class _SliceOutput:
     """The engine's sink: ``slice.csv``, created with its metadata once the calibration is known (a resume
     appends to the existing file)."""
 
-    def __init__(self, eng: RunEngine, resume: bool) -> None:
+    def __init__(self, eng: RunEngine, resume: bool, watch: ProgressFile | None = None) -> None:
         self.eng = eng
         self.resume = resume
+        self.watch = watch
         self.writer: SliceWriter | None = None
 
     def open(self, cal: Calibration, reference_integration_time_s: float | None) -> None:
@@ -167,7 +172,8 @@ class _SliceOutput:
             "quantity": "brdf",
             "calibration": {**c.to_meta(), **cal.to_meta()},
             "detector": {"type": det.type, "integration_time_s": cfg.detector.integration_time_s,
-                         "saturation": det.saturation, "auto_range": cfg.detector.auto_range},
+                         "saturation": det.saturation, "auto_range": cfg.detector.auto_range,
+                         **({} if cfg.detector.on_board else {"device": det.describe()})},
             "instrument": instrument_of(cfg).to_meta(),
             "plan": eng.plan.to_meta(),
             "plan_fingerprint": eng.plan.fingerprint(),
@@ -192,6 +198,8 @@ class _SliceOutput:
     def append(self, ti: float, to: float, f: list[float], std: list[float], repeats: int) -> None:
         assert self.writer is not None
         self.writer.append(ti, to, f, std, repeats, time.time())
+        if self.watch is not None:
+            self.watch.sample(ti, to, f, std, repeats)
 
     def close(self) -> None:
         if self.writer is not None:
@@ -205,8 +213,10 @@ class RunEngine:
     """Runs one capture of ``plan`` on ``bench`` into ``out``; see the module docstring."""
 
     def __init__(self, bench: Any, plan: Plan, out: str | Path, resume: bool = False, progress: bool | None = None,
-                 handle_signals: bool = True, points_plan: PointsPlan | None = None, force: bool = False) -> None:
+                 handle_signals: bool = True, points_plan: PointsPlan | None = None, force: bool = False,
+                 live: bool = False) -> None:
         self.points_plan = points_plan or measure_points
+        self.live = live  # write progress.json for the live view (acquisition.live)
         self.force = force  # a resume goes on with another sample on the bench (recorded in capture.json)
         self.bench = bench
         self.cfg = bench.cfg
@@ -422,8 +432,9 @@ class RunEngine:
         cfg = self.cfg
         opened_here = False
         hardware_fault = False
-        sink = _SliceOutput(self, resume=existing is not None)
-        bar = _Bar(self.progress)
+        watch = ProgressFile(self.out / PROGRESS_NAME, r.estimate_s, r.points_planned) if self.live else None
+        sink = _SliceOutput(self, resume=existing is not None, watch=watch)
+        bar = _Bar(self.progress, watch)
         try:
             try:
                 self._guard.check()  # a signal during the start-up: stop before anything opens
@@ -492,6 +503,8 @@ class RunEngine:
         finally:
             bar.close()
             sink.close()
+            if watch is not None:
+                watch.finish(r.status, r.message)
             if r.status != "complete" and not hardware_fault:
                 self._restore_integration_time()
             self._make_safe(opened_here, hardware_fault)

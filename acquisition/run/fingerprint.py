@@ -101,7 +101,9 @@ def fingerprint(cfg: BenchConfig, plan_fingerprint: str) -> dict[str, Any]:
     for k in ("type", "integration_time_s", "saturation", "auto_range", "min_integration_time_s"):
         fp[f"[detector].{k}"] = _norm(getattr(d, k))
     for k, default in (("solid_angle_sr", None), ("aperture_half_angle_deg", None), ("responsivity", "silicon"),
-                       ("gains", None)):  # the optics: only when given (fingerprints of earlier files stay equal)
+                       ("gains", None), ("serial_number", None), ("resource", None), ("wavelength_nm", None),
+                       ("correct_dark_counts", True), ("correct_nonlinearity", True)):
+        # the optics and the USB detectors' settings: only when given (fingerprints of earlier files stay equal)
         if getattr(d, k) != default:
             fp[f"[detector].{k}"] = _norm(getattr(d, k))
     for k, default in (("source_divergence_deg", 0.0), ("beam_diameter_mm", None), ("sample_diameter_mm", None),
@@ -154,6 +156,8 @@ def settings(cfg: BenchConfig) -> dict[str, Any]:
               "retries", "poll_interval_s"):
         st[f"[motion].{k}"] = _norm(getattr(m, k))
     st["[detector].dark_repeats"] = _norm(cfg.detector.dark_repeats)
+    if cfg.detector.source_off != "auto":
+        st["[detector].source_off"] = _norm(cfg.detector.source_off)
     st["[calibration].reference_repeats"] = _norm(cfg.calibration.reference_repeats)
     st.update(_section("plan", _raw(cfg, "plan"), PLAN_HARMLESS))
     if cfg.bench.transport == "simulated":

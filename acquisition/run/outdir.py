@@ -155,7 +155,7 @@ def check_resume(cfg: BenchConfig, plan: Plan, out: Path, resume: bool, record: 
                         f"{fpr}, the config now gives {plan.fingerprint()}); restore the plan or choose "
                         "another --out")
     kind = existing.kind
-    if (cfg.detector.type == "photodiode") != (kind == "grey"):
+    if (cfg.detector.type in ("photodiode", "pm100")) != (kind == "grey"):
         raise PlanError(f"cannot resume: {slice_path} has value columns {existing.channels[:4]}, but a "
                         f"{cfg.detector.type} gives {'one value column' if kind != 'grey' else 'spectra'}")
     cal = meta.get("calibration", {})

@@ -126,10 +126,17 @@ def _gains_check(v: list[float]) -> str | None:
 class DetectorTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     """``[detector]``: type, integration time per repeat, repeats, saturation, dark repeats, auto-ranging."""
 
-    type: Literal["photodiode", "spectrometer"]
+    type: Annotated[Literal["photodiode", "spectrometer", "seabreeze", "pm100"], Meta(
+        description="photodiode or spectrometer: on the detector board (serial protocol); seabreeze: an Ocean "
+                    "Insight spectrometer through python-seabreeze; pm100: a Thorlabs PM100 power meter through "
+                    "pyvisa (docs/detectors.md)")]
     integration_time_s: Annotated[float, _num(MIN_INTEGRATION_TIME_S, MAX_INTEGRATION_TIME_S)]
     repeats: Annotated[int, _num(1, 1000)]
-    saturation: Annotated[float, _num(1, 2.0**32, check=_pos_within(1, 2.0**32), description="raw counts")]
+    saturation: Annotated[float, _num(1, 2.0**32, check=_pos_within(1, 2.0**32), description="raw counts (the "
+                                                                                            "seabreeze and pm100 "
+                                                                                            "types read it from "
+                                                                                            "the device)")
+                          ] | None = None
     dark_repeats: Annotated[int, _num(1, 1000)] = 32
     auto_range: Annotated[bool, Meta(description="read saturated points again at shorter integration times")] = True
     min_integration_time_s: Annotated[float, _num(MIN_INTEGRATION_TIME_S, MAX_INTEGRATION_TIME_S)] = \
@@ -144,6 +151,22 @@ class DetectorTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     gains: Annotated[list[float] | None, Meta(description="the amplifier's switchable gains, e.g. [1, 10, 100, "
                                                           "1000, 10000] (GAIN n); auto-ranging uses them all",
                                               extra={"check": _gains_check})] = None
+    serial_number: Annotated[str, Meta(description='seabreeze: the spectrometer\'s serial number (default: the '
+                                                   "first one found)")] | None = None
+    correct_dark_counts: Annotated[bool, Meta(description="seabreeze: subtract the electrical dark pixels' level "
+                                                          "when the device has them")] = True
+    correct_nonlinearity: Annotated[bool, Meta(description="seabreeze: apply the device's non-linearity "
+                                                           "coefficients when it stores them")] = True
+    source_off: Annotated[Literal["auto", "board", "shutter", "prompt"], Meta(
+        description="seabreeze and pm100: how a dark reading turns the source off: the detector board's SOURCE "
+                    "pin, the spectrometer's shutter, or a prompt to the operator; auto: the first the bench "
+                    "has")] = "auto"
+    resource: Annotated[str, Meta(description='pm100: the VISA resource, e.g. "USB0::0x1313::0x8078::P0001234::'
+                                              'INSTR" (default: the first Thorlabs PM100 found)')] | None = None
+    wavelength_nm: Annotated[float, _num(100.0, 20000.0, description="pm100: the wavelength correction "
+                                                                     "(SENS:CORR:WAV, nm); default: the centroid "
+                                                                     "of the source seen by the sensor's band")
+                             ] | None = None
 
 
 class CalibrationTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):

@@ -361,7 +361,7 @@ class SerialController:
         t0 = self.clock.now()
         times = t0 + (np.arange(n) + 0.5) * t_int
         angles = np.array([self.arm_angles(float(tk)) for tk in times])
-        codes, sat = self.physics.read(angles[:, 0], angles[:, 1], source_on=source_on)
+        codes, sat = self.physics.read(angles[:, 0], angles[:, 1], source_on=source_on and self.physics.source_on)
         self._advance(n * t_int)
         tag = "READ" if source_on else "DARK"
         mean = codes.mean(axis=0)
@@ -428,6 +428,17 @@ class SerialController:
     def _cmd_sample_q(self, args: list[str]) -> list[str]:
         return [f"SAMPLE sample={self.physics.sample}", "ok"]
 
+    def _cmd_source(self, args: list[str]) -> list[str]:
+        """``SOURCE ON|OFF``: the source's pin (the darks of a detector that is not the board's)."""
+        if len(args) != 1 or args[0].upper() not in ("ON", "OFF"):
+            return self._err(E_ARGUMENT)
+        self.physics.source_on = args[0].upper() == "ON"
+        log.info("source: %s", args[0].upper())
+        return ["ok"]
+
+    def _cmd_source_q(self, args: list[str]) -> list[str]:
+        return [f"SOURCE source={'ON' if self.physics.source_on else 'OFF'}", "ok"]
+
     _COMMANDS = {
         "HELP": _cmd_help,
         "ID?": _cmd_id,
@@ -447,4 +458,6 @@ class SerialController:
         "GAIN?": _cmd_gain_q,
         "SAMPLE": _cmd_sample,
         "SAMPLE?": _cmd_sample_q,
+        "SOURCE": _cmd_source,
+        "SOURCE?": _cmd_source_q,
     }

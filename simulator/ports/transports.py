@@ -156,7 +156,8 @@ class PtyServer:
             raise
 
     def paths(self) -> dict[str, str | None]:
-        return {name: (self.ports[name].path if name in self.ports else None) for name in ("dynamixel", "serial")}
+        names = ("dynamixel", "serial", "usb") if "usb" in self.ports else ("dynamixel", "serial")
+        return {name: (self.ports[name].path if name in self.ports else None) for name in names}
 
     def close(self) -> None:
         for p in self.ports.values():

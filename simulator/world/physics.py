@@ -156,6 +156,9 @@ class BenchPhysics:
         self.material = material if material is not None else load_material(cfg)
         self._reference = reference
         self.sample = "TARGET"
+        #: the source, switched by the board's ``SOURCE ON|OFF`` pin (a dark of a seabreeze/pm100 bench); a
+        #: ``DARK`` reading is dark whatever it says
+        self.source_on = True
         wl = s.spectrometer.grid() if cfg.detector.type == "spectrometer" else None
         self.detector = Detector(
             type=cfg.detector.type,

@@ -1,0 +1,57 @@
+"""The detectors that are not the board's, built from the bench file: ``[detector] type = "seabreeze"``
+(:mod:`acquisition.devices.seabreeze`) and ``type = "pm100"`` (:mod:`acquisition.devices.pm100`).
+
+:func:`external_detector` is what :meth:`acquisition.bench.Bench.open` calls. ``library`` is the detector's
+library: None for the real one (imported now, with one line naming what to install when it is missing), or a
+stand-in that a test passes through ``Bench.detector_library`` (docs/detectors.md: the simulator's stand-ins
+read the simulated world; nothing in acquisition imports them).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from acquisition.config import BenchConfig
+from acquisition.devices.pm100 import Pm100Detector, band_centroid_nm, import_pyvisa
+from acquisition.devices.seabreeze import SeabreezeDetector, import_seabreeze
+from acquisition.devices.serial_link import SerialLink
+from acquisition.errors import ConfigError, DeviceError
+
+__all__ = ["EXTERNAL_TYPES", "external_detector", "external_library"]
+
+#: ``[detector].type`` values whose detector is not the board's.
+EXTERNAL_TYPES = ("seabreeze", "pm100")
+
+
+def external_library(cfg: BenchConfig, simulated: bool = False) -> Any:
+    """The real library of ``cfg``'s detector (``seabreeze.spectrometers`` or ``pyvisa.ResourceManager``), checked
+    before any port is opened: a missing package, or a simulated bench (whose detector only a stand-in reads), is
+    a :class:`ConfigError` in one line naming what to do."""
+    d = cfg.detector
+    if simulated:
+        what = "spectrometer" if d.type == "seabreeze" else "power meter"
+        raise ConfigError(f'{cfg.path}: [detector].type = "{d.type}": the simulator serves the {what}\'s world to a '
+                          "stand-in of its library, which only the test hook Bench.detector_library passes in "
+                          "(docs/detectors.md); capture it on the real device, or simulate the board's "
+                          'detector (type = "photodiode" or "spectrometer")')
+    try:
+        return import_seabreeze() if d.type == "seabreeze" else import_pyvisa()
+    except DeviceError as e:
+        raise ConfigError(f"{cfg.path}: {e}") from None
+
+
+def external_detector(cfg: BenchConfig, link: SerialLink | None, library: Any) -> SeabreezeDetector | Pm100Detector:
+    """The (unconnected) detector of ``cfg``'s ``[detector]`` for a bench whose board is on ``link`` (None: no
+    board), through ``library``: ``seabreeze.spectrometers`` or ``pyvisa.ResourceManager`` (:func:`external_library`),
+    or a stand-in of it."""
+    d = cfg.detector
+    if d.type == "seabreeze":
+        return SeabreezeDetector(library, d.serial_number,
+                                 d.integration_time_s, d.saturation, d.correct_dark_counts, d.correct_nonlinearity,
+                                 link, d.source_off, d.min_integration_time_s)
+    if d.type == "pm100":
+        nm = d.wavelength_nm if d.wavelength_nm is not None else band_centroid_nm(d.band_weights)
+        return Pm100Detector(library, d.resource, d.integration_time_s,
+                             nm, d.gains, start_gain=max(d.gains) if d.gains and d.auto_range else None, link=link,
+                             source_off=d.source_off)
+    raise DeviceError(f"{cfg.path}: [detector].type = {d.type!r} is the board's detector, not an external one")
