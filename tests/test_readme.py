@@ -102,7 +102,8 @@ def test_readme_python_snippet_runs(k):
 def test_the_readme_test_command_is_the_one_ci_runs():
     ci = [ln for ln in (ROOT / ".ci" / "run").read_text(encoding="utf-8").splitlines()
           if ln.strip() and not ln.startswith("#") and not ln.startswith(("set ", "cd "))]
-    assert ci == ["sh scripts/system-packages.sh && python3 -m venv .venv && .venv/bin/pip install -q -e '.[test]' && .venv/bin/python -m pytest -q"]
+    assert ci == ["sh scripts/system-packages.sh && python3 -m venv .venv && .venv/bin/pip install -q -e '.[test]' "
+                  "&& .venv/bin/python -m pytest -q"]
     assert ci[0] in [b.strip() for b in sh_blocks(README)], "the README's test command is not the line .ci/run runs"
 
 
