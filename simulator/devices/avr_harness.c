@@ -1,0 +1,387 @@
+/* avr_harness: runs the detector board's firmware (firmware/detector) on an emulated ATmega328P (simavr).
+ *
+ * Build (tests and gonio-sim do it at run time, simulator/devices/firmware.py):
+ *   gcc -O2 -o avr_harness avr_harness.c -I/usr/include/simavr -lsimavr -lsimavrparts -lutil
+ * Run:
+ *   avr_harness [--dither LSB] [--seed N] firmware.elf
+ *
+ * UART0 is a pseudo-terminal of its own (so that several harnesses can run at once): the first line on stdout is
+ * "PTY <path>". stdin/stdout are a line-oriented control channel:
+ *
+ *   out  PTY <path> vref_mv=5000 full=1023   the pty; the ADC reads floor(full * mV / vref_mv), clipped at full
+ *   out  PIN gsel=<0..7> source=<0|1>        the gain-select pins PB0..PB2 and the source pin PD7, at start and
+ *                                            on every change
+ *   out  SYNC first=<0|1> n=<n> nconv=<c> gsel=<g> source=<s> t=<s>
+ *                                            (sync mode) a repeat starts (the LED pin PB5 rises): the emulation
+ *                                            waits for ADC <mV> (the amplifier's output for this repeat)
+ *   out  TIME t=<s>                          reply to TIME?: emulated seconds since start
+ *   out  BYE <reason>                        the harness stops
+ *   in   ADC <mV>                            the voltage on ADC0 (A0), millivolts (to 0.1 mV; 0..6553 mV)
+ *   in   DITHER <lsb>                        Gaussian noise added to every conversion, rms in ADC counts
+ *   in   SYNC 0|1                            off / on: wait for ADC at every repeat
+ *   in   UNTIL <s>                           emulated time runs on to at least <s> (the board idles meanwhile;
+ *                                            bytes from the host are delivered from then on)
+ *   in   TIME?                               see above
+ *   in   RESET                               external reset (reset button, or DTR on port open)
+ *   in   FREEZE 0|1                          1: the board stops executing (a hung board); 0: it runs again
+ *   in   NOISE <hex>                         bytes sent to the host as if by line noise on the board's TX line
+ *   in   UNPLUG                              close the pty: the host's port vanishes as with a pulled cable
+ *   in   QUIT                                (or end of input) stop
+ *
+ * Simulated time: the emulated core runs as fast as the host allows while the firmware works (a command, a
+ * reading, bytes to send); while it sleeps waiting for input (its probe's busy flag is clear) time is held, so
+ * emulated time only advances with work and with UNTIL, like gonio-sim's fast time (time_scale = 0). The sleep
+ * callback never waits for wall time.
+ */
+#define _GNU_SOURCE
+#include <errno.h>
+#include <fcntl.h>
+#include <math.h>
+#include <poll.h>
+#include <pty.h>
+#include <stdarg.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <termios.h>
+#include <unistd.h>
+
+#include <avr_adc.h>
+#include <avr_ioport.h>
+#include <avr_uart.h>
+#include <sim_avr.h>
+#include <sim_elf.h>
+#include <sim_io.h>
+
+DEFINE_FIFO(uint16_t, uart_fifo); /* the accessors of the UART's receive FIFO (declared by avr_uart.h) */
+
+#define FREQ 16000000UL
+#define VREF_UNITS 50000U /* AVcc = 5 V in units of 0.1 mV (simavr's ADC inputs are 16-bit values) */
+#define IN_SIZE 4096
+#define CTRL_SIZE 1024
+
+static avr_t *avr;
+static avr_uart_t *uart;
+static uint16_t probe_addr;
+static int master = -1, slave_keep = -1, quit_flag;
+static int sync_mode, waiting_sync, frozen, pins_dirty, last_gsel = -1, last_source = -1;
+static double adc_mv, dither_lsb;
+static uint64_t rng_state = 0x9e3779b97f4a7c15ULL, until_cycle;
+static uint8_t inbuf[IN_SIZE];
+static size_t in_len;
+static char ctrl[CTRL_SIZE];
+static size_t ctrl_len;
+
+static void say(const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    vfprintf(stdout, fmt, ap);
+    va_end(ap);
+    fputc('\n', stdout);
+    fflush(stdout);
+}
+
+static void logger(avr_t *a, const int level, const char *fmt, va_list ap)
+{
+    (void)a;
+    if (level <= LOG_ERROR) vfprintf(stderr, fmt, ap); /* simavr's warnings (e.g. about OCR0A written before
+                                                          the timer's mode) are not the firmware's */
+}
+
+static double seconds(void) { return (double)avr->cycle / FREQ; }
+
+/* --- randomness for the dither: xorshift64*, Box-Muller ------------------------------------------------------- */
+static double uniform(void)
+{
+    rng_state ^= rng_state >> 12;
+    rng_state ^= rng_state << 25;
+    rng_state ^= rng_state >> 27;
+    return ((rng_state * 2685821657736338717ULL) >> 11) * (1.0 / 9007199254740992.0);
+}
+
+static double gauss(void)
+{
+    double u = uniform(), v = uniform();
+    if (u < 1e-300) u = 1e-300;
+    return sqrt(-2.0 * log(u)) * cos(2.0 * M_PI * v);
+}
+
+/* --- the firmware's probe (struct fw_probe in firmware/detector/src/hw.h) ---------------------------------------- */
+static uint8_t probe8(int off) { return avr->data[probe_addr + off]; }
+static uint32_t probe_n(void) { return probe8(4) | (probe8(5) << 8); }
+static uint32_t probe_nconv(void)
+{
+    return probe8(6) | (probe8(7) << 8) | ((uint32_t)probe8(8) << 16) | ((uint32_t)probe8(9) << 24);
+}
+
+static int gsel(void) { return avr->data[0x25] & 0x07; }           /* PORTB */
+static int source(void) { return (avr->data[0x2B] >> 7) & 1; }     /* PORTD */
+
+/* --- IRQ callbacks --------------------------------------------------------------------------------------------- */
+static void adc_trigger(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq; (void)value; (void)param;
+    double mv = adc_mv;
+    if (dither_lsb > 0) mv += dither_lsb * gauss() * 5000.0 / 1023.0;
+    double units = mv * 10.0;
+    if (units < 0) units = 0;
+    if (units > 65535.0) units = 65535.0;
+    avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_ADC0), (uint32_t)(units + 0.5));
+}
+
+static void pin_changed(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq; (void)value; (void)param;
+    pins_dirty = 1;
+}
+
+static void led_changed(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq; (void)param;
+    if (!value || !sync_mode) return;
+    say("SYNC first=%u n=%u nconv=%u gsel=%d source=%d t=%.9f", probe8(1), probe_n(), probe_nconv(), gsel(),
+        source(), seconds());
+    waiting_sync = 1;
+}
+
+static void uart_out(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq; (void)param;
+    if (master < 0) return;
+    uint8_t b = (uint8_t)value;
+    if (write(master, &b, 1) < 0) {
+        /* nobody reads the port: the byte is lost, as from a USB bridge whose host does not read */
+    }
+}
+
+static void report_pins(void)
+{
+    pins_dirty = 0;
+    if (gsel() == last_gsel && source() == last_source) return;
+    last_gsel = gsel();
+    last_source = source();
+    say("PIN gsel=%d source=%d", last_gsel, last_source);
+}
+
+static void sleep_cb(avr_t *a, avr_cycle_count_t how_long)
+{
+    (void)a; (void)how_long; /* never wait for wall time: simulated time is the emulated cycle count */
+}
+
+/* --- control channel ----------------------------------------------------------------------------------------- */
+static void unplug(void)
+{
+    if (master >= 0) close(master);
+    if (slave_keep >= 0) close(slave_keep);
+    master = slave_keep = -1;
+    in_len = 0;
+}
+
+static void noise(const char *hex)
+{
+    while (hex[0] && hex[1]) {
+        unsigned b;
+        if (sscanf(hex, "%2x", &b) != 1) break;
+        uint8_t c = (uint8_t)b;
+        if (master >= 0 && write(master, &c, 1) < 0) {
+        }
+        hex += 2;
+    }
+}
+
+static void control_line(char *s)
+{
+    char word[16] = {0};
+    double v = 0;
+    int n = sscanf(s, "%15s %lf", word, &v);
+    if (n < 1) return;
+    if (!strcmp(word, "ADC") && n == 2) {
+        adc_mv = v;
+        waiting_sync = 0;
+    } else if (!strcmp(word, "DITHER") && n == 2) {
+        dither_lsb = v;
+    } else if (!strcmp(word, "SYNC") && n == 2) {
+        sync_mode = v != 0;
+        if (!sync_mode) waiting_sync = 0;
+    } else if (!strcmp(word, "UNTIL") && n == 2) {
+        uint64_t c = (uint64_t)(v * FREQ + 0.5);
+        if (c > until_cycle) until_cycle = c;
+    } else if (!strcmp(word, "TIME?")) {
+        say("TIME t=%.9f", seconds());
+    } else if (!strcmp(word, "RESET")) {
+        avr_reset(avr);
+        avr->data[0x54] = 1 << 1; /* MCUSR: EXTRF */
+        waiting_sync = 0;
+        pins_dirty = 1;
+    } else if (!strcmp(word, "FREEZE") && n == 2) {
+        frozen = v != 0;
+    } else if (!strcmp(word, "NOISE")) {
+        char hex[CTRL_SIZE];
+        if (sscanf(s, "%*s %1000s", hex) == 1) noise(hex);
+    } else if (!strcmp(word, "UNPLUG")) {
+        unplug();
+    } else if (!strcmp(word, "QUIT")) {
+        quit_flag = 1;
+    } else {
+        fprintf(stderr, "avr_harness: unknown control line %s\n", s);
+    }
+}
+
+static void read_control(void)
+{
+    for (;;) {
+        ssize_t r = read(STDIN_FILENO, ctrl + ctrl_len, CTRL_SIZE - 1 - ctrl_len);
+        if (r == 0) {
+            quit_flag = 1;
+            return;
+        }
+        if (r < 0) return; /* EAGAIN */
+        ctrl_len += (size_t)r;
+        char *nl;
+        while ((nl = memchr(ctrl, '\n', ctrl_len))) {
+            *nl = 0;
+            control_line(ctrl);
+            size_t used = (size_t)(nl - ctrl) + 1;
+            memmove(ctrl, nl + 1, ctrl_len - used);
+            ctrl_len -= used;
+        }
+        if (ctrl_len == CTRL_SIZE - 1) ctrl_len = 0; /* an overlong control line is dropped */
+    }
+}
+
+static void read_pty(void)
+{
+    if (master < 0 || in_len == IN_SIZE) return;
+    ssize_t r = read(master, inbuf + in_len, IN_SIZE - in_len);
+    if (r > 0) in_len += (size_t)r;
+}
+
+/* bytes from the host into the UART's receive FIFO, as it has room (not before UNTIL's time) */
+static void feed_uart(void)
+{
+    size_t k = 0;
+    while (k < in_len && !uart_fifo_isfull(&uart->input) && avr->cycle >= until_cycle) {
+        avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT), inbuf[k]);
+        k++;
+    }
+    if (k) {
+        memmove(inbuf, inbuf + k, in_len - k);
+        in_len -= k;
+    }
+}
+
+static int idle(void)
+{
+    return avr->state == cpu_Sleeping && !probe8(0) && uart_fifo_isempty(&uart->input) && in_len == 0 &&
+           avr->cycle >= until_cycle;
+}
+
+static void wait_events(int with_pty)
+{
+    struct pollfd p[2] = {{STDIN_FILENO, POLLIN, 0}, {master, POLLIN, 0}};
+    int nfds = (with_pty && master >= 0 && in_len < IN_SIZE) ? 2 : 1;
+    poll(p, (nfds_t)nfds, -1);
+}
+
+/* --- set-up ---------------------------------------------------------------------------------------------------- */
+static int find_probe(elf_firmware_t *f)
+{
+    for (uint32_t i = 0; i < f->symbolcount; i++) {
+        if (!strcmp(f->symbol[i]->symbol, "fw_probe")) {
+            probe_addr = (uint16_t)(f->symbol[i]->addr & 0xFFFF);
+            return 1;
+        }
+    }
+    return 0;
+}
+
+static int open_pty(char *name)
+{
+    struct termios tio;
+    if (openpty(&master, &slave_keep, name, NULL, NULL) < 0) return 0;
+    tcgetattr(slave_keep, &tio);
+    cfmakeraw(&tio);
+    tcsetattr(slave_keep, TCSANOW, &tio);
+    fcntl(master, F_SETFL, fcntl(master, F_GETFL) | O_NONBLOCK);
+    return 1;
+}
+
+int main(int argc, char **argv)
+{
+    const char *elf = NULL;
+    for (int i = 1; i < argc; i++) {
+        if (!strcmp(argv[i], "--dither") && i + 1 < argc) dither_lsb = atof(argv[++i]);
+        else if (!strcmp(argv[i], "--seed") && i + 1 < argc) rng_state ^= strtoull(argv[++i], NULL, 10) * 0x2545F4914F6CDD1DULL;
+        else elf = argv[i];
+    }
+    if (!elf) {
+        fprintf(stderr, "usage: avr_harness [--dither LSB] [--seed N] firmware.elf\n");
+        return 2;
+    }
+    avr_global_logger_set(logger);
+    elf_firmware_t f;
+    memset(&f, 0, sizeof f);
+    if (elf_read_firmware(elf, &f) != 0) {
+        fprintf(stderr, "avr_harness: cannot read the firmware %s\n", elf);
+        return 2;
+    }
+    if (!find_probe(&f)) {
+        fprintf(stderr, "avr_harness: %s has no symbol fw_probe (not the detector firmware?)\n", elf);
+        return 2;
+    }
+    avr = avr_make_mcu_by_name("atmega328p");
+    if (!avr) return 2;
+    avr_init(avr);
+    f.frequency = FREQ;
+    avr_load_firmware(avr, &f);
+    avr->avcc = avr->aref = VREF_UNITS;
+    avr->vcc = VREF_UNITS;
+    avr->sleep = sleep_cb;
+    avr->log = LOG_WARNING;
+    for (avr_io_t *io = avr->io_port; io; io = io->next)
+        if (io->kind && !strcmp(io->kind, "uart") && ((avr_uart_t *)io)->name == '0') uart = (avr_uart_t *)io;
+    if (!uart) return 2;
+    uint32_t flags = 0;
+    avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('0'), &flags);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT), uart_out, NULL);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_OUT_TRIGGER), adc_trigger, NULL);
+    for (int pin = 0; pin < 3; pin++)
+        avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('B'), pin), pin_changed, NULL);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), 7), pin_changed, NULL);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('B'), 5), led_changed, NULL);
+
+    char name[256];
+    if (!open_pty(name)) {
+        perror("avr_harness: openpty");
+        return 2;
+    }
+    fcntl(STDIN_FILENO, F_SETFL, fcntl(STDIN_FILENO, F_GETFL) | O_NONBLOCK);
+    say("PTY %s vref_mv=5000 full=1023", name);
+
+    while (!quit_flag) {
+        read_control();
+        read_pty();
+        if (pins_dirty) report_pins();
+        if (waiting_sync || frozen) {
+            wait_events(0);
+            continue;
+        }
+        feed_uart();
+        if (idle()) {
+            wait_events(1);
+            continue;
+        }
+        for (int i = 0; i < 2000 && !waiting_sync; i++) {
+            int st = avr_run(avr);
+            if (st == cpu_Done || st == cpu_Crashed) {
+                say("BYE firmware %s at t=%.6f", st == cpu_Done ? "stopped" : "crashed", seconds());
+                return 1;
+            }
+            if (idle()) break;
+        }
+    }
+    say("BYE quit");
+    return 0;
+}
