@@ -1,0 +1,297 @@
+"""The detector board's real firmware (``firmware/detector``) on an emulated ATmega328P.
+
+:func:`build_firmware` runs ``make -C firmware/detector`` (avr-gcc), :func:`build_harness` compiles
+``avr_harness.c`` against simavr's libraries, and :class:`EmulatedBoard` runs the harness: the firmware's UART is a
+pseudo-terminal (:attr:`EmulatedBoard.port`, to be opened with pyserial like a USB serial port) and the harness's
+control channel (its stdin/stdout, described at the top of ``avr_harness.c``) sets the voltage on the ADC input,
+reports the gain and source pins, and injects faults (reset, a hung board, line noise, a pulled cable).
+
+With ``on_sync``, the emulation stops at the start of every repeat the firmware integrates (its LED pin rises)
+and asks ``on_sync(event)`` for the amplifier's output in counts per conversion (:class:`SyncEvent`): the caller
+computes it from the bench's physics for the arms' positions, the gain and the source pins at that moment.
+
+The ADC reads ``floor(1023 * mV / 5000)`` (AVcc reference, 5 V), clipped at 1023; a reading is the sum of its
+conversions. :func:`millivolts` turns a mean count per conversion into the input that gives it on average.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import subprocess
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+log = logging.getLogger("simulator.firmware")
+
+__all__ = ["FIRMWARE_DIR", "HARNESS_SOURCE", "DEBIAN_PACKAGES", "toolchain_problem", "build_firmware",
+           "build_harness", "millivolts", "SyncEvent", "EmulatedBoard", "FirmwareError"]
+
+REPO = Path(__file__).resolve().parents[2]
+FIRMWARE_DIR = REPO / "firmware" / "detector"
+HARNESS_SOURCE = Path(__file__).with_name("avr_harness.c")
+DEBIAN_PACKAGES = "gcc-avr avr-libc simavr libsimavr-dev libsimavrparts1"
+SIMAVR_INCLUDE = Path("/usr/include/simavr")
+#: ADC full scale (counts) and its reference (mV): the firmware reads against AVcc = 5 V
+ADC_FULL = 1023
+VREF_MV = 5000.0
+
+
+class FirmwareError(RuntimeError):
+    """The firmware or the harness cannot be built or started; the message says why in one line."""
+
+
+def toolchain_problem() -> str | None:
+    """None when the firmware and the harness can be built here, else a one-line reason naming what is
+    missing and the Debian packages that provide it."""
+    need = {"make": "make", "gcc": "gcc", "avr-gcc": "gcc-avr", "avr-objcopy": "binutils-avr"}
+    missing = [f"{exe} ({pkg})" for exe, pkg in need.items() if shutil.which(exe) is None]
+    if not (SIMAVR_INCLUDE / "sim_avr.h").is_file():
+        missing.append(f"simavr's headers {SIMAVR_INCLUDE} (libsimavr-dev)")
+    if missing:
+        return (f"missing {', '.join(missing)}; install the Debian packages: apt-get install {DEBIAN_PACKAGES} "
+                "(scripts/system-packages.sh does it when it can)")
+    return None
+
+
+def _run(cmd: list[str], what: str) -> None:
+    try:
+        r = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    except OSError as e:
+        raise FirmwareError(f"cannot build {what}: {e}") from None
+    if r.returncode != 0:
+        tail = (r.stderr or r.stdout).strip().splitlines()[-5:]
+        raise FirmwareError(f"building {what} failed: {' | '.join(tail)} (Debian packages: {DEBIAN_PACKAGES})")
+
+
+def build_firmware(build_dir: Path | None = None, gains: str | None = None) -> Path:
+    """``make -C firmware/detector`` into ``build_dir`` (default ``firmware/detector/build``); returns the ELF.
+    ``gains``: the amplifier's gains by multiplexer channel, e.g. ``"1,10,100"`` (the Makefile's default else)."""
+    cmd = ["make", "-s", "-C", str(FIRMWARE_DIR)]
+    if build_dir is not None:
+        cmd.append(f"BUILD={Path(build_dir).resolve()}")
+    if gains is not None:
+        cmd.append(f"GAINS={gains}")
+    _run(cmd, "the detector firmware")
+    elf = (Path(build_dir).resolve() if build_dir is not None else FIRMWARE_DIR / "build") / "detector.elf"
+    if not elf.is_file():
+        raise FirmwareError(f"make built no {elf}")
+    return elf
+
+
+def build_harness(build_dir: Path) -> Path:
+    """Compile ``avr_harness.c`` against simavr (gcc) into ``build_dir``; returns the executable. Rebuilt only
+    when the source is newer."""
+    exe = Path(build_dir) / "avr_harness"
+    if exe.is_file() and exe.stat().st_mtime >= HARNESS_SOURCE.stat().st_mtime:
+        return exe
+    Path(build_dir).mkdir(parents=True, exist_ok=True)
+    _run(["gcc", "-O2", "-o", str(exe), str(HARNESS_SOURCE), f"-I{SIMAVR_INCLUDE}", "-lsimavr", "-lsimavrparts",
+          "-lutil", "-lm"], "the simavr harness")
+    return exe
+
+
+def millivolts(counts_per_conversion: float, dithered: bool = True) -> float:
+    """The ADC input (mV) whose conversions read ``counts_per_conversion`` on average: the ADC truncates, so half
+    a count is added (with dither the mean of the truncated readings is then the value; without, its rounding)."""
+    return (counts_per_conversion + 0.5) * VREF_MV / ADC_FULL
+
+
+@dataclass(frozen=True)
+class SyncEvent:
+    """A repeat starts: ``first`` (the first repeat of a reading), ``n`` repeats of ``nconv`` conversions each
+    (integration time ``nconv * 125 us``), gain-select pins ``gsel`` (multiplexer channel), ``source`` pin, the
+    emulated time ``t`` (s since power-up)."""
+
+    first: bool
+    n: int
+    nconv: int
+    gsel: int
+    source: bool
+    t: float
+
+    @property
+    def t_int(self) -> float:
+        """Integration time of this repeat (s)."""
+        return self.nconv * 125e-6
+
+
+def _fields(words: list[str]) -> dict[str, str]:
+    return dict(w.split("=", 1) for w in words if "=" in w)
+
+
+class EmulatedBoard:
+    """One running harness. ``elf``: the firmware; ``harness``: the compiled harness; ``dither_lsb``: rms noise
+    added to every conversion (counts); ``on_sync(event) -> counts per conversion`` (see the module docstring)."""
+
+    def __init__(self, elf: Path, harness: Path, dither_lsb: float = 0.0, seed: int = 0,
+                 on_sync: Callable[[SyncEvent], float] | None = None, start_timeout_s: float = 10.0) -> None:
+        self.on_sync = on_sync
+        self.gsel = 0
+        self.source = True
+        self.events: list[str] = []
+        self.closed = False
+        self.sync_error: BaseException | None = None
+        self._cond = threading.Condition()
+        self._wlock = threading.Lock()
+        self._time_replies: list[float] = []
+        cmd = [str(harness), "--dither", repr(float(dither_lsb)), "--seed", str(int(seed)), str(elf)]
+        try:
+            self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                         text=True, bufsize=1)
+        except OSError as e:
+            raise FirmwareError(f"cannot start the harness {harness}: {e}") from None
+        first = self._first_line(start_timeout_s)
+        parts = first.split()
+        if len(parts) < 2 or parts[0] != "PTY":
+            err = self.proc.stderr.read() if self.proc.poll() is not None else ""  # type: ignore[union-attr]
+            self.close()
+            raise FirmwareError(f"the harness did not start ({first.strip() or err.strip() or 'no output'})")
+        self.port = parts[1]
+        self._reader = threading.Thread(target=self._read_control, name="avr-harness control", daemon=True)
+        self._reader.start()
+        if on_sync is not None:
+            self.send("SYNC 1")
+
+    def _first_line(self, timeout_s: float) -> str:
+        out: list[str] = []
+        t = threading.Thread(target=lambda: out.append(self.proc.stdout.readline()), daemon=True)  # type: ignore[union-attr]
+        t.start()
+        t.join(timeout_s)
+        return out[0] if out else ""
+
+    # -- control channel -----------------------------------------------------------------------------------------
+    def send(self, line: str) -> None:
+        """One control line (see avr_harness.c); ignored once the harness is gone."""
+        with self._wlock:
+            if self.closed or self.proc.poll() is not None:
+                return
+            try:
+                self.proc.stdin.write(line + "\n")  # type: ignore[union-attr]
+                self.proc.stdin.flush()  # type: ignore[union-attr]
+            except (BrokenPipeError, ValueError, OSError):
+                pass
+
+    def _read_control(self) -> None:
+        for line in self.proc.stdout:  # type: ignore[union-attr]
+            words = line.split()
+            if not words:
+                continue
+            kind, f = words[0], _fields(words[1:])
+            if kind == "SYNC":
+                self._sync(f)
+                continue
+            with self._cond:
+                if kind == "PIN":
+                    self.gsel, self.source = int(f["gsel"]), f["source"] == "1"
+                elif kind == "TIME":
+                    self._time_replies.append(float(f["t"]))
+                self.events.append(line.strip())
+                self._cond.notify_all()
+        with self._cond:
+            self.closed = True
+            self._cond.notify_all()
+
+    def _sync(self, f: dict[str, str]) -> None:
+        ev = SyncEvent(f["first"] == "1", int(f["n"]), int(f["nconv"]), int(f["gsel"]), f["source"] == "1",
+                       float(f["t"]))
+        try:
+            counts = self.on_sync(ev) if self.on_sync is not None else 0.0
+        except BaseException as e:  # keep the board running; the caller sees the error
+            log.exception("on_sync failed")
+            self.sync_error = e
+            counts = 0.0
+        self.set_counts(counts)
+        with self._cond:
+            self.events.append(f"SYNC {ev}")
+            self._cond.notify_all()
+
+    # -- the bench's side --------------------------------------------------------------------------------------------
+    def set_adc(self, mv: float) -> None:
+        """The amplifier's output voltage on A0 (mV)."""
+        self.send(f"ADC {mv:.4f}")
+
+    def set_counts(self, counts_per_conversion: float) -> None:
+        """The ADC input that reads ``counts_per_conversion`` on average (beyond full scale: clipped)."""
+        self.set_adc(min(millivolts(counts_per_conversion), 6500.0))
+
+    def set_dither(self, lsb: float) -> None:
+        self.send(f"DITHER {lsb:.6g}")
+
+    def until(self, t: float) -> None:
+        """Let the board's emulated time run on to ``t`` seconds (it idles); bytes from the host wait for it."""
+        self.send(f"UNTIL {t:.9f}")
+
+    def wait_for(self, predicate: Callable[[], bool], timeout_s: float = 5.0) -> bool:
+        """Wait until ``predicate()`` holds (checked on every control line); False at the timeout."""
+        t_end = time.monotonic() + timeout_s
+        with self._cond:
+            while not predicate():
+                left = t_end - time.monotonic()
+                if left <= 0 or self.closed:
+                    return predicate()
+                self._cond.wait(left)
+            return True
+
+    def time(self, timeout_s: float = 5.0) -> float:
+        """The board's emulated time (s since power-up), from the harness."""
+        with self._cond:
+            k = len(self._time_replies)
+        self.send("TIME?")
+        if not self.wait_for(lambda: len(self._time_replies) > k, timeout_s):
+            raise FirmwareError("the harness did not answer TIME?")
+        return self._time_replies[k]
+
+    # -- faults ----------------------------------------------------------------------------------------------------
+    def reset(self) -> None:
+        """Press the reset button: the firmware restarts (banner ``BOOT ... reset=external``), its settings lost."""
+        self.send("RESET")
+
+    def freeze(self, on: bool = True) -> None:
+        """A hung board: it stops executing (and answering) until ``freeze(False)``."""
+        self.send(f"FREEZE {int(on)}")
+
+    def noise(self, data: bytes) -> None:
+        """Bytes the host receives as if from line noise on the board's TX line."""
+        if data:
+            self.send("NOISE " + data.hex())
+
+    def unplug(self) -> None:
+        """Pull the USB cable: the pty closes; the host's reads and writes fail."""
+        self.send("UNPLUG")
+
+    def close(self) -> None:
+        """Stop the harness (idempotent)."""
+        self.send("QUIT")
+        with self._wlock:
+            self.closed = True
+        try:
+            self.proc.stdin.close()  # type: ignore[union-attr]
+        except Exception:
+            pass
+        try:
+            self.proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+        for f in (self.proc.stdout, self.proc.stderr):
+            try:
+                f.close()  # type: ignore[union-attr]
+            except Exception:
+                pass
+
+    def __enter__(self) -> EmulatedBoard:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def default_build_dir() -> Path:
+    """Where gonio-sim builds the harness: ``$XDG_CACHE_HOME/gonio-brdf/firmware`` (or ~/.cache)."""
+    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    return base / "gonio-brdf" / "firmware"
