@@ -68,6 +68,14 @@ def build_parser() -> argparse.ArgumentParser:
                         "10 = ten times faster than real time")
     s.add_argument("--motion", choices=("dynamixel", "serial"), default=None,
                    help="override [bench].motion: which virtual motion hardware to serve")
+    s.add_argument("--detector-firmware", default=os.environ.get("GONIO_SIM_DETECTOR_FIRMWARE") or None,
+                   metavar="ELF",
+                   help="serve the detector with the real firmware (e.g. firmware/detector/build/detector.elf, "
+                        "`make -C firmware/detector`) on an emulated ATmega328P (simavr): its UART is the serial "
+                        "port, its ADC reads the physics (Dynamixel benches, time_scale 0). Default: "
+                        "$GONIO_SIM_DETECTOR_FIRMWARE (so gonio-capture's simulated benches use it)")
+    s.add_argument("--firmware-dither", type=float, default=0.5, metavar="LSB",
+                   help="with --detector-firmware: rms noise of every ADC conversion, in counts (default 0.5)")
     s.add_argument("--log-level", default="info", choices=("debug", "info", "warning", "error"),
                    help="stderr log level (default: info)")
     s.add_argument("--exit-with-parent", action="store_true",
@@ -226,11 +234,25 @@ def _serve(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGINT, _on_signal)
     signal.signal(signal.SIGTERM, _on_signal)
 
-    server = PtyServer(bench)
+    board = None
+    if args.detector_firmware:
+        from simulator.devices.firmware import FirmwareError, start_firmware_detector
+
+        try:
+            board, _ = start_firmware_detector(bench, args.detector_firmware, dither_lsb=args.firmware_dither,
+                                               seed=cfg.sim.seed + 7919 * args.attempt)
+        except (FirmwareError, ValueError, OSError) as e:
+            print(f"gonio-sim: --detector-firmware: {e}", file=sys.stderr)
+            return 2
+    server = PtyServer(bench, names=("dynamixel",) if board is not None else None)
+    paths = server.paths()
+    if board is not None:
+        paths["serial"] = board.port
     try:
-        print(json.dumps(server.paths()), flush=True)
-        log.info("serving %s: %s (motion=%s, detector=%s, seed=%d, attempt=%d, time_scale=%g)", cfg.name,
-                 server.paths(), cfg.motion, cfg.detector.type, cfg.sim.seed, args.attempt, cfg.sim.time_scale)
+        print(json.dumps(paths), flush=True)
+        log.info("serving %s: %s (motion=%s, detector=%s%s, seed=%d, attempt=%d, time_scale=%g)", cfg.name,
+                 paths, cfg.motion, cfg.detector.type, f" on the firmware {args.detector_firmware}" if board else "",
+                 cfg.sim.seed, args.attempt, cfg.sim.time_scale)
         parent = os.getppid()
         while not stop.wait(0.2):
             if args.exit_with_parent and os.getppid() != parent:
@@ -238,6 +260,8 @@ def _serve(args: argparse.Namespace) -> int:
                 break
     finally:
         server.close()
+        if board is not None:
+            board.close()
         log.info("stopped; total simulated time %.6f s; fault counts: dynamixel %s, serial %s, motion %s, "
                  "detector %s", bench.sim_time(), bench.dxl_comm_faults.counts, bench.serial_comm_faults.counts,
                  bench.motion_faults.counts, bench.detector_faults.counts)

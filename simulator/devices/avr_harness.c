@@ -9,8 +9,9 @@
  * "PTY <path>". stdin/stdout are a line-oriented control channel:
  *
  *   out  PTY <path> vref_mv=5000 full=1023   the pty; the ADC reads floor(full * mV / vref_mv), clipped at full
- *   out  PIN gsel=<0..7> source=<0|1>        the gain-select pins PB0..PB2 and the source pin PD7, at start and
- *                                            on every change
+ *   out  PIN gsel=<0..7> source=<0|1> reference=<0|1>
+ *                                            the gain-select pins PB0..PB2, the source pin PD7 and the sample
+ *                                            changer's pin PD6, at start and on every change
  *   out  SYNC first=<0|1> n=<n> nconv=<c> gsel=<g> source=<s> t=<s>
  *                                            (sync mode) a repeat starts (the LED pin PB5 rises): the emulation
  *                                            waits for ADC <mV> (the amplifier's output for this repeat)
@@ -65,7 +66,7 @@ static avr_t *avr;
 static avr_uart_t *uart;
 static uint16_t probe_addr;
 static int master = -1, slave_keep = -1, quit_flag;
-static int sync_mode, waiting_sync, frozen, pins_dirty, last_gsel = -1, last_source = -1;
+static int sync_mode, waiting_sync, frozen, pins_dirty, last_gsel = -1, last_source = -1, last_reference = -1;
 static double adc_mv, dither_lsb;
 static uint64_t rng_state = 0x9e3779b97f4a7c15ULL, until_cycle;
 static uint8_t inbuf[IN_SIZE];
@@ -118,6 +119,7 @@ static uint32_t probe_nconv(void)
 
 static int gsel(void) { return avr->data[0x25] & 0x07; }           /* PORTB */
 static int source(void) { return (avr->data[0x2B] >> 7) & 1; }     /* PORTD */
+static int reference(void) { return (avr->data[0x2B] >> 6) & 1; }
 
 /* --- IRQ callbacks --------------------------------------------------------------------------------------------- */
 static void adc_trigger(struct avr_irq_t *irq, uint32_t value, void *param)
@@ -159,10 +161,19 @@ static void uart_out(struct avr_irq_t *irq, uint32_t value, void *param)
 static void report_pins(void)
 {
     pins_dirty = 0;
-    if (gsel() == last_gsel && source() == last_source) return;
+    if (gsel() == last_gsel && source() == last_source && reference() == last_reference) return;
     last_gsel = gsel();
     last_source = source();
-    say("PIN gsel=%d source=%d", last_gsel, last_source);
+    last_reference = reference();
+    say("PIN gsel=%d source=%d reference=%d", last_gsel, last_source, last_reference);
+}
+
+/* a cycle timer at UNTIL's time: a sleeping core jumps from timer event to timer event, so this one stops it
+ * there exactly (else it would run on to the firmware's next timer interrupt) */
+static avr_cycle_count_t until_reached(avr_t *a, avr_cycle_count_t when, void *param)
+{
+    (void)a; (void)when; (void)param;
+    return 0;
 }
 
 static void sleep_cb(avr_t *a, avr_cycle_count_t how_long)
@@ -208,6 +219,10 @@ static void control_line(char *s)
     } else if (!strcmp(word, "UNTIL") && n == 2) {
         uint64_t c = (uint64_t)(v * FREQ + 0.5);
         if (c > until_cycle) until_cycle = c;
+        if (until_cycle > avr->cycle) {
+            avr_cycle_timer_cancel(avr, until_reached, NULL);
+            avr_cycle_timer_register(avr, until_cycle - avr->cycle, until_reached, NULL);
+        }
     } else if (!strcmp(word, "TIME?")) {
         say("TIME t=%.9f", seconds());
     } else if (!strcmp(word, "RESET")) {
@@ -349,7 +364,8 @@ int main(int argc, char **argv)
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_OUT_TRIGGER), adc_trigger, NULL);
     for (int pin = 0; pin < 3; pin++)
         avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('B'), pin), pin_changed, NULL);
-    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), 7), pin_changed, NULL);
+    for (int pin = 6; pin < 8; pin++)
+        avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), pin), pin_changed, NULL);
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('B'), 5), led_changed, NULL);
 
     char name[256];
@@ -380,6 +396,7 @@ int main(int argc, char **argv)
                 return 1;
             }
             if (idle()) break;
+            if (in_len && avr->cycle >= until_cycle && !uart_fifo_isfull(&uart->input)) break; /* bytes to feed */
         }
     }
     say("BYE quit");

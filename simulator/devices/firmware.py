@@ -29,7 +29,7 @@ from pathlib import Path
 log = logging.getLogger("simulator.firmware")
 
 __all__ = ["FIRMWARE_DIR", "HARNESS_SOURCE", "DEBIAN_PACKAGES", "toolchain_problem", "build_firmware",
-           "build_harness", "millivolts", "SyncEvent", "EmulatedBoard", "FirmwareError"]
+           "build_harness", "millivolts", "SyncEvent", "EmulatedBoard", "FirmwareError", "PhysicsFeed"]
 
 REPO = Path(__file__).resolve().parents[2]
 FIRMWARE_DIR = REPO / "firmware" / "detector"
@@ -68,10 +68,11 @@ def _run(cmd: list[str], what: str) -> None:
         raise FirmwareError(f"building {what} failed: {' | '.join(tail)} (Debian packages: {DEBIAN_PACKAGES})")
 
 
-def build_firmware(build_dir: Path | None = None, gains: str | None = None) -> Path:
+def build_firmware(build_dir: Path | None = None, gains: str | None = None, sample_changer: bool = False) -> Path:
     """``make -C firmware/detector`` into ``build_dir`` (default ``firmware/detector/build``); returns the ELF.
-    ``gains``: the amplifier's gains by multiplexer channel, e.g. ``"1,10,100"`` (the Makefile's default else)."""
-    cmd = ["make", "-s", "-C", str(FIRMWARE_DIR)]
+    ``gains``: the amplifier's gains by multiplexer channel, e.g. ``"1,10,100"`` (the Makefile's default else);
+    ``sample_changer``: the board drives a sample changer on D6 (``SAMPLE REF``/``TARGET``)."""
+    cmd = ["make", "-s", "-C", str(FIRMWARE_DIR), f"SAMPLE_CHANGER={int(sample_changer)}"]
     if build_dir is not None:
         cmd.append(f"BUILD={Path(build_dir).resolve()}")
     if gains is not None:
@@ -133,6 +134,7 @@ class EmulatedBoard:
         self.on_sync = on_sync
         self.gsel = 0
         self.source = True
+        self.reference = False
         self.events: list[str] = []
         self.closed = False
         self.sync_error: BaseException | None = None
@@ -188,6 +190,7 @@ class EmulatedBoard:
             with self._cond:
                 if kind == "PIN":
                     self.gsel, self.source = int(f["gsel"]), f["source"] == "1"
+                    self.reference = f.get("reference") == "1"
                 elif kind == "TIME":
                     self._time_replies.append(float(f["t"]))
                 self.events.append(line.strip())
@@ -289,6 +292,129 @@ class EmulatedBoard:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+class PhysicsFeed:
+    """The bench behind an emulated board: at each repeat (:class:`SyncEvent`) the amplifier's output from the
+    simulator's physics, and one clock for both.
+
+    ``physics`` (:class:`~simulator.world.physics.BenchPhysics`), ``clock`` (fast time), ``arm_angles(t)`` ->
+    (theta_i, theta_o) in degrees, ``lock``: the bench's lock (the Dynamixel port moves the arms meanwhile),
+    ``gains``: the amplifier's gains by multiplexer channel.
+
+    A reading is computed as gonio-sim's own controller does (:meth:`SerialController._read_common`): at its first
+    repeat, all ``n`` repeats at once with the arms at the middle of each repeat, so the noise is drawn in the same
+    order and an all-Python capture with the same seed reads the same counts. Repeat k is then fed as
+    ``counts / nconv`` per conversion (the firmware's sum reads the simulator's count, up to the ADC's
+    quantisation); a repeat the physics clips is fed beyond full scale, so the board reports it saturated.
+
+    Time: the board's clock (emulated cycles) and the simulator's (``clock``) move together: every jump of the
+    simulator's fast time lets the board idle on to it (``UNTIL``), and every repeat moves the simulator's clock
+    on to the board's (its start, then its end), so ``TIME?`` is the bench time of both.
+    """
+
+    def __init__(self, physics, clock, arm_angles: Callable[[float], tuple[float, float]], lock,
+                 gains: tuple[float, ...] | None) -> None:
+        self.physics = physics
+        self.clock = clock
+        self.arm_angles = arm_angles
+        self.lock = lock
+        self.gains = tuple(gains) if gains else (float(physics.detector.gain),)
+        self.board: EmulatedBoard | None = None
+        self._queue: list[tuple[float, bool]] = []
+        self.readings = 0
+
+    def attach(self, board: EmulatedBoard) -> None:
+        """Feed ``board`` (its ``on_sync``) and let it follow the simulator's clock."""
+        self.board = board
+        board.on_sync = self
+        self.clock.on_jump.append(board.until)
+        board.until(self.clock.now())
+        board.send("SYNC 1")
+
+    def __call__(self, ev: SyncEvent) -> float:
+        with self.lock:
+            self.clock.jump_to(ev.t)
+            if ev.first or not self._queue:
+                self._start_reading(ev)
+            counts, clipped = self._queue.pop(0)
+            self.clock.jump_to(ev.t + ev.t_int)
+        if clipped:
+            return ADC_FULL + 1.0
+        return counts / ev.nconv
+
+    def _start_reading(self, ev: SyncEvent) -> None:
+        import numpy as np
+
+        det = self.physics.detector
+        det.gain = self.gains[ev.gsel] if ev.gsel < len(self.gains) else self.gains[-1]
+        det.integration_time_s = ev.t_int
+        if self.board is not None:
+            self.physics.sample = "REF" if self.board.reference else "TARGET"
+        t0 = self.clock.now()
+        times = t0 + (np.arange(ev.n) + 0.5) * ev.t_int
+        angles = np.array([self.arm_angles(float(t)) for t in times])
+        codes, sat = self.physics.read(angles[:, 0], angles[:, 1], source_on=ev.source)
+        self._queue = [(float(c), bool(s)) for c, s in zip(codes[:, 0], sat, strict=True)]
+        self.readings += 1
+
+
+def board_gains(port: str, timeout_s: float = 5.0) -> tuple[float, ...]:
+    """The amplifier's gains the firmware on ``port`` lists (``DETECTOR?``; asked again if a reply is lost)."""
+    import serial
+
+    with serial.Serial(port, 115200, timeout=0.05) as ser:
+        t_end = time.monotonic() + timeout_s
+        while time.monotonic() < t_end:
+            ser.reset_input_buffer()
+            ser.write(b"\nDETECTOR?\n")
+            buf = b""
+            t_try = time.monotonic() + 1.0
+            while time.monotonic() < t_try:
+                buf += ser.read(max(1, ser.in_waiting))
+                lines = buf.split(b"\n")
+                for i, line in enumerate(lines[:-1]):
+                    if line.startswith(b"DETECTOR ") and lines[i + 1] == b"ok":
+                        f = _fields(line.decode("ascii", "replace").split()[1:])
+                        if "gains" in f:
+                            return tuple(float(g) for g in f["gains"].split(","))
+    raise FirmwareError(f"the firmware on {port} did not answer DETECTOR? with its gains")
+
+
+def start_firmware_detector(bench, elf: Path, build_dir: Path | None = None, dither_lsb: float = 0.5,
+                            seed: int = 0) -> tuple[EmulatedBoard, PhysicsFeed]:
+    """Run the firmware ``elf`` as the detector of ``bench`` (a :class:`~simulator.bench.VirtualBench` on a
+    Dynamixel bench in fast time): build the harness (into ``build_dir``, default :func:`default_build_dir`), start
+    the board, check its gains against ``[detector].gains`` and feed it from the bench's physics. Raises
+    :class:`FirmwareError` (a one-line reason) or ValueError for a bench it cannot serve."""
+    cfg = bench.cfg
+    elf = Path(elf)
+    if not elf.is_file():
+        raise FirmwareError(f"{elf}: no such file (build it with: make -C firmware/detector)")
+    if cfg.motion != "dynamixel":
+        raise ValueError("the detector board serves only the detector: it needs a Dynamixel bench "
+                         '([bench].motion = "dynamixel")')
+    if not bench.clock.fast:
+        raise ValueError("the emulated board runs in simulated fast time only ([simulator].time_scale = 0)")
+    if cfg.detector.type != "photodiode":
+        raise ValueError("the detector board reads a photodiode ([detector].type = \"photodiode\")")
+    problem = toolchain_problem()
+    if problem:
+        raise FirmwareError(problem)
+    harness = build_harness(build_dir or default_build_dir())
+    board = EmulatedBoard(elf, harness, dither_lsb=dither_lsb, seed=seed)
+    try:
+        gains = board_gains(board.port)
+        want = cfg.detector.gains
+        if want and tuple(sorted(gains)) != tuple(sorted(want)):
+            raise FirmwareError(f"the firmware's gains {','.join(f'{g:g}' for g in gains)} are not [detector].gains "
+                                f"{','.join(f'{g:g}' for g in want)} (build it with make GAINS=...)")
+        feed = PhysicsFeed(bench.physics, bench.clock, bench.arm_angles, bench.lock, gains)
+        feed.attach(board)
+    except BaseException:
+        board.close()
+        raise
+    return board, feed
 
 
 def default_build_dir() -> Path:

@@ -143,13 +143,16 @@ class PtyPort:
 
 
 class PtyServer:
-    """All pty ports of one bench: ``{"dynamixel": path or None, "serial": path}``."""
+    """All pty ports of one bench: ``{"dynamixel": path or None, "serial": path}``. ``names``: serve only these
+    (``gonio-sim serve --detector-firmware`` leaves the serial port to the emulated board)."""
 
-    def __init__(self, bench: VirtualBench) -> None:
+    def __init__(self, bench: VirtualBench, names: tuple[str, ...] | None = None) -> None:
         self.bench = bench
         self.ports: dict[str, PtyPort] = {}
         try:
             for name in bench.ports:
+                if names is not None and name not in names:
+                    continue
                 self.ports[name] = PtyPort(bench, name).start()
         except Exception:
             self.close()

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 
 
 class SimClock:
@@ -24,6 +25,12 @@ class SimClock:
         self._offset = 0.0
         self._wall0 = time.monotonic()
         self._lock = threading.Lock()
+        #: called with the new time after every jump of fast time (an emulated detector board follows it)
+        self.on_jump: list[Callable[[float], None]] = []
+
+    def _jumped(self) -> None:
+        for f in self.on_jump:
+            f(self._offset)
 
     @property
     def fast(self) -> bool:
@@ -43,6 +50,7 @@ class SimClock:
         if self.fast:
             with self._lock:
                 self._offset += dt
+            self._jumped()
         else:
             time.sleep(dt / self.time_scale)
 
@@ -50,5 +58,7 @@ class SimClock:
         """Fast mode only: move simulated time forward to ``t`` without waiting (no-op in scaled mode)."""
         if self.fast:
             with self._lock:
-                if t > self._offset:
-                    self._offset = t
+                if t <= self._offset:
+                    return
+                self._offset = t
+            self._jumped()

@@ -6,6 +6,8 @@
  *   D8  / PB0  gain select A  \
  *   D9  / PB1  gain select B   > address of the 8:1 analog multiplexer (74HC4051 / CD4051 / ADG708) that puts
  *   D10 / PB2  gain select C  /  one feedback resistor across the TIA: gain index i selects channel i
+ *   D6  / PD6  (built with SAMPLE_CHANGER=1 only) white reference in the beam (high) / sample (low): drives the
+ *              sample changer (a flip-in reference on a solenoid or hobby servo board)
  *   D13 / PB5  on-board LED: lit while a repeat integrates
  *   D0/D1      UART to the USB bridge, 115200 baud 8N1 (U2X)
  */
@@ -47,5 +49,15 @@
 #define LED_PORT PORTB
 #define LED_BIT PB5
 #define ADC_CHANNEL 0
+#define CHANGER_DDR DDRD
+#define CHANGER_PORT PORTD
+#define CHANGER_BIT PD6
+
+/* A sample changer (make SAMPLE_CHANGER=1): SAMPLE REF/TARGET drive D6 and wait CHANGER_SETTLE_MS for it to
+ * move. Without one (the default), SAMPLE answers error:10 and gonio-capture asks the operator to swap. */
+#ifndef SAMPLE_CHANGER
+#define SAMPLE_CHANGER 0
+#endif
+#define CHANGER_SETTLE_MS 300UL
 
 #endif

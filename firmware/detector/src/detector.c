@@ -147,7 +147,34 @@ static void cmd_time(void)
 
 static void cmd_help(void)
 {
-    uart_puts_P(PSTR("HELP DARK DETECTOR? DWELL GAIN GAIN? HELP ID? INT INT? READ RESET STATUS? STOP TIME?\n"));
+    uart_puts_P(PSTR("HELP DARK DETECTOR? DWELL GAIN GAIN? HELP ID? INT INT? READ RESET"));
+    if (SAMPLE_CHANGER) uart_puts_P(PSTR(" SAMPLE SAMPLE?"));
+    uart_puts_P(PSTR(" STATUS? STOP TIME?\n"));
+    ok();
+}
+
+static uint8_t reference_in_beam;
+
+static void cmd_sample(const char *arg)
+{
+    uint8_t ref;
+    if (arg && strcmp_P(arg, PSTR("REF")) == 0) ref = 1;
+    else if (arg && strcmp_P(arg, PSTR("TARGET")) == 0) ref = 0;
+    else {
+        error(E_ARGUMENT);
+        return;
+    }
+    if (ref != reference_in_beam) {
+        set_reference(ref);
+        reference_in_beam = ref;
+        sleep_us(CHANGER_SETTLE_MS * 1000UL);
+    }
+    ok();
+}
+
+static void cmd_sample_q(void)
+{
+    uart_puts_P(reference_in_beam ? PSTR("SAMPLE sample=REF\n") : PSTR("SAMPLE sample=TARGET\n"));
     ok();
 }
 
@@ -308,6 +335,12 @@ static void handle(char *line)
     else if (is(w, PSTR("GAIN?"))) none ? cmd_gain_q() : error(E_ARGUMENT);
     else if (is(w, PSTR("DWELL"))) one ? cmd_dwell(arg) : error(E_ARGUMENT);
     else if (is(w, PSTR("STOP")) || is(w, PSTR("RESET"))) ok(); /* no axes, no alarms */
+    else if (SAMPLE_CHANGER && is(w, PSTR("SAMPLE"))) {
+        if (arg)
+            for (char *p = (char *)arg; *p; p++)
+                if (*p >= 'a' && *p <= 'z') *p -= 'a' - 'A';
+        one ? cmd_sample(arg) : error(E_ARGUMENT);
+    } else if (SAMPLE_CHANGER && is(w, PSTR("SAMPLE?"))) none ? cmd_sample_q() : error(E_ARGUMENT);
     else if (is(w, PSTR("MOVE")) || is(w, PSTR("HOME")) || is(w, PSTR("SAMPLE")) || is(w, PSTR("SAMPLE?")))
         error(E_NOT_AVAILABLE);
     else error(E_UNKNOWN);

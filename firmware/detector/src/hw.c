@@ -215,6 +215,12 @@ void set_gain_index(uint8_t i)
     fw_probe.gain = i;
 }
 
+void set_reference(uint8_t in_beam)
+{
+    if (in_beam) CHANGER_PORT |= _BV(CHANGER_BIT);
+    else CHANGER_PORT &= ~_BV(CHANGER_BIT);
+}
+
 /* --- ADC integration: Timer0 CTC at 8 kHz starts a conversion every 125 us ------------------------------------ */
 static volatile uint32_t adc_sum, adc_to_start, adc_to_finish;
 static volatile uint8_t adc_clip;
@@ -264,6 +270,9 @@ void hw_init(void)
     SOURCE_DDR |= _BV(SOURCE_BIT);
     GAIN_DDR |= GAIN_MASK;
     LED_DDR |= _BV(LED_BIT);
+#if SAMPLE_CHANGER
+    CHANGER_DDR |= _BV(CHANGER_BIT);
+#endif
     set_source(1);
     set_gain_index(0);
 

@@ -38,6 +38,7 @@ void sleep_us(uint32_t us);
 /* pins */
 void set_source(uint8_t on);
 void set_gain_index(uint8_t i);
+void set_reference(uint8_t in_beam);   /* the sample changer's pin */
 
 /* one repeat: sum of nconv conversions, sample period SAMPLE_PERIOD_US; *clipped set if one read 1023 */
 uint32_t integrate(uint32_t nconv, uint8_t *clipped);
