@@ -87,6 +87,10 @@ class SerialLink:
         self.stats = {"commands": 0, "retries": 0, "timeouts": 0, "corrupt": 0}
         self._buf = bytearray()
         self.dead = False
+        #: a start-up banner (``BOOT name=...``, docs/serial-protocol.md) means the board restarted and lost its
+        #: settings: once they are set (:meth:`SerialDetector.connect`) that stops the command; before, it is
+        #: skipped (an Arduino restarts when its port is opened)
+        self.boot_is_fatal = False
         try:
             self.ser = serial.Serial(port, baudrate, timeout=0.02, write_timeout=2.0)
         except (*PORT_ERRORS, ValueError) as e:
@@ -145,6 +149,9 @@ class SerialLink:
                 if lines:
                     raise _Corrupt(f"incomplete reply {lines!r}")
                 raise TimeoutError
+            if "BOOT name=" in line:
+                self._boot(cmd, line)
+                continue
             lines.append(line)
             m = _FINAL.match(line)
             if m:
@@ -171,6 +178,14 @@ class SerialLink:
                     words = [p for p in parts if "=" not in p]
                     continue
             raise _Corrupt(f"unexpected line {line!r} in the reply to {cmd!r}")
+
+    def _boot(self, cmd: str, line: str) -> None:
+        banner = line[line.index("BOOT name="):]
+        if not self.boot_is_fatal:
+            log.info("%s on %s: the board started (%s)", self.name, self.port, banner)
+            return
+        raise DeviceError(f"{self.name} on {self.port}: the board restarted during {cmd!r} ({banner}); its settings "
+                          "(integration time, gain) were lost: resume the capture")
 
     def command(self, cmd: str, expect_s: float = 0.0, check: Callable[[Reply], None] | None = None,
                 busy_ok: bool = False) -> Reply:
@@ -276,7 +291,7 @@ class SerialDetector:
                                   f"{self.n_channels} channels")
         self.saturation = min(self.saturation, float(d["saturation"]))
         if abs(float(d["t_int"]) - self.integration_time_s) > 1e-9 * max(1.0, self.integration_time_s):
-            self.link.command(f"INT {self.integration_time_s:.9g}")
+            self.set_integration_time(self.integration_time_s)  # a board may round it (INT?): believed
         if self.gains:
             if "gains" in d:  # the amplifier lists its gains: the config's must be among them
                 have = _floats(d["gains"])
@@ -288,6 +303,7 @@ class SerialDetector:
                                       "has not")
             self.set_gain(self.start_gain)  # auto-ranging's reference setting (the highest), else the lowest
         self.set_sample("TARGET")
+        self.link.boot_is_fatal = True
 
     def _set_and_read_back(self, command: str, query: str, field: str, value: float) -> float:
         """Send ``command value`` and return the positive value ``query`` reports in ``field`` (a controller
