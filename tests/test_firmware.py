@@ -124,9 +124,15 @@ def test_dark_switches_the_source_off_and_gain_switches_the_multiplexer(board):
         _, dark = read_values(port, "DARK 2")
         _, light = read_values(port, "READ 2")
         assert dark == [2 * NCONV] * 2 and light == [100 * NCONV] * 2
-        assert [ev.source for ev in seen] == [False, False, True, True]
-        assert [ev.first for ev in seen] == [True, False, True, False] and {ev.n for ev in seen} == {2}
+        assert [ev.source for ev in seen[:4]] == [False, False, True, True]
+        assert [ev.first for ev in seen[:4]] == [True, False, True, False] and {ev.n for ev in seen[:4]} == {2}
         assert b.wait_for(lambda: b.source)  # the source is on again between readings
+        assert port.cmd("SOURCE OFF") == ["ok"] and b.wait_for(lambda: not b.source)  # another detector's dark
+        assert port.fields("SOURCE?") == {"source": "OFF"}
+        f, vals = read_values(port, "READ 1")  # a READ with the source off reads dark
+        assert vals == [2 * NCONV] and seen[-1].source is False and not b.source
+        assert port.cmd("source on") == ["ok"] and b.wait_for(lambda: b.source)
+        assert port.cmd("SOURCE MAYBE") == ["error:2"]
         for gain, gsel in ((100, 2), (10000, 4), (1, 0)):
             assert port.cmd(f"GAIN {gain}") == ["ok"]
             assert b.wait_for(lambda gsel=gsel: b.gsel == gsel), (gain, b.events[-3:])

@@ -24,6 +24,7 @@ typedef char gains_fit_the_multiplexer[(N_GAINS >= 1 && N_GAINS <= 8) ? 1 : -1];
 static uint32_t nconv = DEFAULT_NCONV;   /* conversions per repeat */
 static uint8_t gain_index;
 static uint8_t settled;                 /* no source or gain switch since the last reading */
+static uint8_t source_enabled = 1;      /* SOURCE ON/OFF: the pin's state between readings and during READ */
 
 /* --- replies -------------------------------------------------------------------------------------------------- */
 static void ok(void) { uart_puts_P(PSTR("ok\n")); }
@@ -149,7 +150,30 @@ static void cmd_help(void)
 {
     uart_puts_P(PSTR("HELP DARK DETECTOR? DWELL GAIN GAIN? HELP ID? INT INT? READ RESET"));
     if (SAMPLE_CHANGER) uart_puts_P(PSTR(" SAMPLE SAMPLE?"));
-    uart_puts_P(PSTR(" STATUS? STOP TIME?\n"));
+    uart_puts_P(PSTR(" SOURCE SOURCE? STATUS? STOP TIME?\n"));
+    ok();
+}
+
+static void cmd_source(char *arg)
+{
+    for (char *p = arg; p && *p; p++)
+        if (*p >= 'a' && *p <= 'z') *p -= 'a' - 'A';
+    if (arg && strcmp_P(arg, PSTR("ON")) == 0) source_enabled = 1;
+    else if (arg && strcmp_P(arg, PSTR("OFF")) == 0) source_enabled = 0;
+    else {
+        error(E_ARGUMENT);
+        return;
+    }
+    if (fw_probe.source != source_enabled) {
+        set_source(source_enabled);
+        settled = 0;
+    }
+    ok();
+}
+
+static void cmd_source_q(void)
+{
+    uart_puts_P(source_enabled ? PSTR("SOURCE source=ON\n") : PSTR("SOURCE source=OFF\n"));
     ok();
 }
 
@@ -253,8 +277,9 @@ static void cmd_dwell(const char *arg)
 
 /* READ / DARK: the values are sent while they are measured (a reading of 1000 repeats does not fit in RAM), so
  * sat, mean and std follow them on the same line. */
-static void cmd_read(const char *arg, uint8_t source_on)
+static void cmd_read(const char *arg, uint8_t is_read)
 {
+    uint8_t source_on = is_read && source_enabled; /* READ with the source switched off reads dark */
     uint16_t n = arg ? parse_repeats(arg) : DEFAULT_REPEATS;
     if (!n) {
         error(E_ARGUMENT);
@@ -266,7 +291,7 @@ static void cmd_read(const char *arg, uint8_t source_on)
     }
     if (!settled) sleep_us(SETTLE_US);
     settled = 1;
-    uart_puts_P(source_on ? PSTR("READ n=") : PSTR("DARK n="));
+    uart_puts_P(is_read ? PSTR("READ n=") : PSTR("DARK n="));
     uart_put_u64(n);
     uart_puts_P(PSTR(" t_int="));
     uart_put_seconds_us((uint64_t)nconv * SAMPLE_PERIOD_US);
@@ -293,8 +318,8 @@ static void cmd_read(const char *arg, uint8_t source_on)
     uart_puts_P(PSTR(" std="));
     uart_put_fixed(stats_std_milli(&st), 3);
     uart_putc('\n');
-    if (!source_on) {
-        set_source(1); /* the source stays on between readings */
+    if (fw_probe.source != source_enabled) {
+        set_source(source_enabled); /* back to SOURCE's state (on, unless switched off) */
         settled = 0;
     }
     ok();
@@ -334,6 +359,8 @@ static void handle(char *line)
     else if (is(w, PSTR("GAIN"))) one ? cmd_gain(arg) : error(E_ARGUMENT);
     else if (is(w, PSTR("GAIN?"))) none ? cmd_gain_q() : error(E_ARGUMENT);
     else if (is(w, PSTR("DWELL"))) one ? cmd_dwell(arg) : error(E_ARGUMENT);
+    else if (is(w, PSTR("SOURCE"))) one ? cmd_source(argv[1]) : error(E_ARGUMENT);
+    else if (is(w, PSTR("SOURCE?"))) none ? cmd_source_q() : error(E_ARGUMENT);
     else if (is(w, PSTR("STOP")) || is(w, PSTR("RESET"))) ok(); /* no axes, no alarms */
     else if (SAMPLE_CHANGER && is(w, PSTR("SAMPLE"))) {
         if (arg)
