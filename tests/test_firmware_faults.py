@@ -9,18 +9,21 @@ without losing or doubling a sample. Skipped, with the reason, without avr-gcc a
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 import tomli_w
 
 from acquisition.cli import main
-from simulator.bench import VirtualBench
-from simulator.config import config_from_dict
 from simulator.devices import firmware as fw
-from simulator.ports.transports import PtyServer
 from tests.helpers import planned
 from tests.test_acq_support import base_raw, keys, make_raw, read
 
+RIG = Path(__file__).with_name("firmware_rig.py")
 PROBLEM = fw.toolchain_problem()
 pytestmark = pytest.mark.skipif(PROBLEM is not None, reason=f"firmware tests skipped: {PROBLEM}")
 
@@ -41,58 +44,61 @@ def built(tmp_path_factory):
 
 
 class Rig:
-    """One simulated Dynamixel bench in this process, its detector the emulated board; ``fault(board)`` is called
-    at the first repeat of reading number ``at`` (darks and the white reference count)."""
+    """A simulated Dynamixel bench with the emulated board as its detector, in a process of its own
+    (tests/firmware_rig.py); ``fault`` strikes the board at the first repeat of its reading number ``at``."""
 
-    def __init__(self, tmp_path, built, fault, at: int = 16) -> None:
-        self.elf, self.build_dir = built
-        self.tmp = tmp_path
+    def __init__(self, tmp_path, built, fault: str, at: int = 16) -> None:
+        elf, build_dir = built
+        self.tmp, self.runs = tmp_path, 0
         self.raw = make_raw(PLAN)
-        self.bench = VirtualBench(config_from_dict(self.raw, base_dir=tmp_path, source="rig"))
-        self.server = PtyServer(self.bench, names=("dynamixel",))
-        self.fault, self.at, self.readings, self.boards, self.runs = fault, at, 0, [], 0
-        self.plug_in()
+        cfg = tmp_path / "rig.toml"
+        cfg.write_text(tomli_w.dumps(self.raw))
+        self.proc = subprocess.Popen([sys.executable, str(RIG), str(cfg), str(elf), str(build_dir), fault, str(at)],
+                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, bufsize=1)
+        self.ports = self._reply()
+
+    def _reply(self):
+        line = self.proc.stdout.readline()
+        assert line, "the rig stopped"
+        return json.loads(line)
+
+    def ask(self, cmd: str):
+        self.proc.stdin.write(cmd + "\n")
+        return self._reply()
 
     def plug_in(self) -> None:
-        """A (new) board: the first one, or the one plugged in again after the cable was pulled."""
-        board, feed = fw.start_firmware_detector(self.bench, self.elf, build_dir=self.build_dir)
-        self.boards.append(board)
-
-        def on_sync(ev: fw.SyncEvent) -> float:
-            if ev.first:
-                self.readings += 1
-                if self.readings == self.at and self.fault is not None:
-                    self.fault(board)
-            return feed(ev)
-
-        board.on_sync = on_sync
+        """The board plugged in again after the cable was pulled (a new port)."""
+        self.ports.update(self.ask("plug"))
 
     def capture(self, out, resume: bool = False) -> int:
         raw = dict(self.raw)
-        raw["bench"] = {**raw["bench"], "transport": "dynamixel", "dynamixel_port": self.server.paths()["dynamixel"],
-                        "serial_port": self.boards[-1].port}
+        raw["bench"] = {**raw["bench"], "transport": "dynamixel", "dynamixel_port": self.ports["dynamixel"],
+                        "serial_port": self.ports["serial"]}
         self.runs += 1
-        cfg = self.tmp / f"run{self.runs}.toml"
-        cfg.write_text(tomli_w.dumps(raw))
-        self.cfg = cfg
-        return main(["--config", str(cfg), "--out", str(out), "--no-progress"] + (["--resume"] if resume else []))
+        self.cfg = self.tmp / f"run{self.runs}.toml"
+        self.cfg.write_text(tomli_w.dumps(raw))
+        return main(["--config", str(self.cfg), "--out", str(out), "--no-progress"] + (["--resume"] if resume else []))
 
     def parked(self) -> bool:
-        ti, to = self.bench.arm_angles()
+        ti, to = self.ask("angles")
         park = base_raw()["axes"]
         return abs(ti - park["light"]["park_deg"]) < 0.5 and abs(to - park["detector"]["park_deg"]) < 0.5
 
     def close(self) -> None:
-        for b in self.boards:
-            b.close()
-        self.server.close()
+        try:
+            self.proc.stdin.write("quit\n")
+            self.proc.stdin.close()
+            self.proc.wait(timeout=10)
+        except Exception:
+            self.proc.kill()
+            self.proc.wait()
 
 
 @pytest.fixture
 def rig_factory(tmp_path, built):
     rigs = []
 
-    def make(fault, at: int = 16) -> Rig:
+    def make(fault: str, at: int = 16) -> Rig:
         rigs.append(Rig(tmp_path, built, fault, at))
         return rigs[-1]
 
@@ -113,7 +119,6 @@ def stopped_then_resumed(rig: Rig, capsys, tmp_path, expect: str, before_resume=
     assert 0 < n_before < len(planned(rig.cfg))
     if before_resume is not None:
         before_resume()
-    rig.fault = None
     assert rig.capture(out, resume=True) == 0, capsys.readouterr().err
     s = read(out / "slice.csv")  # the reader refuses a sample recorded twice
     assert sorted(keys(s)) == planned(rig.cfg)  # none lost
@@ -121,28 +126,25 @@ def stopped_then_resumed(rig: Rig, capsys, tmp_path, expect: str, before_resume=
 
 
 def test_board_reset_mid_reading_stops_safely_and_resumes(rig_factory, capsys, tmp_path):
-    rig = rig_factory(lambda board: board.reset())
+    rig = rig_factory("reset")
     line = stopped_then_resumed(rig, capsys, tmp_path, "the board restarted")
     assert "BOOT name=gonio-detector" in line and "reset=external" in line
 
 
 def test_pulled_cable_mid_sweep_stops_safely_and_resumes_on_the_board_plugged_in_again(rig_factory, capsys,
                                                                                       tmp_path):
-    rig = rig_factory(lambda board: board.unplug())
+    rig = rig_factory("unplug")
     stopped_then_resumed(rig, capsys, tmp_path, "is the controller still connected?", before_resume=rig.plug_in)
 
 
 def test_silent_board_stops_safely_and_resumes(rig_factory, capsys, tmp_path):
-    rig = rig_factory(lambda board: board.freeze(True))
-    def power_cycle() -> None:  # what the operator does to a hung board (it would run the queued commands else)
-        rig.boards[-1].freeze(False)
-        rig.boards[-1].reset()
-
-    stopped_then_resumed(rig, capsys, tmp_path, "no valid reply", before_resume=power_cycle)
+    rig = rig_factory("freeze")
+    # the operator power-cycles the hung board before resuming
+    stopped_then_resumed(rig, capsys, tmp_path, "no valid reply", before_resume=lambda: rig.ask("thaw"))
 
 
 def test_line_of_noise_is_retried_and_the_capture_completes(rig_factory, capsys, tmp_path):
-    rig = rig_factory(lambda board: board.noise(b"\x15\xfe~#garbage\xff\r\n"))
+    rig = rig_factory("noise")
     out = tmp_path / "out"
     assert rig.capture(out) == 0, capsys.readouterr().err
     assert sorted(keys(read(out / "slice.csv"))) == planned(rig.cfg)
@@ -153,17 +155,12 @@ def test_capture_on_the_firmware_agrees_with_the_python_simulator(rig_factory, t
     """The same sweep, the same seed: on the firmware (10-bit ADC, 80 dithered conversions a repeat) and on the
     Python controller (the same noise draws). The samples differ by the ADC's quantisation only: well within a
     sample's std on average, never by many (a wrong gain, pin or timing would be off by far more)."""
-    rig = rig_factory(None)
+    rig = rig_factory("none")
     assert rig.capture(tmp_path / "fw") == 0, capsys.readouterr().err
     fw_slice = read(tmp_path / "fw" / "slice.csv")
-    py_bench = VirtualBench(config_from_dict(rig.raw, base_dir=tmp_path, source="python"))
-    with PtyServer(py_bench) as server:
-        raw = dict(rig.raw)
-        raw["bench"] = {**raw["bench"], "transport": "dynamixel", **{f"{k}_port": v for k, v in
-                                                                    server.paths().items()}}
-        cfg = tmp_path / "python.toml"
-        cfg.write_text(tomli_w.dumps(raw))
-        assert main(["--config", str(cfg), "--out", str(tmp_path / "py"), "--no-progress"]) == 0
+    cfg = tmp_path / "python.toml"  # gonio-capture starts gonio-sim serve with its Python controller
+    cfg.write_text(tomli_w.dumps({**rig.raw, "bench": {**rig.raw["bench"], "transport": "simulated"}}))
+    assert main(["--config", str(cfg), "--out", str(tmp_path / "py"), "--no-progress"]) == 0
     py_slice = read(tmp_path / "py" / "slice.csv")
     assert keys(fw_slice) == keys(py_slice)
     z = (fw_slice.values[:, 0] - py_slice.values[:, 0]) / py_slice.std[:, 0]

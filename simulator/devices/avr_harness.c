@@ -17,7 +17,9 @@
  *                                            waits for ADC <mV> (the amplifier's output for this repeat)
  *   out  TIME t=<s>                          reply to TIME?: emulated seconds since start
  *   out  BYE <reason>                        the harness stops
- *   in   ADC <mV>                            the voltage on ADC0 (A0), millivolts (to 0.1 mV; 0..6553 mV)
+ *   in   ADC <mV> [<mV> ...]                 the voltage on ADC0 (A0), millivolts (to 0.1 mV; 0..6553 mV); in sync
+ *                                            mode further values are those of the reading's next repeats, set at
+ *                                            their LED edges without a SYNC (one round trip a reading)
  *   in   DITHER <lsb>                        Gaussian noise added to every conversion, rms in ADC counts
  *   in   SYNC 0|1                            off / on: wait for ADC at every repeat
  *   in   UNTIL <s>                           emulated time runs on to at least <s> (the board idles meanwhile;
@@ -60,7 +62,8 @@ DEFINE_FIFO(uint16_t, uart_fifo); /* the accessors of the UART's receive FIFO (d
 #define FREQ 16000000UL
 #define VREF_UNITS 50000U /* AVcc = 5 V in units of 0.1 mV (simavr's ADC inputs are 16-bit values) */
 #define IN_SIZE 4096
-#define CTRL_SIZE 1024
+#define CTRL_SIZE 16384
+#define MAX_QUEUE 1000 /* the protocol's most repeats */
 
 static avr_t *avr;
 static avr_uart_t *uart;
@@ -71,6 +74,8 @@ static double adc_mv, dither_lsb;
 static uint64_t rng_state = 0x9e3779b97f4a7c15ULL, until_cycle;
 static uint8_t inbuf[IN_SIZE];
 static size_t in_len;
+static double queue_mv[MAX_QUEUE];
+static int queue_len, queue_pos;
 static char ctrl[CTRL_SIZE];
 static size_t ctrl_len;
 
@@ -143,6 +148,11 @@ static void led_changed(struct avr_irq_t *irq, uint32_t value, void *param)
 {
     (void)irq; (void)param;
     if (!value || !sync_mode) return;
+    if (!probe8(1) && queue_pos < queue_len) { /* a later repeat of the reading: its value came with the first */
+        adc_mv = queue_mv[queue_pos++];
+        return;
+    }
+    queue_pos = queue_len = 0;
     say("SYNC first=%u n=%u nconv=%u gsel=%d source=%d t=%.9f", probe8(1), probe_n(), probe_nconv(), gsel(),
         source(), seconds());
     waiting_sync = 1;
@@ -211,6 +221,15 @@ static void control_line(char *s)
     if (!strcmp(word, "ADC") && n == 2) {
         adc_mv = v;
         waiting_sync = 0;
+        /* more values: the following repeats of this reading, applied at their LED edges without a wait */
+        char *p = s, *end;
+        strtod(p + 4, &end);
+        queue_pos = queue_len = 0;
+        for (p = end; queue_len < MAX_QUEUE; p = end) {
+            double q = strtod(p, &end);
+            if (end == p) break;
+            queue_mv[queue_len++] = q;
+        }
     } else if (!strcmp(word, "DITHER") && n == 2) {
         dither_lsb = v;
     } else if (!strcmp(word, "SYNC") && n == 2) {
@@ -227,13 +246,16 @@ static void control_line(char *s)
         say("TIME t=%.9f", seconds());
     } else if (!strcmp(word, "RESET")) {
         avr_reset(avr);
-        avr->data[0x54] = 1 << 1; /* MCUSR: EXTRF */
+        avr->data[0x54] = 1 << 1;                  /* MCUSR: EXTRF */
+        in_len = 0;                                /* bytes in flight do not reach a board in reset */
+        uart->input.read = uart->input.write = 0;
+        queue_pos = queue_len = 0;
         waiting_sync = 0;
         pins_dirty = 1;
     } else if (!strcmp(word, "FREEZE") && n == 2) {
         frozen = v != 0;
     } else if (!strcmp(word, "NOISE")) {
-        char hex[CTRL_SIZE];
+        char hex[1001];
         if (sscanf(s, "%*s %1000s", hex) == 1) noise(hex);
     } else if (!strcmp(word, "UNPLUG")) {
         unplug();

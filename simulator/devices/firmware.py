@@ -8,7 +8,8 @@ reports the gain and source pins, and injects faults (reset, a hung board, line 
 
 With ``on_sync``, the emulation stops at the start of every repeat the firmware integrates (its LED pin rises)
 and asks ``on_sync(event)`` for the amplifier's output in counts per conversion (:class:`SyncEvent`): the caller
-computes it from the bench's physics for the arms' positions, the gain and the source pins at that moment.
+computes it from the bench's physics for the arms' positions, the gain and the source pins at that moment. It may
+return a list: the values of this repeat and of the reading's following ones (then set without a stop).
 
 The ADC reads ``floor(1023 * mV / 5000)`` (AVcc reference, 5 V), clipped at 1023; a reading is the sum of its
 conversions. :func:`millivolts` turns a mean count per conversion into the input that gives it on average.
@@ -208,7 +209,10 @@ class EmulatedBoard:
             log.exception("on_sync failed")
             self.sync_error = e
             counts = 0.0
-        self.set_counts(counts)
+        if isinstance(counts, (int, float)):
+            self.set_counts(counts)
+        else:  # this repeat's and the following repeats' values: one round trip a reading
+            self.send("ADC " + " ".join(f"{min(millivolts(c), 6500.0):.4f}" for c in counts))
         with self._cond:
             self.events.append(f"SYNC {ev}")
             self._cond.notify_all()
@@ -308,9 +312,11 @@ class PhysicsFeed:
     ``counts / nconv`` per conversion (the firmware's sum reads the simulator's count, up to the ADC's
     quantisation); a repeat the physics clips is fed beyond full scale, so the board reports it saturated.
 
+    All the reading's values go to the board at its first repeat (one round trip a reading, not one a repeat).
+
     Time: the board's clock (emulated cycles) and the simulator's (``clock``) move together: every jump of the
-    simulator's fast time lets the board idle on to it (``UNTIL``), and every repeat moves the simulator's clock
-    on to the board's (its start, then its end), so ``TIME?`` is the bench time of both.
+    simulator's fast time lets the board idle on to it (``UNTIL``), and every reading moves the simulator's clock
+    on to the board's (its start, then over its repeats), so ``TIME?`` is the bench time of both.
     """
 
     def __init__(self, physics, clock, arm_angles: Callable[[float], tuple[float, float]], lock,
@@ -332,16 +338,16 @@ class PhysicsFeed:
         board.until(self.clock.now())
         board.send("SYNC 1")
 
-    def __call__(self, ev: SyncEvent) -> float:
+    def __call__(self, ev: SyncEvent) -> list[float]:
+        """Counts per conversion of this repeat and the reading's following ones (a clipped repeat beyond full
+        scale); the simulator's clock moves on to the board's, then over the reading."""
         with self.lock:
             self.clock.jump_to(ev.t)
             if ev.first or not self._queue:
                 self._start_reading(ev)
-            counts, clipped = self._queue.pop(0)
-            self.clock.jump_to(ev.t + ev.t_int)
-        if clipped:
-            return ADC_FULL + 1.0
-        return counts / ev.nconv
+            values, self._queue = self._queue, []
+            self.clock.jump_to(ev.t + len(values) * ev.t_int)
+        return [ADC_FULL + 1.0 if clipped else counts / ev.nconv for counts, clipped in values]
 
     def _start_reading(self, ev: SyncEvent) -> None:
         import numpy as np
