@@ -30,8 +30,8 @@ pytestmark = pytest.mark.skipif(PROBLEM is not None, reason=f"firmware tests ski
 #: a short sweep: one incidence, 12 deg steps; short darks and reference
 PLAN = {"plan": {"theta_i_deg": [40.0], "theta_o_step_deg": 12.0, "repeats": 4},
         "detector": {"dark_repeats": 8}, "calibration": {"reference_repeats": 8},
-        "bench": {"serial_timeout_s": 0.6},
-        "motion": {"retries": 6}}  # the Dynamixel SDK's wall-clock deadline misses on a loaded machine: retried
+        "bench": {"serial_timeout_s": 0.5},
+        "motion": {"retries": 12}}  # the Dynamixel SDK's wall-clock deadline misses on a loaded machine: retried
 
 
 @pytest.fixture(scope="module")
