@@ -197,6 +197,9 @@ def _run(args: argparse.Namespace) -> int:
                 return 1
         print(chk.describe(limit=1000))
         from acquisition.optics import footprint_warning
+        from acquisition.ports import describe_ports
+
+        print("\n".join(describe_ports(bench.cfg)) or "ports: the simulator's, made when a capture starts")
 
         warn = footprint_warning(bench.cfg, [p[0] for p in chk.measurable])
         if warn:
@@ -214,6 +217,7 @@ def _run(args: argparse.Namespace) -> int:
     if not args.out:
         print("gonio-capture: --out DIR is required to capture (or use --check)", file=sys.stderr)
         return 2
+    created = not Path(args.out).exists()
     try:
         Path(args.out).mkdir(parents=True, exist_ok=True)
     except OSError as e:
@@ -228,6 +232,9 @@ def _run(args: argparse.Namespace) -> int:
     except (ConfigError, PlanError) as e:
         print(f"gonio-capture: {e}\nnothing was moved.", file=sys.stderr)
         return 2
+    finally:
+        if created and not any(Path(args.out).iterdir()):  # a folder made for a run that wrote nothing
+            Path(args.out).rmdir()
     if args.json:
         print(json.dumps(result_dict(result), sort_keys=True))
     if result.ok and result.exit_code == 0:
