@@ -54,3 +54,72 @@ def test_a_pareto_front_of_one_point_is_drawn():
     assert line.get_marker() not in (None, "", "None", " ") and line.get_markersize() > 0
     assert list(line.get_xdata()) == [7.2]
     plt.close(fig)
+
+
+def test_check_groups_the_unmeasurable_points(capsys):
+    """configs/dynamixel-bench.toml's 68 unmeasurable points: one line per incidence and reason, not 68."""
+    from acquisition.cli import main
+
+    assert main(["--config", str(ROOT / "configs" / "dynamixel-bench.toml"), "--check"]) == 0
+    out = capsys.readouterr().out
+    head, *rest = out.split("\n")
+    assert head == "576 measurable points, 68 not measurable", head
+    listed = [ln for ln in rest if ln.startswith("  ")]
+    assert listed == [f"  theta_i {ti}, theta_o {-ti - 8} to {-ti + 8} (17 points): collision: arms closer than "
+                      "min_separation_deg 8 (at the goals sent, in whole servo units)" for ti in (15, 30, 45, 60)]
+
+
+def test_a_point_at_the_separation_limit_says_where_the_servos_put_it():
+    """45 and -37 deg are 8 deg apart as planned; the servos' whole units put them 7.998 apart: the reason says
+    both, instead of a bare '7.998 deg apart' for whole-degree angles."""
+    from acquisition import Bench
+
+    g = Bench.from_config(ROOT / "configs" / "dynamixel-bench.toml").geometry
+    assert g.reason(45, -37) == ("collision: arms 8 deg apart (7.998 at the goals sent, in whole servo units), "
+                                 "closer than min_separation_deg 8")
+    assert g.reason(30, -30) == "collision: arms 0 deg apart, closer than min_separation_deg 8"
+
+
+def test_a_lone_unmeasurable_point_keeps_its_own_reason():
+    from acquisition.plans.plan import group_unmeasurable
+
+    lines = group_unmeasurable([(30.0, -30.0, "collision: arms 0 deg apart, closer than min_separation_deg 6"),
+                                (30.0, -20.0, "collision: arms 10 deg apart, closer than min_separation_deg 12")],
+                               [(30.0, -25.0)])
+    assert lines == ["(30, -30): collision: arms 0 deg apart, closer than min_separation_deg 6",
+                     "(30, -20): collision: arms 10 deg apart, closer than min_separation_deg 12"]
+
+
+def test_check_with_a_scene_says_what_the_scene_changed(capsys):
+    """glossy-product keeps 2 of the demo's 3 incidences and grows the plan from 243 to 302 points: --check says
+    why (the scene's 1 deg resolution against the plan's 2 deg step) instead of leaving 'restricts' to explain it."""
+    from acquisition.cli import main
+
+    argv = ["--config", str(ROOT / "configs" / "simulated.toml"), "--check", "--scene",
+            str(ROOT / "configs" / "scenes" / "glossy-product.toml")]
+    assert main(argv) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    assert first == ("scene 'glossy-product': incidences 20, 40 of 20, 40, 60; theta_o -75 to 75; step 1 deg, "
+                     "finer than the plan's 2 (the scene's angular_resolution_deg): it adds points: 302 points, "
+                     "more than the plan's 243"), first
+
+
+def test_gonio_sim_check_says_the_config_is_fine():
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "simulator.cli", "check", "--config", "configs/simulated.toml"],
+                       cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and len(r.stdout.splitlines()) == 1 and "ready to serve" in r.stdout, r.stdout
+
+
+def test_a_config_error_is_one_line(tmp_path, capsys):
+    """The README promises one line naming the file, the key and what was expected."""
+    from acquisition.cli import main
+
+    bad = tmp_path / "bad.toml"
+    bad.write_text((ROOT / "configs" / "simulated.toml").read_text(encoding="utf-8").replace(
+        "settle_s = 0.05 ", 'settle_s = "x" ', 1), encoding="utf-8")
+    assert main(["--config", str(bad), "--check"]) == 2
+    err = capsys.readouterr().err
+    assert err == f'gonio-capture: {bad}: [motion].settle_s: expected a number, got "x"; nothing was moved\n', err

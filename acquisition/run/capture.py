@@ -497,7 +497,7 @@ class RunEngine:
                 r.end(Stop.BENCH_FAILURE, f"bench failure: {e}")
             except ConfigError as e:  # the simulator refused its sections of the config, when it was started
                 self._before_motion = True
-                r.end(Stop.CONFIG_REFUSED, f"{e}\nnothing was moved.")
+                r.end(Stop.CONFIG_REFUSED, f"{e}; nothing was moved")
             except PlanError as e:
                 r.end(Stop.PLAN_ERROR, str(e))
             except SampleChanged as e:
