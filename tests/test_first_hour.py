@@ -123,3 +123,26 @@ def test_a_config_error_is_one_line(tmp_path, capsys):
     assert main(["--config", str(bad), "--check"]) == 2
     err = capsys.readouterr().err
     assert err == f'gonio-capture: {bad}: [motion].settle_s: expected a number, got "x"; nothing was moved\n', err
+
+
+@pytest.mark.slow
+def test_the_html_page_is_titled_by_the_material_and_explains_its_expected_error(tmp_path):
+    """The page of examples/data/captures/glossy-red.csv written as m.html: titled 'glossy-red' (the slice's
+    material), not 'm'; its expected errors against the truth come with the sentence that sets them beside the
+    far smaller held-out error."""
+    from reconstruction.cli import main
+
+    src = ROOT / "examples" / "data" / "captures" / "glossy-red.csv"
+    assert main([str(src), "--method", "fit", "--html", str(tmp_path / "m.html"), "--uncertainty",
+                 str(tmp_path / "m-sigma.npy"), "--quiet"]) == 0
+    page = (tmp_path / "m.html").read_text(encoding="utf-8")
+    assert "<title>glossy-red: gonio-brdf report</title>" in page and "<h1>glossy-red</h1>" in page
+    assert "Expected against the truth" in page and "held-out error" in page and "usually far smaller" in page
+
+
+def test_the_expected_errors_sentence_quotes_the_held_out_error():
+    from reconstruction.report.html import _expected_vs_held_out
+
+    text = _expected_vs_held_out({"cross_validation": {"chosen": "fit", "chosen_label": "fit", "scores": [
+        {"method": "fit", "label": "fit", "held_out_relative_rmse_cos": 0.0133}]}})
+    assert "(here 1.33% for fit)" in text and "out of the plane" in text
