@@ -264,9 +264,9 @@ class RunEngine:
                 est = self._estimate(chk, res.existing)
                 self._run_locked(chk, est, res, stale_pid=stale, t_wall0=t_wall0)
             finally:
-                lock.release()
-                if self._unopened:
+                if self._unopened:  # while the lock is held: no other capture has started here yet
                     self._forget_unopened_run()
+                lock.release()
         return self.result
 
     def _forget_unopened_run(self) -> None:
