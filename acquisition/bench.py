@@ -40,8 +40,9 @@ from acquisition.devices.dynamixel import DynamixelAxes
 from acquisition.devices.external import external_detector, external_library
 from acquisition.devices.protocols import Devices, MoveStatus
 from acquisition.devices.serial_link import SerialAxes, SerialDetector, SerialLink
-from acquisition.errors import CommError, ConfigError, DeviceError, SaturationWarning
+from acquisition.errors import CommError, ConfigError, DeviceError, PortError, SaturationWarning
 from acquisition.plans.plan import Geometry, Plan, PlanCheck, Point, Reason, load_scene
+from acquisition.ports import name_the_key
 
 log = logging.getLogger("acquisition.bench")
 
@@ -304,6 +305,9 @@ class Bench:
             self._wall0 = time.monotonic()
             log.info("bench %r open: transport %s, motion %s, detector %s (%d channel(s))", b.name, b.transport,
                      b.motion, self.detector.type, len(self.detector.channels))
+        except PortError as e:  # a port that cannot be opened: which key of the bench file names it
+            self.close()
+            raise name_the_key(e, cfg) from None
         except BaseException:
             self.close()
             raise

@@ -57,7 +57,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true",
                    help="with --resume: go on although the last recorded points, measured again first, do not read "
                         "as recorded (another sample on purpose; recorded in capture.json)")
-    p.add_argument("--scene", help="scene file restricting the plan (configs/scenes/*.toml)")
+    p.add_argument("--scene", help="scene file the plan is fitted to (configs/scenes/*.toml): its ranges limit the "
+                                   "plan, its angular resolution sets the step (a finer one adds points)")
     p.add_argument("--check", action="store_true",
                    help="validate the config (on a simulated bench also its [simulator] sections, through "
                         "`gonio-sim check`) and the plan, print the points and time estimate, move nothing")
@@ -202,7 +203,7 @@ def _run(args: argparse.Namespace) -> int:
     except (ConfigError, PlanError) as e:
         if sim_check is not None:
             sim_check.cancel()
-        print(f"gonio-capture: {e}\nnothing was moved.", file=sys.stderr)
+        print(f"gonio-capture: {e}; nothing was moved", file=sys.stderr)
         return 2
     except CommError as e:
         print(f"gonio-capture: {e}", file=sys.stderr)
@@ -215,7 +216,7 @@ def _run(args: argparse.Namespace) -> int:
             try:
                 sim_check.result()
             except ConfigError as e:
-                print(f"gonio-capture: {e}\nnothing was moved.", file=sys.stderr)
+                print(f"gonio-capture: {e}; nothing was moved", file=sys.stderr)
                 return 2
             except CommError as e:
                 print(f"gonio-capture: {e}", file=sys.stderr)
@@ -226,10 +227,17 @@ def _run(args: argparse.Namespace) -> int:
             try:  # the detector's library (seabreeze, pyvisa) is installed: the capture will need it
                 external_library(bench.cfg)
             except ConfigError as e:
-                print(f"gonio-capture: {e}\nnothing was moved.", file=sys.stderr)
+                print(f"gonio-capture: {e}; nothing was moved", file=sys.stderr)
                 return 2
+        if args.scene:
+            from acquisition.plans.plan import scene_changes
+
+            print(scene_changes(bench.plan(), plan))
         print(chk.describe(limit=1000))
         from acquisition.optics import footprint_warning
+        from acquisition.ports import describe_ports
+
+        print("\n".join(describe_ports(bench.cfg)) or "ports: the simulator's, made when a capture starts")
 
         warn = footprint_warning(bench.cfg, [p[0] for p in chk.measurable])
         if warn:
@@ -247,6 +255,7 @@ def _run(args: argparse.Namespace) -> int:
     if not args.out:
         print("gonio-capture: --out DIR is required to capture (or use --check)", file=sys.stderr)
         return 2
+    created = not Path(args.out).exists()
     try:
         Path(args.out).mkdir(parents=True, exist_ok=True)
     except OSError as e:
@@ -260,11 +269,13 @@ def _run(args: argparse.Namespace) -> int:
         print(f"gonio-capture: {e}", file=sys.stderr)
         return 2
     except (ConfigError, PlanError) as e:
-        print(f"gonio-capture: {e}\nnothing was moved.", file=sys.stderr)
+        print(f"gonio-capture: {e}; nothing was moved", file=sys.stderr)
         return 2
     finally:
         if view is not None:
             view.stop()  # the live view ends with the capture
+        if created and not any(Path(args.out).iterdir()):  # a folder made for a run that wrote nothing
+            Path(args.out).rmdir()
     if args.json:
         print(json.dumps(result_dict(result), sort_keys=True))
     if result.ok and result.exit_code == 0:

@@ -33,6 +33,31 @@ class CommError(AcquisitionError):
     the message names the device and the failure."""
 
 
+class PortError(CommError):
+    """A port cannot be opened (it does not exist, is busy, or may not be opened by this user): raised when a bench
+    opens, before anything moves. ``port`` names it, ``reason`` says why in a few words (:func:`port_reason`)."""
+
+    def __init__(self, message: str, port: str, reason: str) -> None:
+        super().__init__(message)
+        self.port = port
+        self.reason = reason
+
+
+def port_reason(e: BaseException) -> str:
+    """Why opening a port failed, in a few words: the OS's reason (pyserial's message repeats the port twice)."""
+    import errno
+    import os
+
+    code = getattr(e, "errno", None)
+    if not isinstance(code, int):
+        text = str(e).strip()
+        return text or type(e).__name__
+    hints = {errno.ENOENT: "; is the adapter plugged in, and is this its name?",
+             errno.EACCES: "; the user needs access to it (Linux: the dialout group)",
+             errno.EBUSY: "; another program has it open"}
+    return f"{os.strerror(code).lower()}{hints.get(code, '')}"
+
+
 class DeviceError(AcquisitionError):
     """A device refused a command or reported a fault (hardware error, alarm, a goal not reached)."""
 

@@ -3,18 +3,31 @@
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any, NoReturn
 
-__all__ = ["OneLineParser", "plain_warnings"]
+__all__ = ["OneLineParser", "plain_warnings", "plain_text"]
+
+_ROLE = re.compile(r":(?:py:)?(?:func|class|mod|meth|data|attr|obj|exc):`~?([^`<]*?)(?:\s*<[^>]*>)?`")
+
+
+def plain_text(text: str) -> str:
+    """reST as a terminal shows it: ``code`` and :func:`roles` as their plain text (a ``~`` role as its last
+    name), so a docstring can be a command's ``--help``."""
+    text = _ROLE.sub(lambda m: m.group(1), text)
+    return re.sub(r"``([^`]+)``", r"\1", text)
 
 
 class OneLineParser(argparse.ArgumentParser):
     """An ArgumentParser whose usage errors are one line naming the problem and pointing at ``--help`` (exit 2),
-    instead of the whole usage block."""
+    instead of the whole usage block; its description may be reST (a module docstring): it is shown plain."""
+
+    def __init__(self, *args: Any, description: str | None = None, **kwargs: Any) -> None:
+        super().__init__(*args, description=plain_text(description) if description else description, **kwargs)
 
     def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -214,6 +215,9 @@ def _to_working(job: Job, loaded: Any, steps: _Steps, drawer: Any) -> tuple[Slic
     except ReconstructionError as e:  # e.g. spectral channels outside the observer: say which input
         raise ReconstructionError(f"{', '.join(loaded.files)}: {e}") from None
     steps.done("colour", t0)
+    name = working.meta.get("material") or material_of(loaded.files)
+    if name and "material" not in working.meta:  # the merged inputs keep no metadata: the name is the files'
+        working = replace(working, meta={**working.meta, "material": name})
     if job.html:  # the page's figure of the samples alone, drawn by its child while they are reconstructed
         from reconstruction.report.html import draw_polar_figure
 
@@ -456,6 +460,28 @@ def _assess(job: Job, rep: dict[str, Any], working: Slice, rec: Reconstruction, 
                                       sigma_now=sg, f_grid=f_grid, scene=opts.scene)
         done("advice", t0)
     return sigma
+
+
+def material_of(files: list[str]) -> str | None:
+    """The material the input slice files name in their metadata (``# meta: {"material": ...}``), when they all
+    name the same one; else None."""
+    import json
+
+    names = set()
+    for f in files:
+        try:
+            with open(f, encoding="utf-8", errors="replace") as fh:
+                head = [fh.readline(), fh.readline()]
+        except OSError:
+            return None
+        if not (head[0].startswith("# gonio-brdf slice") and head[1].startswith("# meta: ")):
+            return None
+        try:
+            name = json.loads(head[1][len("# meta: "):]).get("material")
+        except (ValueError, AttributeError):
+            return None
+        names.add(name if isinstance(name, str) and name else None)
+    return names.pop() if len(names) == 1 else None
 
 
 def _name(job: Job, working: Slice) -> str:

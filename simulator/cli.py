@@ -4,9 +4,9 @@
 with the port paths on stdout (``{"dynamixel": "/dev/pts/5", "serial": "/dev/pts/6"}``; ``dynamixel`` is null on
 a stepper bench) and serves until SIGINT/SIGTERM, then exits 0. Logs go to stderr.
 
-``gonio-sim check --config FILE`` validates the file as ``serve`` would (without opening any port): silent with
-exit status 0 when it is fine, else one line naming the file and the key on stderr and exit status 2 (which is
-also ``serve``'s status for a bad config). ``gonio-capture --check`` runs it for simulated benches.
+``gonio-sim check --config FILE`` validates the file as ``serve`` would (without opening any port): one line on
+stdout and exit status 0 when it is fine, else one line naming the file and the key on stderr and exit status 2
+(which is also ``serve``'s status for a bad config). ``gonio-capture --check`` runs it for simulated benches.
 """
 
 from __future__ import annotations
@@ -88,7 +88,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="validate a bench config as serve would, without opening any port",
         description="Validate the config as `gonio-sim serve` would ([simulator], [simulator.faults], "
                     "[simulator.spectrometer], the keys it reads from the other sections, the material), without "
-                    "opening any port. Prints nothing and exits 0 when the config is fine; otherwise prints one "
+                    "opening any port. Prints one line and exits 0 when the config is fine; otherwise prints one "
                     "line naming the file and the key and exits 2.",
     )
     c.add_argument("--config", required=True, help="bench config TOML (e.g. configs/simulated.toml)")
@@ -209,10 +209,12 @@ def _load_bench(config: str, seed: int | None = None, time_scale: float | None =
 
 def _check(args: argparse.Namespace) -> int:
     try:
-        _load_bench(args.config)
+        cfg, _ = _load_bench(args.config)
     except ValueError as e:
         print(f"gonio-sim: {e}", file=sys.stderr)
         return 2
+    name = cfg.material.get("name") or "unnamed"
+    print(f"gonio-sim: {args.config}: ready to serve ({cfg.motion} motion, material {name!r}); nothing opened")
     return 0
 
 

@@ -439,6 +439,15 @@ def write_markdown(path: Path, rows: Sequence[dict[str, Any]], title: str, comma
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
 
 
+def draw_front(ax: Any, front: Sequence[dict[str, Any]]) -> Any:
+    """The Pareto front on ``ax``: a step line through its points, each ringed, so that a front of one point (a
+    step of no length) shows as well. Returns the line."""
+    (line,) = ax.step([float(r["capture_time_s"]) for r in front],
+                      [max(float(r["rel_rmse_cos"]), 1e-4) for r in front], where="post", color="k", lw=1,
+                      marker="o", markersize=9, markerfacecolor="none", markeredgewidth=1.0, label="Pareto front")
+    return line
+
+
 def write_plot(path: Path, rows: Sequence[dict[str, Any]], title: str) -> None:
     """Error against capture time, one panel per material, one marker per method, Pareto front drawn."""
     import matplotlib
@@ -461,9 +470,7 @@ def write_plot(path: Path, rows: Sequence[dict[str, Any]], title: str) -> None:
             pts = [r for r in mr if r["method"] == method]
             ax.scatter([float(r["capture_time_s"]) for r in pts], [max(float(r["rel_rmse_cos"]), 1e-4) for r in pts],
                        marker=markers.get(method, "x"), label=method, alpha=0.7, s=22)
-        front = pareto_front(mr)
-        ax.step([float(r["capture_time_s"]) for r in front], [max(float(r["rel_rmse_cos"]), 1e-4) for r in front],
-                where="post", color="k", lw=1, label="Pareto front")
+        draw_front(ax, pareto_front(mr))
         for b in BUDGETS:
             ax.axhline(b, color="grey", lw=0.5, ls=":")
         ax.set_xscale("log")

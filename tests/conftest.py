@@ -11,7 +11,7 @@ import pytest
 import tomli_w
 
 from acquisition.bench import SimulatorProcess
-from tests import helpers
+from tests import helpers, worktree
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -121,9 +121,9 @@ def pytest_configure(config: pytest.Config) -> None:
 
 
 #: the files whose cases take longest (tens of seconds each on 2 cores), started first
-LONGEST_FIRST = ("tests/test_hostile_inputs.py", "tests/test_prior.py", "tests/test_fault_storms.py",
-                 "tests/test_readme.py", "tests/test_study.py", "tests/test_acq_integrity.py",
-                 "tests/test_htmlreport.py")
+LONGEST_FIRST = ("tests/test_tour.py", "tests/test_hostile_inputs.py", "tests/test_prior.py",
+                 "tests/test_fault_storms.py", "tests/test_readme.py", "tests/test_study.py",
+                 "tests/test_acq_integrity.py", "tests/test_htmlreport.py")
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
@@ -137,3 +137,37 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         return (0, LONGEST_FIRST.index(f)) if f in LONGEST_FIRST else (1 if f in slow_files else 2, 0)
 
     items.sort(key=rank)
+
+
+# --- tests write only to temporary folders ---------------------------------------------------------------------------
+
+_WORKTREE = pytest.StashKey[dict]()
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """Note what the working tree holds (tests/worktree.py), in the controlling process only."""
+    if not hasattr(session.config, "workerinput"):
+        session.config.stash[_WORKTREE] = {"before": worktree.snapshot(REPO), "left": []}
+
+
+def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    """Fail the session if its tests left files in the working tree (or changed committed ones): tests write only
+    to temporary folders. Only after a whole run (a selection of tests or ``-x`` may be cut short, yet it is
+    checked too: what it wrote, it wrote)."""
+    state = session.config.stash.get(_WORKTREE, None)
+    if state is None or state["before"] is None:
+        return
+    after = worktree.snapshot(REPO)
+    state["left"] = worktree.left_behind(state["before"], after or {})
+    if state["left"] and session.exitstatus == pytest.ExitCode.OK:
+        session.exitstatus = pytest.ExitCode.TESTS_FAILED
+
+
+def pytest_terminal_summary(terminalreporter: Any, exitstatus: int, config: pytest.Config) -> None:
+    state = config.stash.get(_WORKTREE, None)
+    if state and state["left"]:
+        shown = state["left"][:20]
+        more = f"\n  ... and {len(state['left']) - 20} more" if len(state["left"]) > 20 else ""
+        terminalreporter.section("files left in the working tree", sep="=", red=True, bold=True)
+        terminalreporter.line("the tests wrote into the repository (tests write only to temporary folders):\n  "
+                              + "\n  ".join(shown) + more, red=True)

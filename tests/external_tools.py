@@ -1,5 +1,6 @@
 """The real tools the principled-material exporters are checked with, installed on first use (import as
-``tests.external_tools``; never skipped: a tool that cannot be installed fails the test with the reason).
+``tests.external_tools``; never skipped unless asked: a tool that cannot be installed fails the test with the
+reason, and ``GONIO_TESTS_NO_EXTERNAL=1`` (:data:`NO_EXTERNAL`) skips the tests that need one, installing nothing).
 
 - Blender as a Python module (``bpy``): the builds for Python 3.11 (Blender 4.2 to 5.0) require numpy < 2, and
   colour-science (a dependency of gonio-brdf) requires numpy >= 2, so bpy cannot live in the project's
@@ -33,6 +34,16 @@ GLTF_VALIDATOR = "gltf-validator@2.0.0-dev.3.10"
 #: where the tools are built (read once, at import: some tests point XDG_CACHE_HOME at a fresh folder)
 TOOLS = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "gonio-brdf-tests"
 _PY = f"py{sys.version_info.major}.{sys.version_info.minor}"
+#: the environment variable that skips the tests needing these tools (set to 1) instead of installing them
+NO_EXTERNAL = "GONIO_TESTS_NO_EXTERNAL"
+
+
+def _skip_if_not_wanted(tool: str) -> None:
+    """Skip the calling test, with a plain reason, when :data:`NO_EXTERNAL` is set to anything but 0 / empty."""
+    if os.environ.get(NO_EXTERNAL, "").strip() not in ("", "0"):
+        import pytest
+
+        pytest.skip(f"{NO_EXTERNAL}={os.environ[NO_EXTERNAL]}: {tool} is not installed (unset it to test with it)")
 
 
 @contextmanager
@@ -57,6 +68,7 @@ def blender_python() -> str:
     given = os.environ.get("GONIO_BLENDER_PYTHON")
     if given:
         return given
+    _skip_if_not_wanted(f"Blender's bpy ({BPY_REQUIREMENT}, about 950 MB)")
     env = TOOLS / f"blender-{_PY}-{BPY_REQUIREMENT.replace('>=', '-').replace(',<', '-')}"
     py = env / "bin" / "python"
     with _locked("blender"):
@@ -73,6 +85,7 @@ def blender_python() -> str:
 
 def gltf_validator() -> tuple[str, Path]:
     """(node, the gltf-validator package folder), installed on first use."""
+    _skip_if_not_wanted(f"the Khronos glTF validator (npm {GLTF_VALIDATOR})")
     node, npm = shutil.which("node"), shutil.which("npm")
     if not node or not npm:
         raise RuntimeError("the glTF validator runs on Node.js: install node and npm (Debian: apt-get install "

@@ -172,7 +172,8 @@ def test_cli_strict_plan_rejects_blind_spot(tmp_path, capsys):
 def test_cli_check_lists_unmeasurable_points(tmp_path, capsys):
     assert main(["--config", str(REPO / "configs" / "simulated.toml"), "--check"]) == 0
     out = capsys.readouterr().out
-    assert "not measurable" in out and "(40, -40): collision" in out and "naive order" in out
+    assert "not measurable" in out and "theta_i 40, theta_o -46 to -34 (7 points): collision" in out, out
+    assert "naive order" in out
 
 
 @pytest.mark.parametrize("over, where, what", [

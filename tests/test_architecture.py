@@ -94,7 +94,7 @@ def import_cycles(package: str) -> list[list[str]]:
     import-linter uses, reads them all); imports of other packages are left out."""
     import grimp
 
-    graph = grimp.build_graph(package, include_external_packages=False)
+    graph = grimp.build_graph(package, include_external_packages=False, cache_dir=None)  # no .grimp_cache in the tree
     modules = {m for m in graph.modules if m == package or m.startswith(package + ".")}
     edges = {m: sorted(i for i in graph.find_modules_directly_imported_by(m) if i in modules) for m in modules}
     # Tarjan's strongly connected components, iteratively (no recursion limit on a deep chain)
@@ -142,7 +142,7 @@ def describe_cycle(package: str, component: list[str]) -> str:
     with its line numbers."""
     import grimp
 
-    graph = grimp.build_graph(package, include_external_packages=False)
+    graph = grimp.build_graph(package, include_external_packages=False, cache_dir=None)  # no .grimp_cache in the tree
     start, chain = component[0], component
     for m in component[1:]:
         back = graph.find_shortest_chain(importer=m, imported=start)
@@ -208,7 +208,7 @@ def test_reconstruction_imports_only_downwards():
     pipeline and the command line knows the pipeline."""
     import grimp
 
-    graph = grimp.build_graph("reconstruction", include_external_packages=False)
+    graph = grimp.build_graph("reconstruction", include_external_packages=False, cache_dir=None)
     unplaced = sorted(m for m in graph.modules if m != "reconstruction" and _layer_of(m) is None)
     assert unplaced == [], f"modules in no layer (add them to LAYERS and docs/architecture.md): {unplaced}"
     upward = []

@@ -2,7 +2,8 @@
 (load + validate against the standard data libraries), glTF files by ``pygltflib`` and the Khronos validator
 (npm ``gltf-validator`` on node), Blender scripts by Blender itself (``bpy``: the script runs, and a Cycles render
 of the sphere under the same camera and lights as reconstruction.core.render agrees with our render of the
-fitted material). The tools are installed on first use (tests/external_tools.py); none is ever skipped."""
+fitted material). The tools are installed on first use (tests/external_tools.py); none is ever skipped, unless
+``GONIO_TESTS_NO_EXTERNAL=1`` asks for a run without bpy and the glTF validator."""
 
 import json
 import subprocess
@@ -139,3 +140,18 @@ def test_blender_cycles_render_agrees_with_ours(tmp_path):
         # and not by chance: a material with the coat left out is far from Cycles' render
         plain = render_sphere(PrincipledParams(**{**fit.params.__dict__, "coat_weight": 0.0}).eval, size, name)
         assert image_relative_rmse(img, plain, mask) > 2 * err
+
+
+def test_no_external_tools_skips_with_a_plain_reason(monkeypatch):
+    """GONIO_TESTS_NO_EXTERNAL=1 (the README's way to run the suite without bpy and the validator) skips, naming
+    the tool, and installs nothing; the README says so."""
+    from tests import external_tools
+
+    monkeypatch.setenv(external_tools.NO_EXTERNAL, "1")
+    monkeypatch.delenv("GONIO_BLENDER_PYTHON", raising=False)
+    monkeypatch.setattr(external_tools, "_run", lambda *a: pytest.fail("installed a tool although asked not to"))
+    for tool, what in ((external_tools.blender_python, "bpy"), (external_tools.gltf_validator, "glTF validator")):
+        with pytest.raises(pytest.skip.Exception, match=f"GONIO_TESTS_NO_EXTERNAL=1: .*{what}"):
+            tool()
+    readme = (REPO_TESTS.parent / "README.md").read_text(encoding="utf-8")
+    assert f"{external_tools.NO_EXTERNAL}=1" in readme and "950 MB" in readme

@@ -1,7 +1,8 @@
 """The README as a user meets it: its snippets and command lines run, the figures it quotes from the demo are what
 the demo prints, and its links (and the docs pages' links) lead somewhere.
 
-* The Python snippets run as written (from the repository root, as a user would paste them).
+* The README has Python snippets (tests/test_tour.py runs them, with the tour's command lines, in a temporary
+  folder).
 * The demo (the README's first command: the capture on the simulated bench, then ``gonio-reconstruct --method
   auto``) is run into a temporary folder, twice for the capture, which must give the same samples (the simulator
   is seeded and its time jumps). Every figure of the README's demo paragraph, the table's size and the ``--check``
@@ -10,12 +11,9 @@ the demo prints, and its links (and the docs pages' links) lead somewhere.
   failure lists every figure that differs with its new value, so a behaviour change only asks for the README's
   numbers to be updated; a number in the demo paragraph that no check covers is a failure too.
 * Every ``gonio-*`` command line of the README's and the docs pages' ``sh`` blocks is accepted by its command's
-  parser (and, for ``gonio-reconstruct``, by its rules on which arguments go together). Those that are cheap are
-  also run: every ``--check``, ``gonio-sim check``, the README's reconstructions of ``out/demo/slice.csv`` (run on
-  the demo's output) and its ``--resume`` of ``out/demo`` (run on a copy of the finished demo capture). The test
-  ids say which: ``run:`` or ``parse:``. Not run: ``gonio-sim serve`` (serves until stopped), ``gonio-sim bench``
-  (minutes to hours), captures into other folders, and commands on files the repository does not have
-  (``other.csv``, ``captures/``, ``measured.bsdf``).
+  parser (and, for ``gonio-reconstruct``, by its rules on which arguments go together). The README's are run by
+  tests/test_tour.py; of the docs pages', the cheap ones are run here: every ``--check`` and ``gonio-sim
+  check``. The test ids say which: ``run:`` or ``parse:``.
 
 After a change of behaviour moves a demo figure, the failure names each figure that differs and the value the demo
 prints now: update the README's number (and nothing else) to that value.
@@ -27,7 +25,6 @@ import json
 import math
 import re
 import shlex
-import shutil
 import subprocess
 import sys
 from collections.abc import Callable
@@ -91,14 +88,6 @@ def test_the_readme_has_python_snippets():
     assert len(BLOCKS) >= 2
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("k", range(len(BLOCKS)))
-def test_readme_python_snippet_runs(k):
-    (ROOT / "out").mkdir(exist_ok=True)  # the snippets write under out/, which .gitignore covers
-    r = subprocess.run([sys.executable, "-c", BLOCKS[k]], cwd=ROOT, capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, f"README python block {k + 1} failed:\n{BLOCKS[k]}\n{r.stderr[-2000:]}"
-
-
 def test_the_readme_test_command_is_the_one_ci_runs():
     ci = [ln for ln in (ROOT / ".ci" / "run").read_text(encoding="utf-8").splitlines()
           if ln.strip() and not ln.startswith("#") and not ln.startswith(("set ", "cd "))]
@@ -155,11 +144,21 @@ def run_demo(tmp: Path) -> Demo:
 
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory, request) -> Demo:
-    """The demo, run once per test session: under pytest-xdist the first worker runs it into the session's shared
-    folder (under an flock) and the others read what it printed."""
+    """The demo, run once per test session (:func:`shared_demo`)."""
+    return shared_demo(tmp_path_factory, request)
+
+
+_RUN: dict[str, Demo] = {}
+
+
+def shared_demo(tmp_path_factory: pytest.TempPathFactory, request: pytest.FixtureRequest) -> Demo:
+    """The demo, run once per test session (tests/test_tour.py uses it too): under pytest-xdist the first worker
+    runs it into the session's shared folder (under an flock) and the others read what it printed."""
     worker = getattr(request.config, "workerinput", None)
     if worker is None:
-        return run_demo(tmp_path_factory.mktemp("readme-demo"))
+        if "demo" not in _RUN:  # one run for the modules that use it
+            _RUN["demo"] = run_demo(tmp_path_factory.mktemp("readme-demo"))
+        return _RUN["demo"]
     import fcntl
 
     shared = tmp_path_factory.getbasetemp().parent / "readme-demo"  # the session's folder, shared by its workers
@@ -314,15 +313,14 @@ COMMANDS = every_command()
 
 
 def how(source: str, argv: list[str]) -> str:
-    """"run" when the test runs the line (it is cheap and its inputs exist), else "parse"."""
+    """"run" when a test runs the line (the README's tour: tests/test_tour.py; a docs page's line when it is
+    cheap: every ``--check`` and ``gonio-sim check``), else "parse"."""
     name, args = argv[0], argv[1:]
+    if source == "README.md":
+        return "run"
     if name == "gonio-capture" and "--check" in args:
         return "run"
     if name == "gonio-sim" and args[:1] == ["check"]:
-        return "run"
-    if source == "README.md" and name == "gonio-reconstruct" and args[:1] == ["out/demo/slice.csv"]:
-        return "run"
-    if source == "README.md" and name == "gonio-capture" and "--resume" in args and "out/demo" in args:
         return "run"
     return "parse"
 
@@ -349,30 +347,11 @@ def test_the_command_line_parses(source, argv, capsys):
         assert ok, f"{source}: `{shlex.join(argv)}`: gonio-reconstruct needs INPUT and an output, or --batch alone"
 
 
-@pytest.mark.parametrize(("source", "argv"), [c for c in COMMANDS if how(*c) == "run" and c[1][0] != "gonio-reconstruct"
-                                              and "--resume" not in c[1]],
+@pytest.mark.parametrize(("source", "argv"), [c for c in COMMANDS if how(*c) == "run" and c[0] != "README.md"],
                          ids=lambda v: shlex.join(v)[:80] if isinstance(v, list) else v)
 def test_the_cheap_command_line_runs(source, argv):
     r = run(argv, ROOT, timeout=120)
     assert r.returncode == 0, f"{source}: `{shlex.join(argv)}` exits {r.returncode}:\n{r.stderr[-2000:]}"
-
-
-@pytest.mark.slow
-def test_the_readme_demo_command_lines_run_on_the_demo(demo, tmp_path):
-    """The README's reconstructions of out/demo/slice.csv and its --resume of out/demo, in a folder where out/demo
-    is the demo's output (a copy, for the resume) and configs/ the repository's."""
-    lines = [c for s, c in COMMANDS if s == "README.md" and how(s, c) == "run"
-             and (c[0] == "gonio-reconstruct" or "--resume" in c)]
-    assert lines, "the README no longer reconstructs or resumes the demo in its tour"
-    (tmp_path / "out").mkdir()
-    shutil.copytree(demo.folder, tmp_path / "out" / "demo")
-    (tmp_path / "configs").symlink_to(ROOT / "configs")
-    rows = len((tmp_path / "out" / "demo" / "slice.csv").read_text(encoding="utf-8").splitlines())
-    for argv in lines:
-        r = run(argv, tmp_path)
-        assert r.returncode == 0, f"README.md: `{shlex.join(argv)}` exits {r.returncode}:\n{r.stderr[-2000:]}"
-    # the resume of a finished capture measures nothing again
-    assert len((tmp_path / "out" / "demo" / "slice.csv").read_text(encoding="utf-8").splitlines()) == rows
 
 
 # --- links -----------------------------------------------------------------------------------------------------------

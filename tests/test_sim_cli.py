@@ -57,9 +57,11 @@ def _variant(tmp_path: Path, name: str, old: str, new: str) -> Path:
     return p
 
 
-def test_check_is_silent_on_a_good_config():
+def test_check_says_so_in_one_line_on_a_good_config():
     r = run("check", "--config", "configs/simulated.toml")
-    assert (r.returncode, r.stdout, r.stderr) == (0, "", "")
+    assert (r.returncode, r.stderr) == (0, "")
+    assert r.stdout == ("gonio-sim: configs/simulated.toml: ready to serve (dynamixel motion, material "
+                        "'blue-plastic'); nothing opened\n")
 
 
 @pytest.mark.parametrize("old, new, message", [

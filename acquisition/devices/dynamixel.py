@@ -29,7 +29,7 @@ from dynamixel_sdk import (
 )
 
 from acquisition.config import DXL_MODELS, AxisConfig, MotionConfig
-from acquisition.errors import PORT_ERRORS, CommError, DeviceError, HardwareError
+from acquisition.errors import PORT_ERRORS, CommError, DeviceError, HardwareError, PortError, port_reason
 
 log = logging.getLogger("acquisition.dynamixel")
 
@@ -146,7 +146,8 @@ class DynamixelAxes:
         try:
             ok = self.port.openPort()
         except PORT_ERRORS as e:
-            raise CommError(f"Dynamixel bus: cannot open {self.port_name!r}: {e}") from None
+            why = port_reason(e)
+            raise PortError(f"Dynamixel bus: cannot open {self.port_name!r}: {why}", self.port_name, why) from None
         if not ok or not self.port.setBaudRate(self.baudrate):
             raise CommError(f"Dynamixel bus: cannot open {self.port_name!r} at {self.baudrate} baud")
         for name, ax in self.axes.items():

@@ -23,11 +23,23 @@ import serial
 
 from acquisition.calibration import Reading, pool
 from acquisition.config import AxisConfig
-from acquisition.errors import PORT_ERRORS, CommError, DeviceError, HardwareError
+from acquisition.errors import PORT_ERRORS, CommError, DeviceError, HardwareError, PortError, port_reason
 
 log = logging.getLogger("acquisition.serial")
 
-__all__ = ["SerialLink", "ControllerError", "SerialDetector", "SerialAxes", "Reply"]
+__all__ = ["SerialLink", "ControllerError", "SerialDetector", "SerialAxes", "Reply", "probe_port"]
+
+
+def probe_port(port: str, baudrate: int) -> str | None:
+    """Whether ``port`` can be opened at ``baudrate``: None if it can (it is closed again at once; nothing is
+    sent), else why not (:func:`acquisition.errors.port_reason`)."""
+    if not port:
+        return "no port given"
+    try:
+        serial.Serial(port, baudrate, timeout=0.02).close()
+    except (*PORT_ERRORS, ValueError) as e:
+        return port_reason(e)
+    return None
 
 ERROR_TEXT = {
     1: "unknown command",
@@ -94,7 +106,8 @@ class SerialLink:
         try:
             self.ser = serial.Serial(port, baudrate, timeout=0.02, write_timeout=2.0)
         except (*PORT_ERRORS, ValueError) as e:
-            raise CommError(f"{name}: cannot open {port!r}: {e}") from None
+            why = port_reason(e)
+            raise PortError(f"{name}: cannot open {port!r}: {why}", port, why) from None
         self.ser.reset_input_buffer()
 
     def close(self) -> None:

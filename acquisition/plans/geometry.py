@@ -150,7 +150,11 @@ class Geometry:
                        Reason.DETECTOR_LIMIT)
         sep = abs(self.quantise(self.light, ti) + self.quantise(self.detector, to))  # at the goals as sent
         if sep < self.min_separation_deg:
-            return Why(f"collision: arms {sep:.3f} deg apart, closer than min_separation_deg "
+            # the planned angles, and where whole controller units put the arms when that differs (a point planned
+            # exactly min_separation_deg apart may fall short by a fraction of a unit: it is refused, and says why)
+            planned = abs(ti + to)
+            sent = f" ({sep:.3f} at the goals sent, in whole servo units)" if abs(planned - sep) > 5e-4 else ""
+            return Why(f"collision: arms {planned:g} deg apart{sent}, closer than min_separation_deg "
                        f"{self.min_separation_deg:g}", Reason.COLLISION)
         if sep < self.blind_spot_half_width_deg:
             return Why(f"blind spot: the source arm shadows the detector (|theta_i + theta_o| = {sep:.3f} < "

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -110,12 +111,78 @@ class PlanCheck:
         return [u for u in self.unmeasurable if Geometry.is_limit_reason(u[2])]
 
     def describe(self, limit: int = 8) -> str:
+        """The counts, then the unmeasurable points grouped by incidence and reason (runs of theta_o), at most
+        ``limit`` lines of them: ``theta_i 40, theta_o -46 to -34 (7 points): collision: ...``; a point alone
+        as ``(ti, to): why``."""
         lines = [f"{len(self.measurable)} measurable points, {len(self.unmeasurable)} not measurable"]
-        for ti, to, why in self.unmeasurable[:limit]:
-            lines.append(f"  ({ti:g}, {to:g}): {why}")
-        if len(self.unmeasurable) > limit:
-            lines.append(f"  ... and {len(self.unmeasurable) - limit} more")
+        groups = group_unmeasurable(self.unmeasurable, self.measurable)
+        lines += [f"  {g}" for g in groups[:limit]]
+        if len(groups) > limit:
+            lines.append(f"  ... and {len(groups) - limit} more groups")
         return "\n".join(lines)
+
+
+#: what makes a reason's text specific to one point, and its general form (a group's)
+_GENERAL = ((re.compile(r"arms [\d.]+ deg apart( \([\d.]+ at the goals sent, in whole servo units\))?, closer than "
+                        r"(min_separation_deg \S+)"), r"arms closer than \2 (at the goals sent, in whole servo units)"),
+            (re.compile(r"= [\d.]+ <"), "<"), (re.compile(r"^theta_([io]) \S+ outside"), r"theta_\1 outside"))
+
+
+def _general(why: str) -> str:
+    for pattern, repl in _GENERAL:
+        why = pattern.sub(repl, why)
+    return why
+
+
+def scene_changes(base: Plan, fitted: Plan) -> str:
+    """One line: what fitting ``base`` to a scene (:meth:`Plan.restrict`) did: the incidences it kept, the theta_o
+    ranges, the step (the scene's angular resolution, which adds points when it is finer than the plan's), and the
+    points before and after."""
+    n0, n1 = len(base.requested_points()), len(fitted.requested_points())
+    parts = []
+    if base.sweeps and fitted.sweeps:
+        inc0 = sorted({sw.theta_i_deg for sw in base.sweeps})
+        inc1 = sorted({sw.theta_i_deg for sw in fitted.sweeps})
+        parts.append(f"incidences {', '.join(f'{t:g}' for t in inc1)} of {', '.join(f'{t:g}' for t in inc0)}")
+        ranges = sorted({(sw.lo, sw.hi) for sw in fitted.sweeps})
+        parts.append("theta_o " + " and ".join(f"{round(lo, 1):g} to {round(hi, 1):g}" for lo, hi in ranges))
+        s0, s1 = min(sw.step for sw in base.sweeps), min(sw.step for sw in fitted.sweeps)
+        if s1 < s0:
+            parts.append(f"step {s1:g} deg, finer than the plan's {s0:g} (the scene's angular_resolution_deg): "
+                         "it adds points")
+        elif s1 > s0:
+            parts.append(f"step {s1:g} deg instead of the plan's {s0:g} (the scene's angular_resolution_deg)")
+    more = "more" if n1 > n0 else "fewer" if n1 < n0 else "as many"
+    return f"scene {fitted.scene!r}: {'; '.join(parts)}: {n1} points, {more} than the plan's {n0}"
+
+
+def group_unmeasurable(points: Sequence[tuple[float, float, str]], measurable: Sequence[Point] = ()) -> list[str]:
+    """Unmeasurable points as lines in order of incidence and theta_o: one per run of theta_o at one incidence with
+    one reason (in its general form) and no other plan point (``measurable``, or another reason) between them."""
+    at: dict[float, list[tuple[float, str | None]]] = {}
+    for ti, to in measurable:
+        at.setdefault(float(ti), []).append((float(to), None))
+    for ti, to, why in points:
+        at.setdefault(float(ti), []).append((float(to), str(why)))
+    out: list[str] = []
+
+    def flush(ti: float, run: list[tuple[float, str]]) -> None:
+        if len(run) == 1:
+            out.append(f"({ti:g}, {run[0][0]:g}): {run[0][1]}")
+        elif run:
+            out.append(f"theta_i {ti:g}, theta_o {run[0][0]:g} to {run[-1][0]:g} ({len(run)} points): "
+                       f"{_general(run[0][1])}")
+
+    for ti in sorted(at):
+        run: list[tuple[float, str]] = []
+        for to, why in sorted(at[ti], key=lambda p: p[0]):
+            if why is not None and run and _general(why) == _general(run[0][1]):
+                run.append((to, why))
+                continue
+            flush(ti, run)
+            run = [] if why is None else [(to, why)]
+        flush(ti, run)
+    return out
 
 
 @dataclass

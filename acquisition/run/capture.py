@@ -41,6 +41,7 @@ from acquisition.errors import (
     DeviceError,
     HardwareError,
     PlanError,
+    PortError,
     SampleChanged,
 )
 from acquisition.optics import footprint_meta, footprint_warning, instrument_of
@@ -235,6 +236,8 @@ class RunEngine:
         self._run_started = False
         self._before_motion = False  # the run stopped before the bench was open: nothing to resume or park
         self._io_fault = False  # an output file could not be written (a full disk)
+        self._unopened = False  # a port of the bench could not be opened: nothing moved, nothing to resume
+        self._found: set[str] = set()  # what the output folder held before this run
         self._engine: Engine | None = None
         self._measurable: list[Any] = []
 
@@ -260,6 +263,7 @@ class RunEngine:
         with SignalGuard(self.handle_signals) as guard:  # from here on no signal ends in a traceback
             self._guard = guard
             make_out_dir(self.out)
+            self._found = {p.name for p in self.out.iterdir()}
             lock = OutLock(self.out)
             stale = lock.acquire()
             try:
@@ -270,8 +274,20 @@ class RunEngine:
                 est = self._estimate(chk, res.existing)
                 self._run_locked(chk, est, res, stale_pid=stale, t_wall0=t_wall0)
             finally:
+                if self._unopened:  # while the lock is held: no other capture has started here yet
+                    self._forget_unopened_run()
                 lock.release()
         return self.result
+
+    def _forget_unopened_run(self) -> None:
+        """A run whose bench could not be opened measured nothing and has nothing to resume: the run record and
+        log it started are removed (what the folder held before stays; the console said why)."""
+        for path in (self.sidecar_path, self.out / LOG_NAME):
+            if path.name not in self._found:
+                try:
+                    path.unlink()
+                except OSError:  # pragma: no cover - a folder that turned read-only
+                    pass
 
     def _estimate(self, chk: Any, existing: Slice | None) -> dict[str, float]:
         """The time model's estimate of this run (:func:`acquisition.dryrun.estimate`): the whole capture plan on a
@@ -441,7 +457,11 @@ class RunEngine:
                 if not bench.is_open:
                     if bench.cfg.bench.transport == "simulated":
                         bench.simulator_log = self.out / SIM_LOG_NAME
-                    bench.open()
+                    try:
+                        bench.open()
+                    except PortError:
+                        self._unopened = self._before_motion = True
+                        raise
                     opened_here = True
                 bench.motion.cancel = self._guard.check
                 r.bench_clock = "controller" if bench.has_clock else "wall"
@@ -488,7 +508,7 @@ class RunEngine:
                 r.end(Stop.BENCH_FAILURE, f"bench failure: {e}")
             except ConfigError as e:  # the simulator refused its sections of the config, when it was started
                 self._before_motion = True
-                r.end(Stop.CONFIG_REFUSED, f"{e}\nnothing was moved.")
+                r.end(Stop.CONFIG_REFUSED, f"{e}; nothing was moved")
             except PlanError as e:
                 r.end(Stop.PLAN_ERROR, str(e))
             except SampleChanged as e:
@@ -571,6 +591,8 @@ class RunEngine:
         if self._io_fault:  # one line: what could not be written, what is safe, how to go on
             how = "Free some space, then resume" if "disk is full" in r.message else "Once it can be written, resume"
             r.message = f"{r.message}; {kept} {how} with: {self.resume_command()}"
+        elif self._unopened:  # no resume to advise: the bench file's key to fix is in the message
+            r.message = f"{r.message}; nothing was moved or captured"
         elif not self._before_motion and r.stop is not Stop.SAMPLE_CHANGED:  # that one says how to go on
             r.message = f"{r.message}\n{kept} {self.resume_hint()}"
         log.error(r.message, extra={"final": True})

@@ -91,7 +91,7 @@ def require_mitsuba(flag: str) -> Any:
 
 def add_arguments(ap: argparse.ArgumentParser) -> None:
     """The format flags of gonio-reconstruct."""
-    g = ap.add_argument_group("other formats (README: Formats)")
+    g = ap.add_argument_group("other formats (docs/formats.md)")
     g.add_argument("--rgl", metavar="MATERIAL.bsdf",
                    help="also write an RGL tensor file (Dupuy & Jakob 2018) for Mitsuba 3's measured plugin")
     g.add_argument("--zemax", metavar="MATERIAL.bsdf",

@@ -490,7 +490,8 @@ def _page(report: Mapping[str, Any], working: Slice, title: str | None, fig: Map
                               + " cells. Expected against the truth: PSNR "
                               + f"{u.get('expected_psnr_db', float('nan')):.1f} dB, linear image error "
                               + f"{u.get('expected_linear_image_error', float('nan')):.1%}, cosl2 "
-                              + f"{u.get('expected_cosl2', float('nan')):.1%}.</p>")
+                              + f"{u.get('expected_cosl2', float('nan')):.1%}." + _expected_vs_held_out(report)
+                              + "</p>")
     sec["spheres"] = (_spheres_html(pngs)
                       + '<p class="note">The written table on a sphere (linear radiance, each image exposed on its '
                         "own 99.5th percentile, sRGB). Top: a point light and a dim uniform environment, as the "
@@ -534,6 +535,20 @@ def _page(report: Mapping[str, Any], working: Slice, title: str | None, fig: Map
     return (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8"><title>{html.escape(name)}: '
             f'gonio-brdf report</title><style>{_CSS}</style></head><body><h1>{html.escape(name)}</h1>'
             f"{body}</body></html>\n")
+
+
+def _expected_vs_held_out(report: Mapping[str, Any]) -> str:
+    """The sentence that sets the uncertainty's expected errors beside cross-validation's held-out error: they
+    measure different things, and the first is usually the larger."""
+    cv = report.get("cross_validation") or {}
+    chosen = cv.get("chosen_label", cv.get("chosen"))
+    held = next((c.get("held_out_relative_rmse_cos") for c in cv.get("scores", [])
+                 if c.get("label", c.get("method")) == chosen), None)
+    than = f" (here {held:.2%} for {chosen})" if isinstance(held, float) else ""
+    return (" These are over the whole table as a renderer sees it, mostly directions out of the plane of "
+            "incidence and incidences no slice measured, where the table extrapolates; cross-validation's "
+            f"held-out error{than} is the error at the measured samples' own angles, in the plane, so it is "
+            "usually far smaller: both are right, about different directions.")
 
 
 def write_html(path: str | Path, **kwargs: Any) -> None:

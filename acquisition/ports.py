@@ -1,0 +1,62 @@
+"""The ports a bench file names, by the key that names them: which ``[bench]`` key to fix when a port cannot be
+opened (:func:`name_the_key`), and ``gonio-capture --check``'s look at each (:func:`check_ports`: opened and
+closed again at once, nothing sent, nothing moved). A simulated bench's ports are the simulator's pseudo-terminals,
+made when the capture starts: no key names them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from acquisition.config import BenchConfig
+from acquisition.devices.serial_link import probe_port
+from acquisition.errors import PortError
+
+__all__ = ["PortUse", "configured_ports", "name_the_key", "check_ports", "describe_ports"]
+
+
+@dataclass(frozen=True)
+class PortUse:
+    """A port of the bench file: its ``[bench]`` key, the device on it, the port and its baud rate."""
+
+    key: str
+    device: str
+    port: str
+    baudrate: int
+
+
+def configured_ports(cfg: BenchConfig) -> list[PortUse]:
+    """The ports a capture on this bench opens, in the order it opens them (none for a simulated bench)."""
+    b = cfg.bench
+    if b.transport == "simulated":
+        return []
+    serial_device = "detector controller" if b.motion == "dynamixel" else "detector and stepper controller"
+    uses = [PortUse("serial_port", serial_device, b.serial_port, b.serial_baudrate)]
+    if b.motion == "dynamixel":
+        uses.append(PortUse("dynamixel_port", "Dynamixel bus (U2D2)", b.dynamixel_port, b.dynamixel_baudrate))
+    return uses
+
+
+def name_the_key(e: PortError, cfg: BenchConfig) -> PortError:
+    """``e`` (a port that cannot be opened) as one line naming the bench file's key to fix; ``e`` itself when no
+    key names the port (a simulated bench's)."""
+    use = next((u for u in configured_ports(cfg) if u.port == e.port), None)
+    if use is None:
+        return e
+    msg = (f"{cfg.path}: [bench].{use.key} = {use.port!r}: cannot open the {use.device}'s port ({e.reason}); "
+           f"set {use.key} to the port it is on (e.g. ls /dev/serial/by-id/)")
+    return PortError(msg, e.port, e.reason)
+
+
+def check_ports(cfg: BenchConfig) -> list[tuple[PortUse, str | None]]:
+    """Each port of the bench file and why it cannot be opened (None: it can). Nothing is sent on it."""
+    return [(u, probe_port(u.port, u.baudrate)) for u in configured_ports(cfg)]
+
+
+def describe_ports(cfg: BenchConfig) -> list[str]:
+    """``--check``'s lines on the ports: each key, its port and whether it can be opened (nothing is sent)."""
+    lines = []
+    for use, why in check_ports(cfg):
+        state = "can be opened" if why is None else f"warning: cannot be opened ({why})"
+        lines.append(f"port [bench].{use.key} = {use.port!r} ({use.device}): {state}")
+    return lines

@@ -1,0 +1,58 @@
+"""The guard of conftest.py (tests/worktree.py): files a test run leaves in the working tree are found, what a run
+may write (bytecode, caches, the environment) is not."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from tests import worktree
+
+
+@pytest.fixture
+def repo(tmp_path: Path) -> Path:
+    def git(*args: str) -> None:
+        subprocess.run(["git", *args], cwd=tmp_path, check=True, capture_output=True)
+
+    git("init", "-q")
+    (tmp_path / ".gitignore").write_text("out/\n__pycache__/\n")
+    (tmp_path / "README.md").write_text("readme\n")
+    git("add", ".")
+    git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "init")
+    return tmp_path
+
+
+def test_files_a_run_leaves_are_found(repo):
+    before = worktree.snapshot(repo)
+    assert before == {}
+    (repo / "out" / "run1").mkdir(parents=True)
+    (repo / "out" / "run1" / "slice.csv").write_text("x\n")   # ignored by git, found all the same
+    (repo / "stray.txt").write_text("x\n")                    # untracked
+    (repo / "README.md").write_text("changed\n")              # a committed file changed
+    after = worktree.snapshot(repo)
+    assert worktree.left_behind(before, after) == ["README.md", "out/run1/slice.csv", "stray.txt"]
+
+
+def test_what_a_run_may_write_is_not_counted(repo):
+    before = worktree.snapshot(repo)
+    for d in ("__pycache__", ".pytest_cache", ".hypothesis", "pkg/__pycache__", "gonio_brdf.egg-info"):
+        (repo / d).mkdir(parents=True, exist_ok=True)
+        (repo / d / "f").write_text("x")
+    (repo / ".venv").symlink_to(repo)   # the worktree's link to a shared environment
+    assert worktree.left_behind(before, worktree.snapshot(repo)) == []
+
+
+def test_a_file_already_there_counts_when_it_changes(repo):
+    (repo / "notes.txt").write_text("mine\n")
+    before = worktree.snapshot(repo)
+    assert worktree.left_behind(before, worktree.snapshot(repo)) == []
+    import os
+
+    os.utime(repo / "notes.txt", ns=(1, 1))
+    assert worktree.left_behind(before, worktree.snapshot(repo)) == ["notes.txt"]
+
+
+def test_no_checkout_no_guard(tmp_path):
+    assert worktree.snapshot(tmp_path) is None
