@@ -16,9 +16,8 @@ Two kinds of file are accepted (told apart by the first line):
 
   Other names are mapped with ``columns={"theta_i": NAME, "theta_o": NAME, "value": NAME}`` (the CLI's
   ``--columns theta_i=NAME,theta_o=NAME``); any column left unknown is an error. Generic tables do not say what
-  their values are, so ``quantity`` (``brdf``, ``reflectance_factor`` or ``brdf_cos``) is required. Rows must
-  come in blocks of one incidence each, the measured angle strictly increasing or strictly decreasing inside a
-  block, no (theta_i, theta_o) twice.
+  their values are, so ``quantity`` (``brdf``, ``reflectance_factor`` or ``brdf_cos``) is required. Rows may
+  come in any order (a capture's own order, incidences interleaved), but no (theta_i, theta_o) twice.
 
 In both kinds, rows whose values are all exactly zero in the blind spot around the retro direction
 (|theta_i + theta_o| <= ``blind_spot_deg``, and zero rows contiguous with them) are missing data, not measured
@@ -224,7 +223,7 @@ def read_table(path: str | Path, *, quantity: str | None, columns: Mapping[str, 
             r = int(np.argmax(out))
             raise InputError(f"{path}:{line_of[r]}, column {shorten(names_by_role[name])}: {arr[r]} is outside "
                              f"(-90, 90) degrees")
-    _check_order(path, ti, to, lines_arr, shorten(names_by_role["theta_i"]), shorten(names_by_role["theta_o"]))
+    _check_duplicates(path, ti, to, lines_arr, shorten(names_by_role["theta_o"]))
     values = data[:, value_cols]
     std = np.zeros_like(values)
     for c, k in std_cols.items():
@@ -357,46 +356,21 @@ def _read_rows(path: Path, lines: list[str], h: int, header: list[str], delim: s
     return data, line_of
 
 
-def _check_order(path: Path, ti: Array, to: Array, line_of: NDArray[np.int_], ti_name: str, to_name: str
-                 ) -> None:
-    """Rows in contiguous incidence blocks, theta_o strictly monotonic inside each block (vectorised)."""
-    n = ti.size
-    new_block = np.r_[True, ti[1:] != ti[:-1]]
-    block = np.cumsum(new_block) - 1
-    starts = np.nonzero(new_block)[0]
-    block_ti = ti[starts]
-    _, first = np.unique(block_ti, return_index=True)
-    if first.size != block_ti.size:
-        again = np.setdiff1d(np.arange(block_ti.size), first)[0]
-        prev = int(np.nonzero(block_ti[:again] == block_ti[again])[0][0])
-        r, p = int(starts[again]), int(starts[prev])
-        raise InputError(f"{path}:{line_of[r]}, column {ti_name}: incidence {ti[r]} appears again after other "
-                         f"incidences (first block at line {line_of[p]}); rows must come in one block per incidence")
-    if n < 2:
+def _check_duplicates(path: Path, ti: Array, to: Array, line_of: NDArray[np.int_], to_name: str) -> None:
+    """Rows in any order (a capture's own order included), but no (theta_i, theta_o) twice: the later row of a
+    repeated pair is named with the line of the earlier (vectorised: one sort)."""
+    if ti.size < 2:
         return
-    d = np.diff(to)
-    same = block[1:] == block[:-1]
-    dup = same & (d == 0)
-    if dup.any():
-        r = int(np.argmax(dup)) + 1
-        raise InputError(f"{path}:{line_of[r]}, column {to_name}: duplicate sample theta_i = {ti[r]}, theta_o = "
-                         f"{to[r]} (also at line {line_of[r - 1]})")
-    # direction of each block from its first step; every step inside the block must have that sign
-    sign = np.sign(d)
-    first_step = np.full(block[-1] + 1, 0.0)
-    idx = np.nonzero(same)[0]
-    if idx.size:
-        # first within-block step of every block: the smallest index of each block among the within-block steps
-        blk = block[idx]
-        firsts = idx[np.r_[True, blk[1:] != blk[:-1]]]
-        first_step[block[firsts]] = sign[firsts]
-        wrong = same & (sign != first_step[block[1:]])
-        if wrong.any():
-            r = int(np.argmax(wrong)) + 1
-            way = "increasing" if first_step[block[r]] > 0 else "decreasing"
-            raise InputError(f"{path}:{line_of[r]}, column {to_name}: {to[r]} after {to[r - 1]} breaks the {way} "
-                             f"order of the theta_i = {ti[r]} block; rows must be sorted by angle (a duplicate "
-                             f"or a shifted column?)")
+    order = np.lexsort((line_of, to, ti))  # by incidence, angle, then file order
+    same = (ti[order][1:] == ti[order][:-1]) & (to[order][1:] == to[order][:-1])
+    if not same.any():
+        return
+    k = np.nonzero(same)[0]
+    later, earlier = order[k + 1], order[k]
+    j = int(np.argmin(line_of[later]))  # the first repeated row in the file
+    r, p = int(later[j]), int(earlier[j])
+    raise InputError(f"{path}:{line_of[r]}, column {to_name}: duplicate sample theta_i = {ti[r]}, theta_o = "
+                     f"{to[r]} (also at line {line_of[p]})")
 
 
 # --- any input -------------------------------------------------------------------------------------------
