@@ -119,7 +119,8 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
     # imports matplotlib meanwhile, auto's child computes fit's cone tables of the samples and imports the methods
     with Drawer(enabled=bool(job.html)) as drawer:
         child = Forked(enabled=job.method == "auto")
-        seed = start_child(child, job.inputs, job.quantity, job.columns, job.blind_spot_deg) if child.alive else None
+        seed = (start_child(child, job.inputs, job.quantity, job.columns, job.blind_spot_deg, job.angles_in)
+                if child.alive else None)
         if job.method == "auto":
             import_methods()
         with child, blas, shared_cone_averages(), Background(enabled=job.assesses or job.bounds) as helper, \
@@ -169,6 +170,7 @@ def _run(job: Job, progress: Progress | None, helper: Any, renders: Any, drawer:
     rep = _report(job, steps, loaded, scene, rec, choice, working, table, checks, colour_info, energy, outputs)
     if principled is not None:
         rep["principled"] = principled
+    _warn(rep, loaded.files)
     if bounded is not None:
         rep["conservative"] = bounded
     sigma_table = None
@@ -190,7 +192,7 @@ def _read_inputs(job: Job, steps: _Steps) -> tuple[Any, Any]:
     loaded = zemax.load_inputs(list(job.inputs), job.quantity, job.columns) or brdffile.load_inputs(
         list(job.inputs), job.quantity, job.columns) or inputs.load_inputs(
         list(job.inputs), quantity=job.quantity, columns=inputs.parse_columns(job.columns),
-        blind_spot_deg=job.blind_spot_deg)
+        blind_spot_deg=job.blind_spot_deg, angles_in=job.angles_in)
     scene = None
     if job.scene:
         sp = Path(job.scene)
@@ -344,6 +346,20 @@ def _report(job: Job, steps: _Steps, loaded: Any, scene: Any, rec: Reconstructio
                     "bin_centres": "theta_h = ((i + 0.5) / 90)^2 * 90 deg, theta_d = j + 0.5 deg, "
                                    "phi_d = k + 0.5 deg"},
         outputs=outputs, timings=steps.timings, dropped_blind_spot=loaded.dropped_blind_spot)
+
+
+def _warn(rep: dict[str, Any], files: list[str]) -> None:
+    """Say what the samples cannot support (:func:`reconstruction.report.summary.guard_warnings`): as warnings
+    (one line each on the console) and in the report's ``warnings``."""
+    import warnings
+
+    from reconstruction.report.summary import guard_warnings
+
+    said = guard_warnings(rep["coverage"], rep.get("cross_validation"), ", ".join(files))
+    for msg in said:
+        warnings.warn(msg, UserWarning, stacklevel=2)
+    if said:
+        rep["warnings"] = said
 
 
 def _finish(job: Job, steps: _Steps, rep: dict[str, Any], outputs: dict[str, Any], checks: dict[str, Any],

@@ -8,7 +8,9 @@ Two kinds of file are accepted (told apart by the first line):
 * generic tables: optional ``#`` comment lines, a header line, then one row per sample, separated by commas,
   semicolons or tabs. Columns:
 
-  - the incidence angle (degrees): ``theta_i_deg``, ``theta_i``, ``incidence_deg`` or ``incidence``;
+  - the incidence angle (degrees; radians with ``angles_in="radians"``, the CLI's ``--angles-in radians``:
+    angles all within +-1.6 are refused as radians read as degrees): ``theta_i_deg``, ``theta_i``,
+    ``incidence_deg`` or ``incidence``;
   - the measured (outgoing) angle, signed, positive on the specular side (degrees): ``theta_o_deg``,
     ``theta_o``, ``outgoing_deg`` or ``outgoing``;
   - the values: ``value`` (one channel), ``R,G,B``, or one column per wavelength (``450nm``, ``450 nm``,
@@ -29,6 +31,7 @@ Errors are :class:`InputError` with ``file:line, column NAME: what was expected`
 from __future__ import annotations
 
 import csv
+import dataclasses
 import math
 import re
 from collections.abc import Mapping, Sequence
@@ -39,6 +42,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from reconstruction.base import ReconstructionError
+from reconstruction.formats.angleunits import to_degrees
 from reconstruction.formats.merl import MAX_CELL_VALUE
 from reconstruction.formats.slicefile import (
     MAGIC,
@@ -195,8 +199,10 @@ def _parse_slowly(path: Path, rows: Sequence[str], line_of: Sequence[int], heade
     return data
 
 
-def read_table(path: str | Path, *, quantity: str | None, columns: Mapping[str, str] | None = None) -> Slice:
-    """Read a generic in-plane CSV table (see the module docstring) into a :class:`Slice` of ``quantity``."""
+def read_table(path: str | Path, *, quantity: str | None, columns: Mapping[str, str] | None = None,
+               angles_in: str = "degrees") -> Slice:
+    """Read a generic in-plane CSV table (see the module docstring) into a :class:`Slice` of ``quantity``, its
+    angles in ``angles_in`` (:mod:`reconstruction.formats.angleunits`: radians read as degrees are refused)."""
     path = Path(path)
     columns = dict(columns or {})
     text = read_input_text(path, InputError, "a CSV file")
@@ -217,6 +223,8 @@ def read_table(path: str | Path, *, quantity: str | None, columns: Mapping[str, 
     lines_arr = np.asarray(line_of)
     ti = data[:, [k for k, r in role.items() if r == "theta_i"][0]]
     to = data[:, [k for k, r in role.items() if r == "theta_o"][0]]
+    ti, to = to_degrees(path, ti, to, shorten(names_by_role["theta_i"]), shorten(names_by_role["theta_o"]),
+                        angles_in, InputError)
     for name, arr in (("theta_i", ti), ("theta_o", to)):
         out = np.abs(arr) >= 90.0
         if out.any():
@@ -400,21 +408,24 @@ def _is_slice_file(path: Path) -> bool:
     return text.replace("\r", "\n").split("\n")[0].strip() == MAGIC
 
 
-def read_input(path: str | Path, *, quantity: str | None = None, columns: Mapping[str, str] | None = None
-               ) -> Slice:
-    """Read one input file, slice file or generic table, into a :class:`Slice` in its own quantity."""
+def read_input(path: str | Path, *, quantity: str | None = None, columns: Mapping[str, str] | None = None,
+               angles_in: str = "degrees") -> Slice:
+    """Read one input file, slice file or generic table, into a :class:`Slice` in its own quantity, its angles in
+    degrees (the file's in ``angles_in``: :mod:`reconstruction.formats.angleunits`)."""
     path = Path(path)
     if _is_slice_file(path):
         try:
             s = read_slice(path)
         except SliceError as e:
             raise InputError(str(e)) from None
+        ti, to = to_degrees(path, s.theta_i_deg, s.theta_o_deg, "theta_i_deg", "theta_o_deg", angles_in, InputError)
+        s = dataclasses.replace(s, theta_i_deg=ti, theta_o_deg=to)
         if columns:
             raise InputError(f"{path}: --columns applies to generic tables; this is a gonio-brdf slice file")
         if quantity is not None and quantity != s.quantity:
             raise InputError(f"{path}: the file says quantity {s.quantity!r}; --quantity {quantity} disagrees")
         return s
-    return read_table(path, quantity=quantity, columns=columns)
+    return read_table(path, quantity=quantity, columns=columns, angles_in=angles_in)
 
 
 def drop_blind_spot_zeros(s: Slice, half_width_deg: float = DEFAULT_BLIND_SPOT_DEG) -> tuple[Slice, int]:
@@ -497,8 +508,10 @@ def _check_bounds(s: Slice, f: Array, sd: Array) -> None:
 
 
 def load_inputs(paths: Sequence[str | Path], *, quantity: str | None = None,
-                columns: Mapping[str, str] | None = None, blind_spot_deg: float | None = None) -> LoadedInput:
-    """Read every input, drop blind-spot zero rows, convert to f_r (1/sr) and merge into one :class:`Slice`.
+                columns: Mapping[str, str] | None = None, blind_spot_deg: float | None = None,
+                angles_in: str = "degrees") -> LoadedInput:
+    """Read every input (its angles in ``angles_in``), drop blind-spot zero rows, convert to f_r (1/sr) and merge
+    into one :class:`Slice`.
 
     ``blind_spot_deg``: half width of the retro blind spot (degrees); default: the slice file's
     ``blind_spot_half_width_deg`` metadata if present, else :data:`DEFAULT_BLIND_SPOT_DEG`.
@@ -510,7 +523,7 @@ def load_inputs(paths: Sequence[str | Path], *, quantity: str | None = None,
     notes: list[str] = []
     quantities: list[str] = []
     for p in paths:
-        s = read_input(p, quantity=quantity, columns=columns)
+        s = read_input(p, quantity=quantity, columns=columns, angles_in=angles_in)
         quantities.append(s.quantity)
         if len(s) == 0:
             raise InputError(f"{s.source}: no samples")

@@ -404,7 +404,7 @@ def import_methods() -> None:
 
 
 def start_child(child: Any, inputs: tuple[str, ...], quantity: str | None, columns: str | None,
-                blind_spot_deg: float | None) -> Callable[[], dict[Any, Any]] | None:
+                blind_spot_deg: float | None, angles_in: str = "degrees") -> Callable[[], dict[Any, Any]] | None:
     """Give auto's forked child (:class:`reconstruction.executor.Forked`, forked before scipy's import) its first
     work while the run imports the methods: fit's cone tables of the samples
     (:func:`reconstruction.methods.fit.aperture.prefetch_tables`), then the same imports. Returns the tables' getter
@@ -419,7 +419,7 @@ def start_child(child: Any, inputs: tuple[str, ...], quantity: str | None, colum
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 s = readers.load_inputs(list(inputs), quantity=quantity, columns=readers.parse_columns(columns),
-                                        blind_spot_deg=blind_spot_deg).slice
+                                        blind_spot_deg=blind_spot_deg, angles_in=angles_in).slice
             seed = child.submit(prefetch_tables, s)
         except Exception:  # noqa: BLE001 - whatever it is, the run itself reads the inputs and says it
             seed = None
