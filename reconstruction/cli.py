@@ -174,7 +174,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "after measuring each, with its bench time, and recommend one (the report's 'advice')")
     u.add_argument("--bench", metavar="CONFIG.toml", default=None,
                    help="--advise: the bench file whose arm limits, blind spot and timing the candidates use "
-                        "(default: 0-80 deg, a 4 deg blind spot, 0.13 s per point)")
+                        "(default: the bench recorded in the slice file's metadata, else 0-80 deg, a 4 deg blind "
+                        "spot, 0.13 s per point); never beyond the incidence where its beam overfills the sample")
     u.add_argument("--budget-s", type=_nonneg_float, default=None, metavar="T",
                    help="--advise: also plan the best further slices that fit in T seconds of bench time")
     ap.add_argument("--no-conservative", dest="conservative", action="store_false",

@@ -177,7 +177,8 @@ def _run(job: Job, progress: Progress | None, helper: Any, renders: Any, drawer:
     if job.assesses:
         t0 = steps.begin("uncertainty")
         sigma_table = _assess(job, rep, working, rec, opts, steps.begin, steps.done,
-                              ref if ref is not None or early is None else early()[0])
+                              ref if ref is not None or early is None else early()[0],
+                              getattr(loaded, "capture", None) or {})
         steps.done("uncertainty", t0)
     _finish(job, steps, rep, outputs, checks, working, rec, table, others, choice, sigma_table, spheres, drawer)
     return rep
@@ -445,9 +446,10 @@ def bound_where_unmeasured(rec: Reconstruction, table: Array, working: Slice, op
 
 
 def _assess(job: Job, rep: dict[str, Any], working: Slice, rec: Reconstruction, opts: Options,
-            begin: Callable[[str], float], done: Callable[[str, float], None], ref: Any = None
-            ) -> NDArray[np.float32]:
-    """The report's ``uncertainty`` (and the ``--uncertainty`` array) and, with ``--advise``, its ``advice``;
+            begin: Callable[[str], float], done: Callable[[str, float], None], ref: Any = None,
+            capture: dict[str, Any] | None = None) -> NDArray[np.float32]:
+    """The report's ``uncertainty`` (and the ``--uncertainty`` array) and, with ``--advise``, its ``advice`` (the
+    bench of ``--bench``, else the one the slice file records: ``capture``, ``inputs.LoadedInput.capture``);
     returns sigma of ln f per cell (3, 90, 90, 180)."""
     from reconstruction.assess import advice, uncertainty
     from reconstruction.atomic import atomic_path
@@ -464,7 +466,9 @@ def _assess(job: Job, rep: dict[str, Any], working: Slice, rec: Reconstruction, 
     rep["uncertainty"] = section
     if job.advise:
         t0 = begin("advice")
-        rep["advice"] = advice.advise(s, ref, advice.bench_limits(job.bench), job.budget_s,
+        limits = (advice.bench_limits(job.bench) if job.bench or not capture
+                  else advice.capture_limits(capture["meta"], capture["file"]) or advice.BenchLimits())
+        rep["advice"] = advice.advise(s, ref, limits, job.budget_s,
                                       current={**{k: section[k] for k in ("expected_psnr_db", "expected_cosl2",
                                                                           "expected_linear_image_error")},
                                                **{k: v for k, v in section.get("scene", {}).items()

@@ -101,6 +101,9 @@ class LoadedInput:
     quantities: list[str]
     dropped_blind_spot: int = 0
     notes: list[str] = field(default_factory=list)
+    #: the first slice file's whole metadata and its path ({"file", "meta"}), which records its bench (the advice's
+    #: limits: reconstruction.assess.advice.capture_limits); empty for generic tables
+    capture: dict[str, object] = field(default_factory=dict)
 
 
 def parse_columns(spec: str | None) -> dict[str, str]:
@@ -522,9 +525,12 @@ def load_inputs(paths: Sequence[str | Path], *, quantity: str | None = None,
     dropped = 0
     notes: list[str] = []
     quantities: list[str] = []
+    capture: dict[str, object] = {}
     for p in paths:
         s = read_input(p, quantity=quantity, columns=columns, angles_in=angles_in)
         quantities.append(s.quantity)
+        if not capture and "config_settings" in s.meta:
+            capture = {"file": str(p), "meta": dict(s.meta)}
         if len(s) == 0:
             raise InputError(f"{s.source}: no samples")
         if not np.any(s.values != 0.0):
@@ -549,7 +555,7 @@ def load_inputs(paths: Sequence[str | Path], *, quantity: str | None = None,
                          source=s.source))
     merged = _merge(out)
     check_slice(merged)
-    return LoadedInput(merged, [str(p) for p in paths], quantities, dropped, notes)
+    return LoadedInput(merged, [str(p) for p in paths], quantities, dropped, notes, capture)
 
 
 def check_whole_file_input(paths: Sequence[str | Path], found: str | Path, kind: str, quantity: str | None,
