@@ -416,8 +416,8 @@ def _unbounded_comment(leaves: list[tuple[str, Array, dict[str, Any]]]) -> str:
     amps = ", ".join(f"{p} {float(np.max(c)):.3g}" for p, c, _ in leaves)
     return ("<!-- Colours above 1 (srgb spectra with unbounded = true) are exact, not a bug: a blendbsdf weighs its "
             "two branches by (1 - weight) and weight, so to add the fitted lobes (amplitudes: " + amps + ") each "
-            "branch holds its lobes' amplitudes divided by its weight; the surface reflects the fitted amounts, "
-            "its albedo never above 1. -->")
+            "branch holds its lobes' amplitudes divided by its weight, and the surface reflects the fitted "
+            "amounts. -->")
 
 
 def mitsuba_fragment(rec: Reconstruction, name: str, rgl_file: str | None) -> tuple[str, dict[str, Any]]:

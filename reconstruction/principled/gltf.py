@@ -73,7 +73,7 @@ def not_carried(p: PrincipledParams) -> list[str]:
     """What of ``p`` a glTF file cannot carry (module docstring: Lost), each said with its value: empty when the
     file holds the material as fitted."""
     lost = []
-    if p.base_diffuse_roughness >= APPLY_THRESHOLD:
+    if p.base_diffuse_roughness >= 0.02:  # below, Lambert within a fraction of a per cent
         lost.append(f"base_diffuse_roughness {p.base_diffuse_roughness:.3g} (glTF's diffuse is Lambert)")
     if p.base_metalness >= APPLY_THRESHOLD and any(c != 1.0 for c in p.specular_color):
         lost.append("the metal's F82 tint (specular_color "
