@@ -354,13 +354,13 @@ def fit_principled(truth: BRDF, max_nfev: int = 40, start_nfev: int = 12, image_
         alt = _judged(plain[tie], truth, judge, image_size)
         e_full, e_plain = ((full[2], alt[2]) if judge else
                            (float(np.linalg.norm(data(best.x))), float(np.linalg.norm(data(plain)))))
-        keep = e_plain > PLAIN_GOOD and e_full <= LAYER_GAIN * e_plain
+        keep = e_plain > PLAIN_GOOD if judge else e_full <= LAYER_GAIN * e_plain  # else the plain dielectric
         x, fig = (best.x, full) if keep else (plain, alt)
         what = "image_relative_rmse" if judge else "residual"
         layers = {"layers": "kept" if keep else "at rest", f"{what}_with_layers": round(e_full, 5),
                   f"{what}_plain_dielectric": round(e_plain, 5),
-                  "rule": f"metalness, coat and fuzz kept only when the plain dielectric misses by more than "
-                          f"{PLAIN_GOOD:.0%} and they leave at most {LAYER_GAIN:g} of its error"}
+                  "rule": f"metalness, coat and fuzz kept when the plain dielectric misses by more than "
+                          f"{PLAIN_GOOD:.0%} in image (LAYER_GAIN {LAYER_GAIN:g} without images)"}
     params, image, mean_img = fig
     misses, share = _misses(params, truth)
     return PrincipledFit(params=params, image_relative_rmse=mean_img, image=image, cosl2=cosl2(params.eval, truth),
