@@ -135,6 +135,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "brdf_cos (f_r cos theta_o); slice files say it themselves")
     ap.add_argument("--columns", metavar="KEY=NAME,...",
                     help="map generic-table columns: theta_i=NAME,theta_o=NAME (also value=NAME, R=, G=, B=)")
+    ap.add_argument("--angles-in", choices=("degrees", "radians"), default="degrees",
+                    help="unit of the angle columns of slice files and generic tables (default degrees; a file whose "
+                         "angles all lie within +-1.6 is refused as radians read as degrees)")
     ap.add_argument("--blind-spot-deg", type=_nonneg_float, default=None, metavar="DEG",
                     help="half width of the retro blind spot in |theta_i + theta_o| where all-zero rows are missing "
                          "data (default: the slice file's blind_spot_half_width_deg, else 10)")
@@ -171,7 +174,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "after measuring each, with its bench time, and recommend one (the report's 'advice')")
     u.add_argument("--bench", metavar="CONFIG.toml", default=None,
                    help="--advise: the bench file whose arm limits, blind spot and timing the candidates use "
-                        "(default: 0-80 deg, a 4 deg blind spot, 0.13 s per point)")
+                        "(default: the bench recorded in the slice file's metadata, else 0-80 deg, a 4 deg blind "
+                        "spot, 0.13 s per point); never beyond the incidence where its beam overfills the sample")
     u.add_argument("--budget-s", type=_nonneg_float, default=None, metavar="T",
                    help="--advise: also plan the best further slices that fit in T seconds of bench time")
     ap.add_argument("--no-conservative", dest="conservative", action="store_false",
@@ -212,6 +216,7 @@ def job_from_args(args: argparse.Namespace, **overrides: Any) -> Job:
         inputs=tuple(str(x) for x in (args.inputs or ())), out=str(args.out) if args.out else "",
         method=args.method, preview=args.preview, report=args.report, supersample=args.supersample,
         quantity=args.quantity, columns=args.columns, blind_spot_deg=args.blind_spot_deg, illuminant=args.illuminant,
+        angles_in=getattr(args, "angles_in", None) or "degrees",
         scene=args.scene, lobes=lobes, fill=args.fill, axis=args.axis, smoothing=args.smoothing,
         allow_implausible=bool(getattr(args, "allow_implausible", False)),
         conservative=bool(getattr(args, "conservative", True)),

@@ -39,6 +39,7 @@ class Job:
     quantity: str | None = None
     columns: str | None = None
     blind_spot_deg: float | None = None
+    angles_in: str = "degrees"  # --angles-in: the unit of the inputs' angle columns (reconstruction.formats.angleunits)
     illuminant: str = "D65"
     scene: str | None = None
     lobes: tuple[str, ...] | None = None

@@ -120,7 +120,8 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
     # imports matplotlib meanwhile, auto's child computes fit's cone tables of the samples and imports the methods
     with Drawer(enabled=bool(job.html)) as drawer:
         child = Forked(enabled=job.method == "auto")
-        seed = start_child(child, job.inputs, job.quantity, job.columns, job.blind_spot_deg) if child.alive else None
+        seed = (start_child(child, job.inputs, job.quantity, job.columns, job.blind_spot_deg, job.angles_in)
+                if child.alive else None)
         if job.method == "auto":
             import_methods()
         with child, blas, shared_cone_averages(), Background(enabled=job.assesses or job.bounds) as helper, \
@@ -170,13 +171,15 @@ def _run(job: Job, progress: Progress | None, helper: Any, renders: Any, drawer:
     rep = _report(job, steps, loaded, scene, rec, choice, working, table, checks, colour_info, energy, outputs)
     if principled is not None:
         rep["principled"] = principled
+    _warn(rep, loaded.files)
     if bounded is not None:
         rep["conservative"] = bounded
     sigma_table = None
     if job.assesses:
         t0 = steps.begin("uncertainty")
         sigma_table = _assess(job, rep, working, rec, opts, steps.begin, steps.done,
-                              ref if ref is not None or early is None else early()[0])
+                              ref if ref is not None or early is None else early()[0],
+                              getattr(loaded, "capture", None) or {})
         steps.done("uncertainty", t0)
     _finish(job, steps, rep, outputs, checks, working, rec, table, others, choice, sigma_table, spheres, drawer)
     return rep
@@ -191,7 +194,7 @@ def _read_inputs(job: Job, steps: _Steps) -> tuple[Any, Any]:
     loaded = zemax.load_inputs(list(job.inputs), job.quantity, job.columns) or brdffile.load_inputs(
         list(job.inputs), job.quantity, job.columns) or inputs.load_inputs(
         list(job.inputs), quantity=job.quantity, columns=inputs.parse_columns(job.columns),
-        blind_spot_deg=job.blind_spot_deg)
+        blind_spot_deg=job.blind_spot_deg, angles_in=job.angles_in)
     scene = None
     if job.scene:
         sp = Path(job.scene)
@@ -350,6 +353,20 @@ def _report(job: Job, steps: _Steps, loaded: Any, scene: Any, rec: Reconstructio
         outputs=outputs, timings=steps.timings, dropped_blind_spot=loaded.dropped_blind_spot)
 
 
+def _warn(rep: dict[str, Any], files: list[str]) -> None:
+    """Say what the samples cannot support (:func:`reconstruction.report.summary.guard_warnings`): as warnings
+    (one line each on the console) and in the report's ``warnings``."""
+    import warnings
+
+    from reconstruction.report.summary import guard_warnings
+
+    said = guard_warnings(rep["coverage"], rep.get("cross_validation"), ", ".join(files))
+    for msg in said:
+        warnings.warn(msg, UserWarning, stacklevel=2)
+    if said:
+        rep["warnings"] = said
+
+
 def _finish(job: Job, steps: _Steps, rep: dict[str, Any], outputs: dict[str, Any], checks: dict[str, Any],
             working: Slice, rec: Reconstruction, table: Array, others: dict[str, Any], choice: dict[str, Any],
             sigma_table: Any, spheres: Any, drawer: Any) -> None:
@@ -433,9 +450,10 @@ def bound_where_unmeasured(rec: Reconstruction, table: Array, working: Slice, op
 
 
 def _assess(job: Job, rep: dict[str, Any], working: Slice, rec: Reconstruction, opts: Options,
-            begin: Callable[[str], float], done: Callable[[str, float], None], ref: Any = None
-            ) -> NDArray[np.float32]:
-    """The report's ``uncertainty`` (and the ``--uncertainty`` array) and, with ``--advise``, its ``advice``;
+            begin: Callable[[str], float], done: Callable[[str, float], None], ref: Any = None,
+            capture: dict[str, Any] | None = None) -> NDArray[np.float32]:
+    """The report's ``uncertainty`` (and the ``--uncertainty`` array) and, with ``--advise``, its ``advice`` (the
+    bench of ``--bench``, else the one the slice file records: ``capture``, ``inputs.LoadedInput.capture``);
     returns sigma of ln f per cell (3, 90, 90, 180)."""
     from reconstruction.assess import advice, uncertainty
     from reconstruction.atomic import atomic_path
@@ -452,7 +470,9 @@ def _assess(job: Job, rep: dict[str, Any], working: Slice, rec: Reconstruction, 
     rep["uncertainty"] = section
     if job.advise:
         t0 = begin("advice")
-        rep["advice"] = advice.advise(s, ref, advice.bench_limits(job.bench), job.budget_s,
+        limits = (advice.bench_limits(job.bench) if job.bench or not capture
+                  else advice.capture_limits(capture["meta"], capture["file"]) or advice.BenchLimits())
+        rep["advice"] = advice.advise(s, ref, limits, job.budget_s,
                                       current={**{k: section[k] for k in ("expected_psnr_db", "expected_cosl2",
                                                                           "expected_linear_image_error")},
                                                **{k: v for k, v in section.get("scene", {}).items()

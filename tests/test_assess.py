@@ -409,3 +409,35 @@ def test_a_sphere_scene_sees_every_pair_its_lights_make():
     ranges = scene_pairs(_scene("[scene]\ntheta_i_deg = [10.0, 30.0]\ntheta_o_deg = [0.0, 20.0]\n"))
     t = ranges.theta_i_deg
     assert ranges.kind == "ranges" and t.min() >= 10.0 - 1e-9 and t.max() <= 30.0 + 1e-9
+
+
+def test_the_advice_uses_the_bench_the_slice_file_records_and_never_advises_past_the_footprint(cache, tmp_path):
+    """Issue 41: --advise assumed 0-80 deg and default timings whatever the capture's bench, and recommended 80 deg
+    on the demo, past where its beam overfills the sample (75.5 deg), without a word. The bench recorded in the
+    slice file's metadata is used; incidences beyond the footprint limit are excluded, and the advice says why."""
+    from reconstruction.formats.slicefile import Slice
+
+    s = synthetic_slice(PLASTIC, (20.0,))
+    meta = {"quantity": "brdf", "bench_name": "narrow bench",
+            "config_settings": {"[axes.light].min_deg": 0.0, "[axes.light].max_deg": 70.0,
+                                "[axes.detector].min_deg": -80.0, "[axes.detector].max_deg": 80.0,
+                                "[motion].velocity_deg_s": 20.0, "[bench].blind_spot_half_width_deg": 5.0},
+            "config_fingerprint": {"[motion].settle_s": 0.5, "[detector].integration_time_s": 0.1,
+                                   "[plan].repeats": 2.0},
+            "instrument": {"beam_diameter_mm": 10.0, "sample_diameter_mm": 20.0}}  # overfills beyond 60 deg
+    lim = advice.capture_limits(meta, "s.csv")
+    assert (lim.light_max_deg, lim.blind_spot_deg) == (70.0, 5.0)
+    assert lim.point_s == pytest.approx(0.5 + 0.2 + 0.1) and lim.overfills_beyond_deg == pytest.approx(60.0)
+    assert "narrow bench" in lim.source and advice.capture_limits({"quantity": "brdf"}, "t.csv") is None
+    p = tmp_path / "s.csv"
+    write_slice(p, Slice(s.theta_i_deg, s.theta_o_deg, s.values, list(s.channels), s.std, meta=meta))
+    rep = pipeline.run(pipeline.Job(inputs=(str(p),), out="", method="bivariate", advise=True,
+                                    report=str(tmp_path / "r.json")))
+    a = rep["advice"]
+    thetas = [c["theta_i_deg"] for c in a["candidates"]]
+    assert max(thetas) == 60.0 and a["recommended_theta_i_deg"] <= 60.0
+    assert [e["theta_i_deg"] for e in a["excluded"]] == [65.0, 70.0]  # reachable, but the beam overfills
+    assert "overfills the sample beyond 60.0 deg (a 10 mm beam on a 20 mm sample)" in a["excluded"][0]["why"]
+    assert a["bench"].startswith(f"the bench recorded in {p}")
+    assert a["candidates"][0]["bench_time_s"] == pytest.approx(round(len(advice.candidate_slice(
+        a["candidates"][0]["theta_i_deg"], lim, ["value"])) * 0.8, 1))

@@ -123,8 +123,8 @@ BAD = [
     ("zeros.csv", "theta_i,theta_o,value\n30,0,0\n30,10,0\n30,20,0\n30,50,0\n", ["--quantity", "brdf"],
      "zeros.csv: every value is zero"),
     ("one.csv", "theta_i,theta_o,value\n30,0,0.1\n", ["--quantity", "brdf"], "one.csv: 1 sample(s)"),
-    ("unsorted.csv", "theta_i,theta_o,value\n30,0,0.1\n30,20,0.1\n30,10,0.1\n", ["--quantity", "brdf"],
-     "unsorted.csv:4, column theta_o: 10.0 after 20.0 breaks the increasing order"),
+    ("dup.csv", "theta_i,theta_o,value\n30,0,0.1\n30,20,0.1\n40,10,0.1\n30,0,0.2\n", ["--quantity", "brdf"],
+     "dup.csv:5, column theta_o: duplicate sample theta_i = 30.0, theta_o = 0.0 (also at line 2)"),
 ]
 
 

@@ -162,3 +162,31 @@ def test_the_linear_error_without_the_brightest_pixel():
     assert res["key"]["relative_rmse_but_brightest_pixel"] == pytest.approx(want, rel=1e-12)
     assert res["rim"]["relative_rmse_but_brightest_pixel"] == 0.0
     assert res["relative_rmse_but_brightest_pixel"] == pytest.approx(want / 2, rel=1e-12)
+
+
+def test_a_grey_photodiode_table_against_a_colour_truth_is_read_in_the_band(files, table, tmp_path, capsys):
+    """Issue 41: a photodiode's grey table against its RGB truth was judged channel by channel (18.5 dB, 45 %) with
+    no word. Now the truth is read in the photodiode's band and the output says so; --no-band says it compares
+    grey with colour."""
+    from reconstruction.schema.optics import rgb_band_weights
+
+    w = rgb_band_weights()
+    np.testing.assert_allclose(w, [0.452, 0.337, 0.211], atol=2e-3)  # silicon x halogen-3000K (docs/instrument.md)
+    grey = np.broadcast_to(np.tensordot(w, table, axes=1)[None], table.shape).copy()  # what the bench reads
+    merl.write(tmp_path / "grey.binary", grey)
+    out = tmp_path / "banded.json"
+    assert cmp.main([str(tmp_path / "grey.binary"), str(files / "a.binary"), "--size", "16", "--json",
+                     str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "A is grey (one channel, as a photodiode measures) and B colour: B read in the photodiode band " \
+           "silicon x halogen-3000K" in printed
+    res = json.loads(out.read_text())
+    assert res["band"]["applied"] and res["band"]["band"] == "silicon x halogen-3000K"
+    assert res["rmse80"] < 1e-3 and res["cosl2"] < 1e-3  # the same reading, once in the same band
+    g, c = cmp.load_brdf(tmp_path / "grey.binary"), cmp.load_brdf(files / "a.binary")
+    _, _, note = cmp.band_matched(g, c, None)  # --no-band
+    assert not note["applied"] and "compared as they are, grey against each colour channel" in note["note"]
+    assert cmp.band_matched(c, c, ("silicon", "halogen-3000K"))[2] is None  # colour against colour: nothing to say
+    assert cmp.band_matched(g, g, ("silicon", "halogen-3000K"))[2] is None
+    assert cmp.main([str(tmp_path / "grey.binary"), str(files / "a.binary"), "--band", "silicon"]) == 2
+    assert "--band: expected RESPONSIVITY,SOURCE" in capsys.readouterr().err

@@ -205,3 +205,26 @@ def test_the_format_flags_need_no_merl_table_and_batch_refuses_them(tmp_path, ca
         cli.main(["--batch", str(tmp_path), "--rgl", str(tmp_path / "x.bsdf")])
     assert e.value.code == 2
     assert "--batch takes no INPUT, --out, --preview, --report, --rgl" in capsys.readouterr().err
+
+
+def test_colours_above_one_are_said_to_be_exact_and_each_export_says_what_it_cannot_carry(tmp_path):
+    """Issue 41: the demo's fragment held a diffuse reflectance of 1.58 'unbounded' in a blend of weight 0.91 with
+    no word (exact, but it reads as a bug), and the glTF dropped the coat's index silently."""
+    from reconstruction.principled import blender, gltf, materialx
+    from reconstruction.principled.model import PrincipledParams
+
+    rec = MicrofacetReconstruction(np.array([0.3]), np.array([1.0]), "dielectric", 1.5, 0.0, np.array([0.9]),
+                                   np.array([1.0]), ["value"])
+    xml, info = exports.mitsuba_fragment(rec, "bright", None)
+    assert info["unbounded_colours"] and info["not_carried"] == []
+    assert "Colours above 1 (srgb spectra with unbounded = true) are exact, not a bug" in xml
+    plain = MicrofacetReconstruction(np.array([0.3]), np.array([0.5]), "none", 1.0, 0.0, np.array([0.2]),
+                                     np.array([1.0]), ["value"])
+    assert "not a bug" not in exports.mitsuba_fragment(plain, "plain", None)[0]  # nothing above 1: nothing to say
+    coated = PrincipledParams(base_color=(0.2, 0.2, 0.2), coat_weight=0.44, coat_ior=1.17, coat_roughness=0.4)
+    entry = gltf.write_gltf(tmp_path / "c.gltf", coated, "c")
+    assert entry["not_carried"] == ["coat_ior 1.17 (glTF's clearcoat has a fixed index of 1.5)"]
+    assert json.loads((tmp_path / "c.gltf").read_text())["asset"]["extras"]["not_carried"] == entry["not_carried"]
+    assert gltf.write_gltf(tmp_path / "d.gltf", PrincipledParams(), "d")["not_carried"] == []
+    assert materialx.write_materialx(tmp_path / "c.mtlx", coated, "c")["not_carried"] == []
+    assert blender.write_blender(tmp_path / "c.py", coated, "c")["not_carried"] == []

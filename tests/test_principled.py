@@ -202,3 +202,28 @@ def test_cli_principled_bad_outputs_exit_2(tmp_path, capsys):
     with pytest.raises(SystemExit) as e:  # a batch names its outputs after its inputs
         cli.main(["--batch", str(tmp_path), "--principled", str(tmp_path / "p.json")])
     assert e.value.code == 2
+
+
+def test_a_known_dielectric_reads_as_a_dielectric_and_a_metal_as_a_metal():
+    """Issue 41: the demo's dielectric (lambert + GGX, Schlick f0 0.04 = IOR 1.5, scale 0.9) was written with
+    metalness 0.16, specular_ior 1.17 and a coat of 0.44 of IOR 1.17 (image 1.8 %): parameters nobody can use.
+    Metalness, coat and fuzz now stay at rest unless the plain dielectric misses by more than PLAIN_GOOD; a metal
+    keeps its metalness."""
+    from reconstruction.principled.fit import PLAIN_GOOD, analytic_start
+
+    demo = Material.from_dict({"name": "demo", "lobes": [
+        {"type": "lambert", "albedo": 0.14}, {"type": "ggx", "alpha": 0.15, "specular": 0.9, "f0": 0.04}]})
+    start = analytic_start([{"type": "lambert", "albedo": [0.14]},
+                            {"type": "ggx", "alpha": 0.15, "ior": 1.5, "f0": 0.04, "specular": [0.9]}])
+    assert start is not None and start[3] == 0.0 and start[10] == 0.0
+    r = fit_principled(demo.eval, start=start)
+    p = r.params
+    assert p.base_metalness < 0.01 and p.coat_weight < 0.01 and p.fuzz_weight < 0.01
+    assert 1.35 < p.specular_ior < 1.6 and p.specular_roughness == pytest.approx(math.sqrt(0.15), abs=0.03)
+    assert r.image_relative_rmse < PLAIN_GOOD
+    assert r.layers["layers"] == "at rest" and r.layers["image_relative_rmse_with_layers"] < r.image_relative_rmse
+    assert r.to_dict()["layers"] == r.layers
+    metal = PrincipledParams(base_color=(0.9, 0.6, 0.3), base_metalness=1.0, specular_roughness=0.3)
+    m = fit_principled(metal.eval, judge=False)
+    assert m.params.base_metalness > 0.9
+    assert analytic_start([{"type": "lambert", "albedo": [0.2]}, {"type": "retro", "exponent": 8}]) is None

@@ -208,3 +208,30 @@ def test_merge_keeps_an_earlier_runs_rows_for_the_materials_not_rerun(tmp_path, 
 
     assert main(["bench", "--materials", "mirror", "--merge", str(bad)]) == 2
     assert "--merge" in capsys.readouterr().err
+
+
+def test_the_committed_quick_study_has_the_shape_its_command_makes():
+    """Issue 41: docs/study-quick.* held 20 captures of 5 materials where `gonio-sim bench --quick` makes 24 of 6.
+    The committed study must hold the materials and the captures the command it names would make (from the
+    command's own configuration: simulator.study.grid; nothing is run)."""
+    import csv
+    import re
+    from pathlib import Path
+
+    from simulator.study import METHODS, grid
+
+    docs = Path(__file__).resolve().parents[1] / "docs"
+    md = (docs / "study-quick.md").read_text(encoding="utf-8")
+    command = re.search(r"Produced by `([^`]+)`", md).group(1)
+    assert command.split()[:3] == ["gonio-sim", "bench", "--quick"]
+    materials = re.search(r"--materials (\S+)", command)
+    cases = grid(True, materials.group(1).split(",") if materials else None)
+    with open(docs / "study-quick.csv", newline="", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    key = ("material", "step_deg", "n_slices", "repeats", "plan", "noise")
+    captured = {tuple(r[k] for k in key) for r in rows}
+    wanted = {(c.material, f"{c.step_deg:g}", str(c.n_slices), str(c.repeats), c.plan, c.noise) for c in cases}
+    assert {r["material"] for r in rows} == {c.material for c in cases}
+    assert captured == wanted
+    assert len(rows) == len(cases) * len(METHODS)
+    assert f"{len(rows)} rows ({len(cases)} captures)" in md

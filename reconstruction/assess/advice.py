@@ -1,7 +1,9 @@
 """Which slice next: candidate incidences ranked by the errors to expect after measuring them.
 
 For each candidate incidence theta_i (every :data:`STEP_DEG` the bench can reach: its light arm's limits, the
-outgoing range and the blind spot of ``--bench``, defaults otherwise) the slice a bench would measure there
+outgoing range and the blind spot of ``--bench``, else of the bench recorded in the slice file's metadata
+(:func:`capture_limits`), defaults otherwise; never beyond the incidence where the beam overfills the sample,
+which ``advice.excluded`` says) the slice a bench would measure there
 (theta_o every 2 deg, the blind spot left out) is added to the reference posterior's design
 (:func:`reconstruction.assess.uncertainty.reference_posterior`): the posterior covariance after a measurement
 does not depend on the values measured, so sigma after that slice is known before it is measured. Each candidate's
@@ -42,8 +44,8 @@ else:  # pragma: no cover
 
 Array = NDArray[np.float64]
 
-__all__ = ["BenchLimits", "bench_limits", "candidate_slice", "join_slices", "advise", "recommend", "TIE_DB",
-           "PREFERRED_DEG"]
+__all__ = ["BenchLimits", "bench_limits", "capture_limits", "candidate_slice", "join_slices", "advise", "recommend",
+           "TIE_DB", "PREFERRED_DEG"]
 
 STEP_DEG = 5.0
 OUT_STEP_DEG = 2.0
@@ -63,7 +65,10 @@ class BenchLimits:
     detector_max_deg: float = 80.0
     blind_spot_deg: float = 4.0
     point_s: float = 0.05 + 4 * 0.01 + 0.04  # settling + repeats x integration + a 2 deg move
-    source: str = "defaults (no --bench)"
+    source: str = "defaults (no --bench, and no bench recorded in the slice file)"
+    #: the incidence (deg) beyond which the beam overfills the sample (None: never, or the diameters are unknown)
+    overfills_beyond_deg: float | None = None
+    footprint: str = ""  # the beam and sample diameters, for the message
 
 
 def bench_limits(path: str | Path | None) -> BenchLimits:
@@ -85,14 +90,55 @@ def bench_limits(path: str | Path | None) -> BenchLimits:
         speed = float(motion.get("velocity_deg_s", 60.0))
         point = (float(motion.get("settle_s", 0.05)) + int(det.get("repeats", 4))
                  * float(det.get("integration_time_s", 0.01)) + OUT_STEP_DEG / max(speed, 1e-3))
+        bench = doc.get("bench", {})
+        beam, sample = bench.get("beam_diameter_mm"), bench.get("sample_diameter_mm")
         return BenchLimits(light_min_deg=max(0.0, float(light.get("min_deg", 0.0))),
                            light_max_deg=min(85.0, float(light.get("max_deg", 80.0))),
                            detector_max_deg=min(85.0, float(max(abs(detector.get("min_deg", -80.0)),
                                                                 abs(detector.get("max_deg", 80.0))))),
                            blind_spot_deg=float(doc.get("bench", {}).get("blind_spot_half_width_deg", 4.0)),
-                           point_s=point, source=str(p))
+                           point_s=point, source=str(p), **_footprint(beam, sample))
     except (TypeError, ValueError, AttributeError) as e:
         raise ReconstructionError(f"--bench {p}: expected numbers in [axes.*], [motion], [detector] ({e})") from None
+
+
+def _footprint(beam: Any, sample: Any) -> dict[str, Any]:
+    """The :class:`BenchLimits` footprint fields of a beam and a sample diameter (mm; None when unknown)."""
+    from reconstruction.schema.optics import footprint_limit_deg
+
+    if not all(isinstance(x, (int, float)) and not isinstance(x, bool) and x > 0 for x in (beam, sample)):
+        return {}
+    return {"overfills_beyond_deg": footprint_limit_deg(float(beam), float(sample)),
+            "footprint": f"a {float(beam):g} mm beam on a {float(sample):g} mm sample"}
+
+
+def capture_limits(meta: dict[str, Any], where: str) -> BenchLimits | None:
+    """The :class:`BenchLimits` of the bench recorded in a slice file's metadata (``meta``, docs/slice-format.md:
+    ``config_settings`` and ``config_fingerprint`` hold the bench file's keys, ``instrument`` the beam and sample
+    diameters), or None when it records none (a generic table, a file of another program). ``where``: the file,
+    for the report."""
+    cs, fp = meta.get("config_settings"), meta.get("config_fingerprint")
+    if not isinstance(cs, dict) and not isinstance(fp, dict):
+        return None
+    keys = {**(fp if isinstance(fp, dict) else {}), **(cs if isinstance(cs, dict) else {})}
+
+    def num(key: str, default: float) -> float:
+        v = keys.get(key)
+        return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) else default
+
+    repeats = num("[plan].repeats", num("[detector].repeats", 4.0))
+    point = (num("[motion].settle_s", 0.05) + repeats * num("[detector].integration_time_s", 0.01)
+             + OUT_STEP_DEG / max(num("[motion].velocity_deg_s", 60.0), 1e-3))
+    inst = meta.get("instrument") if isinstance(meta.get("instrument"), dict) else {}
+    name = meta.get("bench_name") or meta.get("bench") or "unnamed"
+    return BenchLimits(light_min_deg=max(0.0, num("[axes.light].min_deg", 0.0)),
+                       light_max_deg=min(85.0, num("[axes.light].max_deg", 80.0)),
+                       detector_max_deg=min(85.0, max(abs(num("[axes.detector].min_deg", -80.0)),
+                                                      abs(num("[axes.detector].max_deg", 80.0)))),
+                       blind_spot_deg=num("[bench].blind_spot_half_width_deg", 4.0), point_s=point,
+                       source=f"the bench recorded in {where} ({name})",
+                       **_footprint(inst.get("beam_diameter_mm", keys.get("[bench].beam_diameter_mm")),
+                                    inst.get("sample_diameter_mm", keys.get("[bench].sample_diameter_mm"))))
 
 
 def candidate_slice(theta_i_deg: float, limits: BenchLimits, channels: list[str]) -> Slice:
@@ -149,10 +195,18 @@ def advise(s: Slice, ref: P.PriorReconstruction, limits: BenchLimits, budget_s: 
     thetas = [float(t) for t in np.arange(np.ceil(lo / STEP_DEG) * STEP_DEG, hi + 1e-9, STEP_DEG)]
     measured = set(np.round(np.unique(s.theta_i_deg), 6).tolist())
     thetas = [t for t in thetas if round(t, 6) not in measured]
+    over = limits.overfills_beyond_deg
+    excluded = [{"theta_i_deg": t, "why": f"the beam overfills the sample beyond {over:.1f} deg ({limits.footprint}):"
+                 " part of the light misses the sample, and a correction of the lost light is a guess"}
+                for t in thetas if over is not None and t > over + 1e-9]
+    thetas = [t for t in thetas if over is None or t <= over + 1e-9]
+    said = {"excluded": excluded} if excluded else {}
     if not thetas:  # a hemispherical file, or slices at every step: nothing to advise, said rather than refused
         return {"recommended_theta_i_deg": None, "candidates": [], "bench": limits.source, "current": current,
-                "note": f"every incidence the bench can reach ({lo:g} to {hi:g} deg, every {STEP_DEG:g} deg) is "
-                        "measured already"}
+                **said, "note": (f"every incidence the bench can reach ({lo:g} to {hi:g} deg, every {STEP_DEG:g} "
+                                 "deg) is measured already" if not excluded else
+                                 "every incidence the bench can still reach is measured already or beyond where "
+                                 "its beam overfills the sample (excluded)")}
     slices = [candidate_slice(t, limits, list(s.channels)) for t in thetas]
     sig = np.stack([_sigma_after(ref, c, sigma_now) for c in slices])
     exp = expected_errors(f, sig)
@@ -185,7 +239,7 @@ def advise(s: Slice, ref: P.PriorReconstruction, limits: BenchLimits, budget_s: 
                               if len(tied) > 1 else {}),
                            "ranked_by": (f"expected PSNR in the scene's own images ({scene.name})" if scene is not None
                                          else "expected PSNR of a sphere under key and rim lighting"),
-                           "bench": limits.source, "current": current,
+                           "bench": limits.source, "current": current, **said,
                            "method": "the reference posterior's sigma after each candidate slice (value-independent)"
                                      ", its expected PSNR (key and rim lighting) and cosl2"}
     if budget_s is not None:

@@ -25,7 +25,7 @@ from reconstruction.core.slicedata import Slice
 Array = NDArray[np.float64]
 
 __all__ = ["DEFAULT_ILLUMINANT", "OBSERVER", "ASTM_INTERVALS", "resampling_interval", "spectral_to_rgb_matrix",
-           "spectra_to_rgb", "to_working_channels", "illuminant_names"]
+           "spectra_to_rgb", "to_working_channels", "illuminant_names", "srgb_reflectance_basis"]
 
 DEFAULT_ILLUMINANT = "D65"
 OBSERVER = "CIE 1931 2 Degree Standard Observer"
@@ -137,3 +137,22 @@ def to_working_channels(s: Slice, illuminant: str = DEFAULT_ILLUMINANT) -> tuple
             "conversion": f"{OBSERVER}, illuminant {illuminant}, ASTM E308, resampled to "
                           f"{resampling_interval(wl)} nm, CAT02 to the sRGB white, linear sRGB"}
     return out, info
+
+
+def srgb_reflectance_basis(grid_nm: ArrayLike) -> Array:
+    """(len(grid_nm), 3): the reflectance spectra of linear sRGB R, G, B (Mallett and Yuksel 2019, colour-science's
+    MSDS_BASIS_FUNCTIONS_sRGB_MALLETT2019, linearly interpolated onto ``grid_nm`` (nm), clamped at its ends): an
+    albedo (r, g, b) is the spectrum r B_R + g B_G + b B_B, and (1, 1, 1) a flat reflectance of 1. The simulator
+    turns RGB materials into spectra with the same basis (read through the same disk cache)."""
+    from importlib.metadata import version
+
+    from reconstruction.cache import cached_arrays
+
+    def build() -> tuple[Array, Array]:
+        from colour.recovery import MSDS_BASIS_FUNCTIONS_sRGB_MALLETT2019 as basis
+
+        return np.asarray(basis.wavelengths, dtype=float), np.asarray(basis.values, dtype=float)
+
+    wl, values = cached_arrays("srgb-basis-mallett2019", f"colour-science {version('colour-science')}", build)
+    grid = np.asarray(grid_nm, dtype=float)
+    return np.stack([np.interp(grid, wl, values[:, k]) for k in range(3)], axis=1)

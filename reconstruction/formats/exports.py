@@ -17,7 +17,10 @@ Mitsuba 3 fragment (``--export-mitsuba MATERIAL.xml``): a ``<bsdf version="3.0.0
   dielectric's; a conductor eta + i kappa), ``specular_reflectance`` = ks w_j;
 * a sum of lobes -> nested ``blendbsdf`` (weight = the share of the right branch's amplitudes), the leaves'
   colours scaled so the blend adds exactly to the sum; when the amplitudes add to more than 1 a leaf colour is an
-  ``srgb`` spectrum with ``unbounded`` set.
+  ``srgb`` spectrum with ``unbounded`` set, and a comment in the fragment says why (a blend weighs its branches
+  by 1 - weight and weight, so a branch holds its lobes' amplitudes over its weight: the demo's albedo 0.14
+  beside a GGX lobe of scale 0.91 is a diffuse reflectance of 0.14 / 0.09 = 1.58 in a blend of weight 0.91).
+  The report's ``mitsuba.not_carried`` lists what the fragment cannot hold (empty where the model maps).
 
 ``roughplastic`` is not used: its diffuse term is Fresnel-transmitted and internally reflected, which none of
 our lobes is. A Beckmann lobe with Schlick's Fresnel, a Schlick lobe with a coloured specular, amplitudes adding
@@ -408,6 +411,15 @@ def _tree(leaves: list[tuple[str, Array, dict[str, Any]]], total: float, pad: st
             + _tree(right, total, pad + "    ") + [f"{pad}</bsdf>"])
 
 
+def _unbounded_comment(leaves: list[tuple[str, Array, dict[str, Any]]]) -> str:
+    """The fragment's note on its colours above 1: exact, not a bug (module docstring)."""
+    amps = ", ".join(f"{p} {float(np.max(c)):.3g}" for p, c, _ in leaves)
+    return ("<!-- Colours above 1 (srgb spectra with unbounded = true) are exact, not a bug: a blendbsdf weighs its "
+            "two branches by (1 - weight) and weight, so to add the fitted lobes (amplitudes: " + amps + ") each "
+            "branch holds its lobes' amplitudes divided by its weight, and the surface reflects the fitted "
+            "amounts. -->")
+
+
 def mitsuba_fragment(rec: Reconstruction, name: str, rgl_file: str | None) -> tuple[str, dict[str, Any]]:
     """(XML text, info) of a Mitsuba 3 ``<bsdf>`` for ``rec``: analytic where it maps, else ``measured`` with
     ``rgl_file`` (a path relative to the XML file)."""
@@ -437,14 +449,19 @@ def mitsuba_fragment(rec: Reconstruction, name: str, rgl_file: str | None) -> tu
                     + _tree(others, amp / (1.0 - ks), "    ")
                     + _leaf_xml("principled", np.ones(3), schlick[0][2], "    ") + ["</bsdf>"])
         unbounded = 'name="unbounded" value="true"' in "\n".join(body)
-        info = {"maps": True, "plugins": plugins, "leaves": len(leaves), "unbounded_colours": unbounded}
+        if unbounded:
+            head.append(_unbounded_comment(leaves))
+        info = {"maps": True, "plugins": plugins, "leaves": len(leaves), "unbounded_colours": unbounded,
+                "not_carried": []}
     else:
         if rgl_file is None:
             raise ReconstructionError("the model does not map to a Mitsuba BSDF and no RGL file was written for the "
                                       "measured fallback")
         body = [f'<bsdf type="measured" {attrs}>', f"    <string name=\"filename\" value={quoteattr(rgl_file)}/>",
                 "</bsdf>"]
-        info = {"maps": False, "plugins": ["measured"], "filename": rgl_file, "reason": why}
+        info = {"maps": False, "plugins": ["measured"], "filename": rgl_file, "reason": why,
+                "not_carried": [f"the fitted model as parameters ({why}): the fragment renders the RGL file's "
+                                "tabulated samples"]}
     return "\n".join(head + body) + "\n", info
 
 

@@ -8,7 +8,9 @@ Two kinds of file are accepted (told apart by the first line):
 * generic tables: optional ``#`` comment lines, a header line, then one row per sample, separated by commas,
   semicolons or tabs. Columns:
 
-  - the incidence angle (degrees): ``theta_i_deg``, ``theta_i``, ``incidence_deg`` or ``incidence``;
+  - the incidence angle (degrees; radians with ``angles_in="radians"``, the CLI's ``--angles-in radians``:
+    angles all within +-1.6 are refused as radians read as degrees): ``theta_i_deg``, ``theta_i``,
+    ``incidence_deg`` or ``incidence``;
   - the measured (outgoing) angle, signed, positive on the specular side (degrees): ``theta_o_deg``,
     ``theta_o``, ``outgoing_deg`` or ``outgoing``;
   - the values: ``value`` (one channel), ``R,G,B``, or one column per wavelength (``450nm``, ``450 nm``,
@@ -16,9 +18,8 @@ Two kinds of file are accepted (told apart by the first line):
 
   Other names are mapped with ``columns={"theta_i": NAME, "theta_o": NAME, "value": NAME}`` (the CLI's
   ``--columns theta_i=NAME,theta_o=NAME``); any column left unknown is an error. Generic tables do not say what
-  their values are, so ``quantity`` (``brdf``, ``reflectance_factor`` or ``brdf_cos``) is required. Rows must
-  come in blocks of one incidence each, the measured angle strictly increasing or strictly decreasing inside a
-  block, no (theta_i, theta_o) twice.
+  their values are, so ``quantity`` (``brdf``, ``reflectance_factor`` or ``brdf_cos``) is required. Rows may
+  come in any order (a capture's own order, incidences interleaved), but no (theta_i, theta_o) twice.
 
 In both kinds, rows whose values are all exactly zero in the blind spot around the retro direction
 (|theta_i + theta_o| <= ``blind_spot_deg``, and zero rows contiguous with them) are missing data, not measured
@@ -30,6 +31,7 @@ Errors are :class:`InputError` with ``file:line, column NAME: what was expected`
 from __future__ import annotations
 
 import csv
+import dataclasses
 import math
 import re
 from collections.abc import Mapping, Sequence
@@ -40,6 +42,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from reconstruction.base import ReconstructionError
+from reconstruction.formats.angleunits import to_degrees
 from reconstruction.formats.merl import MAX_CELL_VALUE
 from reconstruction.formats.slicefile import (
     MAGIC,
@@ -98,6 +101,9 @@ class LoadedInput:
     quantities: list[str]
     dropped_blind_spot: int = 0
     notes: list[str] = field(default_factory=list)
+    #: the first slice file's whole metadata and its path ({"file", "meta"}), which records its bench (the advice's
+    #: limits: reconstruction.assess.advice.capture_limits); empty for generic tables
+    capture: dict[str, object] = field(default_factory=dict)
 
 
 def parse_columns(spec: str | None) -> dict[str, str]:
@@ -196,8 +202,10 @@ def _parse_slowly(path: Path, rows: Sequence[str], line_of: Sequence[int], heade
     return data
 
 
-def read_table(path: str | Path, *, quantity: str | None, columns: Mapping[str, str] | None = None) -> Slice:
-    """Read a generic in-plane CSV table (see the module docstring) into a :class:`Slice` of ``quantity``."""
+def read_table(path: str | Path, *, quantity: str | None, columns: Mapping[str, str] | None = None,
+               angles_in: str = "degrees") -> Slice:
+    """Read a generic in-plane CSV table (see the module docstring) into a :class:`Slice` of ``quantity``, its
+    angles in ``angles_in`` (:mod:`reconstruction.formats.angleunits`: radians read as degrees are refused)."""
     path = Path(path)
     columns = dict(columns or {})
     text = read_input_text(path, InputError, "a CSV file")
@@ -218,13 +226,15 @@ def read_table(path: str | Path, *, quantity: str | None, columns: Mapping[str, 
     lines_arr = np.asarray(line_of)
     ti = data[:, [k for k, r in role.items() if r == "theta_i"][0]]
     to = data[:, [k for k, r in role.items() if r == "theta_o"][0]]
+    ti, to = to_degrees(path, ti, to, shorten(names_by_role["theta_i"]), shorten(names_by_role["theta_o"]),
+                        angles_in, InputError)
     for name, arr in (("theta_i", ti), ("theta_o", to)):
         out = np.abs(arr) >= 90.0
         if out.any():
             r = int(np.argmax(out))
             raise InputError(f"{path}:{line_of[r]}, column {shorten(names_by_role[name])}: {arr[r]} is outside "
                              f"(-90, 90) degrees")
-    _check_order(path, ti, to, lines_arr, shorten(names_by_role["theta_i"]), shorten(names_by_role["theta_o"]))
+    _check_duplicates(path, ti, to, lines_arr, shorten(names_by_role["theta_o"]))
     values = data[:, value_cols]
     std = np.zeros_like(values)
     for c, k in std_cols.items():
@@ -357,46 +367,21 @@ def _read_rows(path: Path, lines: list[str], h: int, header: list[str], delim: s
     return data, line_of
 
 
-def _check_order(path: Path, ti: Array, to: Array, line_of: NDArray[np.int_], ti_name: str, to_name: str
-                 ) -> None:
-    """Rows in contiguous incidence blocks, theta_o strictly monotonic inside each block (vectorised)."""
-    n = ti.size
-    new_block = np.r_[True, ti[1:] != ti[:-1]]
-    block = np.cumsum(new_block) - 1
-    starts = np.nonzero(new_block)[0]
-    block_ti = ti[starts]
-    _, first = np.unique(block_ti, return_index=True)
-    if first.size != block_ti.size:
-        again = np.setdiff1d(np.arange(block_ti.size), first)[0]
-        prev = int(np.nonzero(block_ti[:again] == block_ti[again])[0][0])
-        r, p = int(starts[again]), int(starts[prev])
-        raise InputError(f"{path}:{line_of[r]}, column {ti_name}: incidence {ti[r]} appears again after other "
-                         f"incidences (first block at line {line_of[p]}); rows must come in one block per incidence")
-    if n < 2:
+def _check_duplicates(path: Path, ti: Array, to: Array, line_of: NDArray[np.int_], to_name: str) -> None:
+    """Rows in any order (a capture's own order included), but no (theta_i, theta_o) twice: the later row of a
+    repeated pair is named with the line of the earlier (vectorised: one sort)."""
+    if ti.size < 2:
         return
-    d = np.diff(to)
-    same = block[1:] == block[:-1]
-    dup = same & (d == 0)
-    if dup.any():
-        r = int(np.argmax(dup)) + 1
-        raise InputError(f"{path}:{line_of[r]}, column {to_name}: duplicate sample theta_i = {ti[r]}, theta_o = "
-                         f"{to[r]} (also at line {line_of[r - 1]})")
-    # direction of each block from its first step; every step inside the block must have that sign
-    sign = np.sign(d)
-    first_step = np.full(block[-1] + 1, 0.0)
-    idx = np.nonzero(same)[0]
-    if idx.size:
-        # first within-block step of every block: the smallest index of each block among the within-block steps
-        blk = block[idx]
-        firsts = idx[np.r_[True, blk[1:] != blk[:-1]]]
-        first_step[block[firsts]] = sign[firsts]
-        wrong = same & (sign != first_step[block[1:]])
-        if wrong.any():
-            r = int(np.argmax(wrong)) + 1
-            way = "increasing" if first_step[block[r]] > 0 else "decreasing"
-            raise InputError(f"{path}:{line_of[r]}, column {to_name}: {to[r]} after {to[r - 1]} breaks the {way} "
-                             f"order of the theta_i = {ti[r]} block; rows must be sorted by angle (a duplicate "
-                             f"or a shifted column?)")
+    order = np.lexsort((line_of, to, ti))  # by incidence, angle, then file order
+    same = (ti[order][1:] == ti[order][:-1]) & (to[order][1:] == to[order][:-1])
+    if not same.any():
+        return
+    k = np.nonzero(same)[0]
+    later, earlier = order[k + 1], order[k]
+    j = int(np.argmin(line_of[later]))  # the first repeated row in the file
+    r, p = int(later[j]), int(earlier[j])
+    raise InputError(f"{path}:{line_of[r]}, column {to_name}: duplicate sample theta_i = {ti[r]}, theta_o = "
+                     f"{to[r]} (also at line {line_of[p]})")
 
 
 # --- any input -------------------------------------------------------------------------------------------
@@ -426,21 +411,24 @@ def _is_slice_file(path: Path) -> bool:
     return text.replace("\r", "\n").split("\n")[0].strip() == MAGIC
 
 
-def read_input(path: str | Path, *, quantity: str | None = None, columns: Mapping[str, str] | None = None
-               ) -> Slice:
-    """Read one input file, slice file or generic table, into a :class:`Slice` in its own quantity."""
+def read_input(path: str | Path, *, quantity: str | None = None, columns: Mapping[str, str] | None = None,
+               angles_in: str = "degrees") -> Slice:
+    """Read one input file, slice file or generic table, into a :class:`Slice` in its own quantity, its angles in
+    degrees (the file's in ``angles_in``: :mod:`reconstruction.formats.angleunits`)."""
     path = Path(path)
     if _is_slice_file(path):
         try:
             s = read_slice(path)
         except SliceError as e:
             raise InputError(str(e)) from None
+        ti, to = to_degrees(path, s.theta_i_deg, s.theta_o_deg, "theta_i_deg", "theta_o_deg", angles_in, InputError)
+        s = dataclasses.replace(s, theta_i_deg=ti, theta_o_deg=to)
         if columns:
             raise InputError(f"{path}: --columns applies to generic tables; this is a gonio-brdf slice file")
         if quantity is not None and quantity != s.quantity:
             raise InputError(f"{path}: the file says quantity {s.quantity!r}; --quantity {quantity} disagrees")
         return s
-    return read_table(path, quantity=quantity, columns=columns)
+    return read_table(path, quantity=quantity, columns=columns, angles_in=angles_in)
 
 
 def drop_blind_spot_zeros(s: Slice, half_width_deg: float = DEFAULT_BLIND_SPOT_DEG) -> tuple[Slice, int]:
@@ -523,8 +511,10 @@ def _check_bounds(s: Slice, f: Array, sd: Array) -> None:
 
 
 def load_inputs(paths: Sequence[str | Path], *, quantity: str | None = None,
-                columns: Mapping[str, str] | None = None, blind_spot_deg: float | None = None) -> LoadedInput:
-    """Read every input, drop blind-spot zero rows, convert to f_r (1/sr) and merge into one :class:`Slice`.
+                columns: Mapping[str, str] | None = None, blind_spot_deg: float | None = None,
+                angles_in: str = "degrees") -> LoadedInput:
+    """Read every input (its angles in ``angles_in``), drop blind-spot zero rows, convert to f_r (1/sr) and merge
+    into one :class:`Slice`.
 
     ``blind_spot_deg``: half width of the retro blind spot (degrees); default: the slice file's
     ``blind_spot_half_width_deg`` metadata if present, else :data:`DEFAULT_BLIND_SPOT_DEG`.
@@ -535,9 +525,12 @@ def load_inputs(paths: Sequence[str | Path], *, quantity: str | None = None,
     dropped = 0
     notes: list[str] = []
     quantities: list[str] = []
+    capture: dict[str, object] = {}
     for p in paths:
-        s = read_input(p, quantity=quantity, columns=columns)
+        s = read_input(p, quantity=quantity, columns=columns, angles_in=angles_in)
         quantities.append(s.quantity)
+        if not capture and "config_settings" in s.meta:
+            capture = {"file": str(p), "meta": dict(s.meta)}
         if len(s) == 0:
             raise InputError(f"{s.source}: no samples")
         if not np.any(s.values != 0.0):
@@ -562,7 +555,7 @@ def load_inputs(paths: Sequence[str | Path], *, quantity: str | None = None,
                          source=s.source))
     merged = _merge(out)
     check_slice(merged)
-    return LoadedInput(merged, [str(p) for p in paths], quantities, dropped, notes)
+    return LoadedInput(merged, [str(p) for p in paths], quantities, dropped, notes, capture)
 
 
 def check_whole_file_input(paths: Sequence[str | Path], found: str | Path, kind: str, quantity: str | None,

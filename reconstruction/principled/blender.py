@@ -91,4 +91,7 @@ def write_blender(path: str | Path, p: PrincipledParams, name: str, summary: str
     text = blender_script(p, name, Path(path).name, summary)
     with atomic_open(Path(path), "w", encoding="utf-8") as fh:
         fh.write(text)
-    return {"file": str(path), "node": "Principled BSDF", "distribution": "GGX"}
+    return {"file": str(path), "node": "Principled BSDF", "distribution": "GGX",
+            "not_carried": [] if p.base_diffuse_roughness < 1e-3 else [
+                f"base_diffuse_roughness {p.base_diffuse_roughness:.3g} before Blender 4.3 (no Diffuse Roughness "
+                "input there)"]}

@@ -25,7 +25,7 @@ from reconstruction.atomic import atomic_open
 from reconstruction.principled import albedo as alb
 from reconstruction.principled.model import MODEL, MODEL_VERSION, PrincipledParams
 
-__all__ = ["gltf_document", "write_gltf", "sphere_mesh", "APPLY_THRESHOLD"]
+__all__ = ["gltf_document", "write_gltf", "sphere_mesh", "APPLY_THRESHOLD", "not_carried"]
 
 #: a layer whose weight is below this is left out of the file (its extension does not apply)
 APPLY_THRESHOLD = 1e-3
@@ -69,6 +69,22 @@ def _material(p: PrincipledParams, name: str) -> tuple[dict[str, Any], list[str]
     return mat, sorted(ext)
 
 
+def not_carried(p: PrincipledParams) -> list[str]:
+    """What of ``p`` a glTF file cannot carry (module docstring: Lost), each said with its value: empty when the
+    file holds the material as fitted."""
+    lost = []
+    if p.base_diffuse_roughness >= 0.02:  # below, Lambert within a fraction of a per cent
+        lost.append(f"base_diffuse_roughness {p.base_diffuse_roughness:.3g} (glTF's diffuse is Lambert)")
+    if p.base_metalness >= APPLY_THRESHOLD and any(c != 1.0 for c in p.specular_color):
+        lost.append("the metal's F82 tint (specular_color "
+                    + ", ".join(f"{c:.3g}" for c in p.specular_color) + "; glTF metals go to white at grazing)")
+    if p.coat_weight >= APPLY_THRESHOLD and abs(p.coat_ior - 1.5) > 1e-3:
+        lost.append(f"coat_ior {p.coat_ior:.3g} (glTF's clearcoat has a fixed index of 1.5)")
+    if p.coat_weight >= APPLY_THRESHOLD and any(c != 1.0 for c in p.coat_color):
+        lost.append("coat_color " + ", ".join(f"{c:.3g}" for c in p.coat_color) + " (glTF's clearcoat is clear)")
+    return lost
+
+
 def gltf_document(p: PrincipledParams, name: str, extras: dict[str, Any] | None = None) -> dict[str, Any]:
     """The glTF JSON (a dict) of a sphere of radius 1 at the origin with the material ``p``."""
     pos, nrm, idx = sphere_mesh()
@@ -77,9 +93,11 @@ def gltf_document(p: PrincipledParams, name: str, extras: dict[str, Any] | None 
     data = b"".join(blobs)
     data += b"\0" * (-len(data) % 4)
     mat, used = _material(p, name)
+    lost = not_carried(p)
     doc: dict[str, Any] = {
         "asset": {"version": "2.0", "generator": "gonio-brdf (principled material fit)",
-                  "extras": {"model": MODEL, "model_version": MODEL_VERSION, **(extras or {})}},
+                  "extras": {"model": MODEL, "model_version": MODEL_VERSION, **(extras or {}),
+                             **({"not_carried": lost} if lost else {})}},
         "scene": 0, "scenes": [{"nodes": [0]}],
         "nodes": [{"name": f"{name}_sphere", "mesh": 0}],
         "meshes": [{"name": f"{name}_sphere", "primitives": [{"attributes": {"POSITION": 0, "NORMAL": 1},
@@ -104,8 +122,9 @@ def gltf_document(p: PrincipledParams, name: str, extras: dict[str, Any] | None 
 
 def write_gltf(path: str | Path, p: PrincipledParams, name: str, extras: dict[str, Any] | None = None
                ) -> dict[str, Any]:
-    """Write the ``.gltf`` atomically; returns the report's entry (the extensions used)."""
+    """Write the ``.gltf`` atomically; returns the report's entry (the extensions used, and ``not_carried``: what
+    of the fitted material the format could not hold, :func:`not_carried`; also in the file's asset extras)."""
     doc = gltf_document(p, name, extras)
     with atomic_open(Path(path), "w", encoding="utf-8") as fh:
         fh.write(json.dumps(doc, indent=1, allow_nan=False) + "\n")
-    return {"file": str(path), "extensions": doc.get("extensionsUsed", [])}
+    return {"file": str(path), "extensions": doc.get("extensionsUsed", []), "not_carried": not_carried(p)}

@@ -55,4 +55,5 @@ def write_materialx(path: str | Path, params: PrincipledParams, name: str, comme
     text = materialx_document(params, name, comment or f"{MODEL} {MODEL_VERSION} fitted by gonio-brdf")
     with atomic_open(Path(path), "w", encoding="utf-8") as fh:
         fh.write(text)
-    return {"file": str(path), "node": "open_pbr_surface", "materialx_version": MATERIALX_VERSION}
+    return {"file": str(path), "node": "open_pbr_surface", "materialx_version": MATERIALX_VERSION,
+            "not_carried": []}  # open_pbr_surface holds every parameter of the fitted model

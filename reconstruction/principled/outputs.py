@@ -69,11 +69,13 @@ def write_outputs(args: Any, rec: Reconstruction, name: str) -> tuple[dict[str, 
     """Fit the principled material to ``rec`` and write the files asked for. Returns (the report's ``outputs``
     entries, the report's ``principled`` entry)."""
     from reconstruction.principled.blender import write_blender
-    from reconstruction.principled.fit import fit_principled
+    from reconstruction.principled.fit import analytic_start, fit_principled
     from reconstruction.principled.gltf import write_gltf
     from reconstruction.principled.materialx import write_materialx
 
-    fit = fit_principled(rec.eval)
+    # fit's analytic lobes (a dielectric's lambert + GGX): a start the principled fit refines
+    fit = fit_principled(rec.eval, start=analytic_start(rec.report().get("parameters")) if rec.method == "fit"
+                         else None)
     entry = fit.to_dict()
     entry["fitted_to"] = f"the {rec.method} reconstruction"
     files: dict[str, Any] = {}

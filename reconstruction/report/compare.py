@@ -23,6 +23,12 @@ linear sRGB. The figures (the metrics of
   a table is tabulated first, at the bin centres), and ``rmse80_grazing_share``: the share of its square from
   the cells with theta_d >= 60 deg.
 
+Grey against colour: when one side is grey (one channel, as a photodiode bench measures: every channel of a table
+equal) and the other colour, the colour side is read in the photodiode's band (:func:`band_matched`: its R, G,
+B weighted by the band over the Mallett-Yuksel spectra of R, G and B, as the simulator reads an RGB material;
+``--band RESPONSIVITY,SOURCE``, default silicon,halogen-3000K, the bench's default) and the output says so
+(``band`` in the JSON); ``--no-band`` compares them as they are, and says that it compares grey with colour.
+
 Dimensionless errors are fractions (0.05 = 5 %). ``--png OUT`` writes the two spheres side by side with their
 difference. Bad input: exit 2 and one line naming the file and what was expected.
 """
@@ -58,7 +64,8 @@ from reconstruction.formats import merl
 Array = NDArray[np.float64]
 BRDF = Callable[[Array, Array], Any]
 
-__all__ = ["Brdf", "Reference", "CompareError", "load_brdf", "reference", "judge", "compare", "main",
+__all__ = ["Brdf", "Reference", "CompareError", "load_brdf", "reference", "judge", "compare", "main", "is_grey",
+           "band_matched",
            "LIGHTINGS", "N_PAIRS", "MAX_THETA_DEG", "GRAZING_THETA_D_DEG"]
 
 PROG = "gonio-compare"
@@ -118,6 +125,58 @@ def load_brdf(path: str | Path) -> Brdf:
     if b.table is not None:
         return Brdf(b.name, b.kind, merl.brdf_of(b.table), b.table)
     return Brdf(b.name, b.kind, b.eval)
+
+
+def is_grey(b: Brdf) -> bool:
+    """True when ``b`` has one channel: a table whose three channels are equal (to 1e-5, NaN where NaN: the MERL
+    format scales each channel by its own factor, so a grey table reads back equal to rounding), or a BRDF that
+    evaluates to one channel (or three equal ones) at a few hundred direction pairs."""
+    if b.table is not None:
+        t = np.asarray(b.table)
+        return bool(np.allclose(t[0], t[1], rtol=1e-5, atol=0.0, equal_nan=True)  # the format's scales: float64
+                    and np.allclose(t[1], t[2], rtol=1e-5, atol=0.0, equal_nan=True))
+    wi, wo = uniform_pairs(256, MAX_THETA_DEG)
+    v = np.asarray(b.eval(wi, wo), dtype=np.float64).reshape(wi.shape[0], -1)
+    return v.shape[1] == 1 or bool(np.allclose(v, v[:, :1], rtol=1e-9, atol=0.0, equal_nan=True))
+
+
+def band_matched(a: Brdf, b: Brdf, band: tuple[str, str] | None) -> tuple[Brdf, Brdf, dict[str, Any] | None]:
+    """(a, b, what was done) for a grey side against a colour side: the colour one read in the photodiode ``band``
+    ((responsivity, source) names of :func:`reconstruction.schema.optics.spectrum_of`), so that both are the one
+    channel a photodiode measures; as they are with ``band`` None (the note then says that grey is compared with
+    colour). The note is None when both are grey or both colour."""
+    grey_a, grey_b = is_grey(a), is_grey(b)
+    if grey_a == grey_b:
+        return a, b, None
+    grey, colour = ("A", "B") if grey_a else ("B", "A")
+    if band is None:
+        return a, b, {"grey": grey, "colour": colour, "applied": False,
+                      "note": f"{grey} is grey (one channel) and {colour} colour: compared as they are, grey against "
+                              "each colour channel (--no-band)"}
+    from reconstruction.schema.core import SchemaError
+    from reconstruction.schema.optics import band_name, rgb_band_weights
+
+    try:
+        w = rgb_band_weights(*band)
+    except SchemaError as e:
+        raise CompareError(f"--band: {e}".replace(": : ", ": ")) from None
+    src = b if grey_a else a
+    name = band_name(*band)
+
+    def banded(wi: Array, wo: Array) -> Array:
+        return _rgb(src.eval(wi, wo), wi.shape[0]) @ w[:, None]
+
+    table = None
+    if src.table is not None:
+        g = np.tensordot(w, np.asarray(src.table, dtype=np.float64), axes=1)
+        table = np.broadcast_to(g[None], src.table.shape).copy()
+    conv = Brdf(f"{src.name} in {name}", src.kind, merl.brdf_of(table) if table is not None else banded, table)
+    note = {"grey": grey, "colour": colour, "applied": True, "band": name,
+            "rgb_weights": [round(float(x), 4) for x in w],
+            "note": f"{grey} is grey (one channel, as a photodiode measures) and {colour} colour: {colour} read in the "
+                    f"photodiode band {name} (R, G, B weighted {w[0]:.3f}, {w[1]:.3f}, {w[2]:.3f}); --band names "
+                    "another, --no-band compares them as they are"}
+    return (a, conv, note) if grey_a else (conv, b, note)
 
 
 @dataclass
@@ -245,7 +304,21 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--json", metavar="OUT", help="write the figures as JSON (non-finite values as null)")
     ap.add_argument("--png", metavar="OUT", help="write A, B and their difference, rendered, as a PNG")
     ap.add_argument("--size", type=int, default=128, metavar="N", help="image size in pixels (default 128)")
+    ap.add_argument("--band", default="silicon,halogen-3000K", metavar="RESPONSIVITY,SOURCE",
+                    help="when one side is grey (a photodiode's one channel) and the other colour: read the colour "
+                         "side in this photodiode band (default silicon,halogen-3000K, the bench's default; "
+                         "responsivity silicon or a CSV, source halogen-<T>K, D65 or a CSV)")
+    ap.add_argument("--no-band", action="store_true",
+                    help="compare a grey side with a colour side as they are (the output says so)")
     return ap
+
+
+def _band(spec: str) -> tuple[str, str]:
+    """``--band RESPONSIVITY,SOURCE`` as the two names."""
+    parts = [x.strip() for x in spec.split(",")]
+    if len(parts) != 2 or not all(parts):
+        raise CompareError(f"--band: expected RESPONSIVITY,SOURCE (e.g. silicon,halogen-3000K), got {spec!r}")
+    return parts[0], parts[1]
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -259,11 +332,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with plain_warnings(PROG), np.errstate(all="ignore"):
             a, b = load_brdf(args.a), load_brdf(args.b)
+            a, b, banded = band_matched(a, b, None if args.no_band else _band(args.band))
             ref = reference(b, args.size)
             imgs = render_images(a, args.size)
             res = judge(a, ref, images=imgs)
             res["a"] = {"path": str(args.a), "kind": a.kind}
             res["b"] = {"path": str(args.b), "kind": b.kind}
+            if banded is not None:
+                res["band"] = banded
             if args.png:
                 try:
                     write_png(args.png, imgs, ref.images, (a.name, b.name))
@@ -276,6 +352,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{PROG}: interrupted", file=sys.stderr)
         return 130
     print(f"{PROG}: A = {args.a} ({a.kind}), B = {args.b} ({b.kind})")
+    if banded is not None:
+        print(f"{PROG}: {banded['note']}")
     print("\n".join(format_lines(res)))
     if args.json:
         from reconstruction.report.summary import write_json

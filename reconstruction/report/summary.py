@@ -12,7 +12,9 @@ Checks (each ``{"pass": bool, ...figures}``):
 Top-level report keys: ``method`` (the method used), ``method_requested``, ``method_reason``, ``parameters``,
 ``residuals``, ``coverage``, ``checks``, ``inputs``, ``colour``, ``table``, ``outputs``, ``timings_s``,
 ``details`` (everything the method reported) and, for ``--method auto``, ``cross_validation`` (the scheme, every
-method's held-out error, the choice). The method's own ``residuals`` are on the samples it was built from: they
+method's held-out error, the choice) and, when there is something to say, ``warnings`` (:func:`guard_warnings`:
+samples spanning too narrow a range, auto's choice predicting its held-out samples badly). The method's own
+``residuals`` are on the samples it was built from: they
 are reported as such and never used to choose a method.
 """
 
@@ -42,7 +44,14 @@ from reconstruction.formats.slicefile import Slice
 Array = NDArray[np.float64]
 
 __all__ = ["ALBEDO_TOLERANCE", "RECIPROCITY_TOLERANCE", "sample_residuals", "checked_albedo", "plausibility",
-           "coverage", "build_report", "write_json"]
+           "coverage", "build_report", "write_json", "guard_warnings", "NARROW_SPAN_DEG", "LARGE_HELD_OUT"]
+
+#: samples whose widest outgoing range at any incidence is narrower than this (deg) leave almost the whole table
+#: to extrapolation: said (a bench's one slice spans 160 deg; radians read as degrees span about 3)
+NARROW_SPAN_DEG = 20.0
+#: auto's choice predicting the samples it did not see worse than this (relative RMSE of f cos cos) is said: the
+#: table is a guess from these samples (the demo's choice predicts to 1.3 %; the radians of issue 41 to 79 %)
+LARGE_HELD_OUT = 0.3
 
 def _json_safe(x: Any) -> Any:
     """Recursively turn numpy values into plain Python and non-finite floats into None (strict JSON)."""
@@ -97,6 +106,27 @@ def coverage(s: Slice, dropped_blind_spot: int = 0) -> dict[str, Any]:
     hit[merl.theta_h_index(th), merl.theta_d_index(td)] = True
     out["half_diff_bins_with_samples"] = int(hit.sum())
     out["half_diff_bins_total"] = merl.N_TH * merl.N_TD
+    return out
+
+
+def guard_warnings(cov: dict[str, Any], cv: dict[str, Any] | None, source: str) -> list[str]:
+    """The run's warnings about what its samples can support, from the report's ``coverage`` and
+    ``cross_validation`` (None without auto): a narrow outgoing range (:data:`NARROW_SPAN_DEG`) and a chosen
+    method whose held-out error exceeds :data:`LARGE_HELD_OUT`. ``source``: the inputs, for the messages."""
+    out = []
+    spans = [float(c["theta_o_max_deg"]) - float(c["theta_o_min_deg"]) for c in cov.get("incidences", [])]
+    if spans and max(spans) < NARROW_SPAN_DEG:
+        out.append(f"{source}: the samples span only {max(spans):.3g} deg of theta_o (at most, over "
+                   f"{len(spans)} incidence(s)) and fill {cov.get('half_diff_bins_with_samples')} of the "
+                   f"{cov.get('half_diff_bins_total')} (theta_h, theta_d) bins: the table is extrapolated almost "
+                   "everywhere; measure a wider range of outgoing angles")
+    if cv:
+        best = next((c for c in cv.get("scores", []) if c.get("label") == cv.get("chosen_label")), None)
+        err = best.get("held_out_relative_rmse_cos") if best else None
+        if err is not None and err > LARGE_HELD_OUT:
+            out.append(f"{source}: the chosen method, {cv.get('chosen_label')}, predicts the samples it did not "
+                       f"see to {err:.0%} relative RMSE of f cos cos (above {LARGE_HELD_OUT:.0%}): the table is a "
+                       "guess from these samples; measure more incidences or check the input's units and columns")
     return out
 
 

@@ -24,7 +24,10 @@ from numpy.typing import ArrayLike, NDArray
 from reconstruction.schema.core import SchemaError
 
 __all__ = ["BAND_NM", "SILICON_RESPONSIVITY", "spectrum_of", "band_weights", "band_name", "footprint_fraction",
-           "footprint_limit_deg"]
+           "footprint_limit_deg", "DEFAULT_BAND", "rgb_band_weights"]
+
+#: The photodiode band of the simulated bench and of a bench file that names none (docs/instrument.md).
+DEFAULT_BAND = ("silicon", "halogen-3000K")
 
 #: Wavelengths (nm) of the photodiode band.
 BAND_NM = np.arange(380.0, 780.0 + 1e-9, 5.0)
@@ -79,6 +82,17 @@ def band_weights(responsivity: NDArray[np.float64], source: NDArray[np.float64])
     """Normalised weights (len(:data:`BAND_NM`),) of the band: R S / sum(R S)."""
     w = np.asarray(responsivity, float) * np.asarray(source, float)
     return w / w.sum()
+
+
+def rgb_band_weights(responsivity: str = DEFAULT_BAND[0], source: str = DEFAULT_BAND[1]) -> NDArray[np.float64]:
+    """(3,) weights, summing to 1, of a linear-sRGB albedo's R, G, B in a photodiode's one channel: the band
+    (:func:`band_weights` of the named spectra) over the Mallett-Yuksel spectra of R, G and B, as the simulator
+    reads an RGB material through a photodiode (silicon x halogen-3000K: 0.452, 0.337, 0.211)."""
+    from reconstruction.core.colour import srgb_reflectance_basis
+
+    w = band_weights(spectrum_of(responsivity, "responsivity"), spectrum_of(source, "source"))
+    out = w @ srgb_reflectance_basis(BAND_NM)
+    return np.asarray(out / out.sum(), dtype=np.float64)
 
 
 def band_name(responsivity: str, source: str) -> str:
