@@ -126,9 +126,8 @@ def floors(name: str, incs: tuple[float, ...], small: Any, full: Any) -> dict[st
         mu, comps, sig = ps.basis(idx, w, exclude=tuple(n for n in ps.names if n not in near))
         cands += _linear_fits(mu, comps, sig, y, obs, LOC_K, LOC_LAM)
     out["local"] = _best(cands, scale, small, full)
-    rs = rscale.reshape(len(ps.names), 3)
-    gauss = sp.gaussian((name,), np.log(sp.scales / rs))
     ft = S.grid_features().take(obs)
+    gauss = sp.gaussian((name,), ft)
     cands = []
     for lam in STR_LAM:
         pr = np.stack([S.map_factors(y[c, obs], ft, gauss, lam) for c in range(3)])
@@ -151,6 +150,14 @@ def _positions(incs: tuple[float, ...]) -> Any:
     return Slice(a, b, np.ones((a.size, 1)), ["value"])
 
 
+def DEFAULT_RECS(s: Any, ps: P.PriorSet, name: str) -> dict[str, Any]:  # noqa: N802
+    """The candidates' reconstructions with their defaults, each a function of no argument."""
+    return {"linear": lambda: P.reconstruct_prior(s, ps, exclude=(name,)),
+            "local": lambda: L.reconstruct_local(s, ps, exclude=(name,)),
+            "structured": lambda: S.reconstruct_structured(s, STATE["sp"], exclude=(name,)),
+            "blend": lambda: L.reconstruct_blend(s, ps, exclude=(name,))}
+
+
 def DEV_RECS(s: Any, ps: P.PriorSet, name: str) -> dict[str, Any]:  # noqa: N802
     """``--dev``: the candidates' reconstructions for a grid of their defaults (to choose them on materials the
     evaluation leaves out)."""
@@ -158,8 +165,7 @@ def DEV_RECS(s: Any, ps: P.PriorSet, name: str) -> dict[str, Any]:  # noqa: N802
     for n in DEV_NEAR:
         out[f"local-{n}"] = lambda n=n: L.reconstruct_local(s, ps, exclude=(name,), n_near=n)
     for lam in DEV_LAM:
-        out[f"structured-{lam:g}"] = lambda lam=lam: S.reconstruct_structured(s, ps, STATE["sp"], exclude=(name,),
-                                                                             lam=lam)
+        out[f"structured-{lam:g}"] = lambda lam=lam: S.reconstruct_structured(s, STATE["sp"], exclude=(name,), lam=lam)
     for n, tau in DEV_BLEND:
         out[f"blend-{n}-{tau:g}"] = lambda n=n, tau=tau: L.reconstruct_blend(s, ps, exclude=(name,), n_near=n, tau=tau)
     return out
@@ -202,10 +208,7 @@ def run_material(job: dict[str, Any]) -> dict[str, Any]:
             if not job["dev"]:
                 for c, v in floors(name, incs, small, full).items():
                     rec[f"floor {c} {mode}"] = v
-            recs = DEV_RECS(s, ps, name) if job["dev"] else {"linear": lambda: P.reconstruct_prior(s, ps, exclude=(name,)),
-                    "local": lambda: L.reconstruct_local(s, ps, exclude=(name,)),
-                    "structured": lambda: S.reconstruct_structured(s, ps, STATE["sp"], exclude=(name,)),
-                    "blend": lambda: L.reconstruct_blend(s, ps, exclude=(name,))}
+            recs = DEV_RECS(s, ps, name) if job["dev"] else DEFAULT_RECS(s, ps, name)
             for c, fn in recs.items():
                 t1 = time.perf_counter()
                 r = fn()  # noqa: B023 (called at once)
@@ -254,9 +257,9 @@ def summary(rows: list[dict[str, Any]], modes: list[str], docs: dict[tuple[str, 
             names = dict.fromkeys(k.split()[1] for r in rows for k in r if k.startswith(f"{kind} ")
                                   and k.endswith(f" {mode}"))
             for c in names:
-                lines.append(f"| {mode} | {label}{c} | " + cell(lambda r: r.get(f"{kind} {c} {mode}")) + " |")
+                lines.append(f"| {mode} | {label}{c} | " + cell(lambda r, k=f"{kind} {c} {mode}": r.get(k)) + " |")
         lines.append(f"| {mode} | auto+prior (docs run) | " +
-                     cell(lambda r: docs.get((r["material"], mode))) + " |")
+                     cell(lambda r, m=mode: docs.get((r["material"], m))) + " |")
     return lines
 
 
@@ -316,9 +319,8 @@ def main(argv: list[str] | None = None) -> int:
                 rows.append(r)
                 fh.write(json.dumps(r) + "\n")
                 fh.flush()
-                print(f"{r['material']:34s} " + " ".join(f"{k}={v:.1f}" for k, v in r.items()
-                                                         if k.startswith(("floor", "rec"))) + f" ({r['seconds']:.0f} s)",
-                      flush=True)
+                figs = " ".join(f"{k}={v:.1f}" for k, v in r.items() if k.startswith(("floor", "rec")))
+                print(f"{r['material']:34s} {figs} ({r['seconds']:.0f} s)", flush=True)
     finally:
         if pool is not None:
             pool.close()

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
-from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
@@ -38,7 +37,7 @@ from reconstruction.methods import prior as P
 Array = NDArray[np.float64]
 
 __all__ = ["KNOTS_D", "KNOTS_H", "N_PARAMS", "LAM", "SHRINK", "Features", "features", "grid_features",
-           "model_mapped", "fit_factors", "StructuredPrior", "structured_prior", "map_factors",
+           "model_mapped", "model_mapped_rows", "fit_factors", "StructuredPrior", "structured_prior", "map_factors",
            "reconstruct_structured"]
 
 KNOTS_D = np.array([0.0, 20.0, 40.0, 55.0, 65.0, 75.0, 90.0])  #: theta_d knots of A and F (deg)
@@ -112,6 +111,14 @@ def model_mapped(p: Array, ft: Features) -> Array:
     return np.log(t1 + t2 + P.EPS)
 
 
+def model_mapped_rows(rows: Array, ft: Features) -> Array:
+    """:func:`model_mapped` of many factor vectors ``rows`` (T, N_PARAMS) at once: (T, n)."""
+    a, d, f = _split(rows)
+    t1 = ft.cc[None] * np.exp(np.clip(a @ ft.hd.T, -60, 60))
+    t2 = ft.g[None] * np.exp(np.clip(d @ ft.hh.T + f @ ft.hd.T, -60, 60))
+    return np.log(t1 + t2 + P.EPS)
+
+
 def _jac(p: Array, ft: Features) -> Array:
     """d model_mapped / d p, (n, N_PARAMS)."""
     t1, t2 = _terms(p, ft)
@@ -162,14 +169,15 @@ class StructuredPrior:
     factors: Array
     scales: Array
 
-    def gaussian(self, exclude: tuple[str, ...] = (), shift: Array | None = None) -> tuple[Array, Array, Array]:
+    def gaussian(self, exclude: tuple[str, ...] = (), at: Features | None = None) -> tuple[Array, Array, Array]:
         """(mean (N_PARAMS,), whitening W (N_PARAMS, N_PARAMS), the rows (T, N_PARAMS)) over the rows of every
-        material not in ``exclude``; ``shift`` (N, C): a log-scale change per row (added to A and D)."""
+        material not in ``exclude``. With ``at`` (the samples' pairs), each row is first brought to the scale a
+        sample of that geometry gets (its model's median of f cos cos there: A and D shifted by minus its log)."""
         keep = [i for i, n in enumerate(self.names) if n not in set(exclude)]
-        p = self.factors[keep].copy()
-        if shift is not None:
-            p[..., :NA + NH] += shift[keep][..., None]
-        rows = p.reshape(-1, N_PARAMS)
+        rows = self.factors[keep].reshape(-1, N_PARAMS).copy()
+        if at is not None:
+            med = np.median(np.exp(model_mapped_rows(rows, at)) - P.EPS, axis=1)
+            rows[:, :NA + NH] -= np.log(np.maximum(med, 1e-12))[:, None]
         mu = rows.mean(axis=0)
         c = np.cov(rows, rowvar=False)
         c = (1.0 - SHRINK) * c + SHRINK * np.diag(np.diag(c)) + 1e-6 * np.eye(N_PARAMS)
@@ -207,8 +215,8 @@ def map_factors(y: Array, ft: Features, gauss: tuple[Array, Array, Array], lam: 
     """The MAP factors (N_PARAMS,) of mapped values ``y`` (n,) at ``ft`` under the Gaussian ``gauss`` (mean,
     whitening, rows): the better of the fits started from the mean and from the row nearest to ``y``."""
     mu, wmat, rows = gauss
-    pred = np.stack([model_mapped(r, ft) for r in rows]) if rows.shape[0] <= 600 else None
-    starts = [mu] + ([rows[int(np.argmin(np.mean((pred - y) ** 2, axis=1)))]] if pred is not None else [])
+    nearest = rows[int(np.argmin(np.mean((model_mapped_rows(rows, ft) - y) ** 2, axis=1)))]
+    starts = [mu, nearest]
     best, cost = mu, np.inf
     for x0 in starts:
         p = fit_factors(y, ft, x0=x0, prior=(mu, wmat), lam=lam)
@@ -218,26 +226,20 @@ def map_factors(y: Array, ft: Features, gauss: tuple[Array, Array, Array], lam: 
     return best
 
 
-def reconstruct_structured(s: Slice, prior: P.PriorSet | str | Path, sp: StructuredPrior | None = None,
-                           exclude: tuple[str, ...] = (), lam: float = LAM) -> P.PriorReconstruction:
-    """The factors of each channel of ``s`` (f_r) by :func:`map_factors` under the Gaussian of the prior's rows
-    (``sp``: the prior's factors, fitted when not given), the model tabulated on the reduced grid."""
+def reconstruct_structured(s: Slice, sp: StructuredPrior, exclude: tuple[str, ...] = (), lam: float = LAM
+                           ) -> P.PriorReconstruction:
+    """The factors of each channel of ``s`` (f_r) by :func:`map_factors` under the Gaussian of the prior's factors
+    ``sp`` (:func:`structured_prior`; the materials in ``exclude`` left out), the model tabulated on the reduced
+    grid."""
     from reconstruction.core.samples import everywhere
-    from reconstruction.methods.prior_local import _mapped_rows
 
-    ps = prior if isinstance(prior, P.PriorSet) else P.load_prior(prior)
-    sp = structured_prior(ps) if sp is None else sp
     s, _ = P._within_basis(everywhere(s))
-    idx, w, cs = P._design(s)
-    obs = np.maximum(np.asarray(s.values, dtype=np.float64), 0.0) * cs[:, None]
-    scale = P.channel_scales(obs.T)
-    y = np.log(obs.T / scale[:, None] + P.EPS)  # (C, n)
-    # each prior row at the scale a slice of this geometry gives it (the median at the samples)
-    _, rs = _mapped_rows(ps, idx, w, list(range(len(ps.names))))
-    shift = np.log(sp.scales / rs.reshape(sp.scales.shape))
-    gauss = sp.gaussian(exclude, shift)
     wi, wo = sample_directions(s)
     ft = features(wi, wo)
+    obs = np.maximum(np.asarray(s.values, dtype=np.float64), 0.0) * ft.cc[:, None]
+    scale = P.channel_scales(obs.T)
+    y = np.log(obs.T / scale[:, None] + P.EPS)  # (C, n)
+    gauss = sp.gaussian(exclude, ft)
     params = np.stack([map_factors(y[c], ft, gauss, lam) for c in range(y.shape[0])])
     return tabulate(params, scale, list(s.channels), {"parameters": {"lam": lam, "factors": N_PARAMS},
                                                         "factors": params.tolist()})
