@@ -32,10 +32,13 @@ Array = NDArray[np.float64]
 __all__ = ["N_NEAR", "BLEND_NEAR", "BLEND_TAU", "row_distances", "nearest_materials", "reconstruct_local",
            "reconstruct_blend", "blend_mapped"]
 
-#: materials in a local basis (their 3 channels each: up to 3 N_NEAR - 1 components)
-N_NEAR = 30
-#: rows (material x channel) a blend averages, and the kernel's width in the mapped space (ln units, rms)
-BLEND_NEAR, BLEND_TAU = 8, 0.3
+#: materials in a local basis (their 3 channels each: up to 3 N_NEAR - 1 components). Chosen among 10/20/30/45 on
+#: 13 real materials that the evaluation leaves out (benchmarks/bench_prior_candidates.py --dev --every 9
+#: --offset 1 --slices 1,2): 20 had the best worst material from one and two slices, medians within 0.3 dB of 30's
+N_NEAR = 20
+#: rows (material x channel) a blend averages, and the kernel's width in the mapped space (ln units, rms); chosen
+#: among (4, 0.3), (8, 0.3), (16, 1) the same way
+BLEND_NEAR, BLEND_TAU = 4, 0.3
 
 
 def _mapped_rows(ps: P.PriorSet, idx: NDArray[np.intp], w: Array, keep: list[int]) -> tuple[Array, Array]:
