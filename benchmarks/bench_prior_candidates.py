@@ -218,6 +218,43 @@ def run_material(job: dict[str, Any]) -> dict[str, Any]:
     return rec
 
 
+def write_sheet(path: Path, names: list[str], folders: list[Path], mode: str = "1") -> None:
+    """Spheres (key light; the truth's exposure) of the truth and of every candidate's reconstruction from the
+    slices of ``mode``, a row per material, each labelled with its PSNR (128-pixel renders, both lightings)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from reconstruction.core.models import Material
+    from reconstruction.formats import merl
+    from reconstruction.report import compare as cmp
+
+    ps: P.PriorSet = STATE["ps"]
+    where = {n: f for f in folders for n in BR.material_names(f)}
+    fig, axes = plt.subplots(len(names), 1 + len(CANDIDATES), figsize=(1.6 * (1 + len(CANDIDATES)), 1.75 * len(names)),
+                             squeeze=False)
+    for row, name in zip(axes, names, strict=True):
+        mat = Material.from_dict({"name": name, "lobes": [{"type": "nbrdf", "path": str(where[name] / name)}]})
+        truth = BR._as_read(merl.tabulate(mat.eval))
+        ref = cmp.reference(cmp.Brdf(name, "merl", merl.brdf_of(truth), truth), 128, n_pairs=1000)
+        s = BR.slices_of(mat, BR.incidences_of(mode))
+        shown = {"truth": (BR._display(ref.images, ref.images)["key"], name[:26])}
+        for c, fn in DEFAULT_RECS(s, ps, name).items():
+            t = BR._as_read(fn().table())
+            imgs = cmp.render_images(cmp.Brdf(c, "merl", merl.brdf_of(t), t), 128)
+            psnr = cmp.image_metrics(imgs, ref.images, 128)["psnr_db"]
+            shown[c] = (BR._display(imgs, ref.images)["key"], f"{c}: {psnr:.1f} dB")
+        for ax, (img, label) in zip(row, shown.values(), strict=True):
+            ax.imshow(img, interpolation="nearest")
+            ax.set_title(label, fontsize=6)
+            ax.axis("off")
+    fig.suptitle(f"truth and each candidate prior from {BR._label(mode)} (key light)", fontsize=8)
+    fig.tight_layout(rect=(0.0, 0.0, 1.0, 1.0 - 0.35 / fig.get_figheight()))
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
 def auto_prior_from_docs(page: Path) -> dict[tuple[str, str], float]:
     """(material, case) -> auto+prior's PSNR (dB) from the per-material table of docs/real-materials.md."""
     out: dict[tuple[str, str], float] = {}
@@ -274,6 +311,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--truth-cache", default=str(ROOT / "out" / "real-materials-cache"))
     ap.add_argument("--jsonl", default=str(ROOT / "out" / "prior-candidates.jsonl"))
     ap.add_argument("--from-jsonl", help="summarise an earlier run's records")
+    ap.add_argument("--sheet", help="write spheres of the truth and every candidate (from --slices' first case) for "
+                                    "--materials to this PNG, and stop")
     ap.add_argument("--dev", action="store_true",
                     help="no floors; the reconstructions for a grid of each candidate's defaults (DEV_*)")
     args = ap.parse_args(argv)
@@ -302,6 +341,14 @@ def main(argv: list[str] | None = None) -> int:
         fcache.parent.mkdir(parents=True, exist_ok=True)
         np.savez(fcache, names=np.array(ps.names), factors=STATE["sp"].factors, scales=STATE["sp"].scales)
     print(f"prior of {len(ps.names)} materials and their factors: {time.perf_counter() - t0:.0f} s", flush=True)
+    if args.sheet:
+        from threadpoolctl import threadpool_limits
+
+        with threadpool_limits(1), np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            write_sheet(Path(args.sheet), [n.strip() for n in (args.materials or "").split(",") if n.strip()],
+                        folders, modes[0])
+        return 0
     where = {n: str(f) for f in folders for n in BR.material_names(f)}
     want = ([n.strip() for n in args.materials.split(",")] if args.materials
             else sorted(ps.names)[args.offset::max(1, args.every)])

@@ -55,7 +55,7 @@ def test_local_prior_picks_the_family_of_the_sample(two_families, family, kd, ks
     rec = L.reconstruct_local(s, two_families, n_near=6)
     near = rec.info["prior"]["local"]["nearest"]
     assert len(near) == 6 and all(n.startswith(family) for n in near), near
-    assert rec.method == "prior-local"
+    assert rec.method == "prior" and rec.info["prior"]["materials"] == 6
     # and the local basis completes an incidence it did not see: the in-plane row at 65 deg within 25 % (f cos cos)
     ti, to = np.full(60, 65.0), np.linspace(-78, 78, 60)
     wi, wo = inplane_to_dirs(np.radians(ti), np.radians(to))
@@ -115,3 +115,22 @@ def test_structured_prior_recovers_the_factors_of_a_microfacet_material_from_one
     cc = (wi[:, 2] * wo[:, 2])[:, None]
     err = np.sqrt(np.sum(((rec.eval(wi, wo) - f(wi, wo)) * cc) ** 2) / np.sum((f(wi, wo) * cc) ** 2))
     assert err < 0.2
+
+
+def test_method_prior_takes_the_local_basis_as_an_option(tmp_path, monkeypatch):
+    """``--method prior --prior-near N`` (pipeline option ``prior_near``) completes from the N nearest materials."""
+    from reconstruction import pipeline
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    folder = tmp_path / "prior"
+    folder.mkdir()
+    for k, (fam, alb, al) in enumerate([("glossy", 0.05, 0.06), ("glossy", 0.08, 0.09), ("glossy", 0.06, 0.12),
+                                         ("matte", 0.5, 0.4), ("matte", 0.6, 0.5), ("matte", 0.4, 0.6)]):
+        (folder / f"{fam}{k}.toml").write_text(
+            f'[material]\nname = "{fam}{k}"\n[[material.lobes]]\ntype = "lambert"\nalbedo = {alb}\n'
+            f'[[material.lobes]]\ntype = "ggx"\nalpha = {al}\nspecular = 0.9\nf0 = 0.04\n', encoding="utf-8")
+    s = _slice(lambda wi, wo: _ggx(wi, wo, np.array([0.07, 0.07, 0.07]), 1.0, 0.1))
+    rec, _ = pipeline.reconstruct(s, "prior", pipeline.Options(prior=str(folder), prior_near=3))
+    assert sorted(rec.info["prior"]["local"]["nearest"]) == ["glossy0", "glossy1", "glossy2"]
+    rec, _ = pipeline.reconstruct(s, "prior", pipeline.Options(prior=str(folder)))
+    assert "local" not in rec.info["prior"] and rec.info["prior"]["materials"] == 6

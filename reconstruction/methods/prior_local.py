@@ -93,7 +93,6 @@ def reconstruct_local(s: Slice, prior: P.PriorSet | str | Path, exclude: tuple[s
     near = nearest_materials(ps, idx, w, y, n_near, exclude)
     far = tuple(n for n in ps.names if n not in set(near))
     rec = P.reconstruct_prior(s, ps, exclude=far, k=k, lam=lam)
-    rec.method = "prior-local"
     rec.info["prior"]["local"] = {"nearest": near, "n_near": len(near),
                                   "distance": "mean squared difference of log(f cos cos / s + EPS) at the samples"}
     return rec
