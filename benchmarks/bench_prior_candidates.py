@@ -15,8 +15,8 @@ Per material and case (1 slice at 40 deg, 2 at 40/70, 3 at 20/40/60; the slices 
   material's own exact values at the reduced-grid cells the slices touch, its hyper-parameters chosen with the truth
   by the PSNR of 64-pixel renders, the chosen one's PSNR from 128-pixel renders. Grids: linear K 5/10/20/30 x ridge
   0.1/1/10 (bench_prior_floor.py's); local n_near 10/20/40 x K 5/10/20 (ridge 1); structured lam 0.003/0.03/0.3;
-  blend n_near 1/4/8 x tau 0.3/1. ``structured-all``: the material's own factors fitted to all its cells (no prior: what the
-  factor model can represent at all);
+  blend n_near 1/4/8 x tau 0.3/1. ``structured-all``: the material's own factors fitted to all its cells (no
+  prior: what the factor model can represent at all);
 * the **reconstruction** from the slices' samples with each candidate's fixed defaults (none chosen with the truth),
   PSNR from 128-pixel renders as bench_real_materials.py judges (the truth's MERL table read the same way).
 
