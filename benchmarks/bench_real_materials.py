@@ -580,7 +580,7 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         names = want
     prior = os.pathsep.join(str(f) for f in folders) if args.prior is None else (args.prior or None)
-    if any(m in ("prior", "auto+prior") for m in methods):
+    if any(m in ("prior", "auto+prior", "prior-local", "auto+prior-local") for m in methods):
         if not prior:
             print("bench_real_materials: prior and auto+prior need a prior (--prior)", file=sys.stderr)
             return 2
