@@ -300,6 +300,29 @@ def summary(rows: list[dict[str, Any]], modes: list[str], docs: dict[tuple[str, 
     return lines
 
 
+def compare_real(path: Path, docs: dict[tuple[str, str], float]) -> list[str]:
+    """Lines: per method and case of a bench_real_materials.py run (``path``, its records), PSNR median / worst per
+    database beside today's auto+prior of the docs run on the same materials, and the per-material differences."""
+    recs = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    recs = [r for r in recs if "psnr_db" in r and "method" in r]
+    out = ["| slices | method | " + " | ".join(f"{d} median / worst (dB)" for d in ("all", *BR.DATABASES)) +
+           " | median difference, better / worse by > 0.5 dB |", "|---|---|---|---|---|---|---|"]
+    for mode in dict.fromkeys(r["slices"] for r in recs):
+        for m in dict.fromkeys(r["method"] for r in recs):
+            rs = [r for r in recs if r["slices"] == mode and r["method"] == m and (r["material"], mode) in docs]
+            for label, val in ((m, lambda r: r["psnr_db"]),
+                               ("auto+prior (docs run)", lambda r, md=mode: docs[(r["material"], md)])):
+                cells = []
+                for d in ("all", *BR.DATABASES):
+                    v = np.array([val(r) for r in rs if d == "all" or r["database"] == d])
+                    cells.append(f"{np.median(v):.1f} / {v.min():.1f} [{v.size}]" if v.size else "-")
+                diff = np.array([r["psnr_db"] - docs[(r["material"], mode)] for r in rs])
+                extra = (f"{np.median(diff):+.1f} dB, {int(np.sum(diff > 0.5))} / {int(np.sum(diff < -0.5))}"
+                         if label == m and diff.size else "")
+                out.append(f"| {mode} | {label} | " + " | ".join(cells) + f" | {extra} |")
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", default=str(ROOT.parent / "shared" / "realdata"))
@@ -311,6 +334,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--truth-cache", default=str(ROOT / "out" / "real-materials-cache"))
     ap.add_argument("--jsonl", default=str(ROOT / "out" / "prior-candidates.jsonl"))
     ap.add_argument("--from-jsonl", help="summarise an earlier run's records")
+    ap.add_argument("--real-jsonl", help="compare a bench_real_materials.py run's records (e.g. auto+prior-local) "
+                                         "with the docs run's auto+prior on the same materials, and stop")
     ap.add_argument("--sheet", help="write spheres of the truth and every candidate (from --slices' first case) for "
                                     "--materials to this PNG, and stop")
     ap.add_argument("--dev", action="store_true",
@@ -318,6 +343,9 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     modes = [m.strip() for m in args.slices.split(",") if m.strip()]
     docs = auto_prior_from_docs(ROOT / "docs" / "real-materials.md")
+    if args.real_jsonl:
+        print("\n".join(compare_real(Path(args.real_jsonl), docs)))
+        return 0
     if args.from_jsonl:
         rows = [json.loads(line) for line in Path(args.from_jsonl).read_text().splitlines() if line.strip()]
         print("\n".join(summary(rows, modes, docs)))
