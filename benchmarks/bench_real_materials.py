@@ -16,7 +16,8 @@ the same way (so the format's quantisation is not charged to the method) with
   theta_d >= 60 deg (``grazing``).
 
 The **floor**, once per material: the material's own MERL table against the neural BRDF itself (image and pair
-metrics). Methods: any of ``gonio-reconstruct``'s, ``auto+prior`` (auto with the prior), ``constant`` (a
+metrics). Methods: any of ``gonio-reconstruct``'s, ``auto+prior`` (auto with the prior), ``prior-local`` and
+``auto+prior-local`` (the same with the local prior of the LOCAL_NEAR nearest materials, --prior-near), ``constant`` (a
 constant f, the median of the samples: the baseline). ``prior`` and ``auto+prior`` complete each material from the prior
 of the other materials of both folders (leave-one-out: a material never completes itself). Figures per case,
 method and database; ``--docs DIR`` writes ``DIR/real-materials.md`` and the contact sheet
@@ -57,7 +58,9 @@ MODES = {"1": (40.0,), "2": (40.0, 70.0), "3": (20.0, 40.0, 60.0)}
 STEP_DEG, BLIND_DEG, MAX_DEG = 2.0, 4.0, 80.0
 FOLDERS = ("nbrdf-merl", "nbrdf-extra")
 DATABASES = ("MERL", "RGL", "Nielsen")
-EXTRA_METHODS = ("auto+prior", "auto+prior-unbounded", "auto-unbounded", "constant")
+EXTRA_METHODS = ("auto+prior", "auto+prior-unbounded", "auto-unbounded", "constant", "prior-local", "auto+prior-local")
+#: the local prior's basis (``prior-local``, ``auto+prior-local``: --prior-near, reconstruction.methods.prior_local)
+LOCAL_NEAR = 20
 DEFAULT_METHODS = "auto,auto+prior,prior,constant"
 SHEET_MODES = ("1", "2")
 ORACLE_METHODS = ("fit", "microfacet", "bivariate", "revolve", "prior")  # the summary's oracle: the best of these
@@ -122,8 +125,9 @@ def _reconstruct(method: str, s: Slice, prior: str | None, name: str, shared: di
         c = np.median(s.values.reshape(len(s), -1), axis=0)
         c = np.repeat(c, 3) if c.size == 1 else c
         return np.broadcast_to(c[:, None, None, None], merl.SHAPE).copy(), {"used": "constant"}
-    with_prior = method in ("prior", "auto+prior", "auto+prior-unbounded")
-    opts = pipeline.Options(prior=prior if with_prior else None, prior_exclude=(name,) if with_prior else ())
+    with_prior = method in ("prior", "auto+prior", "auto+prior-unbounded", "prior-local", "auto+prior-local")
+    opts = pipeline.Options(prior=prior if with_prior else None, prior_exclude=(name,) if with_prior else (),
+                            prior_near=LOCAL_NEAR if method.endswith("-local") else 0)
     base = method.removesuffix("-unbounded")
     facts: dict[str, Any] = {}
     t0 = time.perf_counter()
@@ -131,13 +135,15 @@ def _reconstruct(method: str, s: Slice, prior: str | None, name: str, shared: di
         rec, choice, table, took = shared[base]
         facts["shared_reconstruction"] = True
     else:
-        rec, choice = pipeline.reconstruct(s, "auto" if method.startswith("auto") else method, opts)
+        rec, choice = pipeline.reconstruct(s, "auto" if method.startswith("auto") else method.removesuffix("-local"),
+                                           opts)
         table = pipeline.tabulate(rec)
         took = time.perf_counter() - t0
         if shared is not None:
             shared[base] = (rec, choice, table, took)
         t0 = time.perf_counter()
-    if method in ("auto", "auto+prior"):  # as gonio-reconstruct writes auto's table (-unbounded: --no-conservative)
+    if method in ("auto", "auto+prior", "auto+prior-local"):  # as gonio-reconstruct writes auto's table
+        # (-unbounded: --no-conservative)
         rec, table, bounded, _ = pipeline.bound_where_unmeasured(rec, table, s, opts)
         facts["cells_lowered"] = bounded["cells_lowered"]
         facts["energy_removed"] = bounded["energy_removed"]
@@ -574,7 +580,7 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         names = want
     prior = os.pathsep.join(str(f) for f in folders) if args.prior is None else (args.prior or None)
-    if any(m in ("prior", "auto+prior") for m in methods):
+    if any(m in ("prior", "auto+prior", "prior-local", "auto+prior-local") for m in methods):
         if not prior:
             print("bench_real_materials: prior and auto+prior need a prior (--prior)", file=sys.stderr)
             return 2

@@ -164,6 +164,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="method prior: blend its completion with the samples' bivariate interpolation, f = "
                          "f_prior^(1-A) f_bivariate^A (0: the prior alone, the default; auto scores 0, 0.25 and "
                          "0.5 by cross-validation and reports the one it chose)")
+    ap.add_argument("--prior-near", type=int, default=0, metavar="N",
+                    help="method prior: a local prior, the basis of the N prior materials nearest to the samples "
+                         "(0: of every material, the default; benchmarks/bench_prior_candidates.py measures it)")
     u = ap.add_argument_group("how sure the table is, and which slice to measure next")
     u.add_argument("--uncertainty", metavar="SIGMA.npy", default=None,
                    help="write the standard deviation of ln f_r per cell, float32 (C, 90, 90, 180) in the MERL "
@@ -226,6 +229,7 @@ def job_from_args(args: argparse.Namespace, **overrides: Any) -> Job:
                                               "blender")},
         preview_renderer=getattr(args, "preview_renderer", None) or "builtin", prior=getattr(args, "prior", None),
         prior_anchor=float(getattr(args, "prior_anchor", 0.0) or 0.0),
+        prior_near=max(0, int(getattr(args, "prior_near", 0) or 0)),
         uncertainty=getattr(args, "uncertainty", None), advise=bool(getattr(args, "advise", False)),
         bench=getattr(args, "bench", None), budget_s=getattr(args, "budget_s", None))
     fields.update(overrides)

@@ -60,6 +60,7 @@ class Job:
     preview_renderer: str = "builtin"
     prior: str | None = None  # --prior DIR: the folder of prior materials (method prior; auto tries it when given)
     prior_anchor: float = 0.0  # --prior-anchor A: method prior's blend with the bivariate interpolation (0..1)
+    prior_near: int = 0  # --prior-near N: method prior's local basis of the N nearest prior materials (0: all)
     uncertainty: str | None = None  # --uncertainty SIGMA.npy: sigma of ln f per cell (reconstruction.assess)
     advise: bool = False  # --advise: rank the incidences to measure next
     bench: str | None = None  # --bench CONFIG.toml: the bench whose limits and timing --advise uses

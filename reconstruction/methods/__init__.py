@@ -38,6 +38,7 @@ class Options:
     prior: str | None = None  # prior: the folder of prior materials (--prior)
     prior_exclude: tuple[str, ...] = ()  # prior: materials of the folder left out (a benchmark's leave-one-out)
     prior_anchor: float = 0.0  # prior: weight of the samples' bivariate interpolation in a geometric blend
+    prior_near: int = 0  # prior: a local basis of the N materials nearest to the samples (0: every material)
 
 
 class NoOptions(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -74,6 +75,8 @@ class PriorOptions(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
                                            "material TOML files (--prior)")] | None = None
     anchor: Annotated[float, Meta(ge=0.0, le=1.0, description="weight a of the samples' bivariate interpolation: "
                                   "f = f_prior^(1-a) f_bivariate^a (--prior-anchor; 0: the prior alone)")] = 0.0
+    near: Annotated[int, Meta(ge=0, description="a local prior: the basis of the N prior materials nearest to the "
+                              "samples (--prior-near; 0: of every material)")] = 0
 
 
 class BivariateOptions(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -215,14 +218,19 @@ def _prior(s: Slice, o: Options, progress: Callable[[str], None] | None) -> Reco
     if not 0.0 <= o.prior_anchor <= 1.0:
         raise ReconstructionError(f"method prior: --prior-anchor {o.prior_anchor:g}: expected a weight from 0 (the "
                                   "prior alone) to 1 (the bivariate interpolation alone)")
-    opt = PriorOptions(prior=o.prior, anchor=o.prior_anchor)
+    opt = PriorOptions(prior=o.prior, anchor=o.prior_anchor, near=o.prior_near)
     if not opt.prior:
         raise ReconstructionError("method prior needs --prior DIR: a folder of measured materials (NBRDF npy sets, "
                                   "MERL .binary tables or material TOML files) whose structure the slice is "
                                   "completed with")
     from reconstruction.core.samples import everywhere
 
-    rec = reconstruct_prior(s, opt.prior, exclude=tuple(o.prior_exclude))  # on every point (everywhere(s))
+    if opt.near > 0:  # a local prior (reconstruction.methods.prior_local), on every point as below
+        from reconstruction.methods.prior_local import reconstruct_local
+
+        rec = reconstruct_local(s, opt.prior, exclude=tuple(o.prior_exclude), n_near=opt.near)
+    else:
+        rec = reconstruct_prior(s, opt.prior, exclude=tuple(o.prior_exclude))  # on every point (everywhere(s))
     if opt.anchor <= 0.0:
         return _used(rec, s, everywhere(s), "prior")
     from reconstruction.methods.prior import AnchoredPrior
@@ -241,5 +249,6 @@ register(Method("bivariate", "f(theta_h, theta_d) interpolated between the measu
                 BivariateOptions, {"fill": "fill", "cos_power": "cos_power"},
                 modules=("reconstruction.methods.bivariate",)))
 register(Method("prior", "completed from a basis of measured materials (--prior DIR), fitted to the slices",
-                _prior, PriorOptions, {"prior": "prior", "anchor": "prior_anchor"}, available=lambda o: bool(o.prior),
+                _prior, PriorOptions, {"prior": "prior", "anchor": "prior_anchor", "near": "prior_near"},
+                available=lambda o: bool(o.prior),
                 modules=("reconstruction.methods.prior",)))
