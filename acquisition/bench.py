@@ -37,6 +37,7 @@ from acquisition.autorange import AutoRanger
 from acquisition.calibration import Reading
 from acquisition.config import BenchConfig, load_config
 from acquisition.devices.dynamixel import DynamixelAxes
+from acquisition.devices.grbl import GrblAxes
 from acquisition.devices.protocols import Devices, MoveStatus
 from acquisition.devices.serial_link import SerialAxes, SerialDetector, SerialLink
 from acquisition.errors import CommError, ConfigError, DeviceError, SaturationWarning
@@ -229,7 +230,7 @@ class Bench:
         self.sim: SimulatorProcess | None = None
         self.link: SerialLink | None = None
         self.detector: SerialDetector | None = None
-        self.motion: DynamixelAxes | SerialAxes | None = None
+        self.motion: DynamixelAxes | SerialAxes | GrblAxes | None = None
         #: extra arguments of ``gonio-sim serve`` (the engine passes ``--attempt N`` on a resumed capture)
         self.sim_args: tuple[str, ...] = ()
         self._opened = False
@@ -275,6 +276,9 @@ class Bench:
                     raise CommError("simulated bench: the simulator offers no Dynamixel port (is [bench].motion "
                                     "consistent?)")
                 dxl_port, ser_port = ports.get("dynamixel") or "", ports.get("serial") or ""
+                grbl_port = ports.get("grbl") or ""
+            else:
+                grbl_port = cfg.motion.grbl.port if cfg.motion.grbl is not None else ""
             self.link = SerialLink(ser_port, b.serial_baudrate, b.serial_timeout_s, cfg.motion.retries)
             self.detector = SerialDetector(self.link, cfg.detector.type, cfg.detector.integration_time_s,
                                            cfg.detector.saturation, cfg.detector.gains,
@@ -285,6 +289,8 @@ class Bench:
             self.detector.connect()
             if b.motion == "dynamixel":
                 self.motion = DynamixelAxes(dxl_port, b.dynamixel_baudrate, cfg.axes, cfg.motion)
+            elif b.motion == "grbl":
+                self.motion = GrblAxes(grbl_port, cfg.axes, cfg.motion)
             else:
                 self.motion = SerialAxes(self.link, cfg.axes, cfg.motion.tolerance_deg, cfg.motion.timeout_s,
                                          cfg.motion.retries, cfg.motion.poll_interval_s)
@@ -300,7 +306,7 @@ class Bench:
 
     def close(self) -> None:
         """Close ports and stop the simulator (does not move anything: see :meth:`shutdown`)."""
-        if self.motion is not None and isinstance(self.motion, DynamixelAxes):
+        if self.motion is not None and isinstance(self.motion, (DynamixelAxes, GrblAxes)):
             self.motion.close()
         if self.link is not None:
             self.link.close()
@@ -344,7 +350,7 @@ class Bench:
             self.close()
 
     # -- operations --------------------------------------------------------------------------------------------
-    def _need(self) -> tuple[DynamixelAxes | SerialAxes, SerialDetector]:
+    def _need(self) -> tuple[DynamixelAxes | SerialAxes | GrblAxes, SerialDetector]:
         if self.motion is None or self.detector is None:
             raise DeviceError("the bench is not open: use `with Bench.from_config(...) as bench:` or bench.open()")
         return self.motion, self.detector

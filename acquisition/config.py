@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from acquisition.devices import grbl_setup
 from acquisition.errors import ConfigError
 from acquisition.plans.planconfig import (  # noqa: F401 - names of this module before [plan] moved out
     MAX_PLAN_POINTS,
@@ -133,13 +134,15 @@ class BenchConfig:
 # --- section readers -----------------------------------------------------------------------------------------
 
 
-def _read_bench(src: str, raw: Any) -> BenchSection:
+def _read_bench(src: str, raw: Any, motion_type: Any = None) -> BenchSection:
     t = _Table(src, "bench", raw, BenchTable)
     transport = t["transport"]
-    motion = t["motion"]
+    motion = grbl_setup.motion_kind(src, t["motion"], motion_type, transport)
     if transport == "simulated":
         if motion is None:
-            raise t.error("motion", 'missing key: a simulated bench needs motion = "dynamixel" or "serial"')
+            raise t.error("motion", 'missing key: a simulated bench needs motion = "dynamixel", "serial" or "grbl"')
+    elif motion == "grbl":
+        pass  # GRBL's own port is [motion.grbl].port; serial_port is the detector's
     else:
         if motion is not None and motion != transport:
             raise t.error("motion", f'is {_describe(motion)} but transport is "{transport}"; leave motion out '
@@ -203,7 +206,11 @@ def _read_axis(src: str, name: str, raw: Any, motion: str) -> AxisConfig:
 
 
 def _read_motion(src: str, raw: Any, motion: str) -> MotionConfig:
-    t = _Table(src, "motion", raw, MotionTable)
+    t = _Table(src, "motion", raw, MotionTable, skip=("grbl",))  # [motion.grbl]: grbl_setup.read_grbl
+    if t.given("grbl") and motion != "grbl":
+        raise t.error("grbl", f'is for a GRBL bench ([motion].type = "grbl"); this bench\'s motion is {motion!r}')
+    if t["type"] is not None and t["type"] != motion:
+        raise t.error("type", f"is {_describe(t['type'])} but [bench] says motion {_describe(motion)}")
     if motion == "dynamixel":
         for k in ("profile_velocity", "profile_acceleration"):
             if t[k] is None:
@@ -302,7 +309,7 @@ def config_from_dict(raw: Mapping[str, Any], path: str | Path = "<config>") -> B
     for sec in ("bench", "axes", "motion", "detector", "calibration", "plan"):
         if sec not in raw:
             raise ConfigError(f"{src}: [{sec}]: missing section (required)")
-    bench = _read_bench(src, raw["bench"])
+    bench = _read_bench(src, raw["bench"], raw["motion"].get("type") if isinstance(raw["motion"], Mapping) else None)
     axes_raw = raw["axes"]
     if not isinstance(axes_raw, Mapping):
         raise ConfigError(f"{src}: [axes]: expected tables [axes.light], [axes.detector]")
@@ -321,6 +328,8 @@ def config_from_dict(raw: Mapping[str, Any], path: str | Path = "<config>") -> B
                               "; every axis needs its own")
         seen[key] = name
     motion = _read_motion(src, raw["motion"], bench.motion)
+    if bench.motion == "grbl":
+        motion = grbl_setup.read_grbl(src, raw["motion"], motion, axes, bench.transport)
     detector = _read_detector(src, raw["detector"], path.resolve().parent, bench.source_spectrum,
                               raw.get("simulator"))
     calibration = _read_calibration(src, raw["calibration"], path.resolve().parent)

@@ -156,7 +156,10 @@ class PtyServer:
             raise
 
     def paths(self) -> dict[str, str | None]:
-        return {name: (self.ports[name].path if name in self.ports else None) for name in ("dynamixel", "serial")}
+        out = {name: (self.ports[name].path if name in self.ports else None) for name in ("dynamixel", "serial")}
+        if "grbl" in self.ports:  # a GRBL bench: the arms' controller on a port of its own
+            out["grbl"] = self.ports["grbl"].path
+        return out
 
     def close(self) -> None:
         for p in self.ports.values():
