@@ -214,11 +214,7 @@ class GrblAxes:
         refuse an untrusted position (see the module)."""
         self._await_welcome(self.grbl.boot_s)
         self._drain(0.05)
-        try:
-            info = self.command("$I", 2.0)
-        except GrblError:
-            info = []
-        self.version = next((ln for ln in info if ln.startswith("[VER:")), "")
+        self.version = self._sync()
         if not self.version.startswith("[VER:1.1"):
             log.warning("GRBL on %s: %s; this driver is written for GRBL 1.1", self.port,
                         self.version or "no [VER:] line")
@@ -230,6 +226,24 @@ class GrblAxes:
         self._gain_trust(st)
         self.command("G21 G90")
         log.info("GRBL on %s ready: %s, arms at %s", self.port, self.version, self.positions())
+
+    def _sync(self) -> str:
+        """``$I`` until its ``[VER:...]`` line and the ``ok`` after it: an ``ok`` still owed to a line someone sent
+        before the port was ours is skipped, so every later answer belongs to this driver's line. Returns the
+        ``[VER:...]`` line ("" if GRBL answers without one)."""
+        for _ in range(2):
+            self._write(b"$I\n")
+            deadline = time.monotonic() + 3.0
+            version = ""
+            while (line := self._readline(deadline)) is not None:
+                if line.startswith("[VER:"):
+                    version = line
+                elif line == "ok" and version:
+                    return version
+                elif _ERROR.match(line) and not version:
+                    return ""
+        raise CommError(f"GRBL on {self.port}: no answer to $I; is GRBL 1.1 on this port at "
+                        f"{self.grbl.baudrate} baud?")
 
     def read_settings(self) -> dict[int, float]:
         """``$$``: every ``$N=value`` setting."""
