@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from acquisition.devices import grbl_setup
+from acquisition import grbl_settings
 from acquisition.errors import ConfigError
 from acquisition.plans.planconfig import (  # noqa: F401 - names of this module before [plan] moved out
     MAX_PLAN_POINTS,
@@ -137,7 +137,7 @@ class BenchConfig:
 def _read_bench(src: str, raw: Any, motion_type: Any = None) -> BenchSection:
     t = _Table(src, "bench", raw, BenchTable)
     transport = t["transport"]
-    motion = grbl_setup.motion_kind(src, t["motion"], motion_type, transport)
+    motion = grbl_settings.motion_kind(src, t["motion"], motion_type, transport)
     if transport == "simulated":
         if motion is None:
             raise t.error("motion", 'missing key: a simulated bench needs motion = "dynamixel", "serial" or "grbl"')
@@ -206,7 +206,7 @@ def _read_axis(src: str, name: str, raw: Any, motion: str) -> AxisConfig:
 
 
 def _read_motion(src: str, raw: Any, motion: str) -> MotionConfig:
-    t = _Table(src, "motion", raw, MotionTable, skip=("grbl",))  # [motion.grbl]: grbl_setup.read_grbl
+    t = _Table(src, "motion", raw, MotionTable, skip=("grbl",))  # [motion.grbl]: grbl_settings.read_grbl
     if t.given("grbl") and motion != "grbl":
         raise t.error("grbl", f'is for a GRBL bench ([motion].type = "grbl"); this bench\'s motion is {motion!r}')
     if t["type"] is not None and t["type"] != motion:
@@ -329,7 +329,7 @@ def config_from_dict(raw: Mapping[str, Any], path: str | Path = "<config>") -> B
         seen[key] = name
     motion = _read_motion(src, raw["motion"], bench.motion)
     if bench.motion == "grbl":
-        motion = grbl_setup.read_grbl(src, raw["motion"], motion, axes, bench.transport)
+        motion = grbl_settings.read_grbl(src, raw["motion"], motion, axes, bench.transport)
     detector = _read_detector(src, raw["detector"], path.resolve().parent, bench.source_spectrum,
                               raw.get("simulator"))
     calibration = _read_calibration(src, raw["calibration"], path.resolve().parent)

@@ -4,7 +4,7 @@ GRBL's interface (gnea/grbl ``doc/markdown/interface.md``): one line of G-code o
 ``ok`` or ``error:N``; push messages (``ALARM:N``, ``[MSG:...]``, the welcome line ``Grbl 1.1h ['$' for help]``)
 at any time; single realtime bytes that are never buffered: ``?`` (a status report ``<Idle|MPos:x,y,z|FS:f,s>``),
 ``!`` (feed hold), ``~`` (resume) and 0x18 (soft reset). X is the light arm, Y the detector arm, GRBL's "mm" are
-degrees of the machine coordinate (:mod:`acquisition.devices.grbl_setup`).
+degrees of the machine coordinate (:mod:`acquisition.grbl_settings`).
 
 :class:`GrblAxes` (the axes of :class:`acquisition.bench.Bench`, like ``SerialAxes``):
 
@@ -18,7 +18,7 @@ degrees of the machine coordinate (:mod:`acquisition.devices.grbl_setup`).
 * ``stop`` (an abort): feed hold ``!``, wait for the hold to complete (``Hold:0``), then a soft reset (0x18)
   which empties the planner; a reset after a completed hold keeps the position (GRBL raises ``ALARM:3`` only for
   a reset *in* motion, which this driver falls back to if the hold does not complete).
-* every ``error:N`` / ``ALARM:N`` becomes one sentence (:func:`~acquisition.devices.grbl_setup.error_text`).
+* every ``error:N`` / ``ALARM:N`` becomes one sentence (:func:`~acquisition.grbl_settings.error_text`).
 """
 
 from __future__ import annotations
@@ -31,7 +31,8 @@ from dataclasses import dataclass
 
 import serial
 
-from acquisition.devices.grbl_setup import (
+from acquisition.errors import PORT_ERRORS, CommError, DeviceError, HardwareError
+from acquisition.grbl_settings import (
     AXIS_LETTER,
     LOST_POSITION_ALARMS,
     SETTING_NAMES,
@@ -40,7 +41,6 @@ from acquisition.devices.grbl_setup import (
     expected_settings,
     machine_deg,
 )
-from acquisition.errors import PORT_ERRORS, CommError, DeviceError, HardwareError
 from acquisition.sections import AxisConfig, MotionConfig
 from reconstruction.schema.bench import GrblTable
 
@@ -255,8 +255,9 @@ class GrblAxes:
         self.settings = out
         return out
 
-    def setting_differences(self) -> list[str]:
-        """One sentence per checked setting that differs from the bench file (empty: all agree)."""
+    def setting_differences(self) -> list[tuple[int, str]]:
+        """(setting number, one sentence) per checked setting that differs from the bench file (empty: all
+        agree)."""
         have = self.read_settings()
         want = expected_settings(self.axes, self.motion)
         keys = {100: "[axes.light].units_per_deg", 101: "[axes.detector].units_per_deg",
@@ -275,20 +276,21 @@ class GrblAxes:
                 need = f"{v:.3f}" if n >= 100 else f"{v:.0f}"
             if not ok:
                 shown = "missing" if got is None else f"{got:g}"
-                out.append(f"${n} ({SETTING_NAMES[n]}) is {shown}, the bench file needs {need} ({keys[n]})")
+                out.append((n, f"${n} ({SETTING_NAMES[n]}) is {shown}, the bench file needs {need} ({keys[n]})"))
         mask = have.get(10)
         if mask is not None and not int(mask) & 1:
-            out.append(f"$10 ({SETTING_NAMES[10]}) is {mask:g}: set bit 0 ($10=1) so that status reports give "
-                       "the machine position")
+            out.append((10, f"$10 ({SETTING_NAMES[10]}) is {mask:g}: set bit 0 ($10=1) so that status reports give "
+                            "the machine position"))
         return out
 
     def check_settings(self) -> None:
         """Raise :class:`DeviceError` naming every setting that differs (with the lines that fix them)."""
         diffs = self.setting_differences()
         if diffs:
-            fix = " ".join(f"${n}={v:.3f}".rstrip("0").rstrip(".")
-                           for n, v in sorted(expected_settings(self.axes, self.motion).items()))
-            raise DeviceError(f"GRBL on {self.port}: its settings differ from the bench file: " + "; ".join(diffs)
+            want = {**expected_settings(self.axes, self.motion), 10: 1.0}
+            fix = " ".join(f"${n}={want[n]:.3f}".rstrip("0").rstrip(".") for n, _ in diffs)
+            raise DeviceError(f"GRBL on {self.port}: its settings differ from the bench file: "
+                              + "; ".join(text for _, text in diffs)
                               + f". Nothing was moved. Send GRBL the bench's values ({fix}) or fix the bench file")
 
     def _gain_trust(self, st: GrblStatus) -> None:
