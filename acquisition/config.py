@@ -141,8 +141,13 @@ def _read_bench(src: str, raw: Any, motion_type: Any = None) -> BenchSection:
     if transport == "simulated":
         if motion is None:
             raise t.error("motion", 'missing key: a simulated bench needs motion = "dynamixel", "serial" or "grbl"')
-    elif motion == "grbl":
-        pass  # GRBL's own port is [motion.grbl].port; serial_port is the detector's
+    elif motion == "grbl":  # GRBL's own port is [motion.grbl].port; serial_port is the detector board's
+        if transport != "serial":
+            raise t.error("transport", f'is "{transport}", but the arms are on GRBL ([motion].type = "grbl"): use '
+                                       'transport = "serial" (the detector board) or "simulated"')
+        if not t["serial_port"]:
+            raise t.error("serial_port", 'missing: the detector board needs a port, e.g. "/dev/ttyACM1" (GRBL\'s '
+                                         "is [motion.grbl].port)")
     else:
         if motion is not None and motion != transport:
             raise t.error("motion", f'is {_describe(motion)} but transport is "{transport}"; leave motion out '

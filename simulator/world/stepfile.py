@@ -12,6 +12,9 @@ line can be short of where the arms stopped. The track therefore takes each bloc
 its *length* from the block file (the difference of consecutive targets), and the arms at rest are at start +
 length. Before the block file has the newest block, the step file's last line is used.
 
+After a block cut short (a feed hold then a reset, or a reset in motion) the track still says its end until the
+next block's header gives the true counters: the capture reads nothing in between (it stops, or moves first).
+
 ``steps = zero_offset + direction * units_per_deg * deg`` (the bench file's ``[axes.*]``): GRBL's step count is the
 bench's controller unit.
 """
