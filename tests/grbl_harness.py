@@ -1,12 +1,13 @@
 """GRBL 1.1h's own host simulator (grbl-sim, built from ``../shared/grbl``) on a pseudo-terminal, for the
 conformance tests and ``benchmarks/bench_grbl.py``.
 
-grbl-sim reads its stdin with ``select`` + ``getchar``: stdio takes every byte waiting on the descriptor into
-its buffer but hands GRBL one, so the rest of a line written at once waits there until more bytes arrive (the
-last line's answer would come one line late). A real UART has no such buffer; :class:`GrblSim` therefore puts a
-relay between the driver's port and grbl-sim that passes the bytes on one at a time, each once grbl-sim has read
-the one before (``FIONREAD`` on its side of the pty). The relay is also where a test injects bytes the driver did
-not send (a reset mid-sweep, as the reset button or a brown-out would).
+grbl-sim reads its stdin with ``select`` + ``getchar``: a buffered stdin takes every byte waiting on the
+descriptor into stdio's buffer but hands GRBL one, so the rest of a line written at once waits there until more
+bytes arrive (the last line's answer would come one line late). A real UART has no such buffer; grbl-sim is
+therefore started under ``stdbuf -i0`` (coreutils: stdin unbuffered, one byte per read), and where ``stdbuf`` is
+missing a relay passes the bytes on one at a time, each once grbl-sim has read the one before (``FIONREAD`` on its
+side of the pty; fragile on a loaded machine). The relay between the driver's port and grbl-sim is also where a
+test injects bytes the driver did not send (a reset mid-sweep, as the reset button or a brown-out would).
 
 Step output: grbl-sim writes ``-s`` through stdio too; to a pseudo-terminal it is line-buffered, so a second pty
 takes it and the relay copies it line by line to ``steps.out``; ``-b`` (which grbl-sim flushes itself) goes to
@@ -73,8 +74,11 @@ class GrblSim:
         self.step_master, step_slave = pty.openpty()
         tty.setraw(step_slave)
         self._step_slave = step_slave
+        stdbuf = shutil.which("stdbuf")
+        self.bytewise = stdbuf is None
         self.proc = subprocess.Popen(
-            [str(exe), "-n", "-r", f"{report_s:g}", "-s", os.ttyname(step_slave), "-b", str(self.blocks_path)],
+            ([stdbuf, "-i0"] if stdbuf else [])
+            + [str(exe), "-n", "-r", f"{report_s:g}", "-s", os.ttyname(step_slave), "-b", str(self.blocks_path)],
             stdin=self.sim_master, stdout=self.sim_master, stderr=subprocess.DEVNULL, cwd=self.workdir)
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -88,6 +92,9 @@ class GrblSim:
     # -- relay -------------------------------------------------------------------------------------------------------
     def _feed(self, data: bytes) -> None:
         with self._lock:
+            if not self.bytewise:
+                os.write(self.sim_slave, data)
+                return
             for b in data:
                 os.write(self.sim_slave, bytes([b]))
                 # the byte reaches grbl-sim's side of the pty a moment later (the tty layer's own buffer): see it

@@ -12,6 +12,7 @@ saying what is missing.
 
 from __future__ import annotations
 
+import sys
 import threading
 import time
 from pathlib import Path
@@ -20,6 +21,11 @@ import pytest
 import tomli_w
 
 from tests import grbl_harness as gh
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10 only
+    import tomli as tomllib
 
 pytestmark = pytest.mark.slow
 
@@ -209,6 +215,21 @@ def test_a_capture_runs_with_the_arms_on_grbl(sim, detector_sim, tmp_path, base_
     # the specular direction (theta_o = 30) is the brightest: the detector saw the angles grbl-sim's arms reached
     vals = {float(r[1]): float(r[2]) for r in data}
     assert max(vals, key=vals.get) == 30.0
+    # and the same capture on the project's virtual GRBL (same seed, so the same noise) reads the same slice
+    virt = _bench_file(tmp_path / "virtual.toml", "", "", base_config_dict)
+    raw = tomllib.loads(virt.read_text())
+    raw["bench"].update(transport="simulated", motion="grbl", serial_port="")
+    raw["motion"]["grbl"].pop("port")
+    raw["simulator"].update(stepper_velocity_deg_s=FAST[110] / 60, stepper_acceleration_deg_s2=FAST[120])
+    virt.write_text(tomli_w.dumps(raw))
+    res2 = Bench.from_config(virt).capture(out=tmp_path / "virtual", progress=False, handle_signals=False)
+    assert res2.ok, res2
+    rows2 = (tmp_path / "virtual" / "slice.csv").read_text().splitlines()
+    vals2 = {float(r.split(",")[1]): float(r.split(",")[2]) for r in rows2 if r and not r.startswith("#")
+             and not r.startswith("theta")}
+    assert vals2.keys() == vals.keys()
+    for k in vals:
+        assert vals[k] == pytest.approx(vals2[k], rel=1e-6), k
 
 
 def test_a_reset_mid_sweep_stops_the_capture_and_resumes_after_unlock(sim, detector_sim, tmp_path,
