@@ -213,3 +213,28 @@ def test_the_time_model_moves_both_arms_on_one_line():
     assert mt.move_time((0.0, 0.0), (3.0, 30.0)) == pytest.approx(float(trapezoid_duration(300.0, 600.0, 2400.0)))
     assert np.all(np.isfinite(mt.move_times(np.zeros((3, 2)), np.array([[0, 0], [1, 0], [0, 1.0]]))))
     assert not math.isnan(mt.move_time((1.0, 2.0), (1.0, 2.0)))
+
+
+@pytest.mark.slow
+def test_ctrl_c_holds_resets_parks_and_the_capture_resumes(tmp_path):
+    import signal
+
+    from tests.test_acq_signals import rows, wait_for_rows
+    from tests.test_acq_support import popen_capture, run_capture
+
+    no_switches = {"motion": {"grbl": {"homing": False, "soft_limits": False}}}
+    slow = _write(tmp_path, {**no_switches, "simulator": {"time_scale": 8.0}}, "slow.toml")
+    out = tmp_path / "out"
+    p = popen_capture("--config", str(slow), "--out", str(out), "--no-progress")
+    wait_for_rows(out / "slice.csv", 4, p)
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 130, err
+    log = (out / "capture.log").read_text()
+    assert "arms parked at (0, 45)" in log  # the hold completed before the reset: no ALARM:3, the position kept
+    assert "ALARM" not in log
+    n1 = rows(out / "slice.csv")
+    fast = _write(tmp_path, no_switches, "fast.toml")
+    r = run_capture("--config", str(fast), "--out", str(out), "--resume", "--no-progress")
+    assert r.returncode == 0, r.stderr
+    assert rows(out / "slice.csv") > n1
