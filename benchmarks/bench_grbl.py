@@ -78,7 +78,7 @@ def main() -> int:
 
     from reconstruction.schema.bench import GrblTable
 
-    motion = dataclasses.replace(cfg.motion, grbl=GrblTable(boot_s=0.3), poll_interval_s=0.02, timeout_s=600.0)
+    motion = dataclasses.replace(cfg.motion, grbl=GrblTable(boot_s=0.3), poll_interval_s=0.02, timeout_s=120.0)
     geom = dataclasses.replace(Geometry.from_config(cfg), light=axes["light"], detector=axes["detector"], arrive_s=0.0,
                                poll_s=0.0, host_s=0.0)
     demo = load_config(REPO / "configs" / "simulated.toml").plan
@@ -106,7 +106,12 @@ def main() -> int:
             t0 = time.monotonic()
             for g in goals:
                 t = time.monotonic()
-                drv.move({"light": g[0], "detector": g[1]}, check_cancel=False)
+                try:
+                    drv.move({"light": g[0], "detector": g[1]}, check_cancel=False)
+                except Exception as exc:  # noqa: BLE001 - report where grbl-sim stopped, then give up
+                    print(f"bench_grbl: move {len(wall)} to {g} failed: {exc}; GRBL says {drv.status().raw}",
+                          file=sys.stderr)
+                    return 1
                 wall.append(time.monotonic() - t)
                 pos = drv.positions()
                 err.append((pos["light"] - g[0], pos["detector"] - g[1]))
