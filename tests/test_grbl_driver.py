@@ -231,7 +231,7 @@ def test_ctrl_c_holds_resets_parks_and_the_capture_resumes(tmp_path):
     _, err = p.communicate(timeout=60)
     assert p.returncode == 130, err
     log = (out / "capture.log").read_text()
-    assert "arms parked at (0, 45)" in log  # the hold completed before the reset: no ALARM:3, the position kept
+    assert "arms parked at (0, 45)" in log, log  # the hold completed before the reset: no ALARM:3, the position kept
     assert "ALARM" not in log
     n1 = rows(out / "slice.csv")
     fast = _write(tmp_path, no_switches, "fast.toml")

@@ -451,11 +451,12 @@ class GrblAxes:
         """GRBL keeps or drops the motor current by its ``$1`` idle delay: nothing to send."""
 
     def healthy(self) -> bool:
-        """The port answers and GRBL vouches for the position (parking is safe)."""
+        """The port answers and GRBL vouches for the position (parking is safe; a move still running, cut short
+        by Ctrl-C in the driver's wait, is finished first by GRBL's planner)."""
         if self.dead or not self.trusted:
             return False
         try:
-            return self.status().state == "Idle"
+            return self.status().state not in ("Alarm", "Door", "Sleep")
         except Exception:  # noqa: BLE001
             return False
 
