@@ -56,6 +56,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true",
                    help="with --resume: go on although the last recorded points, measured again first, do not read "
                         "as recorded (another sample on purpose; recorded in capture.json)")
+    p.add_argument("--unlock", action="store_true",
+                   help="GRBL bench in alarm without switches: unlock it ($X) on purpose for this run; you checked "
+                        "the arms are where GRBL believes them ([motion.grbl].unlock for one run)")
     p.add_argument("--scene", help="scene file restricting the plan (configs/scenes/*.toml)")
     p.add_argument("--check", action="store_true",
                    help="validate the config (on a simulated bench also its [simulator] sections, through "
@@ -154,6 +157,7 @@ def _time_summary(r: Any) -> str:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from acquisition import grbl_settings
     from acquisition.bench import Bench, SimulatorCheck
     from acquisition.config import MAX_PLAN_POINTS
     from acquisition.errors import CommError, ConfigError, PlanError
@@ -165,6 +169,8 @@ def _run(args: argparse.Namespace) -> int:
     sim_check = None
     try:
         bench = Bench.from_config(args.config)
+        if args.unlock:
+            bench.cfg.motion = grbl_settings.unlocked(bench.cfg)
         if args.check and bench.cfg.bench.transport == "simulated":
             # the [simulator] sections, as `gonio-sim serve` reads them, checked while the plan is
             sim_check = SimulatorCheck(bench.cfg.path, bench.cfg.bench.simulator_command)

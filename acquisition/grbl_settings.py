@@ -23,13 +23,15 @@ import dataclasses
 from collections.abc import Mapping
 from typing import Any
 
+import msgspec
+
 from acquisition.errors import ConfigError
 from acquisition.sections import AxisConfig, MotionConfig
 from reconstruction.schema import SchemaError, Table
 from reconstruction.schema.bench import GrblTable
 
 __all__ = ["ERRORS", "ALARMS", "LOST_POSITION_ALARMS", "MAX_STEP_RATE", "AXIS_LETTER", "error_text", "alarm_text",
-           "motion_kind", "read_grbl", "machine_deg", "expected_settings", "SETTING_NAMES"]
+           "motion_kind", "read_grbl", "unlocked", "machine_deg", "expected_settings", "SETTING_NAMES"]
 
 #: GRBL 1.1 ``error:N`` codes (gnea/grbl doc/csv/error_codes_en_US.csv), in our words.
 ERRORS = {
@@ -173,6 +175,15 @@ def read_grbl(src: str, raw_motion: Mapping[str, Any], motion: MotionConfig, axe
                                   f"[{ax.min_deg:g}, {ax.max_deg:g}] deg map to [{lo:.3f}, {hi:.3f}]; put the "
                                   "switch end of the travel at machine 0")
     return dataclasses.replace(motion, type="grbl", grbl=g)
+
+
+def unlocked(cfg: Any) -> MotionConfig:
+    """``cfg.motion`` with ``[motion.grbl].unlock`` set (``gonio-capture --unlock``); a bench that is not on GRBL
+    raises :class:`ConfigError`."""
+    if cfg.motion.type != "grbl" or cfg.motion.grbl is None:
+        raise ConfigError(f'{cfg.path}: --unlock is for a GRBL bench ([motion] type = "grbl"); this bench\'s motion '
+                          f"is {cfg.bench.motion!r}")
+    return dataclasses.replace(cfg.motion, grbl=msgspec.structs.replace(cfg.motion.grbl, unlock=True))
 
 
 def expected_settings(axes: Mapping[str, AxisConfig], motion: MotionConfig) -> dict[int, float]:

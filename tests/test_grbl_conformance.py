@@ -272,8 +272,10 @@ def test_a_reset_mid_sweep_stops_the_capture_and_resumes_after_unlock(sim, detec
     assert not refused.ok
     assert "the arms' position is not trusted, so nothing moves" in (out / "capture.log").read_text()
     assert len(sim.blocks_path.read_text().splitlines()) == 4
-    cfg2 = _bench_file(tmp_path / "bench2.toml", detector_sim.ports["serial"], sim.port, base_config_dict, unlock=True)
-    res2 = Bench.from_config(cfg2).capture(out=out, resume=True, progress=False, handle_signals=False, force=True)
-    assert res2.ok, res2
+    from tests.test_acq_support import run_capture
+
+    r = run_capture("--config", str(cfg), "--out", str(out), "--resume", "--unlock", "--no-progress")
+    assert r.returncode == 0, r.stderr
+    assert "unlocking ($X) on purpose" in (out / "capture.log").read_text()
     rows = [r for r in (out / "slice.csv").read_text().splitlines() if r and not r.startswith("#")][1:]
     assert len(rows) == 5

@@ -145,7 +145,7 @@ def test_after_a_reset_in_motion_a_resume_refuses_until_unlocked(rig):
     drv.close()
     again = GrblAxes(server.paths()["grbl"], cfg.axes, cfg.motion)
     with pytest.raises(DeviceError, match=r"not trusted, so nothing moves: home them .* unlock on purpose "
-                                          r"\(\[motion.grbl\].unlock = true, \$X\)"):
+                                          r"\(gonio-capture --unlock, or \[motion.grbl\].unlock = true; \$X\)"):
         again.connect()
     again.close()
     cfg2 = load_config(_write(Path(cfg.path).parent, helpers.deep_merge(over, {"motion": {"grbl": {"unlock": True}}}),
@@ -238,3 +238,14 @@ def test_ctrl_c_holds_resets_parks_and_the_capture_resumes(tmp_path):
     r = run_capture("--config", str(fast), "--out", str(out), "--resume", "--no-progress")
     assert r.returncode == 0, r.stderr
     assert rows(out / "slice.csv") > n1
+
+
+def test_unlock_flag_is_for_grbl_benches_only(tmp_path):
+    from tests.test_acq_support import run_capture
+
+    serial_bench = Path(__file__).resolve().parents[1] / "configs" / "serial-bench.toml"
+    r = run_capture("--config", str(serial_bench), "--check", "--unlock")
+    assert r.returncode != 0
+    assert "--unlock is for a GRBL bench ([motion] type = \"grbl\"); this bench's motion is 'serial'" in r.stderr
+    r = run_capture("--config", str(GRBL_TOML), "--check", "--unlock")
+    assert r.returncode == 0, r.stderr

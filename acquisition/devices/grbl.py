@@ -305,7 +305,8 @@ class GrblAxes:
             if not g.unlock:
                 raise DeviceError(f"GRBL on {self.port}: {why}; the arms' position is not trusted, so nothing "
                                   "moves: home them ([motion.grbl].homing = true, needs switches) or check they are "
-                                  "where GRBL believes and unlock on purpose ([motion.grbl].unlock = true, $X)")
+                                  "where GRBL believes and unlock on purpose (gonio-capture --unlock, or "
+                                  "[motion.grbl].unlock = true; $X)")
             self.unlock()
             return
         self.trusted = True
@@ -360,7 +361,7 @@ class GrblAxes:
         if not self.trusted:
             raise DeviceError(f"GRBL on {self.port}: the arms' position is not trusted since "
                               + (alarm_text(self.alarm) if self.alarm else "a reset or an alarm")
-                              + "; home them or unlock on purpose ([motion.grbl].unlock = true) before moving")
+                              + "; home them or unlock on purpose (gonio-capture --unlock) before moving")
         self.goal.update(goals)
         self._send(goals)
         self._wait(dict(goals), check_cancel)
