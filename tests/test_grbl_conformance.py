@@ -45,7 +45,8 @@ AXES = {"light": AxisConfig("light", "X", None, UPD, 0.0, 1, 0.0, 80.0, 0.0),
 
 
 def motion(acc: float = FAST[120], **grbl) -> MotionConfig:
-    return MotionConfig(0, 0, FAST[110] / 60, acc, 0.05, 0.0, 20.0, 3, 0.01, "grbl", GrblTable(boot_s=0.3, **grbl))
+    # retries 6: a status report may wait on grbl-sim (CPU-bound) for seconds on a loaded machine
+    return MotionConfig(0, 0, FAST[110] / 60, acc, 0.05, 0.0, 20.0, 6, 0.01, "grbl", GrblTable(boot_s=0.3, **grbl))
 
 
 @pytest.fixture(scope="session")
@@ -183,7 +184,7 @@ def _bench_file(path: Path, detector_port: str, grbl_port: str, base: dict, **gr
     raw["axes"] = {n: {"id": a.id, "units_per_deg": UPD, "zero_offset": 0.0, "direction": 1, "min_deg": a.min_deg,
                        "max_deg": a.max_deg, "park_deg": 10.0 if n == "light" else 30.0} for n, a in AXES.items()}
     raw["motion"] = {"type": "grbl", "velocity_deg_s": FAST[110] / 60, "acceleration_deg_s2": FAST[120],
-                     "tolerance_deg": 0.05, "settle_s": 0.0, "timeout_s": 20.0, "retries": 3, "poll_interval_s": 0.01,
+                     "tolerance_deg": 0.05, "settle_s": 0.0, "timeout_s": 20.0, "retries": 6, "poll_interval_s": 0.01,
                      "grbl": {"port": grbl_port, "boot_s": 0.3, **grbl}}
     raw["plan"] = {"theta_i_deg": [30.0], "theta_o_min_deg": -10.0, "theta_o_max_deg": 70.0, "theta_o_step_deg": 20.0,
                    "repeats": 2, "dark_at_end": False}
