@@ -38,6 +38,7 @@ from acquisition.calibration import Reading
 from acquisition.config import BenchConfig, load_config
 from acquisition.devices.dynamixel import DynamixelAxes
 from acquisition.devices.external import external_detector, external_library
+from acquisition.devices.grbl import GrblAxes
 from acquisition.devices.protocols import Devices, MoveStatus
 from acquisition.devices.serial_link import SerialAxes, SerialDetector, SerialLink
 from acquisition.errors import CommError, ConfigError, DeviceError, PortError, SaturationWarning
@@ -234,7 +235,7 @@ class Bench:
         #: test hook (docs/detectors.md): a function of the simulator's ports returning the stand-in of the
         #: detector's library (seabreeze.spectrometers, pyvisa.ResourceManager); None: the real library
         self.detector_library: Any = None
-        self.motion: DynamixelAxes | SerialAxes | None = None
+        self.motion: DynamixelAxes | SerialAxes | GrblAxes | None = None
         #: extra arguments of ``gonio-sim serve`` (the engine passes ``--attempt N`` on a resumed capture)
         self.sim_args: tuple[str, ...] = ()
         self._opened = False
@@ -280,6 +281,9 @@ class Bench:
                     raise CommError("simulated bench: the simulator offers no Dynamixel port (is [bench].motion "
                                     "consistent?)")
                 dxl_port, ser_port = ports.get("dynamixel") or "", ports.get("serial") or ""
+                grbl_port = ports.get("grbl") or ""
+            else:
+                grbl_port = cfg.motion.grbl.port if cfg.motion.grbl is not None else ""
             if not cfg.detector.on_board:  # seabreeze, pm100 (acquisition.devices.external): the library first
                 lib = self.detector_library(self.sim.ports if self.sim else {}) if self.detector_library else \
                     external_library(cfg, simulated=self.sim is not None)
@@ -297,6 +301,8 @@ class Bench:
             self.detector.connect()
             if b.motion == "dynamixel":
                 self.motion = DynamixelAxes(dxl_port, b.dynamixel_baudrate, cfg.axes, cfg.motion)
+            elif b.motion == "grbl":
+                self.motion = GrblAxes(grbl_port, cfg.axes, cfg.motion)
             else:
                 self.motion = SerialAxes(self.link, cfg.axes, cfg.motion.tolerance_deg, cfg.motion.timeout_s,
                                          cfg.motion.retries, cfg.motion.poll_interval_s)
@@ -315,7 +321,7 @@ class Bench:
 
     def close(self) -> None:
         """Close ports and stop the simulator (does not move anything: see :meth:`shutdown`)."""
-        if self.motion is not None and isinstance(self.motion, DynamixelAxes):
+        if self.motion is not None and isinstance(self.motion, (DynamixelAxes, GrblAxes)):
             self.motion.close()
         if self.detector is not None and hasattr(self.detector, "close"):
             self.detector.close()
@@ -361,7 +367,7 @@ class Bench:
             self.close()
 
     # -- operations --------------------------------------------------------------------------------------------
-    def _need(self) -> tuple[DynamixelAxes | SerialAxes, Any]:
+    def _need(self) -> tuple[DynamixelAxes | SerialAxes | GrblAxes, Any]:
         if self.motion is None or self.detector is None:
             raise DeviceError("the bench is not open: use `with Bench.from_config(...) as bench:` or bench.open()")
         return self.motion, self.detector

@@ -57,6 +57,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true",
                    help="with --resume: go on although the last recorded points, measured again first, do not read "
                         "as recorded (another sample on purpose; recorded in capture.json)")
+    p.add_argument("--unlock", action="store_true",
+                   help="GRBL bench in alarm without switches: unlock it ($X) on purpose for this run; you checked "
+                        "the arms are where GRBL believes them ([motion.grbl].unlock for one run)")
     p.add_argument("--scene", help="scene file the plan is fitted to (configs/scenes/*.toml): its ranges limit the "
                                    "plan, its angular resolution sets the step (a finer one adds points)")
     p.add_argument("--check", action="store_true",
@@ -179,9 +182,37 @@ def _start_live(args: argparse.Namespace) -> Any:
     return view
 
 
-def _run(args: argparse.Namespace) -> int:
-    from acquisition.bench import Bench, SimulatorCheck
+def _print_check(args: argparse.Namespace, bench: Any, plan: Any, chk: Any, est: dict[str, Any]) -> None:
+    """What --check prints: the scene's changes, the plan's check, the ports, the footprint and the estimate."""
     from acquisition.config import MAX_PLAN_POINTS
+
+    if args.scene:
+        from acquisition.plans.plan import scene_changes
+
+        print(scene_changes(bench.plan(), plan))
+    print(chk.describe(limit=1000))
+    from acquisition.optics import footprint_warning
+    from acquisition.ports import describe_ports
+
+    print("\n".join(describe_ports(bench.cfg)) or "ports: the simulator's, made when a capture starts")
+
+    warn = footprint_warning(bench.cfg, [p[0] for p in chk.measurable])
+    if warn:
+        print(f"warning: {warn}")
+    grows = " (before adaptive refinement, which may add up to " \
+            f"{plan.size() - len(chk.measurable) - len(chk.unmeasurable):.0f})" if plan.adaptive else ""
+    print(f"plan size: {len(chk.measurable) + len(chk.unmeasurable)} points{grows}, limit {MAX_PLAN_POINTS}")
+    refine = " before adaptive refinement (its rounds are estimated as they are planned)" if plan.adaptive else ""
+    print(f"estimated bench time: {est['total_s']:.2f} s in all{refine}"
+          + (f" ({_duration(est['total_s'])})" if est["total_s"] >= 120 else "")
+          + f" = motion {est['motion_s']:.2f} s (arm travel in plan order; {est['naive_motion_s']:.2f} s in "
+            f"naive order) + settling {est['settle_s']:.2f} s + detector integration {est['read_s']:.2f} s + "
+            f"darks and white reference {est['calibration_s']:.2f} s; then parking {est['park_s']:.2f} s")
+
+
+def _run(args: argparse.Namespace) -> int:
+    from acquisition import grbl_settings
+    from acquisition.bench import Bench, SimulatorCheck
     from acquisition.errors import CommError, ConfigError, PlanError
     from acquisition.run.dryrun import estimate
     from acquisition.run.lock import OutDirLocked
@@ -191,6 +222,8 @@ def _run(args: argparse.Namespace) -> int:
     sim_check = None
     try:
         bench = Bench.from_config(args.config)
+        if args.unlock:
+            bench.cfg.motion = grbl_settings.unlocked(bench.cfg)
         if args.check and bench.cfg.bench.transport == "simulated":
             # the [simulator] sections, as `gonio-sim serve` reads them, checked while the plan is
             sim_check = SimulatorCheck(bench.cfg.path, bench.cfg.bench.simulator_command)
@@ -229,28 +262,7 @@ def _run(args: argparse.Namespace) -> int:
             except ConfigError as e:
                 print(f"gonio-capture: {e}; nothing was moved", file=sys.stderr)
                 return 2
-        if args.scene:
-            from acquisition.plans.plan import scene_changes
-
-            print(scene_changes(bench.plan(), plan))
-        print(chk.describe(limit=1000))
-        from acquisition.optics import footprint_warning
-        from acquisition.ports import describe_ports
-
-        print("\n".join(describe_ports(bench.cfg)) or "ports: the simulator's, made when a capture starts")
-
-        warn = footprint_warning(bench.cfg, [p[0] for p in chk.measurable])
-        if warn:
-            print(f"warning: {warn}")
-        grows = " (before adaptive refinement, which may add up to " \
-                f"{plan.size() - len(chk.measurable) - len(chk.unmeasurable):.0f})" if plan.adaptive else ""
-        print(f"plan size: {len(chk.measurable) + len(chk.unmeasurable)} points{grows}, limit {MAX_PLAN_POINTS}")
-        refine = " before adaptive refinement (its rounds are estimated as they are planned)" if plan.adaptive else ""
-        print(f"estimated bench time: {est['total_s']:.2f} s in all{refine}"
-              + (f" ({_duration(est['total_s'])})" if est["total_s"] >= 120 else "")
-              + f" = motion {est['motion_s']:.2f} s (arm travel in plan order; {est['naive_motion_s']:.2f} s in "
-                f"naive order) + settling {est['settle_s']:.2f} s + detector integration {est['read_s']:.2f} s + "
-                f"darks and white reference {est['calibration_s']:.2f} s; then parking {est['park_s']:.2f} s")
+        _print_check(args, bench, plan, chk, est)
         return 0
     if not args.out:
         print("gonio-capture: --out DIR is required to capture (or use --check)", file=sys.stderr)

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from acquisition import grbl_settings
 from acquisition.errors import ConfigError
 from acquisition.plans.planconfig import (  # noqa: F401 - names of this module before [plan] moved out
     MAX_PLAN_POINTS,
@@ -133,13 +134,20 @@ class BenchConfig:
 # --- section readers -----------------------------------------------------------------------------------------
 
 
-def _read_bench(src: str, raw: Any, board_detector: bool = True) -> BenchSection:
+def _read_bench(src: str, raw: Any, board_detector: bool = True, motion_type: Any = None) -> BenchSection:
     t = _Table(src, "bench", raw, BenchTable)
     transport = t["transport"]
-    motion = t["motion"]
+    motion = grbl_settings.motion_kind(src, t["motion"], motion_type, transport)
     if transport == "simulated":
         if motion is None:
-            raise t.error("motion", 'missing key: a simulated bench needs motion = "dynamixel" or "serial"')
+            raise t.error("motion", 'missing key: a simulated bench needs motion = "dynamixel", "serial" or "grbl"')
+    elif motion == "grbl":  # GRBL's own port is [motion.grbl].port; serial_port is the detector board's
+        if transport != "serial":
+            raise t.error("transport", f'is "{transport}", but the arms are on GRBL ([motion].type = "grbl"): use '
+                                       'transport = "serial" (the detector board) or "simulated"')
+        if not t["serial_port"]:
+            raise t.error("serial_port", 'missing: the detector board needs a port, e.g. "/dev/ttyACM1" (GRBL\'s '
+                                         "is [motion.grbl].port)")
     else:
         if motion is not None and motion != transport:
             raise t.error("motion", f'is {_describe(motion)} but transport is "{transport}"; leave motion out '
@@ -203,7 +211,11 @@ def _read_axis(src: str, name: str, raw: Any, motion: str) -> AxisConfig:
 
 
 def _read_motion(src: str, raw: Any, motion: str) -> MotionConfig:
-    t = _Table(src, "motion", raw, MotionTable)
+    t = _Table(src, "motion", raw, MotionTable, skip=("grbl",))  # [motion.grbl]: grbl_settings.read_grbl
+    if t.given("grbl") and motion != "grbl":
+        raise t.error("grbl", f'is for a GRBL bench ([motion].type = "grbl"); this bench\'s motion is {motion!r}')
+    if t["type"] is not None and t["type"] != motion:
+        raise t.error("type", f"is {_describe(t['type'])} but [bench] says motion {_describe(motion)}")
     if motion == "dynamixel":
         for k in ("profile_velocity", "profile_acceleration"):
             if t[k] is None:
@@ -312,7 +324,8 @@ def config_from_dict(raw: Mapping[str, Any], path: str | Path = "<config>") -> B
             raise ConfigError(f"{src}: [{sec}]: missing section (required)")
     det_raw = raw["detector"]
     board = not (isinstance(det_raw, Mapping) and det_raw.get("type") in ("seabreeze", "pm100"))
-    bench = _read_bench(src, raw["bench"], board)
+    bench = _read_bench(src, raw["bench"], board,
+                        raw["motion"].get("type") if isinstance(raw["motion"], Mapping) else None)
     axes_raw = raw["axes"]
     if not isinstance(axes_raw, Mapping):
         raise ConfigError(f"{src}: [axes]: expected tables [axes.light], [axes.detector]")
@@ -331,6 +344,8 @@ def config_from_dict(raw: Mapping[str, Any], path: str | Path = "<config>") -> B
                               "; every axis needs its own")
         seen[key] = name
     motion = _read_motion(src, raw["motion"], bench.motion)
+    if bench.motion == "grbl":
+        motion = grbl_settings.read_grbl(src, raw["motion"], motion, axes, bench.transport)
     detector = _read_detector(src, raw["detector"], path.resolve().parent, bench.source_spectrum,
                               raw.get("simulator"))
     calibration = _read_calibration(src, raw["calibration"], path.resolve().parent)

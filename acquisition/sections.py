@@ -82,6 +82,8 @@ class MotionConfig:
     timeout_s: float
     retries: int
     poll_interval_s: float
+    type: str | None = None            # "grbl" for a GRBL stepper bench ([motion].type)
+    grbl: Any = None                   # [motion.grbl] (reconstruction.schema.bench.GrblTable) of a GRBL bench
 
 
 @dataclass(frozen=True)

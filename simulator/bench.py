@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import logging
 import threading
+from collections.abc import Callable
 
 import numpy as np
 
 from simulator.config import BenchConfig
 from simulator.devices.dxl_device import DynamixelBus, Servo
+from simulator.devices.grbl import VirtualGrbl
 from simulator.devices.serial_controller import SerialController, StepperAxis
 from simulator.devices.usb_detectors import UsbDetector
 from simulator.world.clock import SimClock
@@ -29,7 +31,7 @@ class VirtualBench:
     """
 
     def __init__(self, cfg: BenchConfig, material: BRDF | None = None, reference: BRDF | None = None,
-                 attempt: int = 0) -> None:
+                 attempt: int = 0, arm_source: Callable[[float], tuple[float, float]] | None = None) -> None:
         self.cfg = cfg
         s = cfg.sim
         self.clock = SimClock(s.time_scale)
@@ -47,8 +49,14 @@ class VirtualBench:
         self.vanished: set[str] = set()
 
         self.bus: DynamixelBus | None = None
+        self.grbl: VirtualGrbl | None = None
+        self.arm_source = arm_source  # the arms' angles from outside (grbl-sim's step output), a detector-only bench
         steppers: list[StepperAxis] = []
-        if cfg.motion == "dynamixel":
+        if arm_source is not None:
+            pass
+        elif cfg.motion == "grbl":
+            self.grbl = VirtualGrbl(cfg, self.clock)
+        elif cfg.motion == "dynamixel":
             servos = []
             for name, ax in cfg.axes.items():
                 if not isinstance(ax.id, int):
@@ -65,7 +73,8 @@ class VirtualBench:
             steppers = [StepperAxis(ax, s, self.clock) for ax in cfg.axes.values()]
         self.controller = SerialController(
             cfg, self.clock, self.physics, self.serial_comm_faults, self.motion_faults, steppers,
-            arm_angles=self.arm_angles if self.bus is not None else None, collision=self.collides,
+            arm_angles=self.arm_angles if self.bus is not None or self.grbl is not None or arm_source is not None
+            else None, collision=self.collides,
         )
         #: the detector that is not the board's (seabreeze, pm100), on its own port for its stand-in
         self.usb = UsbDetector(cfg, self.clock, self.physics, self.arm_angles) \
@@ -83,6 +92,10 @@ class VirtualBench:
     def arm_angles(self, t: float | None = None) -> tuple[float, float]:
         """Physical (theta_i, theta_o) in degrees at simulated time ``t`` (default: now)."""
         t = self.clock.now() if t is None else t
+        if self.arm_source is not None:
+            return self.arm_source(t)
+        if self.grbl is not None:
+            return self.grbl.arm_angles(t)
         if self.bus is not None:
             ang = {}
             for sv in self.bus.servos:
@@ -95,7 +108,10 @@ class VirtualBench:
     @property
     def ports(self) -> tuple[str, ...]:
         """Names of the ports this bench offers."""
-        names = ("dynamixel", "serial") if self.bus is not None else ("serial",)
+        if self.grbl is not None:
+            names = ("serial", "grbl")
+        else:
+            names = ("dynamixel", "serial") if self.bus is not None else ("serial",)
         return names + ("usb",) if self.usb is not None else names
 
     def check_vanish(self) -> None:
@@ -125,6 +141,11 @@ class VirtualBench:
                         return b""
                     out += self.usb.process(data)
                     wait = self.usb.take_wait()
+                elif port == "grbl":
+                    if self.grbl is None:
+                        return b""
+                    out += self.grbl.process(data)
+                    wait = self.grbl.take_wait()
                 else:
                     out += self.controller.process(data)
                     wait = self.controller.take_wait()

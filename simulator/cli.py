@@ -33,6 +33,7 @@ protocols:
   serial port:    text protocol of docs/serial-protocol.md (detector; axes on a stepper bench), 115200 8N1
   usb port:       [detector] type = "seabreeze" or "pm100" only: their world, for the test suite's stand-ins of
                   python-seabreeze and pyvisa (simulator/devices/usb_detectors.py, docs/detectors.md)
+  grbl port:      GRBL 1.1 (G-code, $ commands, realtime ? ! ~ 0x18) on a bench with motion = "grbl"
 """
 
 
@@ -66,7 +67,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--time-scale", type=float, default=None,
                    help="override [simulator].time_scale: 0 = as fast as possible, 1 = real time, "
                         "10 = ten times faster than real time")
-    s.add_argument("--motion", choices=("dynamixel", "serial"), default=None,
+    s.add_argument("--motion", choices=("dynamixel", "serial", "grbl"), default=None,
                    help="override [bench].motion: which virtual motion hardware to serve")
     s.add_argument("--detector-firmware", default=os.environ.get("GONIO_SIM_DETECTOR_FIRMWARE") or None,
                    metavar="ELF",
@@ -76,6 +77,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "$GONIO_SIM_DETECTOR_FIRMWARE (so gonio-capture's simulated benches use it)")
     s.add_argument("--firmware-dither", type=float, default=0.5, metavar="LSB",
                    help="with --detector-firmware: rms noise of every ADC conversion, in counts (default 0.5)")
+    s.add_argument("--arm-steps", default=None, metavar="FILE",
+                   help="serve the detector only, the arms' angles read from grbl-sim's step output (-s FILE -r T; "
+                        "with --arm-blocks, its -b FILE): the arms run on GRBL's own code")
+    s.add_argument("--arm-blocks", default=None, metavar="FILE", help="grbl-sim's block output (-b FILE)")
     s.add_argument("--log-level", default="info", choices=("debug", "info", "warning", "error"),
                    help="stderr log level (default: info)")
     s.add_argument("--exit-with-parent", action="store_true",
@@ -190,7 +195,7 @@ def _bench(args: argparse.Namespace) -> int:
 
 
 def _load_bench(config: str, seed: int | None = None, time_scale: float | None = None,
-                motion: str | None = None, attempt: int = 0):
+                motion: str | None = None, attempt: int = 0, arm_files: tuple[str, str] | None = None):
     """(config, VirtualBench) for ``config``; raises ValueError with a message naming the file."""
     from simulator.bench import VirtualBench
     from simulator.config import load_config
@@ -199,7 +204,12 @@ def _load_bench(config: str, seed: int | None = None, time_scale: float | None =
         cfg = load_config(config, seed=seed, time_scale=time_scale)
         if motion:
             cfg.motion = motion
-        return cfg, VirtualBench(cfg, attempt=attempt)
+        track = None
+        if arm_files is not None:
+            from simulator.world.stepfile import GrblSimTrack
+
+            track = GrblSimTrack(arm_files[0], arm_files[1], cfg.axes["light"], cfg.axes["detector"])
+        return cfg, VirtualBench(cfg, attempt=attempt, arm_source=track)
     except (OSError, ValueError) as e:
         msg = str(e)
         if not msg.startswith(str(config)):
@@ -221,8 +231,12 @@ def _check(args: argparse.Namespace) -> int:
 def _serve(args: argparse.Namespace) -> int:
     from simulator.ports.transports import PtyServer
 
+    if (args.arm_steps is None) != (args.arm_blocks is None):
+        print("gonio-sim: --arm-steps and --arm-blocks go together (grbl-sim's -s and -b files)", file=sys.stderr)
+        return 2
+    arm_files = (args.arm_steps, args.arm_blocks) if args.arm_steps else None
     try:
-        cfg, bench = _load_bench(args.config, args.seed, args.time_scale, args.motion, args.attempt)
+        cfg, bench = _load_bench(args.config, args.seed, args.time_scale, args.motion, args.attempt, arm_files)
         bench.physics.warm_up()  # before the ports serve: a first reading within the reply deadline
     except ValueError as e:
         print(f"gonio-sim: {e}", file=sys.stderr)

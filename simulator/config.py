@@ -203,9 +203,11 @@ def config_from_dict(raw: dict[str, Any], base_dir: Path | None = None, source: 
             raise ConfigError(str(e)) from None
     cal = _table(src, "calibration", raw.get("calibration"))
     ref = cal.get("reference_reflectance", 0.99)
+    motion_raw = raw.get("motion")
+    motion_type = motion_raw.get("type") if isinstance(motion_raw, dict) else None
     cfg = BenchConfig(
         name=bench["name"],
-        motion=bench["motion"],
+        motion=motion_type if motion_type in ("dynamixel", "serial", "grbl") else bench["motion"],
         min_separation_deg=bench["min_separation_deg"],
         blind_spot_half_width_deg=bench["blind_spot_half_width_deg"],
         axes=axes,
@@ -224,8 +226,9 @@ def config_from_dict(raw: dict[str, Any], base_dir: Path | None = None, source: 
         raw=raw,
         base_dir=base,
     )
-    if cfg.motion not in ("dynamixel", "serial"):
-        raise ConfigError(f"{src}: [bench].motion: must be \"dynamixel\" or \"serial\", got {_describe(cfg.motion)}")
+    if cfg.motion not in ("dynamixel", "serial", "grbl"):
+        raise ConfigError(f"{src}: [bench].motion: must be \"dynamixel\", \"serial\" or \"grbl\", got "
+                          f"{_describe(cfg.motion)}")
     if cfg.detector.type not in ("photodiode", "spectrometer"):  # pragma: no cover - the schema's choices
         raise ConfigError(f"{src}: [detector].type: must be \"photodiode\" or \"spectrometer\", got "
                           f"{_describe(cfg.detector.type)}")

@@ -116,7 +116,6 @@ class SerialLink:
         except Exception:  # pragma: no cover - closing a vanished port
             pass
 
-    # -- low level ---------------------------------------------------------------------------------------------
     def _readline(self, deadline: float) -> str | None:
         """Next line (stripped), or None at the deadline. Raises _Corrupt for a non-ASCII line."""
         while True:
@@ -242,9 +241,6 @@ class SerialLink:
 
     def fields(self, cmd: str, **kw) -> dict[str, str]:
         return self.command(cmd, **kw).fields
-
-
-# --- detector ------------------------------------------------------------------------------------------------
 
 
 #: Relative tolerance between the integration time set and the one a reply reports (printed with 6 digits).

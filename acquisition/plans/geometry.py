@@ -97,6 +97,7 @@ class Geometry:
     arrive_s: float = 0.0
     poll_s: float = 0.0
     host_s: float = 0.0
+    coordinated: bool = False  # both arms on one straight line (GRBL), see reconstruction.bench.timing
 
     @classmethod
     def from_config(cls, cfg: BenchConfig) -> Geometry:
@@ -117,10 +118,11 @@ class Geometry:
                 v, a = cfg.motion.velocity_deg_s, cfg.motion.acceleration_deg_s2
             speeds.append((v, a))
         scale = 1.0 if sim is None else sim["time_scale"]
-        arrive = 0.0 if sim is None else sim["settle_time_s"]
+        grbl = cfg.bench.motion == "grbl"  # one G0 line for both arms, Idle at its end ($110/$120 = [motion]'s)
+        arrive = 0.0 if sim is None or grbl else sim["settle_time_s"]
         return cls(cfg.light, cfg.det_axis, cfg.bench.min_separation_deg, cfg.bench.blind_spot_half_width_deg,
                    speeds[0], speeds[1], cfg.motion.settle_s, arrive, (cfg.motion.poll_interval_s + QUERY_S) * scale,
-                   HOST_S_PER_READING * scale)
+                   HOST_S_PER_READING * scale, grbl)
 
     @cached_property
     def timing(self) -> MoveTiming:
@@ -130,7 +132,7 @@ class Geometry:
             return AxisTiming(ax.units_per_deg, ax.zero_offset, ax.direction, speed[0] * upd, speed[1] * upd)
 
         return MoveTiming(axis(self.light, self.light_speed), axis(self.detector, self.detector_speed),
-                          self.arrive_s)
+                          self.arrive_s, self.coordinated)
 
     @property
     def park(self) -> Point:

@@ -245,7 +245,6 @@ class RunEngine:
         """The plan's measurable points (theta_i, theta_o) in degrees."""
         return self._measurable
 
-    # -- public ---------------------------------------------------------------------------------------------------
     def run(self) -> CaptureResult:
         """Validate, lock the output folder, check it is writable, then capture. Raises PlanError / ConfigError
         before any motion (:class:`~acquisition.lock.OutDirLocked` when another capture holds the folder); every
@@ -340,7 +339,6 @@ class RunEngine:
             logging.getLogger("acquisition").removeHandler(handler)
             handler.close()
 
-    # -- setup ----------------------------------------------------------------------------------------------------
     def _attach_log(self) -> logging.Handler:
         h = _LogFile(self.out / LOG_NAME, encoding="utf-8")
         h.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
@@ -441,7 +439,6 @@ class RunEngine:
                  self.slice_path)
         return cal, done
 
-    # -- the capture ------------------------------------------------------------------------------------------------
     def _capture(self, existing: Slice | None, measurable: list[Any]) -> None:
         r = self.result
         bench = self.bench
@@ -577,7 +574,6 @@ class RunEngine:
             msg = f"cannot write {where} ({e.strerror or e})"
         self.result.end(Stop.IO_FAULT, msg)
 
-    # -- report -------------------------------------------------------------------------------------------------------
     def _report(self) -> None:
         r = self.result
         if r.status == "complete":

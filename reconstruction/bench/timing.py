@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["DXL_VEL_UNIT_REV_S", "DXL_ACC_UNIT_REV_S2", "DXL_UNITS_PER_REV", "dxl_profile_units", "trapezoid_duration",
-           "AxisTiming", "MoveTiming"]
+           "AxisTiming", "MoveTiming", "line_durations"]
 
 #: Dynamixel X-series profile units: Profile Velocity 0.229 rev/min, Profile Acceleration 214.577 rev/min^2.
 DXL_VEL_UNIT_REV_S = 0.229 / 60.0
@@ -82,27 +82,49 @@ class AxisTiming:
         return trapezoid_duration(self.units(b_deg) - self.units(a_deg), self.v, self.a)
 
 
+def line_durations(d1: np.ndarray, d2: np.ndarray, v: tuple[float, float], a: tuple[float, float]) -> np.ndarray:
+    """Duration (s) of straight-line moves of two axes by ``d1``, ``d2`` units that start and arrive together, as
+    GRBL's planner moves them: the line's speed and acceleration are the largest that keep each axis within its
+    own ``v`` (units/s) and ``a`` (units/s^2). Per unit of the line's parameter s in [0, 1] an axis moving ``d``
+    allows ``v / d`` and ``a / d``; the line is a trapezoid of length 1 at the smallest of them."""
+    d = [np.abs(np.asarray(d1, dtype=float)), np.abs(np.asarray(d2, dtype=float))]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        vs = np.minimum(*(np.where(d[i] > 0, v[i] / d[i], np.inf) for i in range(2)))
+        acc = np.minimum(*(np.where(d[i] > 0, a[i] / d[i], np.inf) for i in range(2)))
+        t = np.where(vs * vs / acc > 1.0, 2.0 * np.sqrt(1.0 / acc), 1.0 / vs + vs / acc)
+    return np.where((d[0] > 0) | (d[1] > 0), np.nan_to_num(t, nan=0.0, posinf=0.0), 0.0)
+
+
 @dataclass(frozen=True)
 class MoveTiming:
     """Both arms (light, detector) of a bench and the time after a profile they still report moving
-    (``arrive_s``)."""
+    (``arrive_s``). ``coordinated``: both arms move on one straight line and arrive together (GRBL: ``G0 X.. Y..``
+    is one block), instead of each on its own profile (Dynamixel servos, the text-protocol controller)."""
 
     light: AxisTiming
     detector: AxisTiming
     arrive_s: float = 0.0
+    coordinated: bool = False
 
     def move_times(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """Time (s) from sending the goals ``b`` (..., 2: theta_i, theta_o in degrees) with the arms at rest at
-        ``a`` until both report in position and not moving: the slower arm's profile plus ``arrive_s`` (0 when
-        neither arm moves)."""
+        ``a`` until both report in position and not moving: the slower arm's profile (or the line of both) plus
+        ``arrive_s`` (0 when neither arm moves)."""
         a = np.asarray(a, dtype=float)
         b = np.asarray(b, dtype=float)
-        tl = self.light.durations(a[..., 0], b[..., 0])
-        td = self.detector.durations(a[..., 1], b[..., 1])
-        t = np.maximum(tl, td)
+        if self.coordinated:
+            L, D = self.light, self.detector
+            t = line_durations(L.units(b[..., 0]) - L.units(a[..., 0]), D.units(b[..., 1]) - D.units(a[..., 1]),
+                               (L.v, D.v), (L.a, D.a))
+        else:
+            tl = self.light.durations(a[..., 0], b[..., 0])
+            td = self.detector.durations(a[..., 1], b[..., 1])
+            t = np.maximum(tl, td)
         return np.where(t > 0.0, t + self.arrive_s, 0.0)
 
     def move_time(self, a: tuple[float, float], b: tuple[float, float]) -> float:
         """:meth:`move_times` of one move, in plain floats."""
+        if self.coordinated:
+            return float(self.move_times(np.asarray(a), np.asarray(b)))
         t = max(self.light.duration(a[0], b[0]), self.detector.duration(a[1], b[1]))
         return t + self.arrive_s if t > 0.0 else 0.0

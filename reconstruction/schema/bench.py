@@ -14,7 +14,7 @@ from msgspec import Meta
 from reconstruction.schema.simulator import SimulatorSection
 
 __all__ = ["DXL_MODELS", "DXL_BAUDRATES", "AXIS_LETTERS", "MIN_INTEGRATION_TIME_S", "MAX_INTEGRATION_TIME_S",
-           "BenchTable", "AxisTable", "MotionTable", "DetectorTable", "CalibrationTable", "AdaptiveTable",
+           "BenchTable", "AxisTable", "GrblTable", "MotionTable", "DetectorTable", "CalibrationTable", "AdaptiveTable",
            "PlanTable", "AxesTables", "BenchFile"]
 
 #: Dynamixel model names accepted in ``[axes.*].model`` -> model number answered to a ping.
@@ -54,8 +54,9 @@ class BenchTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     transport: Annotated[Literal["dynamixel", "serial", "simulated"], Meta(
         description="dynamixel: servos on a Dynamixel bus + serial detector; serial: a stepper controller that "
                     "also reads the detector; simulated: gonio-sim in a child process")]
-    motion: Annotated[Literal["dynamixel", "serial"] | None, Meta(
-        description="motion hardware of a simulated bench (real benches: equal to transport, or left out)")] = None
+    motion: Annotated[Literal["dynamixel", "serial", "grbl"] | None, Meta(
+        description="motion hardware of a simulated bench (real benches: equal to transport, or left out; "
+                    '"grbl": stepper arms on a GRBL 1.1 controller, as [motion].type = "grbl")')] = None
     dynamixel_port: Annotated[str, Meta(description='servo bus port, e.g. "/dev/ttyUSB0"')] = ""
     dynamixel_baudrate: Annotated[Literal[DXL_BAUDRATES], Meta(description="servo bus baud rate")] = 1000000  # type: ignore[valid-type]
     serial_port: Annotated[str, Meta(description='controller / detector port, e.g. "/dev/ttyACM0"')] = ""
@@ -97,8 +98,30 @@ class AxisTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     park_deg: Annotated[float, _num(-180.0, 180.0, description="park position (degrees)")]
 
 
+class GrblTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
+    """``[motion.grbl]``: the GRBL 1.1 controller of a stepper bench (X = light arm, Y = detector arm; GRBL's
+    "mm" are degrees: ``$100``/``$101`` = ``[axes.*].units_per_deg`` steps per degree, ``$110``/``$111`` =
+    60 x ``[motion].velocity_deg_s`` deg/min, ``$120``/``$121`` = ``[motion].acceleration_deg_s2``)."""
+
+    port: Annotated[str, Meta(description='GRBL\'s serial port, e.g. "/dev/ttyUSB0" (real benches)')] = ""
+    baudrate: Annotated[int, _num(50, 100_000_000, check=_pos_within(50, 1e8))] = 115200
+    homing: Annotated[bool, Meta(description="the arms have homing switches: $22 = 1, and $H homes them before "
+                                             "anything moves")] = False
+    soft_limits: Annotated[bool, Meta(description="GRBL's soft limits: $20 = 1 and $130/$131 the arms' travel "
+                                                  "from the home switch (needs homing)")] = False
+    unlock: Annotated[bool, Meta(description="after an alarm on a bench without switches, unlock with $X on "
+                                             "purpose (you checked the arms are where GRBL believes them)")] = False
+    boot_s: Annotated[float, _num(0.0, 30.0, description="wait for GRBL's welcome line after opening the port "
+                                                         "(an Uno resets when its port opens)")] = 2.5
+
+
 class MotionTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     """``[motion]``: profiles (Dynamixel units), stepper speeds, tolerance, settling, timeouts, retries."""
+
+    type: Annotated[Literal["dynamixel", "serial", "grbl"] | None, Meta(
+        description='the motion hardware: "grbl" (stepper arms on GRBL 1.1, [motion.grbl]); default: '
+                    "[bench].motion, else the transport")] = None
+    grbl: GrblTable | None = None
 
     profile_velocity: Annotated[int, _num(0, 32767, description="Dynamixel Profile Velocity (0.229 rev/min "
                                                                        "units, 0 = unlimited)")] | None = None

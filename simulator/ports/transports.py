@@ -160,7 +160,10 @@ class PtyServer:
 
     def paths(self) -> dict[str, str | None]:
         names = ("dynamixel", "serial", "usb") if "usb" in self.ports else ("dynamixel", "serial")
-        return {name: (self.ports[name].path if name in self.ports else None) for name in names}
+        out = {name: (self.ports[name].path if name in self.ports else None) for name in names}
+        if "grbl" in self.ports:  # a GRBL bench: the arms' controller on a port of its own
+            out["grbl"] = self.ports["grbl"].path
+        return out
 
     def close(self) -> None:
         for p in self.ports.values():
