@@ -46,6 +46,9 @@ from acquisition.plans.plan import Geometry, Plan, PlanCheck, Point, Reason, loa
 from acquisition.ports import name_the_key
 
 log = logging.getLogger("acquisition.bench")
+#: The adapter latency (ms) a simulated Dynamixel bus is given in the SDK's reply deadline (16 ms on hardware):
+#: the simulator is a process of its own, which a loaded 2-core machine may not schedule within the SDK's 34 ms.
+SIMULATED_DXL_LATENCY_MS = 100.0
 
 __all__ = ["Bench", "SimulatorProcess", "SimulatorCheck", "check_simulator_config"]
 
@@ -300,7 +303,9 @@ class Bench:
                 self.detector.manual_swap = _prompt_swap
             self.detector.connect()
             if b.motion == "dynamixel":
-                self.motion = DynamixelAxes(dxl_port, b.dynamixel_baudrate, cfg.axes, cfg.motion)
+                # a simulated bus answers from another process: a deadline a loaded machine can keep
+                self.motion = DynamixelAxes(dxl_port, b.dynamixel_baudrate, cfg.axes, cfg.motion,
+                                            latency_ms=SIMULATED_DXL_LATENCY_MS if self.sim is not None else None)
             elif b.motion == "grbl":
                 self.motion = GrblAxes(grbl_port, cfg.axes, cfg.motion)
             else:

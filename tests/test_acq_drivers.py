@@ -168,3 +168,35 @@ def test_serial_detector_integration_time(pty_path):
     assert det.set_integration_time(0.001) == 0.001
     assert seen[:2] == ["INT 0.00316228", "INT?"] and "INT 0.001" in seen
     link.close()
+
+
+def test_a_simulated_bus_gets_a_longer_reply_deadline_than_the_sdks():
+    """The SDK's deadline is 2 x 16 ms (its adapter latency) + 2 ms + the bytes' time; a simulated bus, answered by
+    another process, gets the same formula with 100 ms, so a loaded machine's scheduling is not a lost reply."""
+    from dynamixel_sdk import PortHandler
+
+    from acquisition.devices.dynamixel import _LatentPort
+
+    sdk, ours = PortHandler("/dev/null"), _LatentPort("/dev/null", 100.0)
+    for p in (sdk, ours):
+        p.tx_time_per_byte = 0.01
+        p.setPacketTimeout(10)
+    assert sdk.packet_timeout == pytest.approx(0.1 + 34.0)
+    assert ours.packet_timeout == pytest.approx(0.1 + 202.0)
+    from acquisition import Bench
+
+    root = __import__("pathlib").Path(__file__).resolve().parents[1]
+    with Bench.from_config(root / "configs" / "simulated.toml") as bench:  # the simulated bus opens with it
+        assert isinstance(bench.motion.port, _LatentPort) and bench.motion.port.latency_ms == 100.0
+
+
+def test_a_corrupt_list_in_the_detector_reply_is_a_corrupt_reply_read_again():
+    """A corrupt byte inside DETECTOR?'s gains= or wavelengths= list (seen in a fault storm: '1000J10000') makes
+    the reply corrupt, so the link reads it again, instead of an error escaping as an unexpected one."""
+    from acquisition.devices.serial_link import Reply, _check_detector
+
+    f = {"type": "photodiode", "channels": "1", "saturation": "65535", "t_int": "0.01", "gains": "1,10,100"}
+    _check_detector(Reply(dict(f), []))
+    bad = Reply({**f, "gains": "1,1J0,100"}, [])
+    with pytest.raises(ValueError):
+        _check_detector(bad)

@@ -72,8 +72,12 @@ def _s32(b: bytes | list[int]) -> int:
 class DynamixelAxes:
     """The arms on one Dynamixel bus; angles in degrees, positions in servo units (0.088 deg)."""
 
-    def __init__(self, port: str, baudrate: int, axes: dict[str, AxisConfig], motion: MotionConfig) -> None:
+    def __init__(self, port: str, baudrate: int, axes: dict[str, AxisConfig], motion: MotionConfig,
+                 latency_ms: float | None = None) -> None:
         self.port_name = port
+        #: the adapter's latency (ms) in the SDK's reply deadline, 2 x latency + 2 ms + the bytes' time; None: the
+        #: SDK's 16 ms (an FTDI adapter's default latency timer)
+        self.latency_ms = latency_ms
         self.baudrate = baudrate
         self.axes = axes
         self.motion = motion
@@ -142,7 +146,8 @@ class DynamixelAxes:
     # -- set-up -------------------------------------------------------------------------------------------------
     def connect(self) -> None:
         """Open the bus, check every servo and configure it (see the module docstring)."""
-        self.port = PortHandler(self.port_name)
+        self.port = PortHandler(self.port_name) if self.latency_ms is None else \
+            _LatentPort(self.port_name, self.latency_ms)
         try:
             ok = self.port.openPort()
         except PORT_ERRORS as e:
@@ -357,3 +362,17 @@ class DynamixelAxes:
                 self.port.closePort()
             except Exception:  # pragma: no cover
                 pass
+
+
+class _LatentPort(PortHandler):
+    """The SDK's port with another adapter latency in its reply deadline (``setPacketTimeout``): the SDK's own
+    formula, ``tx_time_per_byte * length + 2 * latency + 2`` ms, with ``latency_ms`` for its 16 ms constant. A
+    simulated bench's servos answer from a process that a loaded machine may not schedule within 34 ms."""
+
+    def __init__(self, port_name: str, latency_ms: float) -> None:
+        super().__init__(port_name)
+        self.latency_ms = latency_ms
+
+    def setPacketTimeout(self, packet_length: int) -> None:  # noqa: N802 (the SDK's name)
+        self.packet_start_time = self.getCurrentTime()
+        self.packet_timeout = self.tx_time_per_byte * packet_length + 2.0 * self.latency_ms + 2.0

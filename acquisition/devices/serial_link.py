@@ -438,21 +438,20 @@ class SerialDetector:
 
     def dwell(self, seconds: float) -> None:
         """Wait ``seconds`` of bench time (DWELL on the controller: simulated time on the simulator)."""
-        if seconds <= 0:
-            return
-        if self.has_dwell:
+        if seconds > 0 and self.has_dwell:
             self.link.command(f"DWELL {seconds:.6g}", expect_s=seconds)
-        else:
+        elif seconds > 0:
             time.sleep(seconds)
 
 
 def _check_detector(reply: Reply) -> None:
-    f = reply.fields
+    f = reply.fields  # every field used, parsed once here: a corrupt byte in any is a corrupt reply, read again
     if f["type"] not in ("photodiode", "spectrometer"):
         raise ValueError(f"unknown detector type {f['type']!r}")
     int(f["channels"])
     float(f["saturation"])
     float(f["t_int"])
+    _ = [_floats(f[key]) for key in ("gains", "wavelengths") if key in f]
 
 
 # --- stepper axes ----------------------------------------------------------------------------------------------
