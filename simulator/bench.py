@@ -132,23 +132,12 @@ class VirtualBench:
             with self.lock:
                 if port in self.vanished:
                     return b""
-                if port == "dynamixel":
-                    if self.bus is None:
-                        return b""
-                    out += self.bus.process(data)
-                elif port == "usb":
-                    if self.usb is None:
-                        return b""
-                    out += self.usb.process(data)
-                    wait = self.usb.take_wait()
-                elif port == "grbl":
-                    if self.grbl is None:
-                        return b""
-                    out += self.grbl.process(data)
-                    wait = self.grbl.take_wait()
-                else:
-                    out += self.controller.process(data)
-                    wait = self.controller.take_wait()
+                dev = {"dynamixel": self.bus, "usb": self.usb, "grbl": self.grbl}.get(port, self.controller)
+                if dev is None:
+                    return b""
+                out += dev.process(data)
+                if dev is not self.bus:  # the line devices' replies may take scaled time (world.clock.Paced)
+                    wait = dev.take_wait()
             if wait <= 0:
                 break
             # scaled time: an integration/dwell takes wall time, slept without holding the lock (the Dynamixel

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import serial
 
+from acquisition.devices.lines import next_line
 from acquisition.errors import PORT_ERRORS, CommError, DeviceError, HardwareError
 from acquisition.grbl_settings import (
     AXIS_LETTER,
@@ -126,26 +127,17 @@ class GrblAxes:
 
     def _readline(self, deadline: float) -> str | None:
         """The next non-empty line (push messages noted on the way: ALARM, welcome), or None at the deadline."""
-        while True:
-            for j, b in enumerate(self._buf):
-                if b in (10, 13):
-                    raw = bytes(self._buf[:j])
-                    del self._buf[: j + 1]
-                    line = raw.decode("ascii", errors="replace").strip()
-                    if line:
-                        self._note(line)
-                        return line
-                    break
-            else:
-                if time.monotonic() >= deadline:
-                    return None
-                try:
-                    chunk = self.ser.read(max(1, self.ser.in_waiting))
-                except PORT_ERRORS as e:
-                    self.dead = True
-                    raise CommError(f"GRBL on {self.port}: port failed ({e}); is the controller still "
-                                    "connected?") from None
-                self._buf += chunk
+        try:
+            raw = next_line(self.ser, self._buf, deadline)
+        except PORT_ERRORS as e:
+            self.dead = True
+            raise CommError(f"GRBL on {self.port}: port failed ({e}); is the controller still "
+                            "connected?") from None
+        if raw is None:
+            return None
+        line = raw.decode("ascii", errors="replace").strip()
+        self._note(line)
+        return line
 
     def _note(self, line: str) -> None:
         m = _ALARM.match(line)

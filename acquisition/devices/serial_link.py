@@ -23,6 +23,7 @@ import serial
 
 from acquisition.calibration import Reading, pool
 from acquisition.config import AxisConfig
+from acquisition.devices.lines import next_line
 from acquisition.errors import PORT_ERRORS, CommError, DeviceError, HardwareError, PortError, port_reason
 
 log = logging.getLogger("acquisition.serial")
@@ -118,27 +119,17 @@ class SerialLink:
 
     def _readline(self, deadline: float) -> str | None:
         """Next line (stripped), or None at the deadline. Raises _Corrupt for a non-ASCII line."""
-        while True:
-            for j, b in enumerate(self._buf):
-                if b in (10, 13):
-                    raw = bytes(self._buf[:j])
-                    del self._buf[: j + 1]
-                    if not raw.strip():
-                        break  # empty line (\r\n): look again
-                    if any(c < 0x20 or c > 0x7E for c in raw):
-                        raise _Corrupt(f"non-ASCII bytes in line {raw!r}")
-                    return raw.decode("ascii").strip()
-            else:
-                if time.monotonic() >= deadline:
-                    return None
-                try:
-                    chunk = self.ser.read(max(1, self.ser.in_waiting))
-                except PORT_ERRORS as e:
-                    self.dead = True
-                    raise CommError(f"{self.name} on {self.port}: port failed ({e}); is the controller "
-                                    "still connected?") from None
-                self._buf += chunk
-                continue
+        try:
+            raw = next_line(self.ser, self._buf, deadline)
+        except PORT_ERRORS as e:
+            self.dead = True
+            raise CommError(f"{self.name} on {self.port}: port failed ({e}); is the controller "
+                            "still connected?") from None
+        if raw is None:
+            return None
+        if any(c < 0x20 or c > 0x7E for c in raw):
+            raise _Corrupt(f"non-ASCII bytes in line {raw!r}")
+        return raw.decode("ascii").strip()
 
     def _drain(self) -> None:
         time.sleep(0.005)

@@ -25,7 +25,7 @@ import math
 import re
 
 from simulator.config import BenchConfig
-from simulator.world.clock import SimClock
+from simulator.world.clock import Paced, SimClock
 from simulator.world.motion import AxisMotion
 
 log = logging.getLogger("simulator.grbl")
@@ -66,7 +66,7 @@ def default_settings(cfg: BenchConfig) -> dict[int, float]:
     return out
 
 
-class VirtualGrbl:
+class VirtualGrbl(Paced):
     """GRBL behind one serial port: feed bytes to :meth:`process`, send back what it returns."""
 
     def __init__(self, cfg: BenchConfig, clock: SimClock, settings: dict[int, float] | None = None) -> None:
@@ -91,17 +91,6 @@ class VirtualGrbl:
         self.out = [WELCOME] + (["[MSG:'$H'|'$X' to unlock]"] if homing else [])  # power-up lines, once read
 
     # -- time ----------------------------------------------------------------------------------------------------
-    def take_wait(self) -> float:
-        """Simulated seconds the caller must let pass outside its lock (scaled time: dwell, homing)."""
-        w, self._wait = self._wait, 0.0
-        return w
-
-    def _advance(self, dt: float) -> None:
-        if self.clock.fast:
-            self.clock.advance(dt)
-        else:
-            self._wait += dt
-
     def _moving(self, t: float) -> bool:
         return any(m.profiling(t) for m in self.motors)
 

@@ -15,7 +15,7 @@ from collections.abc import Callable
 import numpy as np
 
 from simulator.config import AxisConfig, BenchConfig
-from simulator.world.clock import SimClock
+from simulator.world.clock import Paced, SimClock
 from simulator.world.faults import FaultInjector
 from simulator.world.motion import AxisMotion
 from simulator.world.physics import BenchPhysics
@@ -101,7 +101,7 @@ class StepperAxis:
         return self.motion.settled_time()
 
 
-class SerialController:
+class SerialController(Paced):
     """Interpreter of the text protocol. Feed bytes with :meth:`process`; it returns the reply bytes.
 
     ``axes``: stepper axes served by this controller (empty on a Dynamixel bench, where it only serves the
@@ -127,19 +127,6 @@ class SerialController:
         self._discarding = False
         self._wait = 0.0
         self.internal_errors = 0
-
-    def _advance(self, dt: float) -> None:
-        """Let ``dt`` simulated seconds pass: at once in fast time; in scaled time the wall-clock wait is left to
-        the caller (:meth:`take_wait`) so that it happens outside the bench lock."""
-        if self.clock.fast:
-            self.clock.advance(dt)
-        else:
-            self._wait += dt
-
-    def take_wait(self) -> float:
-        """Simulated seconds the replies just produced must be delayed by (scaled time only); resets it."""
-        w, self._wait = self._wait, 0.0
-        return w
 
     # -- byte interface ----------------------------------------------------------------------------------------
     def process(self, data: bytes) -> bytes:

@@ -31,7 +31,7 @@ from collections.abc import Callable
 import numpy as np
 
 from simulator.config import BenchConfig
-from simulator.world.clock import SimClock
+from simulator.world.clock import Paced, SimClock
 from simulator.world.physics import BenchPhysics
 
 log = logging.getLogger("simulator.usb")
@@ -55,7 +55,7 @@ SPECTROMETER_LIMITS_US = (1000, 65_000_000)
 _DARK_PIXELS = 8
 
 
-class UsbDetector:
+class UsbDetector(Paced):
     """Interpreter of the ``usb`` port: the spectrometer wire or the meter's SCPI (by ``[detector].type``).
 
     ``arm_angles(t)``: the arms' physical (theta_i, theta_o) in degrees at simulated time ``t``."""
@@ -75,18 +75,6 @@ class UsbDetector:
         self.auto_range = True
         self.range_w = PM100_RANGES_W[-1]
         self.errors: list[str] = []
-
-    # -- time -------------------------------------------------------------------------------------------------
-    def _advance(self, dt: float) -> None:
-        if self.clock.fast:
-            self.clock.advance(dt)
-        else:
-            self._wait += dt
-
-    def take_wait(self) -> float:
-        """Simulated seconds the replies just produced must be delayed by (scaled time only); resets it."""
-        w, self._wait = self._wait, 0.0
-        return w
 
     # -- bytes ------------------------------------------------------------------------------------------------
     def process(self, data: bytes) -> bytes:

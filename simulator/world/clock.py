@@ -62,3 +62,24 @@ class SimClock:
                     return
                 self._offset = t
             self._jumped()
+
+
+class Paced:
+    """What a line-speaking virtual device does with the simulated time its replies take (``_advance``): at once
+    in fast time; in scaled time it adds up, and the bench sleeps it outside its lock (:meth:`take_wait`), so the
+    other ports stay responsive. A device sets ``clock`` (and ``_wait = 0.0``) in its ``__init__``."""
+
+    clock: SimClock
+    _wait: float = 0.0
+
+    def _advance(self, dt: float) -> None:
+        """Let ``dt`` simulated seconds pass for a reply being made."""
+        if self.clock.fast:
+            self.clock.advance(dt)
+        else:
+            self._wait += dt
+
+    def take_wait(self) -> float:
+        """Simulated seconds the replies just produced must be delayed by (scaled time only); resets it."""
+        w, self._wait = self._wait, 0.0
+        return w
