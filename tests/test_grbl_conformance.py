@@ -109,15 +109,22 @@ def test_settings_that_differ_are_named_before_anything_moves(sim):
         drv.close()
 
 
+def _a_slow_move_running(drv: GrblAxes) -> float:
+    """Connect ``drv`` and start a move slow enough to be caught in motion; return once GRBL reports Run (with
+    the deadline that wait had, time.monotonic() s)."""
+    drv.connect()
+    drv._send({"light": 40.0, "detector": 40.0})
+    deadline = time.monotonic() + 10
+    while drv.status().state != "Run":
+        assert time.monotonic() < deadline, "never saw the move run"
+    return deadline
+
+
 def test_feed_hold_resume_and_reset_as_grbl_documents(sim):
     configure(sim, {**FAST, 120: 300.0, 121: 300.0})  # slow enough to catch in motion
     drv = GrblAxes(sim.port, AXES, motion(300.0))
     try:
-        drv.connect()
-        drv._send({"light": 40.0, "detector": 40.0})
-        deadline = time.monotonic() + 10
-        while drv.status().state != "Run":
-            assert time.monotonic() < deadline, "never saw the move run"
+        deadline = _a_slow_move_running(drv)
         drv._write(b"!")
         states = []
         while True:
@@ -160,14 +167,10 @@ def test_feed_hold_resume_and_reset_as_grbl_documents(sim):
 
 
 def test_stop_is_hold_then_reset_and_keeps_the_position(sim):
-    configure(sim, {**FAST, 120: 300.0, 121: 300.0})
+    configure(sim, {**FAST, 120: 300.0, 121: 300.0})  # slow enough to catch in motion
     drv = GrblAxes(sim.port, AXES, motion(300.0))
     try:
-        drv.connect()
-        drv._send({"light": 40.0, "detector": 40.0})
-        deadline = time.monotonic() + 10
-        while drv.status().state != "Run":
-            assert time.monotonic() < deadline, "never saw the move run"
+        _a_slow_move_running(drv)
         drv.stop()
         assert drv.alarm == 0 and drv.trusted  # the hold completed before the reset: no ALARM:3
         st = drv.status()
