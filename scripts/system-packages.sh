@@ -5,10 +5,11 @@
 #   gcc-avr avr-libc simavr libsimavr-dev libsimavrparts1   the detector board's firmware, built and run on an
 #                                                           emulated ATmega328P (tests/test_firmware*.py)
 #   chromium                                                the live view, checked in a headless browser
-#
-# GRBL's host simulator (tests/test_grbl_conformance.py) needs only gcc and make, which a Python machine has.
+#   make                                                    builds the firmware and GRBL's host simulator
+#                                                           (tests/test_grbl_conformance.py; gcc is on a Python
+#                                                           machine already)
 # Set GONIO_NO_SYSTEM_PACKAGES=1 to install nothing (those tests then skip and say why).
-PKGS="gcc-avr avr-libc simavr libsimavr-dev libsimavrparts1 chromium"
+PKGS="make gcc-avr avr-libc simavr libsimavr-dev libsimavrparts1 chromium"
 
 missing=""
 for p in $PKGS; do
