@@ -17,7 +17,8 @@ __all__ = ["PortUse", "configured_ports", "name_the_key", "check_ports", "descri
 
 @dataclass(frozen=True)
 class PortUse:
-    """A port of the bench file: its ``[bench]`` key, the device on it, the port and its baud rate."""
+    """A port of the bench file: its key (``[bench].serial_port``, ``[motion.grbl].port``, ...), the device on it,
+    the port and its baud rate."""
 
     key: str
     device: str
@@ -30,10 +31,15 @@ def configured_ports(cfg: BenchConfig) -> list[PortUse]:
     b = cfg.bench
     if b.transport == "simulated":
         return []
-    serial_device = "detector controller" if b.motion == "dynamixel" else "detector and stepper controller"
-    uses = [PortUse("serial_port", serial_device, b.serial_port, b.serial_baudrate)]
+    serial_device = "detector and stepper controller" if b.motion == "serial" else "detector controller"
+    # a bench whose detector is a USB instrument may have no board (docs/detectors.md): no serial port then
+    uses = [PortUse("[bench].serial_port", serial_device, b.serial_port, b.serial_baudrate)] if b.serial_port else []
     if b.motion == "dynamixel":
-        uses.append(PortUse("dynamixel_port", "Dynamixel bus (U2D2)", b.dynamixel_port, b.dynamixel_baudrate))
+        uses.append(PortUse("[bench].dynamixel_port", "Dynamixel bus (U2D2)", b.dynamixel_port,
+                            b.dynamixel_baudrate))
+    grbl = cfg.motion.grbl
+    if b.motion == "grbl" and grbl is not None:
+        uses.append(PortUse("[motion.grbl].port", "GRBL controller (the arms)", grbl.port, grbl.baudrate))
     return uses
 
 
@@ -43,8 +49,8 @@ def name_the_key(e: PortError, cfg: BenchConfig) -> PortError:
     use = next((u for u in configured_ports(cfg) if u.port == e.port), None)
     if use is None:
         return e
-    msg = (f"{cfg.path}: [bench].{use.key} = {use.port!r}: cannot open the {use.device}'s port ({e.reason}); "
-           f"set {use.key} to the port it is on (e.g. ls /dev/serial/by-id/)")
+    msg = (f"{cfg.path}: {use.key} = {use.port!r}: cannot open the {use.device}'s port ({e.reason}); "
+           f"set {use.key.split('.')[-1]} to the port it is on (e.g. ls /dev/serial/by-id/)")
     return PortError(msg, e.port, e.reason)
 
 
@@ -58,5 +64,5 @@ def describe_ports(cfg: BenchConfig) -> list[str]:
     lines = []
     for use, why in check_ports(cfg):
         state = "can be opened" if why is None else f"warning: cannot be opened ({why})"
-        lines.append(f"port [bench].{use.key} = {use.port!r} ({use.device}): {state}")
+        lines.append(f"port {use.key} = {use.port!r} ({use.device}): {state}")
     return lines

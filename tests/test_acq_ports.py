@@ -119,3 +119,28 @@ def test_a_lock_taken_on_a_removed_file_is_taken_again_on_the_new_one(tmp_path, 
     assert len(calls) == 2  # the old file was locked, found removed, and the new one locked
     assert os.fstat(late.fd).st_ino == os.stat(tmp_path / LOCK_NAME).st_ino
     late.release()
+
+
+def test_a_grbl_bench_names_grbls_own_port_key(tmp_path, capsys, pty_port):
+    """A real GRBL bench has two ports: the detector board's ([bench].serial_port) and GRBL's
+    ([motion.grbl].port): --check looks at both, and a GRBL port that cannot be opened is named by its key."""
+    from acquisition.config import load_config
+    from acquisition.devices.grbl import GrblAxes
+    from acquisition.errors import PortError
+    from acquisition.ports import name_the_key
+
+    missing = str(tmp_path / "ttyUSB7")
+    raw = tomllib.loads((REPO / "configs" / "grbl-bench.toml").read_text(encoding="utf-8"))
+    raw["bench"].update(transport="serial", serial_port=pty_port)
+    raw["motion"]["grbl"]["port"] = missing
+    path = tmp_path / "grbl.toml"
+    path.write_text(tomli_w.dumps(raw), encoding="utf-8")
+    assert main(["--config", str(path), "--check"]) == 0
+    out = capsys.readouterr().out
+    assert f"port [bench].serial_port = '{pty_port}' (detector controller): can be opened" in out, out
+    assert f"port [motion.grbl].port = '{missing}' (GRBL controller (the arms)): warning: cannot be opened" in out
+    cfg = load_config(path)
+    with pytest.raises(PortError) as e:
+        GrblAxes(missing, cfg.axes, cfg.motion)
+    msg = str(name_the_key(e.value, cfg))
+    assert f"{path}: [motion.grbl].port = '{missing}'" in msg and "set port to the port it is on" in msg, msg

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import serial
 
 from acquisition.devices.lines import next_line
-from acquisition.errors import PORT_ERRORS, CommError, DeviceError, HardwareError
+from acquisition.errors import PORT_ERRORS, CommError, DeviceError, HardwareError, PortError, port_reason
 from acquisition.grbl_settings import (
     AXIS_LETTER,
     LOST_POSITION_ALARMS,
@@ -114,7 +114,8 @@ class GrblAxes:
         try:
             self.ser = serial_factory(port, self.grbl.baudrate, timeout=0.02, write_timeout=2.0)
         except (*PORT_ERRORS, ValueError) as e:
-            raise CommError(f"GRBL: cannot open {port!r}: {e}") from None
+            why = port_reason(e)
+            raise PortError(f"GRBL: cannot open {port!r}: {why}", port, why) from None
 
     # -- bytes and lines -------------------------------------------------------------------------------------------
     def _write(self, data: bytes) -> None:
