@@ -354,12 +354,13 @@ def fit_principled(truth: BRDF, max_nfev: int = 40, start_nfev: int = 12, image_
         best = least_squares(residual, best.x, bounds=(0.0, 1.0), method="trf", max_nfev=max_nfev, diff_step=1e-4)
         plain = _plain_dielectric(best.x, residual, tie, max_nfev)
     t1 = time.perf_counter()
-    full = _judged(best.x[tie], truth, judge, image_size)
+    views = render_views(truth, image_size) if judge else {}  # the truth rendered once for every judging
+    full = _judged(best.x[tie], views, judge, image_size)
     x, fig, layers = best.x, full, {"layers": "none used"}
     if plain is not None:
-        alt = _judged(plain[tie], truth, judge, image_size)
+        alt = _judged(plain[tie], views, judge, image_size)
         if judge:
-            alt = _image_polish(alt, truth, image_size)
+            alt = _image_polish(alt, truth, views, image_size)
         e_full, e_plain = ((full[2], alt[2]) if judge else
                            (float(np.linalg.norm(data(best.x))), float(np.linalg.norm(data(plain)))))
         keep = e_plain > PLAIN_GOOD if judge else e_full <= LAYER_GAIN * e_plain  # else the plain dielectric
@@ -380,7 +381,7 @@ def fit_principled(truth: BRDF, max_nfev: int = 40, start_nfev: int = 12, image_
                          judge_seconds=time.perf_counter() - t1, starts=runs, layers=layers)
 
 
-def _judged(x: Array, truth: BRDF, judge: bool, image_size: int
+def _judged(x: Array, truth: BRDF | dict[str, Array], judge: bool, image_size: int
             ) -> tuple[PrincipledParams, dict[str, dict[str, float]], float]:
     """(the material of the full fit vector ``x``, its image figures per view, their mean relative RMSE; NaN and
     no figures without ``judge``)."""
@@ -390,7 +391,7 @@ def _judged(x: Array, truth: BRDF, judge: bool, image_size: int
     return _judged_params(params, truth, image_size)
 
 
-def _judged_params(params: PrincipledParams, truth: BRDF, image_size: int
+def _judged_params(params: PrincipledParams, truth: BRDF | dict[str, Array], image_size: int
                    ) -> tuple[PrincipledParams, dict[str, dict[str, float]], float]:
     image = judge_images(params.eval, truth, size=image_size)
     return params, image, float(np.mean([v["relative_rmse"] for v in image.values()]))
@@ -400,11 +401,14 @@ def _judged_params(params: PrincipledParams, truth: BRDF, image_size: int
 POLISH_NFEV, POLISH_SIZE = 60, 32
 
 
-def _image_polish(fig: tuple[PrincipledParams, dict[str, dict[str, float]], float], truth: BRDF, image_size: int
-                  ) -> tuple[PrincipledParams, dict[str, dict[str, float]], float]:
+Judged = tuple[PrincipledParams, dict[str, dict[str, float]], float]  # a material, its figures per view, their mean
+
+
+def _image_polish(fig: Judged, truth: BRDF, views: dict[str, Array], image_size: int) -> Judged:
     """The plain dielectric ``fig`` (:func:`_judged`'s triple) with its base colour's scale, specular F0 and
     roughness refined by the image error itself (Nelder-Mead, :data:`POLISH_NFEV` evaluations at
-    :data:`POLISH_SIZE` pixels), kept when it judges better at ``image_size``. The compressed objective and the
+    :data:`POLISH_SIZE` pixels), kept when it judges better at ``image_size`` (``views``: the truth's renders at
+    that size). The compressed objective and the
     image disagree where no dielectric holds the measurement: OpenPBR dims the diffuse under the specular, so a
     measurement whose diffuse is not dimmed at grazing (the demo's unlayered lambert + GGX) is matched in image by
     a lower F0 than its Fresnel's (demo: 4.7 % -> 3.5 %, IOR 1.41 -> 1.37)."""
@@ -423,8 +427,10 @@ def _image_polish(fig: tuple[PrincipledParams, dict[str, dict[str, float]], floa
             specular_ior=float(np.clip(alb.ior_from_f0(float(np.clip(f0, 1e-4, alb.F0_MAX))), lo, hi)),
             specular_roughness=float(np.clip(rough, 0.0, 1.0)))
 
+    reference = render_views(truth, POLISH_SIZE)  # the truth (perhaps a neural BRDF) rendered once
+
     def error(v: Array) -> float:
-        img = judge_images(material(v).eval, truth, size=POLISH_SIZE)
+        img = judge_images(material(v).eval, reference, size=POLISH_SIZE)
         return float(np.mean([e["relative_rmse"] for e in img.values()]))
 
     v0 = np.array([1.0, p0.specular_f0, p0.specular_roughness])
@@ -432,7 +438,7 @@ def _image_polish(fig: tuple[PrincipledParams, dict[str, dict[str, float]], floa
     with np.errstate(all="ignore"):
         r = minimize(error, v0, method="Nelder-Mead",
                      options={"maxfev": POLISH_NFEV, "initial_simplex": simplex, "xatol": 1e-3, "fatol": 1e-5})
-    new = _judged_params(material(r.x), truth, image_size)
+    new = _judged_params(material(r.x), views, image_size)
     return new if new[2] < fig[2] else fig
 
 
@@ -456,26 +462,34 @@ def _plain_dielectric(x: Array, residual: Callable[[Array], Array], tie: NDArray
     return embed(r.x)
 
 
-def judge_images(f: BRDF, truth: BRDF, size: int = IMAGE_SIZE, lightings: tuple[str, ...] = ("key", "rim")
-                 ) -> dict[str, dict[str, float]]:
+def judge_images(f: BRDF, truth: BRDF | dict[str, Array], size: int = IMAGE_SIZE,
+                 lightings: tuple[str, ...] = ("key", "rim")) -> dict[str, dict[str, float]]:
     """:func:`reconstruction.core.metrics.image_errors` of ``f`` against ``truth`` (the same figures: per preset,
     ``psnr_db`` and ``relative_rmse`` over the pixels seen within 80 deg), each BRDF's environment integral
     rendered once for all the presets (they share the sky; renders add linearly), so a costly truth (a neural
-    BRDF) is evaluated about half as often."""
+    BRDF) is evaluated about half as often. ``truth`` may also be its renders, :func:`render_views`' dict (the
+    same ``size`` and ``lightings``), for many comparisons against one truth."""
     from reconstruction.core.metrics import IMAGE_MAX_VIEW_DEG, image_psnr, image_relative_rmse
-    from reconstruction.core.render import Lighting, get_lighting, render_sphere, view_angle_mask
+    from reconstruction.core.render import view_angle_mask
+
+    mask = view_angle_mask(size, 1.0, IMAGE_MAX_VIEW_DEG)
+    ref = truth if isinstance(truth, dict) else render_views(truth, size, lightings)
+    mine = render_views(f, size, lightings)
+    return {name: {"psnr_db": image_psnr(mine[name], ref[name], mask),
+                   "relative_rmse": image_relative_rmse(mine[name], ref[name], mask)} for name in lightings}
+
+
+def render_views(f: BRDF, size: int = IMAGE_SIZE, lightings: tuple[str, ...] = ("key", "rim")) -> dict[str, Array]:
+    """The linear renders (size, size, 3) of ``f`` under each preset of ``lightings``, the shared environment
+    rendered once."""
+    from reconstruction.core.render import Lighting, get_lighting, render_sphere
 
     lights = {name: get_lighting(name) for name in lightings}
-    envs = {light.environment for light in lights.values()}
-    mask = view_angle_mask(size, 1.0, IMAGE_MAX_VIEW_DEG)
-    sky = {id(b): {e: render_sphere(b, size, Lighting(e)) for e in envs if e is not None} for b in (f, truth)}
+    sky = {e: render_sphere(f, size, Lighting(e)) for e in {li.environment for li in lights.values()} if e is not None}
     out = {}
     for name, light in lights.items():  # two presets
-        imgs = []
-        for b in (f, truth):
-            img = sky[id(b)].get(light.environment, 0.0)
-            if light.suns or light.points:
-                img = img + render_sphere(b, size, Lighting(None, light.suns, light.points))
-            imgs.append(img)
-        out[name] = {"psnr_db": image_psnr(imgs[0], imgs[1], mask), "relative_rmse": image_relative_rmse(*imgs, mask)}
+        img = sky.get(light.environment, 0.0)
+        if light.suns or light.points:
+            img = img + render_sphere(f, size, Lighting(None, light.suns, light.points))
+        out[name] = img
     return out
