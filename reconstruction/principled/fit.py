@@ -232,9 +232,8 @@ class PrincipledFit:
     def sentence(self) -> str:
         """One line for the report and the HTML page."""
         rest = self.layers.get("image_relative_rmse_with_layers") if self.layers.get("layers") == "at rest" else None
-        plain = (f"; written as a plain dielectric, where metalness and a coat would reach {rest:.1%} by imitating "
-                 f"what no dielectric does (the JSON's layers)" if rest is not None and rest < self.image_relative_rmse
-                 else "")
+        plain = (f"; written as a plain dielectric, which metalness, a coat or fuzz would bring to {rest:.1%} "
+                 f"(the JSON's layers)" if rest is not None and rest < self.image_relative_rmse else "")
         return (f"a principled material reproduces this measurement to {self.image_relative_rmse:.1%} in image "
                 f"(cosl2 {self.cosl2:.1%}); {self.misses} is what it misses ({self.miss_share:.0%} of the "
                 f"remaining error){plain}")
@@ -408,10 +407,10 @@ def _image_polish(fig: Judged, truth: BRDF, views: dict[str, Array], image_size:
     """The plain dielectric ``fig`` (:func:`_judged`'s triple) with its base colour's scale, specular F0 and
     roughness refined by the image error itself (Nelder-Mead, :data:`POLISH_NFEV` evaluations at
     :data:`POLISH_SIZE` pixels), kept when it judges better at ``image_size`` (``views``: the truth's renders at
-    that size). The compressed objective and the
-    image disagree where no dielectric holds the measurement: OpenPBR dims the diffuse under the specular, so a
-    measurement whose diffuse is not dimmed at grazing (the demo's unlayered lambert + GGX) is matched in image by
-    a lower F0 than its Fresnel's (demo: 4.7 % -> 3.5 %, IOR 1.41 -> 1.37)."""
+    that size). The compressed objective and the image disagree where no dielectric holds the measurement: OpenPBR
+    dims the diffuse under the specular, so a measurement whose diffuse is not dimmed at grazing (the demo's
+    unlayered lambert + GGX) is matched in image by a lower F0 than its Fresnel's (demo: 4.7 % -> 3.5 %, IOR 1.41
+    -> 1.37)."""
     import dataclasses
 
     from scipy.optimize import minimize
@@ -434,7 +433,8 @@ def _image_polish(fig: Judged, truth: BRDF, views: dict[str, Array], image_size:
         return float(np.mean([e["relative_rmse"] for e in img.values()]))
 
     v0 = np.array([1.0, p0.specular_f0, p0.specular_roughness])
-    simplex = np.array([v0, v0 * [1.05, 1, 1], v0 * [1, 1.3, 1], v0 * [1, 1, 1.1]])
+    steps = np.diag([0.05, max(0.3 * v0[1], 0.005), max(0.1 * v0[2], 0.02)])  # a simplex of full rank at F0 0
+    simplex = np.vstack([v0, v0 + steps])
     with np.errstate(all="ignore"):
         r = minimize(error, v0, method="Nelder-Mead",
                      options={"maxfev": POLISH_NFEV, "initial_simplex": simplex, "xatol": 1e-3, "fatol": 1e-5})
