@@ -30,7 +30,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -380,8 +380,10 @@ def fit_principled(truth: BRDF, max_nfev: int = 40, start_nfev: int = 12, image_
                          judge_seconds=time.perf_counter() - t1, starts=runs, layers=layers)
 
 
-def _judged(x: Array, truth: BRDF | dict[str, Array], judge: bool, image_size: int
-            ) -> tuple[PrincipledParams, dict[str, dict[str, float]], float]:
+Judged = tuple[PrincipledParams, dict[str, dict[str, float]], float]  # a material, its figures per view, their mean
+
+
+def _judged(x: Array, truth: BRDF | dict[str, Array], judge: bool, image_size: int) -> Judged:
     """(the material of the full fit vector ``x``, its image figures per view, their mean relative RMSE; NaN and
     no figures without ``judge``)."""
     params = params_from_vector(x)
@@ -390,17 +392,13 @@ def _judged(x: Array, truth: BRDF | dict[str, Array], judge: bool, image_size: i
     return _judged_params(params, truth, image_size)
 
 
-def _judged_params(params: PrincipledParams, truth: BRDF | dict[str, Array], image_size: int
-                   ) -> tuple[PrincipledParams, dict[str, dict[str, float]], float]:
+def _judged_params(params: PrincipledParams, truth: BRDF | dict[str, Array], image_size: int) -> Judged:
     image = judge_images(params.eval, truth, size=image_size)
     return params, image, float(np.mean([v["relative_rmse"] for v in image.values()]))
 
 
 #: the plain dielectric's polish in image (:func:`_image_polish`): Nelder-Mead evaluations and the renders' size
 POLISH_NFEV, POLISH_SIZE = 60, 32
-
-
-Judged = tuple[PrincipledParams, dict[str, dict[str, float]], float]  # a material, its figures per view, their mean
 
 
 def _image_polish(fig: Judged, truth: BRDF, views: dict[str, Array], image_size: int) -> Judged:
@@ -411,8 +409,6 @@ def _image_polish(fig: Judged, truth: BRDF, views: dict[str, Array], image_size:
     dims the diffuse under the specular, so a measurement whose diffuse is not dimmed at grazing (the demo's
     unlayered lambert + GGX) is matched in image by a lower F0 than its Fresnel's (demo: 4.7 % -> 3.5 %, IOR 1.41
     -> 1.37)."""
-    import dataclasses
-
     from scipy.optimize import minimize
 
     p0 = fig[0]
@@ -421,7 +417,7 @@ def _image_polish(fig: Judged, truth: BRDF, views: dict[str, Array], image_size:
 
     def material(v: Array) -> PrincipledParams:
         k, f0, rough = v
-        return dataclasses.replace(
+        return replace(
             p0, base_color=tuple(float(c) for c in np.clip(colour * k, 0.0, 1.0)),
             specular_ior=float(np.clip(alb.ior_from_f0(float(np.clip(f0, 1e-4, alb.F0_MAX))), lo, hi)),
             specular_roughness=float(np.clip(rough, 0.0, 1.0)))
@@ -429,8 +425,7 @@ def _image_polish(fig: Judged, truth: BRDF, views: dict[str, Array], image_size:
     reference = render_views(truth, POLISH_SIZE)  # the truth (perhaps a neural BRDF) rendered once
 
     def error(v: Array) -> float:
-        img = judge_images(material(v).eval, reference, size=POLISH_SIZE)
-        return float(np.mean([e["relative_rmse"] for e in img.values()]))
+        return _judged_params(material(v), reference, POLISH_SIZE)[2]
 
     v0 = np.array([1.0, p0.specular_f0, p0.specular_roughness])
     steps = np.diag([0.05, max(0.3 * v0[1], 0.005), max(0.1 * v0[2], 0.02)])  # a simplex of full rank at F0 0
