@@ -284,6 +284,12 @@ def test_a_reset_mid_sweep_stops_the_capture_and_resumes_after_unlock(sim, detec
     from tests.test_acq_support import run_capture
 
     r = run_capture("--config", str(cfg), "--out", str(out), "--resume", "--unlock", "--no-progress")
+    if r.returncode != 0 and gh.stalled(r.stderr):  # grbl-sim's thread race (not GRBL's, not ours): see its doc
+        import warnings
+
+        warnings.warn("grbl-sim stalled in Run after the unlock (its two threads race on 2 cores); resuming "
+                      "once more", stacklevel=1)
+        r = run_capture("--config", str(cfg), "--out", str(out), "--resume", "--unlock", "--no-progress")
     assert r.returncode == 0, r.stderr
     assert "unlocking ($X) on purpose" in (out / "capture.log").read_text()
     rows = [r for r in (out / "slice.csv").read_text().splitlines() if r and not r.startswith("#")][1:]
