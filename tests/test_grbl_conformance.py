@@ -15,6 +15,7 @@ from __future__ import annotations
 import sys
 import threading
 import time
+import warnings
 from pathlib import Path
 
 import pytest
@@ -27,7 +28,10 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover - Python 3.10 only
     import tomli as tomllib
 
-pytestmark = pytest.mark.slow
+# grbl-sim (not GRBL, not the driver) stalls now and then on a busy 2-core machine: a test during which the relay
+# saw it stall runs again on a fresh grbl-sim (pytest-rerunfailures; "R" in the summary, the stall in a warning);
+# any other failure fails at once
+pytestmark = [pytest.mark.slow, pytest.mark.flaky(reruns=2, condition=gh.stalled_during_test)]
 
 _MISSING = gh.missing()
 if _MISSING is not None:
@@ -40,13 +44,17 @@ from reconstruction.schema.bench import GrblTable  # noqa: E402
 
 UPD = 10.0  # steps per degree: few steps, so grbl-sim (CPU-bound) keeps near real time
 FAST = {100: UPD, 101: UPD, 110: 36000.0, 111: 36000.0, 120: 4000.0, 121: 4000.0}
+# '?' at 20 Hz: grbl-sim stalls about once in 2,500 status polls on a loaded 2-core machine (see
+# grbl_harness.stalled), so the tests poll no faster than GRBL's interface.md allows a GUI ("10 Hz may be possible")
+# by much; a bench's config may poll faster (real GRBL has no such race)
+POLL_S = 0.05
 AXES = {"light": AxisConfig("light", "X", None, UPD, 0.0, 1, 0.0, 80.0, 0.0),
         "detector": AxisConfig("detector", "Y", None, UPD, 0.0, 1, -85.0, 85.0, 0.0)}
 
 
 def motion(acc: float = FAST[120], **grbl) -> MotionConfig:
     # retries 6: a status report may wait on grbl-sim (CPU-bound) for seconds on a loaded machine
-    return MotionConfig(0, 0, FAST[110] / 60, acc, 0.05, 0.0, 20.0, 6, 0.01, "grbl", GrblTable(boot_s=0.3, **grbl))
+    return MotionConfig(0, 0, FAST[110] / 60, acc, 0.05, 0.0, 20.0, 6, POLL_S, "grbl", GrblTable(boot_s=0.3, **grbl))
 
 
 @pytest.fixture(scope="session")
@@ -56,10 +64,13 @@ def grbl_exe(tmp_path_factory) -> Path:
 
 @pytest.fixture
 def sim(grbl_exe, tmp_path):
+    gh.STALLS.clear()  # this attempt's stalls only
     g = gh.GrblSim(grbl_exe, tmp_path / "grbl")
     g.wait_ready()
     yield g
     g.close()
+    if g.stall:
+        warnings.warn(g.stall, stacklevel=1)
 
 
 def configure(g: gh.GrblSim, settings: dict[int, float] = FAST) -> None:
@@ -117,6 +128,7 @@ def _a_slow_move_running(drv: GrblAxes) -> float:
     deadline = time.monotonic() + 10
     while drv.status().state != "Run":
         assert time.monotonic() < deadline, "never saw the move run"
+        time.sleep(POLL_S)
     return deadline
 
 
@@ -133,6 +145,7 @@ def test_feed_hold_resume_and_reset_as_grbl_documents(sim):
             if states[-1] == "Hold:0":
                 break
             assert time.monotonic() < deadline + 10, states
+            time.sleep(POLL_S)
         held = drv.status().mpos
         time.sleep(0.3)
         assert drv.status().mpos == held  # stopped in the hold
@@ -140,7 +153,7 @@ def test_feed_hold_resume_and_reset_as_grbl_documents(sim):
         drv._write(b"~")  # cycle start: the move goes on to its goal
         drv._wait({"light": 40.0, "detector": 40.0}, check_cancel=False)
         # a soft reset in motion: ALARM:3, the position no longer trusted
-        drv._send({"light": 0.0, "detector": 0.0})
+        drv._send({"light": 0.0, "detector": -80.0})  # 120 deg, 1.3 s: still running when the reset arrives
         while drv.status().state != "Run":
             assert time.monotonic() < deadline + 30, "never saw the move run"
         drv._write(b"\x18")
@@ -187,7 +200,7 @@ def _bench_file(path: Path, detector_port: str, grbl_port: str, base: dict, **gr
     raw["axes"] = {n: {"id": a.id, "units_per_deg": UPD, "zero_offset": 0.0, "direction": 1, "min_deg": a.min_deg,
                        "max_deg": a.max_deg, "park_deg": 10.0 if n == "light" else 30.0} for n, a in AXES.items()}
     raw["motion"] = {"type": "grbl", "velocity_deg_s": FAST[110] / 60, "acceleration_deg_s2": FAST[120],
-                     "tolerance_deg": 0.05, "settle_s": 0.0, "timeout_s": 20.0, "retries": 6, "poll_interval_s": 0.01,
+                     "tolerance_deg": 0.05, "settle_s": 0.0, "timeout_s": 20.0, "retries": 6, "poll_interval_s": POLL_S,
                      "grbl": {"port": grbl_port, "boot_s": 0.3, **grbl}}
     raw["plan"] = {"theta_i_deg": [30.0], "theta_o_min_deg": -10.0, "theta_o_max_deg": 70.0, "theta_o_step_deg": 20.0,
                    "repeats": 2, "dark_at_end": False}
@@ -284,13 +297,34 @@ def test_a_reset_mid_sweep_stops_the_capture_and_resumes_after_unlock(sim, detec
     from tests.test_acq_support import run_capture
 
     r = run_capture("--config", str(cfg), "--out", str(out), "--resume", "--unlock", "--no-progress")
-    if r.returncode != 0 and gh.stalled(r.stderr):  # grbl-sim's thread race (not GRBL's, not ours): see its doc
-        import warnings
-
-        warnings.warn("grbl-sim stalled in Run after the unlock (its two threads race on 2 cores); resuming "
-                      "once more", stacklevel=1)
-        r = run_capture("--config", str(cfg), "--out", str(out), "--resume", "--unlock", "--no-progress")
     assert r.returncode == 0, r.stderr
     assert "unlocking ($X) on purpose" in (out / "capture.log").read_text()
     rows = [r for r in (out / "slice.csv").read_text().splitlines() if r and not r.startswith("#")][1:]
     assert len(rows) == 5
+
+
+def test_the_relay_calls_a_frozen_run_a_stall_and_a_moving_or_held_one_not(monkeypatch):
+    """The rerun condition itself, on status reports alone (no grbl-sim): Run at one MPos for STALL_S is a stall;
+    Run with MPos changing, or Hold:0 (a completed feed hold) at one MPos, is not."""
+    clock = [100.0]
+    monkeypatch.setattr(gh.time, "monotonic", lambda: clock[0])
+    gh.STALLS.clear()
+    relay = gh.GrblSim.__new__(gh.GrblSim)  # only the watcher's state, no process
+    relay.stall, relay._rx, relay._seen, relay._seen_since = None, b"", None, 0.0
+
+    def report(text: str, dt: float) -> None:
+        clock[0] += dt
+        relay._watch(text.encode())
+
+    for k in range(40):  # moving: a new MPos every 0.2 s
+        report(f"<Run|MPos:{k:.3f},0.000,0.000|FS:600,0>\r\n", 0.2)
+    for _ in range(40):  # a completed hold, 8 s at one position
+        report("<Hold:0|MPos:39.000,0.000,0.000|FS:0,0>\r\nok\r\n", 0.2)
+    assert relay.stall is None and not gh.stalled_during_test()
+    report("<Run|MPos:39.0", 0.2)  # a report split across reads ...
+    report("00,0.000,0.000|FS:600,0>\r\n", 0.0)
+    for _ in range(int(gh.STALL_S / 0.2) + 1):  # ... then frozen in Run
+        report("<Run|MPos:39.000,0.000,0.000|FS:600,0>\r\n", 0.2)
+    assert relay.stall is not None and "Run at MPos 39.000,0.000,0.000" in relay.stall
+    assert gh.stalled_during_test()
+    gh.STALLS.clear()
