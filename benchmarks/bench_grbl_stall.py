@@ -62,11 +62,12 @@ def one_run(exe: Path, hz: float, seconds: float, workdir: Path) -> dict[str, fl
             ser.write(b"\x18")
             time.sleep(1.0)
             ser.write(b"$X\nG90 G0 X0 Y0\n")
-            deadline = time.monotonic() + 10
+            deadline, seen = time.monotonic() + 10, b""
             while time.monotonic() < deadline and not recovered:
                 ser.write(b"?")
                 time.sleep(0.1)
-                recovered = b"<Idle|MPos:0.000,0.000" in ser.read(ser.in_waiting or 1)
+                seen += ser.read(ser.in_waiting or 1)
+                recovered = b"<Idle|MPos:0.000,0.000" in seen
         return {"moves": moves, "polls": polls, "seconds": elapsed, "stalled": stalled, "recovered": recovered}
     finally:
         sim.close()

@@ -161,13 +161,14 @@ class GrblSim:
                 os.write(self.drv_master, data)
                 self._watch(data)
 
-    def _watch(self, data: bytes) -> None:
-        """Look at each status report passing to the driver for a stall (see :func:`stalled_during_test`)."""
+    def _watch(self, data: bytes, now: float | None = None) -> None:
+        """Look at each status report passing to the driver for a stall (see :func:`stalled_during_test`);
+        ``now``: the time of ``data`` (time.monotonic(), s), for a test of this method."""
         self._rx = (self._rx + data)[-4096:]
         cut = self._rx.rfind(b">")
         if cut < 0:
             return
-        now = time.monotonic()
+        now = time.monotonic() if now is None else now
         for m in _STATUS.finditer(self._rx[:cut + 1]):
             key = (m.group(1), m.group(2))
             if key != self._seen:
