@@ -2,7 +2,8 @@
 moves of both arms (``$110``/``$111`` 36000, ``$120``/``$121`` 4000, 10 steps/unit, +-80 units) with a ``?``
 status poll at ``--hz``, for ``--seconds`` or until the harness's relay sees a stall (a moving state at one
 ``MPos`` for 3 s). ``--burners N`` runs N busy-looping processes beside it (a loaded CI machine); ``--runs`` repeats
-on fresh grbl-sims. After a stall it checks that a soft reset and ``$X`` move again.
+on fresh grbl-sims. After a stall it sends a soft reset, ``$X`` and a move home, and prints what GRBL then
+reports (whether the same grbl-sim moves again).
 
     .venv/bin/python benchmarks/bench_grbl_stall.py --hz 100 --seconds 180 --burners 1 --runs 2
 
@@ -58,16 +59,24 @@ def one_run(exe: Path, hz: float, seconds: float, workdir: Path) -> dict[str, fl
         elapsed = time.monotonic() - t0
         stalled = sim.stall is not None
         recovered = False
-        if stalled:
+        if stalled:  # the replies still queued drain first (grbl-sim sends at the baud rate), then reset
+            quiet_until, deadline = time.monotonic() + 0.5, time.monotonic() + 20
+            while time.monotonic() < min(quiet_until, deadline):
+                if ser.read(ser.in_waiting or 1):
+                    quiet_until = time.monotonic() + 0.5
             ser.write(b"\x18")
             time.sleep(1.0)
-            ser.write(b"$X\nG90 G0 X0 Y0\n")
-            deadline, seen = time.monotonic() + 10, b""
-            while time.monotonic() < deadline and not recovered:
-                ser.write(b"?")
-                time.sleep(0.1)
+            ser.write(b"$X\n")
+            time.sleep(0.5)
+            ser.write(b"G90 G0 X0 Y0\n")
+            time.sleep(3.0)
+            ser.reset_input_buffer()
+            ser.write(b"?")
+            seen, t_end = b"", time.monotonic() + 1.0
+            while time.monotonic() < t_end:
                 seen += ser.read(ser.in_waiting or 1)
-                recovered = b"<Idle|MPos:0.000,0.000" in seen
+            recovered = b"<Idle|MPos:0.000,0.000" in seen
+            print(f"  after the reset, $X and G0 X0 Y0: {seen.decode(errors='replace').strip()!r}")
         return {"moves": moves, "polls": polls, "seconds": elapsed, "stalled": stalled, "recovered": recovered}
     finally:
         sim.close()

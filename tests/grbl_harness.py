@@ -66,11 +66,12 @@ def stalled_during_test() -> bool:
     in two unsynchronised threads (``sim_loop`` in ``simulator.c``; ``cli()`` only clears a flag the other thread
     reads once per tick), so on two host cores an interrupt routine runs *beside* the main loop, and when the
     machine is busy the main loop can be descheduled while the interrupt empties the stepper's segment buffer,
-    neither of which the single-core AVR allows. Measured with back-and-forth moves (``$110`` 36000, ``$120``
-    4000) polled with ``?`` beside a CPU burner: a stall after 11 and 42 s at 100 Hz, after 150 s and none in
-    180 s at 20 Hz; in the conformance tests, 2 of 6 runs of the module with two workers beside a burner. A soft
-    reset (0x18), then ``$X``, moves again. Pinning grbl-sim to one CPU starves its two busy threads instead
-    (the conformance tests then time out).
+    neither of which the single-core AVR allows. Measured by ``benchmarks/bench_grbl_stall.py`` (back-and-forth
+    moves, ``$110`` 36000, ``$120`` 4000, polled with ``?`` beside one CPU burner): stalls after 64, 23, 18 and
+    27 s at 100 Hz; after 55 s, and none in 180 s, at 20 Hz. A soft reset, ``$X`` and a move on the stalled
+    grbl-sim moved again once by hand and stayed in ``Run`` in the benchmark's checks, so a test starts again on a
+    fresh grbl-sim. Pinning grbl-sim to one CPU starves its two busy threads instead (the conformance tests then
+    time out).
     """
     return bool(STALLS)
 
