@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import multiprocessing
-import re
 import sys
 import tempfile
 import time
@@ -26,7 +25,6 @@ sys.path.insert(0, str(REPO))
 from tests import grbl_harness as gh  # noqa: E402
 
 SETTINGS = ("$100=10", "$101=10", "$110=36000", "$111=36000", "$120=4000", "$121=4000", "$X")
-STATUS = re.compile(rb"<(\w+)[^|>]*\|MPos:([-\d.,]+)")
 
 
 def _burn() -> None:
@@ -50,7 +48,7 @@ def one_run(exe: Path, hz: float, seconds: float, workdir: Path) -> dict[str, fl
             polls += 1
             time.sleep(1.0 / hz)
             buf += ser.read(ser.in_waiting or 1)
-            for m in STATUS.finditer(buf):
+            for m in gh.STATUS_REPORT.finditer(buf):
                 state = m.group(1).decode()
             buf = buf[buf.rfind(b">") + 1:]
             if state == "Idle":

@@ -53,7 +53,7 @@ def build(out: Path) -> Path:
 STALL_S = 3.0
 STALLS: list[str] = []  # this process's grbl-sim stalls (the conformance tests clear it before each test)
 _MOVING = ("Run", "Jog", "Hold:1")
-_STATUS = re.compile(rb"<(\w+(?::\d)?)\|MPos:([-\d.,]+)")
+STATUS_REPORT = re.compile(rb"<(\w+(?::\d)?)\|MPos:([-\d.,]+)")  # (state[:sub], MPos) of a status report
 
 
 def stalled_during_test() -> bool:
@@ -78,6 +78,36 @@ def stalled_during_test() -> bool:
 
 def _pending(fd: int) -> int:
     return struct.unpack("i", fcntl.ioctl(fd, termios.FIONREAD, b"\0\0\0\0"))[0]
+
+
+class StallWatch:
+    """Status reports in, a stall out (see :func:`stalled_during_test`): :attr:`stall` is the first one's sentence,
+    also appended to :data:`STALLS`."""
+
+    def __init__(self) -> None:
+        self.stall: str | None = None
+        self._rx = b""
+        self._seen: tuple[bytes, bytes] | None = None
+        self._seen_since = 0.0
+
+    def feed(self, data: bytes, now: float | None = None) -> None:
+        """Bytes from grbl-sim as they arrive (a report may be split across calls); ``now``: their time
+        (time.monotonic(), s), for a test of this class."""
+        self._rx = (self._rx + data)[-4096:]
+        cut = self._rx.rfind(b">")
+        if cut < 0:
+            return
+        now = time.monotonic() if now is None else now
+        for m in STATUS_REPORT.finditer(self._rx[:cut + 1]):
+            key = (m.group(1), m.group(2))
+            if key != self._seen:
+                self._seen, self._seen_since = key, now
+            elif key[0].decode() in _MOVING and now - self._seen_since >= STALL_S and self.stall is None:
+                self.stall = (f"grbl-sim stalled: {key[0].decode()} at MPos {key[1].decode()} for "
+                              f"{now - self._seen_since:.1f} s without a step (its threads' race; see "
+                              "tests/grbl_harness.stalled_during_test)")
+                STALLS.append(self.stall)
+        self._rx = self._rx[cut + 1:]
 
 
 class GrblSim:
@@ -112,10 +142,7 @@ class GrblSim:
         self.injected: list[bytes] = []
         self._test_ser = None
         self._buf = b""
-        self.stall: str | None = None  # what the relay saw if grbl-sim stalled (see stalled_during_test)
-        self._rx = b""
-        self._seen: tuple[bytes, bytes] | None = None
-        self._seen_since = 0.0
+        self.watch = StallWatch()  # the status reports passing to the driver (see stalled_during_test)
         self._threads = [threading.Thread(target=f, daemon=True) for f in (self._to_sim, self._from_sim, self._steps)]
         for t in self._threads:
             t.start()
@@ -160,26 +187,12 @@ class GrblSim:
                 except OSError:
                     return
                 os.write(self.drv_master, data)
-                self._watch(data)
+                self.watch.feed(data)
 
-    def _watch(self, data: bytes, now: float | None = None) -> None:
-        """Look at each status report passing to the driver for a stall (see :func:`stalled_during_test`);
-        ``now``: the time of ``data`` (time.monotonic(), s), for a test of this method."""
-        self._rx = (self._rx + data)[-4096:]
-        cut = self._rx.rfind(b">")
-        if cut < 0:
-            return
-        now = time.monotonic() if now is None else now
-        for m in _STATUS.finditer(self._rx[:cut + 1]):
-            key = (m.group(1), m.group(2))
-            if key != self._seen:
-                self._seen, self._seen_since = key, now
-            elif (key[0].decode() in _MOVING and now - self._seen_since >= STALL_S and self.stall is None):
-                self.stall = (f"grbl-sim stalled: {key[0].decode()} at MPos {key[1].decode()} for "
-                              f"{now - self._seen_since:.1f} s without a step (its threads' race; see "
-                              "tests/grbl_harness.stalled_during_test)")
-                STALLS.append(self.stall)
-        self._rx = self._rx[cut + 1:]
+    @property
+    def stall(self) -> str | None:
+        """What the relay saw if grbl-sim stalled, else None."""
+        return self.watch.stall
 
     def _steps(self) -> None:
         import select

@@ -308,12 +308,11 @@ def test_the_relay_calls_a_frozen_run_a_stall_and_a_moving_or_held_one_not():
     Run with MPos changing, or Hold:0 (a completed feed hold) at one MPos, is not."""
     clock = [100.0]
     gh.STALLS.clear()
-    relay = gh.GrblSim.__new__(gh.GrblSim)  # only the watcher's state, no process
-    relay.stall, relay._rx, relay._seen, relay._seen_since = None, b"", None, 0.0
+    relay = gh.StallWatch()
 
     def report(text: str, dt: float) -> None:
         clock[0] += dt
-        relay._watch(text.encode(), now=clock[0])
+        relay.feed(text.encode(), now=clock[0])
 
     for k in range(40):  # moving: a new MPos every 0.2 s
         report(f"<Run|MPos:{k:.3f},0.000,0.000|FS:600,0>\r\n", 0.2)

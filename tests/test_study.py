@@ -118,8 +118,8 @@ def test_a_case_is_recaptured_when_its_config_changed_and_resumed_when_not(tmp_p
     slice_csv = tmp_path / case.name / "capture" / "slice.csv"
     stamp = slice_csv.stat().st_mtime_ns
     again = study.run_case((case, base, str(tmp_path)))[0]  # same config: the finished capture is reused
-    cap = tmp_path / case.name / "capture"
-    why = f"capture.json: {(cap / 'capture.json').read_text()[-1500:] if (cap / 'capture.json').exists() else '-'}"
+    record = slice_csv.parent / "capture.json"
+    why = f"capture.json: {record.read_text()[-1500:] if record.exists() else '-'}"
     assert slice_csv.stat().st_mtime_ns == stamp, why  # a reused capture is not written again
     assert again["rel_rmse_cos"] == first["rel_rmse_cos"]
     # ... and keeps its times (the resumed run itself did nothing: its summary says 0 s)
