@@ -24,28 +24,6 @@ from acquisition.errors import (
     SaturationWarning,
 )
 from acquisition.plans.plan import Geometry, Plan, PlanCheck, Reason, Scene, load_scene, order_points, path_time
-from reconstruction.moved import keep_old_names
-
-#: Today's module names of the flat layout before the rooms, kept for lab scripts (``acquisition.plan``, ...).
-keep_old_names({
-    "acquisition.protocols": "acquisition.devices.protocols",
-    "acquisition.dynamixel": "acquisition.devices.dynamixel",
-    "acquisition.serial_link": "acquisition.devices.serial_link",
-    "acquisition.messages": "acquisition.plans.messages",
-    "acquisition.plan": "acquisition.plans.plan",
-    "acquisition.planconfig": "acquisition.plans.planconfig",
-    "acquisition.ordering": "acquisition.plans.ordering",
-    "acquisition.refine": "acquisition.plans.refine",
-    "acquisition.geometry": "acquisition.plans.geometry",
-    "acquisition.engine": "acquisition.run.engine",
-    "acquisition.capture": "acquisition.run.capture",
-    "acquisition.record": "acquisition.run.record",
-    "acquisition.outdir": "acquisition.run.outdir",
-    "acquisition.lock": "acquisition.run.lock",
-    "acquisition.fingerprint": "acquisition.run.fingerprint",
-    "acquisition.interrupts": "acquisition.run.interrupts",
-    "acquisition.dryrun": "acquisition.run.dryrun",
-})
 
 __all__ = [
     "AcquisitionError",

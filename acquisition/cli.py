@@ -23,8 +23,6 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-from acquisition.run.record import exit_status  # noqa: F401 - the exit status of a capture, here since the CLI gives it
-
 #: 2-opt budget of the time estimate that ``--check`` prints (the capture uses plan.TWO_OPT_MAX_EVALUATIONS).
 CHECK_TWO_OPT_EVALUATIONS = 500_000
 
@@ -184,7 +182,7 @@ def _start_live(args: argparse.Namespace) -> Any:
 
 def _print_check(args: argparse.Namespace, bench: Any, plan: Any, chk: Any, est: dict[str, Any]) -> None:
     """What --check prints: the scene's changes, the plan's check, the ports, the footprint and the estimate."""
-    from acquisition.config import MAX_PLAN_POINTS
+    from acquisition.plans.planconfig import MAX_PLAN_POINTS
 
     if args.scene:
         from acquisition.plans.plan import scene_changes

@@ -27,12 +27,10 @@ from typing import Any
 
 from acquisition import grbl_settings
 from acquisition.errors import ConfigError
-from acquisition.plans.planconfig import (  # noqa: F401 - names of this module before [plan] moved out
+from acquisition.plans.planconfig import (
     MAX_PLAN_POINTS,
     AdaptiveConfig,
     PlanConfig,
-    _count,
-    _frange,
     _Table,  # one reader of a table against its schema, errors as ConfigError
     read_plan,
     resolution_deg,

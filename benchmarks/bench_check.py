@@ -23,7 +23,7 @@ import tomllib
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from acquisition.config import MAX_PLAN_POINTS  # noqa: E402
+from acquisition.plans.planconfig import MAX_PLAN_POINTS  # noqa: E402
 
 
 def main() -> int:

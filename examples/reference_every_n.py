@@ -13,7 +13,7 @@ from __future__ import annotations
 import sys
 
 from acquisition import Bench, plans
-from acquisition.plan import order_points, point_key
+from acquisition.plans.plan import order_points, point_key
 
 
 def reference_every(n: int) -> plans.PointsPlan:

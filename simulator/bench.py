@@ -9,7 +9,8 @@ from collections.abc import Callable
 import numpy as np
 
 from simulator.config import BenchConfig
-from simulator.devices.dxl_device import DynamixelBus, Servo
+from simulator.devices.dxl_device import DynamixelBus
+from simulator.devices.dxl_servo import Servo
 from simulator.devices.grbl import VirtualGrbl
 from simulator.devices.serial_controller import SerialController, StepperAxis
 from simulator.devices.usb_detectors import UsbDetector

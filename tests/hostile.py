@@ -205,7 +205,7 @@ def run_case(case: Case, timeout: float = 120.0, server: ForkServer | None = Non
 #: what the fork servers of :func:`run_all` import before forking: what the campaign's runs import
 PRELOAD = ("reconstruction.cli", "acquisition.cli", "reconstruction.formats.brdffile", "reconstruction.formats.exports",
            "reconstruction.methods.bivariate", "reconstruction.report.summary", "reconstruction.report.preview",
-           "acquisition.engine", "acquisition.dryrun")
+           "acquisition.run.engine", "acquisition.run.dryrun")
 
 
 def run_all(cases: list[Case], workers: int | None = None, real_every: int = 1) -> list[Outcome]:

@@ -13,7 +13,8 @@ from hypothesis import strategies as st
 from acquisition import ConfigError, Plan, PlanError
 from acquisition.calibration import Calibration, Reading, reference_rho
 from acquisition.config import config_from_dict
-from acquisition.plans.plan import Geometry, _trapezoid_time, order_points, path_time, refine_points
+from acquisition.plans.geometry import _trapezoid_time
+from acquisition.plans.plan import Geometry, order_points, path_time, refine_points
 from acquisition.plans.plan import load_scene as acq_load_scene
 from reconstruction.core.scene import Scene, load_scene
 from tests.test_acq_support import REPO, make_raw
@@ -148,7 +149,7 @@ def test_scene_without_ranges_keeps_the_whole_hemisphere():
 
 
 def test_scene_sets_adaptive_tolerance():
-    from acquisition.config import AdaptiveConfig
+    from acquisition.plans.planconfig import AdaptiveConfig
 
     plan = Plan.grid([20.0], -80, 80, 2, adaptive=AdaptiveConfig(True, 8.0, 2.0, 0.1, 0.0, 0, 6))
     p = plan.restrict(load_scene(REPO / "configs" / "scenes" / "glossy-product.toml"))

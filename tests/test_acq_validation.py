@@ -15,7 +15,7 @@ import tomli_w
 
 from acquisition import Bench, Plan, PlanError
 from acquisition.cli import main
-from acquisition.config import MAX_PLAN_POINTS
+from acquisition.plans.planconfig import MAX_PLAN_POINTS
 from tests.helpers import unprivileged
 from tests.test_acq_support import REPO, make_raw, run_capture, write_config
 

@@ -258,18 +258,16 @@ def test_every_room_has_an_import_contract():
     assert want | {"reconstruction.core"} <= sources, sorted(want - sources)
 
 
-def test_old_module_names_still_import():
-    """Scripts written against the flat layout (``acquisition.plan``, ``simulator.physics``,
-    ``reconstruction.merl``, ...) still import: each old name gives the module at its new place, the same object."""
+def test_the_flat_layouts_names_are_retired_and_the_plans_room_serves_its_generators():
+    """The modules of the flat layout before the rooms (``acquisition.plan``, ``simulator.physics``,
+    ``reconstruction.merl``, ...) are gone: every user imports from the real place. ``acquisition.plans``
+    serves the capture's plans (``acquisition.plans.measure_points``, the name the examples use)."""
     import importlib
 
-    import acquisition  # noqa: F401  (registers its old names)
-    import simulator  # noqa: F401
-    from reconstruction.moved import OLD_NAMES
-
-    assert {"acquisition.plan", "acquisition.capture", "simulator.physics", "reconstruction.merl"} <= set(OLD_NAMES)
-    for old, new in sorted(OLD_NAMES.items()):
-        assert importlib.import_module(old) is importlib.import_module(new), old
+    for old in ("acquisition.plan", "acquisition.capture", "simulator.physics", "reconstruction.merl",
+                "reconstruction.moved"):
+        with pytest.raises(ModuleNotFoundError):
+            importlib.import_module(old)
     from acquisition.plans import measure_points
     from acquisition.plans.generators import measure_points as m2
 

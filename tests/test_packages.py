@@ -38,8 +38,8 @@ def _dotted_names() -> list[tuple[str, str]]:
 
 @pytest.mark.parametrize("name,page", _dotted_names())
 def test_every_dotted_name_in_the_readme_and_docs_resolves(name, page):
-    """A name the docs give (``acquisition.plans.measure_points``, ``reconstruction.core.merltable``, an old name
-    like ``simulator.physics``) imports, or is an attribute of the longest module prefix that imports."""
+    """A name the docs give (``acquisition.plans.measure_points``, ``reconstruction.core.merltable``,
+    ``simulator.world.physics``) imports, or is an attribute of the longest module prefix that imports."""
     import importlib
 
     parts = name.split(".")

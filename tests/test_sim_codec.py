@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dynamixel_sdk import PacketHandler
 
-from simulator import dxl_codec as c
+from simulator.devices import dxl_codec as c
 
 PING_1 = bytes.fromhex("FF FF FD 00 01 03 00 01 19 4E")
 PING_1_STATUS = bytes.fromhex("FF FF FD 00 01 07 00 55 00 06 04 26 65 5D")

@@ -14,9 +14,9 @@ from dynamixel_sdk import (
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from simulator import dxl_codec as c
 from simulator.bench import VirtualBench
 from simulator.config import config_from_dict
+from simulator.devices import dxl_codec as c
 from simulator.ports.sdk_port import SimPortHandler
 from simulator.ports.transports import register_bench, unregister_bench
 

@@ -15,7 +15,7 @@ from dynamixel_sdk import (
     PortHandler,
 )
 
-from simulator import dxl_codec as c
+from simulator.devices import dxl_codec as c
 from tests.helpers import UNITS_PER_DEG, units
 
 LIGHT, DET = 1, 2

@@ -9,9 +9,9 @@ import serial
 from dynamixel_sdk import COMM_RX_CORRUPT, COMM_RX_TIMEOUT, COMM_SUCCESS, PacketHandler, PortHandler
 
 import simulator  # noqa: F401 - registers sim://
-from simulator import dxl_codec as c
 from simulator.bench import VirtualBench
 from simulator.config import config_from_dict
+from simulator.devices import dxl_codec as c
 from simulator.ports.sdk_port import SimPortHandler
 from simulator.ports.transports import PtyServer, register_bench, unregister_bench
 from tests.helpers import units

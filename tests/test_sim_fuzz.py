@@ -5,9 +5,9 @@ from __future__ import annotations
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from simulator import dxl_codec as c
 from simulator.bench import VirtualBench
 from simulator.config import config_from_dict
+from simulator.devices import dxl_codec as c
 
 INSTS = [c.INST_PING, c.INST_READ, c.INST_WRITE, c.INST_REG_WRITE, c.INST_ACTION, c.INST_FACTORY_RESET,
          c.INST_REBOOT, c.INST_CLEAR, c.INST_SYNC_READ, c.INST_SYNC_WRITE, c.INST_FAST_SYNC_READ,

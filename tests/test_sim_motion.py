@@ -128,7 +128,7 @@ def test_scaled_detector_read_does_not_block_the_bus(config_dict):
     import threading
 
     bench = VirtualBench(config_from_dict(config_dict({"simulator": {"time_scale": 1.0}})))
-    from simulator import dxl_codec as c
+    from simulator.devices import dxl_codec as c
 
     done = threading.Event()
     integrating, release = threading.Event(), threading.Event()

@@ -156,7 +156,7 @@ def test_in_real_time_the_polling_and_the_software_are_in_the_estimate_too(tmp_p
 def test_the_capture_orders_its_points_once_from_where_it_starts_them(tmp_path, monkeypatch, mode):
     """The estimate runs the capture's own plan from where the capture starts the points (the white reference, or
     park as the bench reads it back), so the capture reuses its order instead of ordering again."""
-    from acquisition import ordering
+    from acquisition.plans import ordering
 
     calls = []
     real = ordering._order

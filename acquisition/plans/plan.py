@@ -4,9 +4,9 @@ A point is ``(theta_i_deg, theta_o_deg)``: light arm at theta_i, detector arm at
 the specular side). :class:`Geometry` knows what the bench can reach (soft limits), where the arms would
 collide (``|theta_i + theta_o| < min_separation_deg``) and where the source arm shadows the detector (the blind
 spot, ``|theta_i + theta_o| < blind_spot_half_width_deg``), and how long a move takes (trapezoidal profiles of
-both arms moving at once; :mod:`acquisition.geometry`). :meth:`Plan.check` sorts points into measurable and
+both arms moving at once; :mod:`acquisition.plans.geometry`). :meth:`Plan.check` sorts points into measurable and
 unmeasurable ones, each with its reason (a :class:`Why`: the text and a :class:`Reason`): nothing is dropped
-silently. :func:`order_points` (:mod:`acquisition.ordering`) orders them to minimise travel time. What a capture
+silently. :func:`order_points` (:mod:`acquisition.plans.ordering`) orders them to minimise travel time. What a capture
 does with a plan is itself a plan, a generator of messages: :mod:`acquisition.plans`.
 
 Scenes (``configs/scenes/*.toml``, :mod:`reconstruction.core.scene`) restrict a plan to what a scene needs: see
@@ -25,7 +25,10 @@ from typing import Any
 
 import numpy as np
 
-from acquisition.config import (
+from acquisition.errors import ConfigError, PlanError
+from acquisition.plans.geometry import Geometry, Point, Reason, Why, point_key
+from acquisition.plans.ordering import TWO_OPT_MAX_EVALUATIONS, order_points, path_time
+from acquisition.plans.planconfig import (
     MAX_PLAN_POINTS,
     AdaptiveConfig,
     PlanConfig,
@@ -33,19 +36,6 @@ from acquisition.config import (
     _frange,
     resolution_deg,
 )
-from acquisition.errors import ConfigError, PlanError
-from acquisition.plans.geometry import (  # noqa: F401 - the names of this module before the geometry moved out
-    DXL_ACC_UNIT_REV_S2,
-    DXL_UNITS_PER_REV,
-    DXL_VEL_UNIT_REV_S,
-    Geometry,
-    Point,
-    Reason,
-    Why,
-    _trapezoid_time,
-    point_key,
-)
-from acquisition.plans.ordering import TWO_OPT_MAX_EVALUATIONS, order_points, path_time
 from acquisition.plans.refine import refine_points
 from reconstruction.core.scene import CAPTURE_DEFAULT_RANGE_DEG, Scene, SceneError
 from reconstruction.core.scene import load_scene as _load_scene
@@ -376,7 +366,7 @@ class Plan:
                  max_evaluations: int = TWO_OPT_MAX_EVALUATIONS, cfg: Any = None) -> dict[str, float]:
         """Estimated times (s): ``motion_s`` in this plan's order, ``naive_motion_s`` in naive order, and
         ``total_s`` with settle and detector time: the capture's own plan of the points run on a dry-run bench
-        (:func:`acquisition.dryrun.estimate`). ``max_evaluations``: the 2-opt budget of the ordering (a smaller one
+        (:func:`acquisition.run.dryrun.estimate`). ``max_evaluations``: the 2-opt budget of the ordering (a smaller one
         gives the same order for plans of up to about a thousand points, and a slightly longer estimate for bigger
         ones, faster). With the bench file ``cfg``: the whole capture (calibration, points, final dark) and its
         parts."""

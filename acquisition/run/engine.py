@@ -1,5 +1,5 @@
-"""The engine: runs a capture plan (a generator of :mod:`acquisition.messages`) against the device protocols of
-:mod:`acquisition.protocols`, and knows nothing of Dynamixel servos, serial controllers or simulators.
+"""The engine: runs a capture plan (a generator of :mod:`acquisition.plans.messages`) against the device protocols of
+:mod:`acquisition.devices.protocols`, and knows nothing of Dynamixel servos, serial controllers or simulators.
 
 For each message it does one thing and sends the plan its reply: move (and account the motion time), settle,
 read (auto-ranged when ``[detector].auto_range``: :mod:`acquisition.autorange`; saturated repeats are read
@@ -9,8 +9,8 @@ Ctrl-C / SIGTERM asked, tell where the arms are and what time it is. An exceptio
 message is thrown into the plan, so its ``finally`` clauses run (the white reference is swapped out again).
 
 The capture as a whole (output folder, lock, resume checks, the run record, opening and making the bench safe,
-the outcome) is :class:`acquisition.capture.RunEngine`; ``gonio-capture --check`` runs the same plans with
-:mod:`acquisition.dryrun`.
+the outcome) is :class:`acquisition.run.capture.RunEngine`; ``gonio-capture --check`` runs the same plans with
+:mod:`acquisition.run.dryrun`.
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ from acquisition.plans.messages import (
     UseReference,
     Where,
 )
-from acquisition.run.record import SIDECAR_NAME, CaptureResult, RunRecord, result_dict  # noqa: F401 - kept importable here
+from acquisition.run.record import CaptureResult, RunRecord
 
 log = logging.getLogger("acquisition.engine")
 

@@ -1,9 +1,9 @@
 """MERL binary BRDF files (Matusik et al. 2003): read and write (the table in memory: ``core.merltable``).
 
 On disk (see ../shared/reference/merl-format.md): an int32 header ``90 90 180``, then all red, all green, all blue
-as little-endian float64, each divided by its channel scale; invalid cells are stored as -1. ``reconstruction.merl``
-(the name of the README and lab scripts) is this module, which also re-exports the table's layout, lookup and
-tabulation (``merl.tabulate``, ``merl.lookup``, ...) and its grid's names.
+as little-endian float64, each divided by its channel scale; invalid cells are stored as -1. This module (the
+README's ``merl``) also re-exports the table's layout, lookup and tabulation (``merl.tabulate``, ``merl.lookup``,
+...) and its grid's names.
 """
 
 from __future__ import annotations

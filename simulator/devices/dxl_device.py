@@ -24,22 +24,11 @@ import struct
 import time
 
 from simulator.devices import dxl_codec as c
-from simulator.devices.dxl_servo import (  # noqa: F401 - the servo and its control table (its names stay here)
-    ADDR,
+from simulator.devices.dxl_servo import (
     DYNAMIC_START,
-    EEPROM_END,
-    FIRMWARE_VERSION,
-    HW_ELECTRICAL_SHOCK,
-    HW_ENCODER,
-    HW_INPUT_VOLTAGE,
-    HW_OVERHEATING,
     HW_OVERLOAD,
-    ITEMS,
     MODE_EXTENDED,
-    MODE_POSITION,
-    TABLE_SIZE,
     CollisionCheck,
-    Item,
     Servo,
 )
 from simulator.world.clock import SimClock
