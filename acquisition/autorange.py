@@ -77,7 +77,7 @@ PREDICTION_BAND = 2.0
 
 
 class RangedDetector(Protocol):
-    """What auto-ranging needs from a detector driver (:class:`~acquisition.serial_link.SerialDetector`); with
+    """What auto-ranging needs from a detector driver (:class:`~acquisition.devices.serial_link.SerialDetector`); with
     gains also ``set_gain(g) -> the gain the amplifier reports``."""
 
     integration_time_s: float

@@ -468,16 +468,16 @@ class Bench:
         return self.detector is not None and self.detector.has_time
 
     def devices(self) -> Devices:
-        """The bench as the engine sees it (:mod:`acquisition.protocols`): the arms, the detector, the clock."""
+        """The bench as the engine sees it (:mod:`acquisition.devices.protocols`): the arms, the detector, the clock."""
         _, det = self._need()
         return Devices(_BenchAxes(self), det, _BenchClock(self))
 
     def capture(self, plan: Plan | None = None, out: str | Path | None = None, resume: bool = False,
                 progress: bool | None = None, handle_signals: bool = True,
                 points_plan: Any = None, force: bool = False, live: bool = False):  # -> CaptureResult
-        """Capture ``plan`` (default: the config's) into ``out``/slice.csv; see :class:`acquisition.capture.RunEngine`.
+        """Capture ``plan`` (default: the config's) into ``out``/slice.csv (:class:`acquisition.run.capture.RunEngine`).
 
-        Opens the bench if needed (and then closes it again). Returns a :class:`~acquisition.record.CaptureResult`
+        Opens the bench if needed (and then closes it again). Returns a :class:`~acquisition.run.record.CaptureResult`
         (``result.ok``; ``result.raise_for_status()``). ``points_plan``: the plan that measures the points
         (default :func:`acquisition.plans.measure_points`; e.g. ``examples/reference_every_n.py``). A resume first
         measures the last recorded points again and stops (``result.exit_code`` 2) if the sample does not read as
@@ -494,7 +494,7 @@ class Bench:
 
 
 class _BenchAxes:
-    """:class:`~acquisition.protocols.Axes` of a bench: both arms at once, refusing unreachable goals."""
+    """:class:`~acquisition.devices.protocols.Axes` of a bench: both arms at once, refusing unreachable goals."""
 
     def __init__(self, bench: Bench) -> None:
         self.bench = bench
@@ -515,7 +515,7 @@ class _BenchAxes:
 
 
 class _BenchClock:
-    """:class:`~acquisition.protocols.Clock` of a bench: its own clock, waiting on the controller."""
+    """:class:`~acquisition.devices.protocols.Clock` of a bench: its own clock, waiting on the controller."""
 
     def __init__(self, bench: Bench) -> None:
         self.bench = bench

@@ -1,6 +1,6 @@
 """The sections of a bench file as the acquisition reads them: one frozen dataclass per table (``[axes.*]``,
 ``[bench]``, ``[motion]``, ``[detector]``, ``[calibration]``). :mod:`acquisition.config` reads and validates them
-(and re-exports them); :mod:`acquisition.planconfig` reads ``[plan]`` against the axes and the detector. Angles in
+(and re-exports them); :mod:`acquisition.plans.planconfig` reads ``[plan]`` against the axes and the detector. Angles in
 degrees, times in seconds.
 """
 

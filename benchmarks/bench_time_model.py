@@ -9,7 +9,7 @@ the real drivers against ``gonio-sim serve`` through pseudo-terminals; ``--time-
 simulated time jump, so the figures are exact and a capture takes a second or two of wall time; ``--time-scale
 K`` runs simulated time at K x wall time, where the drivers' polling and the software's own time become bench
 time too, as on a real bench (K = 1). The model counts the polling (a move is over at the first poll after it) and
-a constant software time per reading measured at K = 1 (``acquisition.geometry.HOST_S_PER_READING``); at K > 1
+a constant software time per reading measured at K = 1 (``acquisition.plans.geometry.HOST_S_PER_READING``); at K > 1
 the software's real time is magnified K times while the arms move K times faster, and the estimate falls short.
 
     .venv/bin/python benchmarks/bench_time_model.py [--time-scale 0] [--quick]

@@ -8,7 +8,7 @@ Dynamixel servos, serial controllers or simulators, only of these.
 * :class:`Clock`: the bench's time (s) and waiting on it.
 
 :class:`acquisition.bench.Bench` provides them for a real or simulated bench (``bench.devices()``),
-:class:`acquisition.dryrun.DryRunBench` for ``gonio-capture --check``, which runs the very same plan without
+:class:`acquisition.run.dryrun.DryRunBench` for ``gonio-capture --check``, which runs the very same plan without
 moving anything, checking limits and accumulating the time model.
 """
 

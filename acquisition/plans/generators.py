@@ -1,4 +1,4 @@
-"""Capture plans: generators of :mod:`acquisition.messages` that the engine runs.
+"""Capture plans: generators of :mod:`acquisition.plans.messages` that the engine runs.
 
 A capture is :func:`capture`: the calibration (:func:`calibrate`: the dark level and the white reference, or
 the calibration of the slice being resumed), the points (:func:`measure`, point by point with :func:`point`),
@@ -8,7 +8,7 @@ procedure is a new plan, not a change to the engine: see ``examples/reference_ev
 reference every N points).
 
 ``gonio-capture --check`` runs :func:`measure`, the very plan of the capture's points, against a dry-run bench
-(:mod:`acquisition.dryrun`).
+(:mod:`acquisition.run.dryrun`).
 """
 
 from __future__ import annotations
@@ -67,7 +67,7 @@ Sample = tuple[float, float, float, float]
 
 
 class PlanSpec(Protocol):
-    """What the capture plans need of a plan (:class:`acquisition.plan.Plan` is one): its repeats, order,
+    """What the capture plans need of a plan (:class:`acquisition.plans.plan.Plan` is one): its repeats, order,
     adaptive refinement and final dark. A protocol, so that the plans and the dry run do not import the plan module
     (whose ``Plan.estimate`` asks the dry run)."""
 
@@ -91,7 +91,7 @@ def point(theta_i_deg: float, theta_o_deg: float, repeats: int) -> PlanGen:
 def measure(points: Sequence[Point], geometry: Geometry, repeats: int,
             done: dict[tuple[float, float], Sample] | None, order: str = "optimized",
             max_evaluations: int = TWO_OPT_MAX_EVALUATIONS) -> PlanGen:
-    """Measure the points not yet in ``done`` (keys :func:`~acquisition.plan.point_key`), ordered for short arm
+    """Measure the points not yet in ``done`` (keys :func:`~acquisition.plans.plan.point_key`), ordered for short arm
     travel from where the arms are (``order = "optimized"``); every sample is added to ``done`` (None: nothing
     was measured before and nothing needs the samples, as in an estimate)."""
     todo = [p for p in points if point_key(p) not in done] if done else list(points)
@@ -192,7 +192,7 @@ def calibrate(cfg: BenchConfig, rho_ref: np.ndarray) -> PlanGen:
 
 def adaptive(ctx: CaptureContext, t_start: float) -> PlanGen:
     """Adaptive refinement: rounds of midpoints where the measured slice changes fast
-    (:func:`~acquisition.plan.refine_points`), measured by the context's points plan and sent back through
+    (:func:`~acquisition.plans.plan.refine_points`), measured by the context's points plan and sent back through
     ``ctx.done``, until it converges, the point limit or the time budget (bench seconds since ``t_start``) is
     reached."""
     a, geometry, done = ctx.plan.adaptive, ctx.geometry, ctx.done
@@ -303,7 +303,7 @@ def measure_points(ctx: CaptureContext, points: Sequence[Point]) -> PlanGen:
 #: A points plan: measures ``points`` within a capture (the samples go to ``ctx.done``).
 PointsPlan = Callable[["CaptureContext", Sequence[Point]], PlanGen]
 #: How a round of adaptive refinement is estimated as it is planned: (context, the round's points, where the arms
-#: are, the integration time in s) -> bench seconds (:func:`acquisition.dryrun.estimate_points`).
+#: are, the integration time in s) -> bench seconds (:func:`acquisition.run.dryrun.estimate_points`).
 RoundEstimate = Callable[["CaptureContext", Sequence[Point], Point, float], float]
 
 
@@ -313,7 +313,7 @@ class CaptureContext:
     already in the slice (a resume) and its calibration (None: measure one), the white reference's rho per
     channel, the bench time of this capture's earlier runs (s), the plan that measures points
     (:func:`measure_points`, or a procedure of one's own, e.g. ``examples/reference_every_n.py``), and how a round of
-    adaptive refinement is estimated as it is planned (the capture gives :func:`acquisition.dryrun.estimate_points`:
+    adaptive refinement is estimated as it is planned (the capture gives :func:`acquisition.run.dryrun.estimate_points`:
     the caller asks the dry run, the plans do not; None: the rounds are not estimated). A resume measures
     ``recheck`` again first (:func:`check_sample`; ``accept_changed_sample``: go on if they disagree)."""
 

@@ -1,5 +1,5 @@
 """The messages of capture plans. A plan is a generator that yields these; the engine
-(:class:`acquisition.engine.Engine`) carries each out against the devices and sends back its reply (shown after
+(:class:`acquisition.run.engine.Engine`) carries each out against the devices and sends back its reply (shown after
 ``->``): a plan that needs readings (adaptive refinement) is sent them. (Plain slotted dataclasses, not frozen:
 a plan of 20,000 points yields 100,000 of them, and a dry run of it must take well under a second.)
 """

@@ -3,21 +3,21 @@ checkpointed, resumable, interrupt-safe.
 
 The slice file is the checkpoint. Its metadata (written once, when the file is created) holds the plan, its
 fingerprint, the dark level and the white-reference reading; every sample is appended (and fsynced) the moment
-it is measured. A resume reads the file, checks that it continues the same experiment (:mod:`acquisition.outdir`),
+it is measured. A resume reads the file, checks that it continues the same experiment (:mod:`acquisition.run.outdir`),
 reuses the stored calibration and measures only the missing points, so no sample is lost and none is taken
-twice. ``DIR/capture.json`` is the run record (:mod:`acquisition.record`), ``DIR/capture.log`` the log,
+twice. ``DIR/capture.json`` is the run record (:mod:`acquisition.run.record`), ``DIR/capture.log`` the log,
 ``DIR/simulator.log`` the simulator's log on a simulated bench.
 
 What is measured, and in which order, is the capture plan (:func:`acquisition.plans.capture`), run by the engine
-(:class:`acquisition.engine.Engine`) against the bench's devices. Here: the output folder is locked
-(``DIR/capture.lock``, :mod:`acquisition.lock`) and checked writable before anything moves; the bench is opened
+(:class:`acquisition.run.engine.Engine`) against the bench's devices. Here: the output folder is locked
+(``DIR/capture.lock``, :mod:`acquisition.run.lock`) and checked writable before anything moves; the bench is opened
 (a resumed run starts the simulator with ``--attempt N`` so its noise and faults continue their random streams);
 Ctrl-C and SIGTERM become a flag that the motion wait loops and the plan's checkpoints check, and the arms are
 then parked and torque switched off (a second signal aborts the parking; no signal ends in a traceback, and one
 that arrives during the final dark reading or the parking still gives the signal's exit status). A hardware
 fault or a communication failure stops the same way, without parking when an axis reports a fault; a full disk
-stops it with one line saying so. How a capture ended is a :class:`~acquisition.record.Stop`; the exit status
-is :func:`acquisition.record.exit_status`.
+stops it with one line saying so. How a capture ended is a :class:`~acquisition.run.record.Stop`; the exit status
+is :func:`acquisition.run.record.exit_status`.
 """
 
 from __future__ import annotations
@@ -247,7 +247,7 @@ class RunEngine:
 
     def run(self) -> CaptureResult:
         """Validate, lock the output folder, check it is writable, then capture. Raises PlanError / ConfigError
-        before any motion (:class:`~acquisition.lock.OutDirLocked` when another capture holds the folder); every
+        before any motion (:class:`~acquisition.run.lock.OutDirLocked` when another capture holds the folder); every
         later failure is returned as a result with ``status``, ``stop`` and ``exit_code`` after the arms were
         made safe."""
 
@@ -289,7 +289,7 @@ class RunEngine:
                     pass
 
     def _estimate(self, chk: Any, existing: Slice | None) -> dict[str, float]:
-        """The time model's estimate of this run (:func:`acquisition.dryrun.estimate`): the whole capture plan on a
+        """The time model's estimate of this run (:func:`acquisition.run.dryrun.estimate`): the whole capture plan on a
         dry-run bench, from the calibration (or the resumed slice's) to the final dark."""
         done = [] if existing is None else list(zip(existing.theta_i_deg, existing.theta_o_deg, strict=True))
         est = estimate(self.plan, self.bench.geometry, self.cfg.detector.integration_time_s, chk.measurable,

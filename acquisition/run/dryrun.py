@@ -118,7 +118,7 @@ class DryRunBench:
 
 def dry_run(plan_gen: Any, geometry: Geometry, integration_time_s: float, start: Point | None = None,
             result: CaptureResult | None = None) -> DryRunBench:
-    """Run any plan (a generator of :mod:`acquisition.messages`) on a :class:`DryRunBench` from ``start``
+    """Run any plan (a generator of :mod:`acquisition.plans.messages`) on a :class:`DryRunBench` from ``start``
     (default: park): a :class:`PlanError` for a move beyond the soft limits; the bench returned holds the moves and
     the modelled times (``motion_s``, ``settle_s``, ``read_s``, ``now()``). ``result``: the engine accounts the
     times there as in a capture (motion, settle and read of the points)."""

@@ -85,7 +85,7 @@ class CaptureResult:
     naive_motion_estimate_s: float = 0.0
     estimate_s: float = 0.0               # the time model's estimate of this run before refinement (bench s)
     estimate_refinement_s: float = 0.0    # its estimates of the refinement rounds, as they were planned
-    estimate: dict[str, float] = field(default_factory=dict)  # its parts (acquisition.dryrun.estimate)
+    estimate: dict[str, float] = field(default_factory=dict)  # its parts (acquisition.run.dryrun.estimate)
     dark_drift: list[float] | None = None
     adaptive_rounds: int = 0
     auto_ranged: int = 0                  # points of the capture (all runs) read at a shorter integration time

@@ -1,5 +1,5 @@
-"""The bench's motion-time model, in one place: the simulator's axes (``simulator.motion``) move by it and the
-planner's estimate (``acquisition.geometry``, ``acquisition.dryrun``) adds it up, so the two cannot disagree.
+"""The bench's motion-time model, in one place: the simulator's axes (``simulator.world.motion``) move by it and the
+planner's estimate (``acquisition.plans.geometry``, ``acquisition.run.dryrun``) adds it up, so the two cannot disagree.
 
 A move of an axis is a rest-to-rest trapezoidal profile between whole controller units (the goal is rounded as the
 drivers send it) at the profile's speed ``v`` and acceleration ``a`` (units/s, units/s^2; ``inf`` = unlimited, as

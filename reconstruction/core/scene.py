@@ -1,6 +1,6 @@
 """Scene files (``configs/scenes/*.toml``): what a capture or a reconstruction is for.
 
-One format, read by ``gonio-capture --scene`` (restricts the capture plan, :meth:`acquisition.plan.Plan.restrict`)
+One format, read by ``gonio-capture --scene`` (restricts the capture plan, :meth:`acquisition.plans.plan.Plan.restrict`)
 and by ``gonio-reconstruct --scene`` (model selection, :func:`reconstruction.methods.fit.reconstruct_fit`)::
 
     [scene]
@@ -77,7 +77,7 @@ class SceneError(ReconstructionError):
 #: theta_i and theta_o range (degrees) that the reconstruction assumes for a range a scene file does not give:
 #: what a fit is judged over (reconstruction.methods.fit, reconstruction.methods.crossval).
 RECONSTRUCTION_DEFAULT_RANGE_DEG = (0.0, 85.0)
-#: ... and that a capture plan assumes: the whole hemisphere (acquisition.plan.Plan.restrict). The two differ on
+#: ... and that a capture plan assumes: the whole hemisphere (acquisition.plans.plan.Plan.restrict). The two differ on
 #: purpose: a capture measures what it can reach; a fit is not asked to be judged at grazing angles.
 CAPTURE_DEFAULT_RANGE_DEG = (0.0, 89.999)
 

@@ -11,7 +11,7 @@ from dynamixel_sdk import PortHandler
 
 
 class SimPortHandler(PortHandler):
-    """PortHandler for ``sim://NAME/dynamixel`` URLs (see :mod:`simulator.protocol_sim`)."""
+    """PortHandler for ``sim://NAME/dynamixel`` URLs (see :mod:`simulator.ports.protocol_sim`)."""
 
     def setupPort(self, cflag_baud: int) -> bool:  # noqa: N802 - SDK naming
         if self.is_open:
