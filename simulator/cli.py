@@ -103,8 +103,8 @@ def build_parser() -> argparse.ArgumentParser:
         description="Run simulated captures (gonio-capture against gonio-sim serve, simulated time as fast as "
                     "possible) over a grid of outgoing step, number of incidence slices, repeats, uniform vs "
                     "adaptive plans and noise, for several materials, reconstruct each with every method, and "
-                    "write OUT/NAME.csv, OUT/NAME.md (table, Pareto fronts, recommendations per error budget) and "
-                    "OUT/NAME-pareto.png.",
+                    "write OUT/NAME.csv (every row), OUT/NAME-pareto.png and the NAME section of the study page "
+                    "OUT/study.md (Pareto fronts, recommendations per error budget; the rest of the page is kept).",
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="examples:\n  gonio-sim bench --quick\n  gonio-sim bench --workers 2\n"
                "  gonio-sim bench --scheduler tcp://10.0.0.5:8786   # run the cases on a Dask cluster\n"
@@ -114,9 +114,11 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--config", default="configs/simulated.toml",
                    help="base simulated bench file (default: configs/simulated.toml)")
     b.add_argument("--out", default="out/study",
-                   help="where the CSV, markdown and plot go (default: out/study, beside the captures; the "
+                   help="where the CSV, the study page and the plot go (default: out/study, beside the captures; the "
                         "committed results are regenerated with --out docs)")
-    b.add_argument("--name", default=None, help="file name stem (default: study-quick or study)")
+    b.add_argument("--name", default=None,
+                   help="the study's name: its CSV and plot file stem and its section of study.md (default: "
+                        "study-quick or study)")
     b.add_argument("--workdir", default="out/study", help="captures and per-case configs (default: out/study)")
     b.add_argument("--materials", default=None,
                    help="comma-separated subset of: diffuse, glossy-ggx, sharp-ggx, back-scatter, rough-oren-nayar, "
@@ -124,7 +126,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--merge", default=None, metavar="CSV",
                    help="keep the rows of an earlier study CSV for the materials this run does not capture (e.g. "
                         "rerun two materials of docs/study.csv: --materials sharp-ggx,mirror --merge docs/study.csv "
-                        "--out docs); the markdown says which rows are kept")
+                        "--out docs); the study page says which rows are kept")
     b.add_argument("--material-dir", default=None, metavar="DIR",
                    help="study the materials of DIR instead: every neural BRDF set NAME_fc1.npy ... NAME_b3.npy "
                         "(e.g. ../shared/realdata/nbrdf-merl) and every material TOML file; recommendations then "
@@ -190,7 +192,8 @@ def _bench(args: argparse.Namespace) -> int:
         return 2
     failed = sum(r.get("status") != "ok" for r in rows)
     print(f"gonio-sim bench: {len(cases)} captures, {len(rows)} results ({failed} failed) in "
-          f"{time.perf_counter() - t0:.0f} s; wrote {args.out}/{name}.csv, {name}.md, {name}-pareto.png")
+          f"{time.perf_counter() - t0:.0f} s; wrote {args.out}/{name}.csv, {name}-pareto.png and the {name} section of "
+          "study.md")
     return 1 if failed == len(rows) else 0
 
 

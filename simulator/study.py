@@ -10,8 +10,8 @@ case where they differ by more than 5 % is logged), the reconstruction time and 
 against the material's own table (``reconstruction.core.metrics.table_errors``).
 
 Cases run through a ``concurrent.futures`` executor (``reconstruction.executor``): local processes by default,
-a Dask cluster with ``--scheduler``. Results go to ``OUT/<name>.csv``, ``OUT/<name>.md`` (table, Pareto fronts
-and recommendations per error budget) and ``OUT/<name>-pareto.png``.
+a Dask cluster with ``--scheduler``. Results go to ``OUT/<name>.csv`` (every row), ``OUT/<name>-pareto.png`` and
+the ``<name>`` section of the one study page ``OUT/study.md`` (Pareto fronts and recommendations per error budget).
 """
 
 from __future__ import annotations
@@ -389,54 +389,80 @@ def write_csv(path: Path, rows: Sequence[dict[str, Any]]) -> None:
             w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
 
 
-def write_markdown(path: Path, rows: Sequence[dict[str, Any]], title: str, command: str,
-                   metric: str = "rel_rmse_cos", merged: str = "") -> None:
-    """The study's markdown: recommendations per budget, Pareto fronts, every row. ``merged``: a sentence saying
-    which rows come from an earlier run (``--merge``)."""
+#: The one study page in OUT: every study (``--name``) is a section of it, between markers that ``gonio-sim bench``
+#: rewrites; the text outside them (the page's introduction, how to rerun) is kept. Every row is in ``OUT/NAME.csv``.
+STUDY_PAGE = "study.md"
+#: The section titles of the studies committed in docs/ (another name is its own title).
+TITLES = {"study": "The full grid", "study-quick": "The quick grid", "study-real-materials": "The measured materials"}
+_INTRO = ["# Speed/accuracy study", "", "Figures on this page come from `gonio-sim bench` (each section names its "
+          "command). Capture time is simulated bench time (motion, settling, integration, dark "
+          "and white-reference readings); errors are against the material's own table: relative RMSE of f "
+          "cos(theta_i) cos(theta_o) over all valid cells, RMSE of its logarithm, relative error of the rendered "
+          "preview sphere, and the largest directional-albedo error over theta_i = 0..80 deg. Every row (capture x "
+          "method) is in the study's CSV; this page holds its recommendations, Pareto fronts and plot.", ""]
+
+
+def _markers(name: str) -> tuple[str, str]:
+    return (f"<!-- study {name}: written by gonio-sim bench, edits between these markers are lost -->",
+            f"<!-- end of study {name} -->")
+
+
+def study_section(text: str, name: str) -> str | None:
+    """The section of study ``name`` in the study page ``text`` (markers included), or None."""
+    begin, end = _markers(name)
+    i, j = text.find(begin), text.find(end)
+    return text[i:j + len(end)] if 0 <= i < j else None
+
+
+def _budget_cell(r: dict[str, Any] | None, ok: Sequence[dict[str, Any]], m: str, metric: str) -> str:
+    if r is None:
+        best = min((float(x.get(metric, math.inf)) for x in ok if x["material"] == m), default=math.inf)
+        return f"not reached (best {best:.1%})"
+    return f"{float(r['capture_time_s']):.1f} s: {r['method']}, {_setting(r)} ({float(r[metric]):.2%})"
+
+
+def section_lines(rows: Sequence[dict[str, Any]], name: str, command: str, metric: str = "rel_rmse_cos",
+                  merged: str = "") -> list[str]:
+    """The section of study ``name``: its command, counts, plot, recommendations per budget and Pareto fronts."""
     ok = _ok(rows)
     what = ("relative RMSE of f cos cos over the cells with both angles <= 80 deg (rmse80)" if metric == "rmse80"
             else "relative RMSE of f cos cos")
-    lines = [f"# {title}", "", f"Produced by `{command}`. Capture time is simulated bench time (motion, settling,",
-             "integration, dark and white-reference readings); errors are against the material's own table: relative",
-             "RMSE of f cos(theta_i) cos(theta_o) over all valid cells, RMSE of its logarithm, relative error of the",
-             "rendered preview sphere, and the largest directional-albedo error over theta_i = 0..80 deg.", ""]
-    if merged:
-        lines += [merged, ""]
     failed = [r for r in rows if r.get("status") != "ok"]
-    lines += [f"{len(rows)} rows ({len({_setting(r) + r['material'] for r in rows})} captures), {len(failed)} failed.",
-              ""]
-    lines += ["## Recommendations", "", f"The least capture time that reaches an error budget ({what}), per "
-              "material:", ""]
-    lines += ["| budget | material | capture time (s) | plan | method | error |", "|---|---|---|---|---|---|"]
-    for b in BUDGETS:
-        for m, r in recommend(rows, b, metric).items():
-            if r is None:
-                best = min((float(x.get(metric, math.inf)) for x in ok if x["material"] == m), default=math.inf)
-                lines.append(f"| {b:.0%} | {m} | - | not reached by any case (best {best:.1%}) | - | - |")
-            else:
-                lines.append(f"| {b:.0%} | {m} | {float(r['capture_time_s']):.1f} | {_setting(r)} | {r['method']} | "
-                             f"{float(r[metric]):.2%} |")
-    lines += ["", "## Pareto fronts (capture time vs error)", ""]
+    title = TITLES.get(name, name)
+    lines = [_markers(name)[0], f"## {title} ({name})" if name in TITLES else f"## {name}", "",
+             f"Produced by `{command}`."]
+    if merged:
+        lines += [merged]
+    lines += [f"{len(rows)} rows ({len({_setting(r) + r['material'] for r in rows})} captures), {len(failed)} "
+              f"failed: [{name}.csv]({name}.csv).", "", f"![error against capture time, {title.lower()}]"
+              f"({name}-pareto.png)", "", "### Recommendations", "",
+              f"The least capture time that reaches an error budget ({what}), per material:", "",
+              "| material | " + " | ".join(f"budget {b:.0%}" for b in BUDGETS) + " |",
+              "|---" * (len(BUDGETS) + 1) + "|"]
+    recs = [recommend(rows, b, metric) for b in BUDGETS]
+    for m in sorted({r["material"] for r in rows}):
+        cells = [_budget_cell(rec[m], ok, m, metric) for rec in recs]
+        lines.append(f"| {m} | " + " | ".join(["the same" if k and c == cells[k - 1] else c
+                                                  for k, c in enumerate(cells)]) + " |")
+    lines += ["", "### Pareto fronts (capture time vs error)", ""]
     for m in sorted({r["material"] for r in ok}):
         front = pareto_front([r for r in ok if r["material"] == m])
         lines.append(f"- **{m}**: " + "; ".join(
             f"{float(r['capture_time_s']):.0f} s -> {float(r['rel_rmse_cos']):.2%} ({r['method']}, {_setting(r)})"
             for r in front))
-    lines += ["", "## All results", "",
-              "| material | step | slices | repeats | plan | noise | method | capture s | recon s | rel RMSE cos | "
-              "rmse80 | log RMSE | sphere err | albedo err |", "|" + "---|" * 14]
-    for r in sorted(rows, key=lambda r: (r["material"], float(r.get("capture_time_s") or 0), r["method"])):
-        if r.get("status") != "ok":
-            lines.append(f"| {r['material']} | {float(r['step_deg']):g} | {r['n_slices']} | {r['repeats']} | "
-                         f"{r['plan']} | {r['noise']} | {r['method']} | {r['status']}: {r['error'][:60]} |||||| ")
-            continue
-        lines.append(
-            f"| {r['material']} | {float(r['step_deg']):g} | {r['n_slices']} | {r['repeats']} | {r['plan']} | "
-            f"{r['noise']} | {r['method']} | {float(r['capture_time_s']):.1f} | {float(r['recon_time_s']):.2f} | "
-            f"{float(r['rel_rmse_cos']):.2%} | {float(r.get('rmse80', math.nan)):.2%} | "
-            f"{float(r['log_rmse']):.3f} | {float(r['sphere_rel_error']):.2%} | "
-            f"{float(r['albedo_max_abs_error']):.3f} |")
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return lines + [_markers(name)[1]]
+
+
+def write_markdown(path: Path, rows: Sequence[dict[str, Any]], name: str, command: str,
+                   metric: str = "rel_rmse_cos", merged: str = "") -> None:
+    """Write the section of study ``name`` into the study page at ``path`` (:data:`STUDY_PAGE`): the section is
+    replaced where it is, or added at the end; the rest of the page is kept (a new page gets an introduction).
+    ``merged``: a sentence saying which rows come from an earlier run (``--merge``)."""
+    text = path.read_text(encoding="utf-8") if path.exists() else "\n".join(_INTRO) + "\n"
+    new = "\n".join(section_lines(rows, name, command, metric, merged))
+    old = study_section(text, name)
+    text = text.replace(old, new) if old is not None else text.rstrip("\n") + "\n\n" + new + "\n"
+    path.write_text(text, encoding="utf-8")
 
 
 def draw_front(ax: Any, front: Sequence[dict[str, Any]]) -> Any:
@@ -525,7 +551,8 @@ def run_study(cases: Sequence[Case], base_config: str | Path, workdir: str | Pat
               progress: bool = True, catalogue: dict[str, dict[str, Any]] | None = None,
               metric: str = "rel_rmse_cos", merge: Sequence[dict[str, Any]] = (), merge_source: str = ""
               ) -> list[dict[str, Any]]:
-    """Run ``cases`` through the executor, write ``out_dir/name.{csv,md}`` and ``name-pareto.png``; return rows.
+    """Run ``cases`` through the executor, write ``out_dir/name.csv``, ``name-pareto.png`` and the ``name`` section
+    of ``out_dir/study.md``; return rows.
     ``catalogue``: material dicts by name (default :data:`MATERIALS`); ``metric``: what the recommendations use;
     ``merge``: rows of an earlier run (:func:`read_rows` of ``merge_source``) kept for the materials this run
     does not capture (the markdown says which)."""
@@ -560,7 +587,7 @@ def run_study(cases: Sequence[Case], base_config: str | Path, workdir: str | Pat
                              METHODS.index(r["method"])))
     rows, note = merge_rows(rows, merge, {c.material for c in cases}, merge_source)
     write_csv(out_dir / f"{name}.csv", rows)
-    write_markdown(out_dir / f"{name}.md", rows, f"Speed/accuracy study ({name})", command, metric, note)
+    write_markdown(out_dir / STUDY_PAGE, rows, name, command, metric, note)
     write_plot(out_dir / f"{name}-pareto.png", rows, f"Error against capture time ({name})")
     os.sync()
     return rows

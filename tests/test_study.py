@@ -84,8 +84,10 @@ def test_a_real_simulated_capture_is_reconstructed_by_every_method(tiny_study):
     with open(d / "docs" / "tiny.csv", newline="") as fh:
         table = list(csv.DictReader(fh))
     assert len(table) == len(study.METHODS) and table[0]["material"] == "diffuse"
-    md = (d / "docs" / "tiny.md").read_text()
-    assert "## Recommendations" in md and "| 5% | diffuse |" in md
+    md = (d / "docs" / "study.md").read_text()
+    section = study.study_section(md, "tiny")
+    assert section is not None and "### Recommendations" in section and "| budget 2% | budget 5% |" in section
+    assert "| diffuse | " in section and "[tiny.csv](tiny.csv)" in section and "(tiny-pareto.png)" in section
     png = (d / "docs" / "tiny-pareto.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 5000
 
@@ -199,9 +201,9 @@ def test_merge_keeps_an_earlier_runs_rows_for_the_materials_not_rerun(tmp_path, 
     rows = study.run_study([], "configs/simulated.toml", tmp_path / "w", tmp_path / "out", "s", "test", workers=1,
                            progress=False, merge=kept, merge_source=str(old))
     assert len(rows) == 2  # nothing ran: every earlier row kept
-    md = (tmp_path / "out" / "s.md").read_text()
+    md = (tmp_path / "out" / "study.md").read_text()
     assert f"Rows of diffuse, mirror (2 rows, methods fit) are taken from {old} (--merge)." in md
-    assert "| 5% | diffuse | 7.0 |" in md
+    assert "| diffuse | 7.0 s: fit, step 5 deg, 1 slice(s), 1 repeat(s), uniform, low noise (1.00%) | the same |" in md
     assert [r["material"] for r in study.read_rows(tmp_path / "out" / "s.csv")] == ["diffuse", "mirror"]
     bad = tmp_path / "bad.csv"
     bad.write_text("a,b\n1,2\n")
@@ -224,7 +226,7 @@ def test_the_committed_quick_study_has_the_shape_its_command_makes():
     from simulator.study import METHODS, grid
 
     docs = Path(__file__).resolve().parents[1] / "docs"
-    md = (docs / "study-quick.md").read_text(encoding="utf-8")
+    md = study.study_section((docs / "study.md").read_text(encoding="utf-8"), "study-quick")
     command = re.search(r"Produced by `([^`]+)`", md).group(1)
     assert command.split()[:3] == ["gonio-sim", "bench", "--quick"]
     materials = re.search(r"--materials (\S+)", command)
@@ -238,3 +240,50 @@ def test_the_committed_quick_study_has_the_shape_its_command_makes():
     assert captured == wanted
     assert len(rows) == len(cases) * len(METHODS)
     assert f"{len(rows)} rows ({len(cases)} captures)" in md
+
+
+def test_a_study_rewrites_its_own_section_of_the_one_study_page_and_keeps_the_rest(tmp_path):
+    """Issue 51: one study page; a run writes its own section (between markers) and keeps the page's other text and
+    the other studies' sections; every row stays in the CSV, not on the page."""
+    rows = [{**row(10, 0.5, material="diffuse"), "step_deg": 5}, row(20, 0.01, material="diffuse"),
+            {**row(30, 0.2, "auto", "mirror"), "status": "method failed"}]
+    page = tmp_path / study.STUDY_PAGE
+    study.write_markdown(page, rows, "a", "gonio-sim bench --quick")
+    assert page.read_text().startswith("# Speed/accuracy study\n")  # a new page gets its introduction
+    page.write_text(page.read_text().replace("# Speed/accuracy study", "# My study\n\nMy own words."))
+    study.write_markdown(page, rows[:1], "b", "gonio-sim bench --name b")
+    study.write_markdown(page, rows, "a", "gonio-sim bench --quick --materials diffuse")  # a again: replaced
+    text = page.read_text()
+    assert text.startswith("# My study\n\nMy own words.") and text.count("\n## a\n") == 1
+    a, b = study.study_section(text, "a"), study.study_section(text, "b")
+    assert text.index(a) < text.index(b)  # rewritten where it was
+    assert "Produced by `gonio-sim bench --quick --materials diffuse`." in a
+    assert "3 rows (3 captures), 1 failed: [a.csv](a.csv)." in a
+    assert "| diffuse | 20.0 s: fit, step 1 deg, 1 slice(s), 1 repeat(s), uniform, low noise (1.00%) | the same |" in a
+    assert "| mirror | not reached (best inf%) |" in a  # its only row failed
+    assert "0.50%" not in b and "50.00%" in b  # b has its own rows
+    assert "| 20 |" not in text and "All results" not in text  # no row-by-row table
+
+
+def test_the_committed_study_page_is_short_and_is_what_its_csvs_make():
+    """Issue 51: docs/study.md was 4,273 lines, mostly a table that repeated docs/study.csv. Now one page under
+    500 lines whose three sections are exactly what `gonio-sim bench` writes from the committed CSVs (each
+    section's command and --merge sentence read from the section itself), with each study's plot beside it."""
+    import re
+    from pathlib import Path
+
+    docs = Path(__file__).resolve().parents[1] / "docs"
+    text = (docs / "study.md").read_text(encoding="utf-8")
+    assert len(text.splitlines()) < 500
+    assert not (docs / "study-quick.md").exists() and not (docs / "study-real-materials.md").exists()
+    for name in ("study", "study-quick", "study-real-materials"):
+        section = study.study_section(text, name)
+        assert section is not None, name
+        command = re.search(r"Produced by `([^`]+)`", section).group(1)
+        merged = re.search(r"^(Rows of .*\(--merge\).*)$", section, re.M)
+        metric = "rmse80" if "--material-dir" in command else "rel_rmse_cos"
+        rows = study.read_rows(docs / f"{name}.csv")
+        want = study.section_lines(rows, name, command, metric, merged.group(1) if merged else "")
+        assert section == "\n".join(want), name
+        png = (docs / f"{name}-pareto.png").read_bytes()
+        assert png[:8] == b"\x89PNG\r\n\x1a\n" and f"({name}-pareto.png)" in section

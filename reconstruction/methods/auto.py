@@ -82,7 +82,7 @@ CV_MAX_INCIDENCES = 24
 #: ``instrument``) auto prefers ``microfacet`` instead, by this margin: every reading, the held-out ones included, is
 #: a cone average, so cross-validation cannot show that an interpolating method carries the cone's blur of the peak
 #: into the table, while microfacet fits its lobes as the cone reads them. Chosen on the physical-instrument study
-#: of the 48 MERL materials (docs/study-real-materials.md: 1 deg cone, one slice at 40 deg; auto's median rmse80
+#: of the 48 MERL materials (docs/study.md, measured materials: 1 deg cone, one slice at 40 deg; auto's median rmse80
 #: 57.5 % with bivariate preferred, 45.9 % with this, microfacet alone 43.3 %), so tuned to them.
 SINGLE_SLICE_APERTURE_PREFERRED = ("microfacet",)
 SINGLE_SLICE_APERTURE_MARGIN = 3.0
