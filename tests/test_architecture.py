@@ -1,5 +1,6 @@
-"""The house rules: import contracts (import-linter), no import cycles within a package, module size, and the doctests
-being collected."""
+"""The house rules: import contracts (import-linter), no import cycles within a package, size by concern (every
+module says its concern, no function over 120 lines, a module ceiling as a smoke alarm), and the doctests being
+collected."""
 
 from __future__ import annotations
 
@@ -11,8 +12,10 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 PACKAGES = ("acquisition", "reconstruction", "simulator")
-#: No module of the three packages may grow beyond this many lines.
-MAX_MODULE_LINES = 600
+#: The smoke alarm of size by concern (issue 51): a module holds one concern, and one concern fits well under this
+#: many lines; a module that reaches it holds two, to be split where they part (not to meet a count). The limit
+#: once was 600 and shaped the code instead of its concerns ("back to 600 lines").
+MAX_MODULE_LINES = 1000
 
 
 def test_import_contracts_hold():
@@ -25,10 +28,20 @@ def test_import_contracts_hold():
     assert f"{n} kept, 0 broken" in r.stdout, r.stdout
 
 
-def test_no_module_is_longer_than_600_lines():
+def test_no_module_holds_more_than_one_concern_by_its_size():
     long = {str(p.relative_to(REPO)): n for pkg in PACKAGES for p in sorted((REPO / pkg).rglob("*.py"))
             if (n := len(p.read_text(encoding="utf-8").splitlines())) > MAX_MODULE_LINES}
-    assert long == {}, f"modules over {MAX_MODULE_LINES} lines: {long}"
+    assert long == {}, f"modules over {MAX_MODULE_LINES} lines (two concerns? split where they part): {long}"
+
+
+def test_every_module_says_its_concern():
+    """Size by concern: each module of the three packages opens with a docstring saying what it holds, so a
+    reader (and a reviewer splitting a module) knows its one concern without reading the code."""
+    import ast
+
+    silent = [str(p.relative_to(REPO)) for pkg in PACKAGES for p in sorted((REPO / pkg).rglob("*.py"))
+              if not (ast.get_docstring(ast.parse(p.read_text(encoding="utf-8"))) or "").strip()]
+    assert silent == [], f"modules without a docstring saying their concern: {silent}"
 
 
 def test_no_unit_test_bounds_the_wall_clock():
