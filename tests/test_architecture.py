@@ -198,8 +198,7 @@ def test_the_cycle_finder_finds_a_cycle(tmp_path, monkeypatch):
 #: then pipeline and the command line. formats.exports writes a reconstruction's outputs (a method's parameters, a
 #: preview), so it sits with the report.
 LAYERS = [
-    ("base", ("core", "formats", "bench", "schema", "base", "atomic", "cache", "cliutil", "synthetic", "executor",
-              "moved")),
+    ("base", ("core", "formats", "bench", "schema", "base", "atomic", "cache", "cliutil", "synthetic", "executor")),
     ("methods", ("methods",)),
     ("assess and report", ("assess", "report", "principled", "formats.exports")),
     ("pipeline and cli", ("pipeline", "job", "cli")),
