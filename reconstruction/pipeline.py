@@ -189,6 +189,7 @@ def _read_inputs(job: Job, steps: _Steps) -> tuple[Any, Any]:
     """The inputs (``inputs.Loaded``: the slice, files, quantities, notes) and the scene (or None)."""
     from reconstruction.core.scene import load_scene
     from reconstruction.formats import brdffile, inputs, zemax
+    from reconstruction.schema.files import UserFileError, check_user_file
 
     t0 = steps.begin("reading inputs")
     loaded = zemax.load_inputs(list(job.inputs), job.quantity, job.columns) or brdffile.load_inputs(
@@ -198,8 +199,11 @@ def _read_inputs(job: Job, steps: _Steps) -> tuple[Any, Any]:
     scene = None
     if job.scene:
         sp = Path(job.scene)
-        if sp.exists() and not sp.is_file():
-            raise ReconstructionError(f"--scene {sp}: not a regular file, expected a scene file (TOML)")
+        try:
+            check_user_file(sp, "a scene file (TOML)")
+        except UserFileError as e:
+            if e.kind in ("directory", "special"):  # a device or a pipe would block the read
+                raise ReconstructionError(f"--scene {sp}: not a regular file, expected a scene file (TOML)") from None
         try:
             scene = load_scene(sp)
         except RecursionError:

@@ -23,6 +23,7 @@ else:  # pragma: no cover - exercised on 3.10 only
 from reconstruction.schema import SchemaError, Table
 from reconstruction.schema import describe as _describe
 from reconstruction.schema.bench import AXIS_LETTERS, DXL_MODELS, AxisTable, BenchTable, DetectorTable
+from reconstruction.schema.files import UserFileError, read_user_text
 from reconstruction.schema.simulator import FaultsSection, SimulatorSection, SpectrometerSection
 
 #: Dynamixel model names -> model numbers (Protocol 2.0 ping reply).
@@ -260,21 +261,13 @@ def load_config(path: str | Path, **overrides: Any) -> BenchConfig:
     Raises :class:`ConfigError` (a ValueError) naming the file for a missing, unreadable or malformed file."""
     path = Path(path)
     try:
-        if path.exists() and not path.is_dir() and not path.is_file():
-            raise ConfigError(f"{path}: not a regular file (a device or a pipe), expected a TOML bench file")
-        with open(path, "rb") as fh:
-            data = fh.read(MAX_CONFIG_BYTES + 1)
-        if len(data) > MAX_CONFIG_BYTES:
-            raise ConfigError(f"{path}: larger than {MAX_CONFIG_BYTES} bytes; not a bench file")
-        raw = tomllib.loads(data.decode("utf-8-sig"))
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise ConfigError(f"{path}: is a directory, expected a TOML bench file") from None
-    except OSError as e:
-        raise ConfigError(f"{path}: cannot read: {e.strerror or e}") from None
-    except UnicodeDecodeError as e:
-        raise ConfigError(f"{path}: not a UTF-8 text file ({e.reason} at byte {e.start})") from None
+        raw = tomllib.loads(read_user_text(path, "a TOML bench file", MAX_CONFIG_BYTES))
+    except UserFileError as e:
+        raise ConfigError({"too_big": f"{path}: larger than {MAX_CONFIG_BYTES} bytes; not a bench file",
+                           "grew": f"{path}: larger than {MAX_CONFIG_BYTES} bytes; not a bench file",
+                           "unreadable": f"{path}: cannot read: {e.why}",
+                           "not_utf8": f"{path}: not a UTF-8 text file ({e.why} at byte {e.byte})"}.get(e.kind, str(e))
+                          ) from None
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{path}: invalid TOML: {e}") from None
     except RecursionError:

@@ -39,6 +39,7 @@ from acquisition.plans.planconfig import (
 from acquisition.plans.refine import refine_points
 from reconstruction.core.scene import CAPTURE_DEFAULT_RANGE_DEG, Scene, SceneError
 from reconstruction.core.scene import load_scene as _load_scene
+from reconstruction.schema.files import UserFileError, check_user_file
 
 __all__ = ["Point", "Geometry", "Plan", "PlanCheck", "Reason", "Why", "Scene", "load_scene", "order_points",
            "path_time", "refine_points", "point_key", "TWO_OPT_MAX_EVALUATIONS"]
@@ -54,8 +55,11 @@ def load_scene(path: str | Path) -> Scene:
     """Read and validate a scene file (:func:`reconstruction.core.scene.load_scene`); errors are :class:`ConfigError`
     (the message names the file and the key), as for bench configs."""
     p = Path(path)
-    if p.exists() and not p.is_file():  # a directory, a device or a pipe (which would block the read)
-        raise ConfigError(f"{p}: not a regular file, expected a scene file (TOML)")
+    try:
+        check_user_file(p, "a scene file (TOML)")
+    except UserFileError as e:
+        if e.kind in ("directory", "special"):  # a device or a pipe would block the read
+            raise ConfigError(f"{p}: not a regular file, expected a scene file (TOML)") from None
     try:
         return _load_scene(path)
     except SceneError as e:

@@ -56,6 +56,7 @@ from reconstruction.formats.slicefile import (
     read_slice,
     shorten,
 )
+from reconstruction.schema.files import UserFileError, read_user_bytes
 
 Array = NDArray[np.float64]
 
@@ -388,25 +389,10 @@ def _check_duplicates(path: Path, ti: Array, to: Array, line_of: NDArray[np.int_
 
 
 def _is_slice_file(path: Path) -> bool:
-    import stat
-
     try:
-        mode = path.stat().st_mode
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such file") from None
-    except OSError as e:
-        raise InputError(f"{path}: cannot read ({e.strerror})") from None
-    if not stat.S_ISREG(mode) and not stat.S_ISDIR(mode):  # a pipe would block the read
-        raise InputError(f"{path}: not a regular file (a device or a pipe), expected a slice file or a CSV table")
-    try:
-        with open(path, "rb") as fh:
-            first = fh.read(len(MAGIC) + 16)
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise InputError(f"{path}: is a directory, expected a slice file or a CSV table") from None
-    except OSError as e:
-        raise InputError(f"{path}: cannot read ({e.strerror})") from None
+        first = read_user_bytes(path, "a slice file or a CSV table", read=len(MAGIC) + 16)
+    except UserFileError as e:
+        raise InputError(str(e)) from None
     text = first.decode("utf-8", "replace").lstrip("\ufeff")  # a byte-order mark; any line ending
     return text.replace("\r", "\n").split("\n")[0].strip() == MAGIC
 

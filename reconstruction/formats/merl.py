@@ -47,6 +47,7 @@ from reconstruction.core.merltable import (  # noqa: F401  (the table's names, r
     tabulate,
     tabulate_reciprocal,
 )
+from reconstruction.schema.files import UserFileError, read_user_bytes
 
 Array = NDArray[np.float64]
 
@@ -135,16 +136,9 @@ def read(path: str | Path, max_value: float | None = MAX_CELL_VALUE) -> Array:
     """
     path = Path(path)
     try:
-        if path.exists() and not path.is_file() and not path.is_dir():
-            raise MerlError(f"{path}: not a regular file (a device or a pipe), expected a .binary file")
-        with open(path, "rb") as fh:
-            data = fh.read(FILE_SIZE + 1)
-    except FileNotFoundError:
-        raise MerlError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise MerlError(f"{path}: is a directory, expected a .binary file") from None
-    except OSError as e:
-        raise MerlError(f"{path}: cannot read ({e.strerror or e})") from None
+        data = read_user_bytes(path, "a .binary file", read=FILE_SIZE + 1)  # its size is judged below
+    except UserFileError as e:
+        raise MerlError(str(e)) from None
     if len(data) < 12:
         raise MerlError(f"{path}: {len(data)} bytes, too short for the 12-byte header")
     dims = np.frombuffer(data[:12], dtype="<i4")

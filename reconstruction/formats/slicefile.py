@@ -40,6 +40,7 @@ from reconstruction.core.slicedata import (  # noqa: F401  (the slice's names, r
     to_brdf,
     wavelengths_of,
 )
+from reconstruction.schema.files import UserFileError, read_user_text
 from reconstruction.schema.slice_meta import FORMAT_VERSION, QUANTITIES, check_instrument  # the metadata's schema
 
 Array = NDArray[np.float64]
@@ -81,34 +82,15 @@ def read_input_text(path: str | Path, error: type[ValueError] = ValueError, what
     Raises ``error`` naming the file for: no such file, a directory or other non-regular file, an unreadable
     file, a file above :data:`MAX_INPUT_BYTES`, text that is not UTF-8.
     """
-    path = Path(path)
     try:
-        st = path.stat()
-    except FileNotFoundError:
-        raise error(f"{path}: no such file") from None
-    except OSError as e:
-        raise error(f"{path}: cannot read ({e.strerror or e})") from None
-    import stat
-
-    if stat.S_ISDIR(st.st_mode):
-        raise error(f"{path}: is a directory, expected {what}")
-    if not stat.S_ISREG(st.st_mode):
-        raise error(f"{path}: not a regular file (a device or a pipe), expected {what}")
-    if st.st_size > MAX_INPUT_BYTES:
-        raise error(f"{path}: {st.st_size / 1e6:.0f} MB is larger than the {MAX_INPUT_BYTES / 1e6:.0f} MB an "
-                    f"input may have; split it (e.g. one file per incidence)")
-    try:
-        with open(path, "rb") as fh:
-            data = fh.read(MAX_INPUT_BYTES + 1)
-    except OSError as e:
-        raise error(f"{path}: cannot read ({e.strerror or e})") from None
-    if len(data) > MAX_INPUT_BYTES:  # grew since the stat
-        raise error(f"{path}: larger than the {MAX_INPUT_BYTES / 1e6:.0f} MB an input may have")
-    try:
-        return data.decode("utf-8-sig")
-    except UnicodeDecodeError as e:
-        line = data.count(b"\n", 0, e.start) + 1
-        raise error(f"{path}:{line}: not a UTF-8 text file ({e.reason} at byte {e.start})") from None
+        return read_user_text(path, what, MAX_INPUT_BYTES)
+    except UserFileError as e:
+        if e.kind == "too_big":
+            raise error(f"{e.path}: {e.size / 1e6:.0f} MB is larger than the {MAX_INPUT_BYTES / 1e6:.0f} MB an "
+                        f"input may have; split it (e.g. one file per incidence)") from None
+        if e.kind == "grew":  # since the stat
+            raise error(f"{e.path}: larger than the {MAX_INPUT_BYTES / 1e6:.0f} MB an input may have") from None
+        raise error(str(e)) from None
 
 
 def _normalise_newlines(text: str) -> str:
