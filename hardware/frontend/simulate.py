@@ -270,9 +270,10 @@ def print_figures(fig: dict) -> None:
           "  noise ADS1115  decades ATmega  decades ADS1115")
     for r in fig["ranges"]:
         print(f"{r['range']:>5}  {r['rf_ohm']:<6.0e}  {r['cf_farad']:<6.0e}  {r['phase_margin_deg']:>8.1f} deg"
-              f"  {r['crossover_hz'] / 1e3:>6.1f} kHz  {r['settle_gain_s'] * 1e3:>8.2f} ms  {r['settle_source_s'] * 1e3:>10.2f}"
-              f" ms  {r['noise_conversion_v'] * 1e6:>7.1f} uV  {r['noise_reading_v'] * 1e6:>9.1f} uV"
-              f"  {r['noise_ads1115_v'] * 1e6:>10.1f} uV  {r['decades_ATmega328P']:>14.2f}  {r['decades_ADS1115']:>15.2f}")
+              f"  {r['crossover_hz'] / 1e3:>6.1f} kHz  {r['settle_gain_s'] * 1e3:>8.2f} ms"
+              f"  {r['settle_source_s'] * 1e3:>10.2f} ms  {r['noise_conversion_v'] * 1e6:>7.1f} uV"
+              f"  {r['noise_reading_v'] * 1e6:>9.1f} uV  {r['noise_ads1115_v'] * 1e6:>10.1f} uV"
+              f"  {r['decades_ATmega328P']:>14.2f}  {r['decades_ADS1115']:>15.2f}")
     print(f"the firmware waits {fig['gain_settle_us']:.0f} us after a gain switch (GAIN_SETTLE_US)")
     for name, d in fig["dynamic_range"].items():
         print(f"dynamic range over the five ranges, {name}: {d['full_scale_a']:.3g} A full scale on range 0 / "
@@ -280,8 +281,9 @@ def print_figures(fig: dict) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], epilog="examples: python "
-                                 "hardware/frontend/simulate.py --table; python hardware/frontend/simulate.py --figures",
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 epilog="examples: python hardware/frontend/simulate.py --table; "
+                                        "python hardware/frontend/simulate.py --figures",
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--table", action="store_true", help="write the transfer table (JSON) the simulator reads")
     ap.add_argument("--out", type=Path, default=TABLE, help=f"where --table writes (default {TABLE.relative_to(REPO)})")

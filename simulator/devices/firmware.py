@@ -30,7 +30,8 @@ from pathlib import Path
 log = logging.getLogger("simulator.firmware")
 
 __all__ = ["FIRMWARE_DIR", "HARNESS_SOURCE", "DEBIAN_PACKAGES", "toolchain_problem", "build_firmware",
-           "build_harness", "millivolts", "SyncEvent", "EmulatedBoard", "FirmwareError", "PhysicsFeed"]
+           "build_harness", "millivolts", "SyncEvent", "EmulatedBoard", "FirmwareError", "PhysicsFeed",
+           "use_circuit"]
 
 REPO = Path(__file__).resolve().parents[2]
 FIRMWARE_DIR = REPO / "firmware" / "detector"
@@ -308,9 +309,11 @@ class PhysicsFeed:
 
     A reading is computed as gonio-sim's own controller does (:meth:`SerialController._read_common`): at its first
     repeat, all ``n`` repeats at once with the arms at the middle of each repeat, so the noise is drawn in the same
-    order and an all-Python capture with the same seed reads the same counts. Repeat k is then fed as
-    ``counts / nconv`` per conversion (the firmware's sum reads the simulator's count, up to the ADC's
-    quantisation); a repeat the physics clips is fed beyond full scale, so the board reports it saturated.
+    order and an all-Python capture with the same seed (and ``[simulator].frontend = "netlist"``) reads the same
+    counts. The physics reads through the amplifier's circuit (:func:`use_circuit`): repeat k is fed as
+    ``counts / nconv`` per conversion, the circuit's output voltage on the ADC input (the firmware's sum reads the
+    simulator's count, up to the ADC's quantisation), clipped where the op-amp clips; a repeat a fault saturates
+    (``saturate_rate``) is fed beyond full scale.
 
     All the reading's values go to the board at its first repeat (one round trip a reading, not one a repeat).
 
@@ -415,12 +418,25 @@ def start_firmware_detector(bench, elf: Path, build_dir: Path | None = None, dit
         if want and tuple(sorted(gains)) != tuple(sorted(want)):
             raise FirmwareError(f"the firmware's gains {','.join(f'{g:g}' for g in gains)} are not [detector].gains "
                                 f"{','.join(f'{g:g}' for g in want)} (build it with make GAINS=...)")
+        use_circuit(bench.physics)
         feed = PhysicsFeed(bench.physics, bench.clock, bench.arm_angles, bench.lock, gains)
         feed.attach(board)
     except BaseException:
         board.close()
         raise
     return board, feed
+
+
+def use_circuit(physics) -> None:
+    """Make ``physics`` read through the amplifier's circuit (:mod:`simulator.world.frontend`: the transfer table
+    ngspice made from hardware/frontend/frontend.cir) whatever ``[simulator].frontend`` says: the board's ADC input
+    is the circuit's output, clipped where the op-amp clips. The physics' own reading limit (``adc_bits``,
+    ``[detector].saturation``: the Python controller's ADC) is lifted: the board's 10-bit ADC clips for itself."""
+    from simulator.world.frontend import load_frontend
+
+    physics.frontend = load_frontend()
+    physics.detector.adc_bits = 62
+    physics.detector.saturation = float("inf")
 
 
 def default_build_dir() -> Path:
