@@ -265,11 +265,20 @@ def figures(c: Circuit, table: dict | None = None) -> dict:
     return {"ranges": rows, "dynamic_range": dr, "gain_settle_us": gain_settle_s() * 1e6}
 
 
+def _eng(v: float) -> str:
+    """10000 -> '10k', 1e-11 -> '10p'."""
+    for scale, prefix in ((1e6, "M"), (1e3, "k"), (1.0, ""), (1e-6, "u"), (1e-9, "n"), (1e-12, "p")):
+        if v >= scale * 0.999:
+            return f"{v / scale:g}{prefix}"
+    return f"{v:g}"
+
+
 def print_figures(fig: dict) -> None:
+    """The figures as docs/build-a-bench.md quotes them."""
     print("range  Rf      Cf      phase margin  crossover   settle gain  settle source  noise/conv  noise/reading"
           "  noise ADS1115  decades ATmega  decades ADS1115")
     for r in fig["ranges"]:
-        print(f"{r['range']:>5}  {r['rf_ohm']:<6.0e}  {r['cf_farad']:<6.0e}  {r['phase_margin_deg']:>8.1f} deg"
+        print(f"{r['range']:>5}  {_eng(r['rf_ohm']):<6}  {_eng(r['cf_farad']):<6}  {r['phase_margin_deg']:>8.1f} deg"
               f"  {r['crossover_hz'] / 1e3:>6.1f} kHz  {r['settle_gain_s'] * 1e3:>8.2f} ms"
               f"  {r['settle_source_s'] * 1e3:>10.2f} ms  {r['noise_conversion_v'] * 1e6:>7.1f} uV"
               f"  {r['noise_reading_v'] * 1e6:>9.1f} uV  {r['noise_ads1115_v'] * 1e6:>10.1f} uV"
