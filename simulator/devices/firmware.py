@@ -391,10 +391,11 @@ def board_gains(port: str, timeout_s: float = 5.0) -> tuple[float, ...]:
 
 
 def start_firmware_detector(bench, elf: Path, build_dir: Path | None = None, dither_lsb: float = 0.5,
-                            seed: int = 0) -> tuple[EmulatedBoard, PhysicsFeed]:
+                            seed: int = 0, frontend_table: Path | None = None) -> tuple[EmulatedBoard, PhysicsFeed]:
     """Run the firmware ``elf`` as the detector of ``bench`` (a :class:`~simulator.bench.VirtualBench` on a
     Dynamixel bench in fast time): build the harness (into ``build_dir``, default :func:`default_build_dir`), start
-    the board, check its gains against ``[detector].gains`` and feed it from the bench's physics. Raises
+    the board, check its gains against ``[detector].gains`` and feed it from the bench's physics through the
+    amplifier's circuit (``frontend_table``: another circuit's transfer table; default the committed one). Raises
     :class:`FirmwareError` (a one-line reason) or ValueError for a bench it cannot serve."""
     cfg = bench.cfg
     elf = Path(elf)
@@ -418,7 +419,7 @@ def start_firmware_detector(bench, elf: Path, build_dir: Path | None = None, dit
         if want and tuple(sorted(gains)) != tuple(sorted(want)):
             raise FirmwareError(f"the firmware's gains {','.join(f'{g:g}' for g in gains)} are not [detector].gains "
                                 f"{','.join(f'{g:g}' for g in want)} (build it with make GAINS=...)")
-        use_circuit(bench.physics)
+        use_circuit(bench.physics, frontend_table)
         feed = PhysicsFeed(bench.physics, bench.clock, bench.arm_angles, bench.lock, gains)
         feed.attach(board)
     except BaseException:
@@ -427,14 +428,14 @@ def start_firmware_detector(bench, elf: Path, build_dir: Path | None = None, dit
     return board, feed
 
 
-def use_circuit(physics) -> None:
+def use_circuit(physics, table: Path | None = None) -> None:
     """Make ``physics`` read through the amplifier's circuit (:mod:`simulator.world.frontend`: the transfer table
     ngspice made from hardware/frontend/frontend.cir) whatever ``[simulator].frontend`` says: the board's ADC input
     is the circuit's output, clipped where the op-amp clips. The physics' own reading limit (``adc_bits``,
     ``[detector].saturation``: the Python controller's ADC) is lifted: the board's 10-bit ADC clips for itself."""
     from simulator.world.frontend import load_frontend
 
-    physics.frontend = load_frontend()
+    physics.frontend = load_frontend(str(table) if table else None)
     physics.detector.adc_bits = 62
     physics.detector.saturation = float("inf")
 
