@@ -169,3 +169,11 @@ def test_committed_transfer_table_is_the_netlists(circuit):
         assert np.allclose(a["v_out"], b["v_out"], atol=1e-4)
         for key in ("settle_gain_s", "settle_source_s"):
             assert a[key] == pytest.approx(b[key], rel=0.05)
+
+
+def test_the_guides_figures_are_the_commands(circuit, capsys):
+    """docs/build-a-bench.md quotes `simulate.py --figures`: every line it prints is in the guide as printed."""
+    sim.print_figures(sim.figures(circuit))
+    guide = (REPO / "docs" / "build-a-bench.md").read_text()
+    missing = [ln for ln in capsys.readouterr().out.splitlines() if ln.strip() and ln not in guide]
+    assert missing == [], "run python hardware/frontend/simulate.py --figures and update the guide: " + str(missing)
