@@ -83,3 +83,36 @@ def test_physics_through_the_circuit_reads_what_the_ideal_formula_reads_above_it
     light_c = circ.expected_reading(ti, to) - dark_c
     assert np.all(light_i > 500)
     assert np.allclose(light_c, light_i, rtol=0.015), (light_c / light_i)
+
+
+class PinsOnly:
+    """Stands in for the emulated board (simulator.devices.firmware.EmulatedBoard) where the feed looks: its pin
+    history (time s, multiplexer channel, source pin) and its sample changer pin."""
+
+    reference = False
+
+    def __init__(self, history):
+        self.pin_history = history
+
+
+def test_the_board_reads_short_of_the_light_while_the_amplifier_settles_after_a_gain_switch(config_dict):
+    """The emulated board's feed (PhysicsFeed): a reading that starts 50 us after a switch from range 1 to range 2
+    reads between the two ranges' outputs in its first repeats and the settled value once the table's settling
+    time has passed; one that starts after the firmware's wait reads settled."""
+    from simulator.bench import VirtualBench
+    from simulator.devices import firmware as fw
+
+    noiseless = {"read_noise": 0.0, "shot_noise": False, "input_noise": 0.0, "input_offset": 0.0,
+                 "frontend": "netlist"}
+    bench = VirtualBench(config_from_dict(config_dict({"simulator": noiseless})))
+    feed = fw.PhysicsFeed(bench.physics, bench.clock, lambda t: (30.0, 30.0), bench.lock, (1, 10, 100, 1000, 10000))
+    feed.board = PinsOnly([(0.5, 0, True), (1.0, 1, True), (2.0, 2, True)])
+    early = np.array(feed(fw.SyncEvent(True, 8, 2, 2, True, 2.0 + 50e-6)))
+    settled = np.array(feed(fw.SyncEvent(True, 2, 2, 2, True, 2.5)))
+    feed.board = PinsOnly([(1.0, 1, True), (2.0, 2, True)])
+    after_wait = np.array(feed(fw.SyncEvent(True, 2, 2, 2, True, 2.0 + 0.0025)))
+    before = np.array(feed(fw.SyncEvent(True, 1, 2, 1, True, 1.9)))  # the same light on range 1
+    assert settled[0] > 5 * before[0]  # ten times the light above the dark, once settled
+    assert before[0] < early[0] < 0.9 * settled[0] and np.all(np.diff(early) > 0)
+    assert early[-1] == pytest.approx(settled[0], rel=1e-3)  # 2 ms later: settled
+    assert after_wait[0] == pytest.approx(settled[0], rel=1e-3)

@@ -138,6 +138,8 @@ class EmulatedBoard:
         self.source = True
         self.reference = False
         self.events: list[str] = []
+        #: (t s, gsel, source) of the latest pin changes (the harness's PIN lines), newest last
+        self.pin_history: list[tuple[float, int, bool]] = []
         self.closed = False
         self.sync_error: BaseException | None = None
         self._cond = threading.Condition()
@@ -193,6 +195,7 @@ class EmulatedBoard:
                 if kind == "PIN":
                     self.gsel, self.source = int(f["gsel"]), f["source"] == "1"
                     self.reference = f.get("reference") == "1"
+                    self.pin_history = [*self.pin_history[-7:], (float(f.get("t", "nan")), self.gsel, self.source)]
                 elif kind == "TIME":
                     self._time_replies.append(float(f["t"]))
                 self.events.append(line.strip())
@@ -316,6 +319,8 @@ class PhysicsFeed:
     (``saturate_rate``) is fed beyond full scale.
 
     All the reading's values go to the board at its first repeat (one round trip a reading, not one a repeat).
+    A reading that starts while the amplifier still settles after the board's last gain or source switch reads
+    short of the settled value (:meth:`_settling`).
 
     Time: the board's clock (emulated cycles) and the simulator's (``clock``) move together: every jump of the
     simulator's fast time lets the board idle on to it (``UNTIL``), and every reading moves the simulator's clock
@@ -364,8 +369,40 @@ class PhysicsFeed:
         times = t0 + (np.arange(ev.n) + 0.5) * ev.t_int
         angles = np.array([self.arm_angles(float(t)) for t in times])
         codes, sat = self.physics.read(angles[:, 0], angles[:, 1], source_on=ev.source)
+        codes = self._settling(ev, codes, angles)
         self._queue = [(float(c), bool(s)) for c, s in zip(codes[:, 0], sat, strict=True)]
         self.readings += 1
+
+
+    def _settling(self, ev: SyncEvent, codes, angles):
+        """The repeats' counts with the amplifier still settling after the board's last gain or source switch
+        (its PIN line's time): each repeat short of the settled value by its mean residual
+        (:meth:`simulator.world.frontend.FrontEnd.residual`, the table's settling times) times the step from the
+        reading before the switch. A board that waits long enough after a switch reads the settled value."""
+        import numpy as np
+
+        fe, board = self.physics.frontend, self.board
+        hist = [h for h in getattr(board, "pin_history", []) if h[0] <= ev.t + 1e-9]
+        if fe is None or len(hist) < 2 or not np.isfinite(hist[-1][0]):
+            return codes
+        (t_sw, g_new, s_new), (_, g_old, s_old) = hist[-1], hist[-2]
+        det = self.physics.detector
+        k = self.physics.range_index()
+        settle = max(fe.settle_gain_s[k] if g_new != g_old else 0.0, fe.settle_source_s[k] if s_new != s_old else 0.0)
+        tau = settle / np.log(1000.0)
+        start = ev.t - t_sw
+        if settle <= 0.0 or start > 30.0 * tau:
+            return codes
+        a = start + np.arange(ev.n) * ev.t_int
+        mean_residual = tau / ev.t_int * (np.exp(-a / tau) - np.exp(-(a + ev.t_int) / tau))
+        new = self.physics.expected_reading(angles[:, 0], angles[:, 1], source_on=ev.source)
+        gain = det.gain
+        try:
+            det.gain = self.gains[g_old] if g_old < len(self.gains) else gain
+            old = self.physics.expected_reading(angles[:, 0], angles[:, 1], source_on=s_old)
+        finally:
+            det.gain = gain
+        return codes - mean_residual[:, None] * (new - old)
 
 
 def board_gains(port: str, timeout_s: float = 5.0) -> tuple[float, ...]:
