@@ -169,6 +169,7 @@ def test_committed_transfer_table_is_the_netlists(circuit):
         assert np.allclose(a["v_out"], b["v_out"], atol=1e-4)
         for key in ("settle_gain_s", "settle_source_s"):
             assert a[key] == pytest.approx(b[key], rel=0.05)
+    assert np.allclose(committed["monitor"]["v_out"], fresh["monitor"]["v_out"], atol=1e-4)
 
 
 def test_the_guides_figures_are_the_commands(circuit, capsys):

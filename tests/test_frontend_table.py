@@ -28,6 +28,13 @@ def test_the_committed_table_reads_light_on_every_range_as_vref_plus_iph_rf():
         assert np.all((top > 4.9) & (top < 5.0)) and abs(top[0] - top[1]) < 0.005  # clipped at the swing
 
 
+def test_the_monitor_amplifier_reads_its_photodiode_on_a_fixed_1_megohm():
+    imon = np.linspace(0.05e-6, 4.4e-6, 20)
+    v = FE.monitor_v(imon)
+    assert np.allclose(v - FE.monitor_v(0.0), imon * 1e6, rtol=0.01) and np.all(np.diff(v) > 0)
+    assert 4.9 < FE.monitor_v(1e-4) < 5.0  # clipped at the op-amp's swing
+
+
 def test_output_broadcasts_ranges_and_refuses_a_range_that_is_not_there():
     v = FE.adc_input_mv(np.full(5, 1e-7), np.arange(5))
     assert v.shape == (5,) and np.all(np.diff(v[:4]) > 0) and v[4] > 4900  # 10 uA on 100 M: clipped

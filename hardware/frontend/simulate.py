@@ -42,6 +42,8 @@ N_RANGES = 5
 V_ADC = 5.0
 #: fractions of a range's full scale (out from Vref to 5 V) at which the DC curve is sampled (beyond 1: clipping)
 CURVE = (0.0, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 1.0, 1.05, 1.2, 2.0, 10.0)
+#: the monitor photodiode's fixed feedback resistor (R8 of the netlist, node monitor)
+MONITOR_RF = 1e6
 #: the ATmega328P's reading: 80 conversions every 125 us (firmware/detector/src/config.h)
 SAMPLE_PERIOD_S = 125e-6
 NCONV = 80
@@ -110,11 +112,11 @@ class Circuit:
             return r.stdout, {name: np.loadtxt(tmp / name, ndmin=2) for name in read}
 
     # -- analyses ------------------------------------------------------------------------------------------------
-    def dc(self, points: list[tuple[int, float]], node: str = "out") -> np.ndarray:
-        """Operating points: v(node) in V for each (range index, photocurrent in A)."""
+    def dc(self, points: list[tuple[int, float]], node: str = "out", param: str = "iph") -> np.ndarray:
+        """Operating points: v(node) in V for each (range index, photocurrent ``param`` in A)."""
         lines = []
         for k, (g, i) in enumerate(points):
-            lines += [f"alterparam gain={g}", f"alterparam iph={i:.9g}", "reset", "op", f"echo PT {k}",
+            lines += [f"alterparam gain={g}", f"alterparam {param}={i:.9g}", "reset", "op", f"echo PT {k}",
                       f"print v({node})"]
         out, _ = self.run("\n".join(lines))
         vals = re.findall(rf"^PT (\d+)\s*\n\s*v\({node}\) = (\S+)", out, re.MULTILINE)
@@ -235,8 +237,13 @@ def make_table(c: Circuit) -> dict:
                        "v_max": float(np.max(v[g])), "v_min": float(np.min(v[g])),
                        "iph_a": [float(x) for x in iph[g]], "v_out": [round(float(x), 7) for x in v[g]],
                        "settle_gain_s": max(gs.values()), "settle_source_s": settle_src, "tau_s": tau_src})
+    mon_fs = (V_ADC - 0.03) / MONITOR_RF
+    imon = [f * mon_fs for f in CURVE]
+    vmon = c.dc([(0, i) for i in imon], node="monitor", param="imon")
+    monitor = {"node": "monitor", "rf_ohm": MONITOR_RF, "full_scale_a": mon_fs, "iph_a": imon,
+               "v_out": [round(float(x), 7) for x in vmon]}
     return {"made_by": "python hardware/frontend/simulate.py --table", "netlist_sha256": sources_digest(c.netlist),
-            "node": "out", "ranges": ranges}
+            "node": "out", "ranges": ranges, "monitor": monitor}
 
 
 def figures(c: Circuit, table: dict | None = None) -> dict:

@@ -46,6 +46,8 @@ class FrontEnd:
     settle_gain_s: tuple[float, ...]
     settle_source_s: tuple[float, ...]
     path: Path
+    #: the monitor photodiode's amplifier (node monitor, the ADC's channel 1): (photocurrents A, outputs V)
+    monitor: tuple[np.ndarray, np.ndarray] | None = None
 
     @classmethod
     def read(cls, path: Path = TABLE) -> FrontEnd:
@@ -57,6 +59,8 @@ class FrontEnd:
             v = tuple(np.asarray(r["v_out"], dtype=float) for r in ranges)
             sg = tuple(float(r["settle_gain_s"]) for r in ranges)
             ss = tuple(float(r["settle_source_s"]) for r in ranges)
+            mon = doc.get("monitor")
+            monitor = (np.asarray(mon["iph_a"], dtype=float), np.asarray(mon["v_out"], dtype=float)) if mon else None
         except OSError as e:
             raise ValueError(f"{path}: cannot read the amplifier's transfer table ({e.strerror}); make it with "
                              "python hardware/frontend/simulate.py --table") from None
@@ -65,7 +69,7 @@ class FrontEnd:
         bad = [a.size < 2 or a.size != b.size or np.any(np.diff(a) <= 0) for a, b in zip(iph, v, strict=True)]
         if not ranges or any(bad):
             raise ValueError(f"{path}: each range needs increasing photocurrents with one output each")
-        return cls(iph, v, sg, ss, Path(path))
+        return cls(iph, v, sg, ss, Path(path), monitor)
 
     @property
     def n_ranges(self) -> int:
@@ -89,6 +93,14 @@ class FrontEnd:
             vals[below] = np.maximum(y[0] + slope * (iph[m][below] - x[0]), self.v_floor(k))
             out[m] = vals
         return out
+
+    def monitor_v(self, imon_a) -> np.ndarray:
+        """The monitor amplifier's output (V, node ``monitor``, the ADC's channel 1) for the monitor photodiode's
+        photocurrents ``imon_a`` (A, any shape): its DC curve, flat beyond its last point (clipped)."""
+        if self.monitor is None:
+            raise ValueError(f"{self.path}: the table has no monitor amplifier (made before it was in the netlist)")
+        x, y = self.monitor
+        return np.interp(np.asarray(imon_a, dtype=float), x, y)
 
     def v_floor(self, gain_index: int) -> float:
         """The lowest output of range ``gain_index`` (V): its dark output less the op-amp's headroom to the
