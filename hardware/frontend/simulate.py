@@ -330,6 +330,9 @@ def main(argv: list[str] | None = None) -> int:
     except (SpiceError, ValueError) as e:
         print(f"simulate.py: {e}", file=sys.stderr)
         return 2
+    except OSError as e:  # a library missing beside the netlist, an unwritable --out
+        print(f"simulate.py: {e.filename}: {e.strerror}", file=sys.stderr)
+        return 2
     return 0
 
 

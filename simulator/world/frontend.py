@@ -118,12 +118,13 @@ class FrontEnd:
         tau = max(settle, 1e-9) / math.log(1000.0)
         return np.exp(-np.maximum(np.asarray(t_since_s, dtype=float), 0.0) / tau)
 
-    def reading_counts(self, signal_counts, gain_index, integration_time_s: float) -> np.ndarray:
+    def reading_counts(self, signal_counts, gain_index, integration_time_s: float, extra_a=0.0) -> np.ndarray:
         """A repeat's sum of conversions (counts, not quantised) for the physics' signal ``signal_counts`` (counts
         at gain 1 summed over the repeat, any shape) on range(s) ``gain_index``: photocurrent (AMPS_PER_COUNT per
-        count per conversion), the circuit's output, back to counts of the 10-bit ADC summed over the repeat."""
+        count per conversion) plus ``extra_a`` (A, broadcast: light that is not the source's, e.g. the room's),
+        the circuit's output, back to counts of the 10-bit ADC summed over the repeat."""
         nconv = max(integration_time_s / SAMPLE_PERIOD_S, 1e-9)
-        iph = np.asarray(signal_counts, dtype=float) / nconv * AMPS_PER_COUNT
+        iph = np.asarray(signal_counts, dtype=float) / nconv * AMPS_PER_COUNT + np.asarray(extra_a, dtype=float)
         return nconv * self.output_v(iph, gain_index) / ADC_LSB_V
 
 
