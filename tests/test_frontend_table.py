@@ -128,8 +128,8 @@ def test_the_board_reads_short_of_the_light_while_the_amplifier_settles_after_a_
 def test_extra_photocurrent_adds_before_the_circuit_and_clips_with_it():
     """Light that is not the source's (the room's) adds in amps before the amplifier: a reading it pushes past
     the op-amp's swing is clipped, not the sum of two readings."""
-    base = FE.reading_counts(np.array([1000.0]), 2, 0.01)
-    more = FE.reading_counts(np.array([1000.0]), 2, 0.01, extra_a=1e-7)
+    base = FE.reading_counts(np.array([10.0]), 2, 0.01)
+    more = FE.reading_counts(np.array([10.0]), 2, 0.01, extra_a=1e-7)
     assert more[0] - base[0] == pytest.approx(80 * 1e-7 * 1e6 / fe.ADC_LSB_V, rel=0.01)  # 0.1 V a conversion
-    top = FE.reading_counts(np.array([1000.0]), 2, 0.01, extra_a=1e-3)
+    top = FE.reading_counts(np.array([10.0]), 2, 0.01, extra_a=1e-3)
     assert top[0] == pytest.approx(80 * FE.output_v(1.0, 2) / fe.ADC_LSB_V)
