@@ -8,7 +8,6 @@ Skipped, with the reason, without avr-gcc and simavr, or without ngspice (the ol
 from __future__ import annotations
 
 import shutil
-import time
 from pathlib import Path
 
 import pytest
@@ -17,7 +16,8 @@ from hardware.frontend import simulate as sim
 from simulator.devices import firmware as fw
 
 PROBLEM = fw.toolchain_problem() or sim.ngspice_problem()
-pytestmark = pytest.mark.skipif(PROBLEM is not None, reason=f"board-through-the-circuit tests skipped: {PROBLEM}")
+pytestmark = [pytest.mark.skipif(PROBLEM is not None, reason=f"board-through-the-circuit tests skipped: {PROBLEM}"),
+              pytest.mark.slow]
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -47,30 +47,22 @@ def old_wiring_table(tmp_path_factory) -> Path:
 def light_per_range(built, table: Path | None) -> dict[int, float]:
     """READ minus DARK (counts, 8 repeats of 10 ms) on each of the firmware's gains, the arms where the simulated
     bench starts (theta_i 0, theta_o 45 deg on the blue plastic)."""
-    import serial
-
     from simulator.bench import VirtualBench
     from simulator.config import load_config
+    from tests.test_firmware import Port
 
     elf, build_dir = built
     bench = VirtualBench(load_config(REPO / "configs" / "simulated.toml"))
     board, _ = fw.start_firmware_detector(bench, elf, build_dir=build_dir, frontend_table=table)
     out = {}
+    port = Port(board.port)
     try:
-        with serial.Serial(board.port, 115200, timeout=0.05) as ser:
-            def ask(cmd: str) -> dict[str, str]:
-                ser.write(cmd.encode() + b"\n")
-                buf, t_end = b"", time.monotonic() + 20
-                while b"\nok\n" not in b"\n" + buf and b"error" not in buf and time.monotonic() < t_end:
-                    buf += ser.read(max(1, ser.in_waiting))
-                line = buf.decode().strip().splitlines()[-2] if b"\nok" in buf else ""
-                return dict(w.split("=", 1) for w in line.split()[1:] if "=" in w)
-
-            ser.reset_input_buffer()
-            for gain in (1, 10, 100, 1000):
-                ask(f"GAIN {gain}")
-                out[gain] = float(ask("READ 8")["mean"]) - float(ask("DARK 8")["mean"])
+        assert port.fields("ID?")["name"] == "gonio-detector"
+        for gain in (1, 10, 100, 1000):
+            assert port.cmd(f"GAIN {gain}")[-1] == "ok"
+            out[gain] = float(port.fields("READ 8")["mean"]) - float(port.fields("DARK 8")["mean"])
     finally:
+        port.close()
         board.close()
     return out
 

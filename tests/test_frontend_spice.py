@@ -159,6 +159,7 @@ def test_noise_at_the_adc_per_range_over_the_firmwares_bandwidth(circuit):
     assert conv == sorted(conv) and conv[-1] < 5.0 / 1024 / math.sqrt(12), conv
 
 
+@pytest.mark.slow
 def test_committed_transfer_table_is_the_netlists(circuit):
     """hardware/frontend/transfer.json (what the simulator reads without ngspice) is what simulate.py --table
     makes from the netlist now: same circuit digest, same curves to 0.1 mV, same settling to 5 %."""
@@ -174,6 +175,7 @@ def test_committed_transfer_table_is_the_netlists(circuit):
     assert np.allclose(committed["monitor"]["v_out"], fresh["monitor"]["v_out"], atol=1e-4)
 
 
+@pytest.mark.slow
 def test_the_guides_figures_are_the_commands(circuit, capsys):
     """docs/build-a-bench.md quotes `simulate.py --figures`: every line it prints is in the guide as printed."""
     sim.print_figures(sim.figures(circuit))
