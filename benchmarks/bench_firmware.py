@@ -5,7 +5,9 @@ seed: the same noise is drawn; what differs is the board's 10-bit ADC, summed ov
 repeat, and its timing), in units of each sample's std (``value_std`` of the Python run).
 
 The firmware is built with the sample changer (``make SAMPLE_CHANGER=1``): the demo calibrates against a white
-reference, which a board without one would ask the operator to put in place.
+reference, which a board without one would ask the operator to put in place. The board reads the photodiode
+through the amplifier's circuit (hardware/frontend/transfer.json, made by ngspice); so that both runs read the same
+circuit, the benchmark captures a copy of the config with ``[simulator].frontend = "netlist"`` (in ``--out``).
 
 Run: .venv/bin/python benchmarks/bench_firmware.py [--out out/bench-firmware] [--config configs/simulated.toml]
 (about 30 s: two captures; needs gcc-avr, avr-libc, simavr, libsimavr-dev, libsimavrparts1)
@@ -60,6 +62,22 @@ def read_slice(path: Path) -> dict[tuple[float, float], tuple[float, float]]:
     return out
 
 
+def netlist_config(config: Path, dest: Path) -> Path:
+    """A copy of ``config`` whose Python controller reads the amplifier's circuit, as the board does."""
+    import tomli_w
+
+    try:
+        import tomllib
+    except ImportError:  # Python 3.10
+        import tomli as tomllib
+
+    raw = tomllib.loads(config.read_text(encoding="utf-8"))
+    raw.setdefault("simulator", {})["frontend"] = "netlist"
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    dest.write_text(tomli_w.dumps(raw), encoding="utf-8")
+    return dest
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--config", default=str(ROOT / "configs" / "simulated.toml"))
@@ -71,8 +89,9 @@ def main() -> int:
         return 2
     out = Path(args.out)
     elf = fw.build_firmware(out / "firmware", sample_changer=True)
-    runs = {"python": capture(Path(args.config), out / "python", None),
-            "firmware": capture(Path(args.config), out / "firmware-capture", elf)}
+    config = netlist_config(Path(args.config), out / "netlist.toml")
+    runs = {"python": capture(config, out / "python", None),
+            "firmware": capture(config, out / "firmware-capture", elf)}
     a = read_slice(out / "python" / "slice.csv")
     b = read_slice(out / "firmware-capture" / "slice.csv")
     keys = sorted(set(a) & set(b))

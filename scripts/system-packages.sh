@@ -5,11 +5,14 @@
 #   gcc-avr avr-libc simavr libsimavr-dev libsimavrparts1   the detector board's firmware, built and run on an
 #                                                           emulated ATmega328P (tests/test_firmware*.py)
 #   chromium                                                the live view, checked in a headless browser
+#   ngspice                                                 the detector's amplifier (hardware/frontend/frontend.cir)
+#                                                           simulated: DC, phase margin, settling, noise
+#                                                           (tests/test_frontend_spice.py)
 #   make                                                    builds the firmware and GRBL's host simulator
 #                                                           (tests/test_grbl_conformance.py; gcc is on a Python
 #                                                           machine already)
 # Set GONIO_NO_SYSTEM_PACKAGES=1 to install nothing (those tests then skip and say why).
-PKGS="make gcc-avr avr-libc simavr libsimavr-dev libsimavrparts1 chromium"
+PKGS="make gcc-avr avr-libc simavr libsimavr-dev libsimavrparts1 chromium ngspice"
 
 missing=""
 for p in $PKGS; do
@@ -39,5 +42,5 @@ if [ -z "$why" ]; then
     why="apt-get install failed (no network to Debian's mirrors?)"
 fi
 echo "system packages: NOT installed:$missing ($why); the firmware tests (gcc-avr, simavr) and the live view's" \
-     "browser test (chromium) will be skipped and say so"
+     "browser test (chromium) and the amplifier's circuit tests (ngspice) will be skipped and say so"
 exit 0

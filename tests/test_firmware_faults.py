@@ -31,7 +31,8 @@ pytestmark = pytest.mark.skipif(PROBLEM is not None, reason=f"firmware tests ski
 PLAN = {"plan": {"theta_i_deg": [40.0], "theta_o_step_deg": 12.0, "repeats": 4},
         "detector": {"dark_repeats": 8}, "calibration": {"reference_repeats": 8},
         "bench": {"serial_timeout_s": 0.5},
-        "motion": {"retries": 12}}  # the Dynamixel SDK's wall-clock deadline misses on a loaded machine: retried
+        "motion": {"retries": 12},  # the Dynamixel SDK's wall-clock deadline misses on a loaded machine: retried
+        "simulator": {"frontend": "netlist"}}  # the Python controller reads the amplifier's circuit, as the board does
 
 
 @pytest.fixture(scope="module")

@@ -29,7 +29,7 @@ NOT_SET = "(not set)"
 #: faults, cannot change the meaning of a sample).
 SIMULATOR_MEANINGFUL = ("source_power", "detector_solid_angle_sr", "aperture_samples", "dark_offset", "read_noise",
                         "shot_noise", "adc_bits", "gain", "backlash_deg", "settle_time_s", "settle_ringing_deg",
-                        "input_noise", "input_offset", "electrons_per_count")
+                        "input_noise", "input_offset", "electrons_per_count", "frontend")
 SIMULATOR_HARMLESS = ("seed", "time_scale", "stepper_velocity_deg_s", "stepper_acceleration_deg_s2",
                       "homing_required")
 PLAN_MEANINGFUL = ("theta_i_deg", "theta_i_min_deg", "theta_i_max_deg", "theta_i_step_deg", "theta_o_min_deg",

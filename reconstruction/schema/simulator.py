@@ -7,7 +7,7 @@ aperture samples, a 1e-9 nm spectrometer step). :mod:`simulator.config` reads th
 
 import math
 from collections.abc import Callable
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 import msgspec
 from msgspec import Meta
@@ -95,6 +95,10 @@ class SimulatorSection(msgspec.Struct, kw_only=True, forbid_unknown_fields=True)
     electrons_per_count: Annotated[float, _m(1e-3, 1e9, _POS, _within(1e-3, 1e9), description="photo-electrons "
                                                                                                "per count at gain 1 "
                                                                                                "(shot noise)")] = 1.0
+    frontend: Annotated[Literal["ideal", "netlist"], Meta(
+        description="the photodiode amplifier: 'ideal' (gain x signal + dark_offset) or 'netlist' (the circuit's "
+                    "transfer from hardware/frontend/transfer.json, as the emulated detector board reads "
+                    "it)")] = "ideal"
     backlash_deg: Annotated[float, _m(0.0, 10.0, _NONNEG, _within(0, 10))] = 0.0
     settle_time_s: Annotated[float, _m(0.0, 60.0, _NONNEG, _within(0, 60), description="mechanical settling after a "
                                                                                      "profile ends")] = 0.05

@@ -9,7 +9,7 @@
  * "PTY <path>". stdin/stdout are a line-oriented control channel:
  *
  *   out  PTY <path> vref_mv=5000 full=1023   the pty; the ADC reads floor(full * mV / vref_mv), clipped at full
- *   out  PIN gsel=<0..7> source=<0|1> reference=<0|1>
+ *   out  PIN gsel=<0..7> source=<0|1> reference=<0|1> t=<s>
  *                                            the gain-select pins PB0..PB2, the source pin PD7 and the sample
  *                                            changer's pin PD6, at start and on every change
  *   out  SYNC first=<0|1> n=<n> nconv=<c> gsel=<g> source=<s> t=<s>
@@ -175,7 +175,7 @@ static void report_pins(void)
     last_gsel = gsel();
     last_source = source();
     last_reference = reference();
-    say("PIN gsel=%d source=%d reference=%d", last_gsel, last_source, last_reference);
+    say("PIN gsel=%d source=%d reference=%d t=%.9f", last_gsel, last_source, last_reference, seconds());
 }
 
 /* a cycle timer at UNTIL's time: a sleeping core jumps from timer event to timer event, so this one stops it

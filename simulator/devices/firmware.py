@@ -30,7 +30,8 @@ from pathlib import Path
 log = logging.getLogger("simulator.firmware")
 
 __all__ = ["FIRMWARE_DIR", "HARNESS_SOURCE", "DEBIAN_PACKAGES", "toolchain_problem", "build_firmware",
-           "build_harness", "millivolts", "SyncEvent", "EmulatedBoard", "FirmwareError", "PhysicsFeed"]
+           "build_harness", "millivolts", "SyncEvent", "EmulatedBoard", "FirmwareError", "PhysicsFeed",
+           "use_circuit"]
 
 REPO = Path(__file__).resolve().parents[2]
 FIRMWARE_DIR = REPO / "firmware" / "detector"
@@ -137,6 +138,8 @@ class EmulatedBoard:
         self.source = True
         self.reference = False
         self.events: list[str] = []
+        #: (t s, gsel, source) of the latest pin changes (the harness's PIN lines), newest last
+        self.pin_history: list[tuple[float, int, bool]] = []
         self.closed = False
         self.sync_error: BaseException | None = None
         self._cond = threading.Condition()
@@ -192,6 +195,7 @@ class EmulatedBoard:
                 if kind == "PIN":
                     self.gsel, self.source = int(f["gsel"]), f["source"] == "1"
                     self.reference = f.get("reference") == "1"
+                    self.pin_history = [*self.pin_history[-7:], (float(f.get("t", "nan")), self.gsel, self.source)]
                 elif kind == "TIME":
                     self._time_replies.append(float(f["t"]))
                 self.events.append(line.strip())
@@ -308,11 +312,15 @@ class PhysicsFeed:
 
     A reading is computed as gonio-sim's own controller does (:meth:`SerialController._read_common`): at its first
     repeat, all ``n`` repeats at once with the arms at the middle of each repeat, so the noise is drawn in the same
-    order and an all-Python capture with the same seed reads the same counts. Repeat k is then fed as
-    ``counts / nconv`` per conversion (the firmware's sum reads the simulator's count, up to the ADC's
-    quantisation); a repeat the physics clips is fed beyond full scale, so the board reports it saturated.
+    order and an all-Python capture with the same seed (and ``[simulator].frontend = "netlist"``) reads the same
+    counts. The physics reads through the amplifier's circuit (:func:`use_circuit`): repeat k is fed as
+    ``counts / nconv`` per conversion, the circuit's output voltage on the ADC input (the firmware's sum reads the
+    simulator's count, up to the ADC's quantisation), clipped where the op-amp clips; a repeat a fault saturates
+    (``saturate_rate``) is fed beyond full scale.
 
     All the reading's values go to the board at its first repeat (one round trip a reading, not one a repeat).
+    A reading that starts while the amplifier still settles after the board's last gain or source switch reads
+    short of the settled value (:meth:`_settling`).
 
     Time: the board's clock (emulated cycles) and the simulator's (``clock``) move together: every jump of the
     simulator's fast time lets the board idle on to it (``UNTIL``), and every reading moves the simulator's clock
@@ -361,8 +369,40 @@ class PhysicsFeed:
         times = t0 + (np.arange(ev.n) + 0.5) * ev.t_int
         angles = np.array([self.arm_angles(float(t)) for t in times])
         codes, sat = self.physics.read(angles[:, 0], angles[:, 1], source_on=ev.source)
+        codes = self._settling(ev, codes, angles)
         self._queue = [(float(c), bool(s)) for c, s in zip(codes[:, 0], sat, strict=True)]
         self.readings += 1
+
+
+    def _settling(self, ev: SyncEvent, codes, angles):
+        """The repeats' counts with the amplifier still settling after the board's last gain or source switch
+        (its PIN line's time): each repeat short of the settled value by its mean residual
+        (:meth:`simulator.world.frontend.FrontEnd.residual`, the table's settling times) times the step from the
+        reading before the switch. A board that waits long enough after a switch reads the settled value."""
+        import numpy as np
+
+        fe, board = self.physics.frontend, self.board
+        hist = [h for h in getattr(board, "pin_history", []) if h[0] <= ev.t + 1e-9]
+        if fe is None or len(hist) < 2 or not np.isfinite(hist[-1][0]):
+            return codes
+        (t_sw, g_new, s_new), (_, g_old, s_old) = hist[-1], hist[-2]
+        det = self.physics.detector
+        k = self.physics.range_index()
+        settle = max(fe.settle_gain_s[k] if g_new != g_old else 0.0, fe.settle_source_s[k] if s_new != s_old else 0.0)
+        tau = settle / np.log(1000.0)
+        start = ev.t - t_sw
+        if settle <= 0.0 or start > 30.0 * tau:
+            return codes
+        a = start + np.arange(ev.n) * ev.t_int
+        mean_residual = tau / ev.t_int * (np.exp(-a / tau) - np.exp(-(a + ev.t_int) / tau))
+        new = self.physics.expected_reading(angles[:, 0], angles[:, 1], source_on=ev.source)
+        gain = det.gain
+        try:
+            det.gain = self.gains[g_old] if g_old < len(self.gains) else gain
+            old = self.physics.expected_reading(angles[:, 0], angles[:, 1], source_on=s_old)
+        finally:
+            det.gain = gain
+        return codes - mean_residual[:, None] * (new - old)
 
 
 def board_gains(port: str, timeout_s: float = 5.0) -> tuple[float, ...]:
@@ -388,10 +428,11 @@ def board_gains(port: str, timeout_s: float = 5.0) -> tuple[float, ...]:
 
 
 def start_firmware_detector(bench, elf: Path, build_dir: Path | None = None, dither_lsb: float = 0.5,
-                            seed: int = 0) -> tuple[EmulatedBoard, PhysicsFeed]:
+                            seed: int = 0, frontend_table: Path | None = None) -> tuple[EmulatedBoard, PhysicsFeed]:
     """Run the firmware ``elf`` as the detector of ``bench`` (a :class:`~simulator.bench.VirtualBench` on a
     Dynamixel bench in fast time): build the harness (into ``build_dir``, default :func:`default_build_dir`), start
-    the board, check its gains against ``[detector].gains`` and feed it from the bench's physics. Raises
+    the board, check its gains against ``[detector].gains`` and feed it from the bench's physics through the
+    amplifier's circuit (``frontend_table``: another circuit's transfer table; default the committed one). Raises
     :class:`FirmwareError` (a one-line reason) or ValueError for a bench it cannot serve."""
     cfg = bench.cfg
     elf = Path(elf)
@@ -415,12 +456,25 @@ def start_firmware_detector(bench, elf: Path, build_dir: Path | None = None, dit
         if want and tuple(sorted(gains)) != tuple(sorted(want)):
             raise FirmwareError(f"the firmware's gains {','.join(f'{g:g}' for g in gains)} are not [detector].gains "
                                 f"{','.join(f'{g:g}' for g in want)} (build it with make GAINS=...)")
+        use_circuit(bench.physics, frontend_table)
         feed = PhysicsFeed(bench.physics, bench.clock, bench.arm_angles, bench.lock, gains)
         feed.attach(board)
     except BaseException:
         board.close()
         raise
     return board, feed
+
+
+def use_circuit(physics, table: Path | None = None) -> None:
+    """Make ``physics`` read through the amplifier's circuit (:mod:`simulator.world.frontend`: the transfer table
+    ngspice made from hardware/frontend/frontend.cir) whatever ``[simulator].frontend`` says: the board's ADC input
+    is the circuit's output, clipped where the op-amp clips. The physics' own reading limit (``adc_bits``,
+    ``[detector].saturation``: the Python controller's ADC) is lifted: the board's 10-bit ADC clips for itself."""
+    from simulator.world.frontend import load_frontend
+
+    physics.frontend = load_frontend(str(table) if table else None)
+    physics.detector.adc_bits = 62
+    physics.detector.saturation = float("inf")
 
 
 def default_build_dir() -> Path:

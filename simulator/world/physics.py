@@ -13,7 +13,9 @@ spot that falls on the sample (:func:`reconstruction.schema.optics.footprint_fra
 the spot, growing as 1 / cos theta_i, overfills it.
 
 A reading at gain g is ``round(g * (S + shot + input_offset + input_noise) + dark_offset + read_noise)`` clipped
-to ``[0, min(saturation, 2**adc_bits - 1)]``: each gain has its own offset (``g * input_offset``) and noise
+to ``[0, min(saturation, 2**adc_bits - 1)]`` (with ``frontend`` set, :mod:`simulator.world.frontend`, the circuit's
+own transfer at the range of g takes the place of ``g * (...) + dark_offset``: the emulated board, and
+``[simulator].frontend = "netlist"``): each gain has its own offset (``g * input_offset``) and noise
 (``sqrt(read_noise**2 + (g * input_noise)**2)``); ``shot`` is Poisson(S e) / e - S with ``e`` =
 ``electrons_per_count`` when ``shot_noise`` is on. ``[detector].gains`` lists the gains ``GAIN`` accepts. The
 source arm shadows the detector when ``|theta_i + theta_o| < blind_spot_half_width_deg``: then S = 0.
@@ -183,6 +185,12 @@ class BenchPhysics:
 
         self.instrument = Instrument(self.solid_angle, float(cfg.source_divergence_deg), cfg.beam_diameter_mm,
                                      cfg.sample_diameter_mm)
+        #: the amplifier's circuit (:class:`simulator.world.frontend.FrontEnd`) or None: the formula above
+        self.frontend = None
+        if getattr(s, "frontend", "ideal") == "netlist":
+            from simulator.world.frontend import load_frontend
+
+            self.frontend = load_frontend()
         self._band_cache: dict[int, np.ndarray] = {}
         self._fc_cache: dict[int, dict[tuple[float, float], np.ndarray]] = {}
 
@@ -291,7 +299,23 @@ class BenchPhysics:
     def expected_reading(self, theta_i_deg, theta_o_deg, source_on: bool = True) -> np.ndarray:
         """Noise-free reading (counts): gain * S + dark, clipped to the detector range (not quantised)."""
         s = self.expected_signal(theta_i_deg, theta_o_deg, source_on)
-        return np.clip(self.detector.gain * (s + self.input_offset) + self.dark_offset, 0.0, self.detector.max_code)
+        return np.clip(self._amplify(s + self.input_offset), 0.0, self.detector.max_code)
+
+    def range_index(self, gain: float | None = None) -> int:
+        """The amplifier's range (multiplexer channel) of ``gain`` (default: the present one): its place in
+        ``[detector].gains`` (the nearest), 0 without a list."""
+        g = self.detector.gain if gain is None else gain
+        if not self.gains:
+            return 0
+        return int(np.argmin(np.abs(np.log(np.asarray(self.gains, dtype=float) / g))))
+
+    def _amplify(self, x_in: np.ndarray) -> np.ndarray:
+        """Counts at gain 1 (signal + offset referred to the input) -> the reading before the ADC's noise: the
+        formula, or the circuit's transfer when ``frontend`` is set."""
+        det = self.detector
+        if self.frontend is None:
+            return det.gain * x_in + self.dark_offset
+        return self.frontend.reading_counts(x_in, self.range_index(), det.integration_time_s)
 
     def noise_rms(self, gain: float | None = None) -> float:
         """Dark-reading noise (counts rms) at ``gain`` (default: the present one): ADC and amplifier."""
@@ -310,7 +334,7 @@ class BenchPhysics:
                 self.rng.poisson(np.maximum(s, 0.0)).astype(float)
         if self.input_noise > 0:
             s = s + self.input_noise * self.rng.standard_normal(s.shape)
-        x = det.gain * (s + self.input_offset) + self.dark_offset
+        x = self._amplify(s + self.input_offset)
         if self.read_noise > 0:
             x = x + self.read_noise * self.rng.standard_normal(x.shape)
         x = np.round(x)

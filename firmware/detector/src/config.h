@@ -33,6 +33,14 @@
 /* Wait after switching the source or the gain before integrating (LED and amplifier settling), microseconds. */
 #define SETTLE_US 2000UL
 
+/* Wait after a gain switch before integrating, microseconds: what the amplifier needs (until detector.c waits it
+ * after a gain switch, it waits SETTLE_US after any switch). The amplifier (hardware/frontend/frontend.cir,
+ * Rf x Cf = 100 us on every range) settles to 0.1 % within 0.8 ms, except from the 100 M range down to the 10 M
+ * one: the idle 100 M channel's 6 pF (its capacitor and the multiplexer pin's) discharges through 100 M into the
+ * summing node, 2.3 ms. tests/test_frontend_spice.py checks every range against this value;
+ * `python hardware/frontend/simulate.py --figures` prints the times. */
+#define GAIN_SETTLE_US 2500UL
+
 /* The amplifier's gains, by multiplexer channel (index 0 = channel 0): relative to the lowest feedback
  * resistor; at most 8. Override with make GAINS=1,10,100 */
 #ifndef GAIN_LIST
