@@ -174,8 +174,8 @@ def report(cfg: Any, al: Alignment, distance_mm: float, incidences: list[float])
     surface = (f"the surface is on the axis ({al.surface_offset_mm:+.2f} mm: it moves the specular by {shift:.3f} "
                f"deg at {worst:g} deg)") if shift < ON_AXIS_DEG else \
         (f"the surface is {abs(al.surface_offset_mm):.2f} mm {where} the rotation axis (it moves the specular by "
-         f"{shift:.2f} deg at {worst:g} deg): {'lower' if where == 'above' else 'raise'} the sample by that much "
-         "(the holder's shims) and align again")
+         f"{shift:.2f} deg at {worst:g} deg): {'lower' if where == 'above' else 'raise'} the sample holder's seat by "
+         "that much (shims under its three balls) and align again")
     lines = [f"specular peaks: a - b + 2t = {al.c_deg:+.3f} deg (rms {al.rms_deg:.3f} deg); {surface}"]
     writes: dict[str, float] = {}
     if al.detector_zero_deg is None:

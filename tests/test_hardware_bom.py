@@ -36,7 +36,7 @@ def test_every_variant_has_what_the_issue_lists():
     lines = bom.load()
     roles = {v: " | ".join(f"{x.part} {x.role}".lower() for x in lines if v in x.variants and not x.optional)
              for v in bom.VARIANTS}
-    common = ("led driver", "led supply", "collimat", "detector aperture", "enclosure", "kinematic",
+    common = ("led driver", "led supply", "collimat", "detector aperture", "enclosure", "kinematic", "sample spring",
               "alignment laser", "protoboard|prototyping", "cable", "profile|frame", r"white reference \(ptfe\)",
               "mcp6001", "74hc4051", "bpw34", "monitor photodiode", "feedback resistor 10 kohm",
               "feedback resistor 100 mohm", "feedback capacitor", "decoupling", "emergency stop",
@@ -88,3 +88,5 @@ def test_the_guide_quotes_the_scripts_totals():
     for v, label in (("xl430", "XL430"), ("xm430", "XM430"), ("grbl", "GRBL")):
         lo, hi = tot[v]
         assert f"{label} bench: {lo:.0f}-{hi:.0f} EUR" in guide, v
+    lo, hi = tot["xl430"]
+    assert f"an XL430 bench {lo:.0f}-{hi:.0f} EUR" in (REPO / "README.md").read_text()

@@ -114,10 +114,11 @@ def test_the_collimator_puts_the_pinhole_at_the_lens_focus_behind_the_beam_apert
     seat = _circles(col, c["lens_diameter_mm"] / 2 + 0.15)
     pin = _circles(col, 1.5)
     assert min(e.arc_center.Z for e in out) == pytest.approx(c["output_aperture_from_axis_mm"])
-    lens_face = min(e.arc_center.Z for e in seat)
-    # the lens's middle (its flat face + half its thickness) to the pinhole's plane: the focal length
-    assert max(e.arc_center.Z for e in pin) - (lens_face + c["lens_thickness_mm"] / 2) == \
-        pytest.approx(c["lens_focal_mm"])
+    shoulder = min(e.arc_center.Z for e in seat)          # the lens's curved face
+    # the lens's flat face to the pinhole's plane: its back focal length f - t / n
+    flat = shoulder + c["lens_thickness_mm"]
+    assert max(e.arc_center.Z for e in pin) - flat == \
+        pytest.approx(c["lens_focal_mm"] - c["lens_thickness_mm"] / c["lens_index"])
 
 
 def test_the_sample_holder_puts_the_surface_on_the_axis_by_three_points(parts):

@@ -101,8 +101,9 @@ def collimator_mount(p: dict[str, Any]) -> Part:
     """Output aperture (the beam), lens seat, the pinhole's plane at the lens's focus and the LED's pocket."""
     c = p["optics"]["collimator"]
     z_out = c["output_aperture_from_axis_mm"]
-    z_lens0 = z_out + 2.0                                   # the lens's flat face on this shoulder
-    z_pin = z_lens0 + c["lens_thickness_mm"] / 2 + c["lens_focal_mm"]
+    z_lens0 = z_out + 2.0                                   # the lens's curved face against this shoulder
+    # the pinhole at the back focal length from the lens's flat face: the source at its focus
+    z_pin = z_lens0 + c["lens_thickness_mm"] + c["lens_focal_mm"] - c["lens_thickness_mm"] / c["lens_index"]
     r_out = c["lens_diameter_mm"] / 2 + 3.0
     body = _zcyl(r_out, z_out, z_pin + 10.0)
     body += _bracket(p, z_out + 30.0, z_pin, p["arm"]["light_holes_mm"], r_out)
