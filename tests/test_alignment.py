@@ -198,3 +198,11 @@ def test_gonio_align_refuses_bad_arguments_before_moving(tmp_path):
     status, _, err = _align("--config", str(REPO / "configs" / "mirror-misaligned.toml"), "--turned",
                             str(tmp_path / "none.json"))
     assert status == 2 and "--turned" in err
+
+
+def test_gonio_capture_align_runs_gonio_align(tmp_path, capsys):
+    from acquisition.cli import main
+
+    assert main(["--config", str(tmp_path / "none.toml"), "--align"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("gonio-align: ") and "no such file" in err
