@@ -206,3 +206,17 @@ def test_gonio_capture_align_runs_gonio_align(tmp_path, capsys):
     assert main(["--config", str(tmp_path / "none.toml"), "--align"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("gonio-align: ") and "no such file" in err
+
+
+def test_the_guides_gonio_align_lines_parse():
+    import shlex
+
+    from acquisition.align import build_parser
+
+    text = (REPO / "docs" / "build-a-bench.md").read_text()
+    lines = [ln.split("#")[0] for b in re.findall(r"```sh\n(.*?)```", text, flags=re.S) for ln in b.splitlines()
+             if ln.startswith("gonio-align")]
+    lines += [ln[2:] for ln in text.splitlines() if ln.startswith("$ gonio-align")]
+    assert len(lines) >= 4
+    for ln in lines:
+        build_parser().parse_args(shlex.split(ln)[1:])
