@@ -2,6 +2,7 @@
 
     python hardware/bom.py                 # each variant's total (EUR, min-max), and the optional extras
     python hardware/bom.py --variant grbl  # that variant's lines, then its total
+    python hardware/bom.py --markdown      # every line as a Markdown table (docs/build-a-bench.md's)
     python hardware/bom.py --csv FILE      # another parts list
 
 Columns of the CSV: ``part``, ``role``, ``quantity``, ``example_part_number``, ``unit_eur_min``,
@@ -112,17 +113,32 @@ def summary(lines: list[Line]) -> str:
     return "\n".join(out)
 
 
+def markdown(lines: list[Line]) -> str:
+    """Every line as a Markdown table (what docs/build-a-bench.md shows under Parts from bom.csv)."""
+    out = ["| part | role | qty | example | EUR each | benches |", "|---|---|---|---|---|---|"]
+    for x in lines:
+        benches = "all" if set(x.variants) == set(VARIANTS) else ", ".join(x.variants)
+        opt = " (optional)" if x.optional else ""
+        out.append(f"| {x.part}{opt} | {x.role} | {x.quantity} | {x.example_part_number} | "
+                   f"{x.unit_eur_min:g}-{x.unit_eur_max:g} | {benches} |")
+    return "\n".join(out)
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python hardware/bom.py", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--csv", default=str(BOM_CSV), help="the parts list (default: hardware/bom.csv)")
     p.add_argument("--variant", choices=VARIANTS, help="list that variant's lines before the totals")
+    p.add_argument("--markdown", action="store_true", help="print every line as a Markdown table (the guide's)")
     args = p.parse_args(argv)
     try:
         lines = load(args.csv)
     except BomError as e:
         print(f"bom: {e}", file=sys.stderr)
         return 2
+    if args.markdown:
+        print(markdown(lines))
+        return 0
     if args.variant:
         for x in lines:
             if args.variant in x.variants:

@@ -88,5 +88,8 @@ def test_the_guide_quotes_the_scripts_totals():
     for v, label in (("xl430", "XL430"), ("xm430", "XM430"), ("grbl", "GRBL")):
         lo, hi = tot[v]
         assert f"{label} bench: {lo:.0f}-{hi:.0f} EUR" in guide, v
+    status, table, _ = _run(["--markdown"])
+    assert status == 0 and table.count("\n") == len(bom.load()) + 2
+    assert table in guide, "docs/build-a-bench.md: paste the output of `python hardware/bom.py --markdown`"
     lo, hi = tot["xl430"]
     assert f"an XL430 bench {lo:.0f}-{hi:.0f} EUR" in (REPO / "README.md").read_text()
