@@ -170,8 +170,30 @@ def test_the_assembly_turns_the_aperture_to_70_mm_along_the_detector_arm():
                                             abs=1e-6)
     beam = _circles(asm["collimator-mount"], P["optics"]["collimator"]["beam_mm"] / 2)
     b = min(beam, key=lambda e: np.linalg.norm([e.arc_center.X, e.arc_center.Z])).arc_center
-    assert [b.X, b.Y, b.Z] == pytest.approx([-60 * math.sin(math.radians(50)), 0.0, 60 * math.cos(math.radians(50))],
+    r = P["optics"]["collimator"]["output_aperture_from_axis_mm"]
+    assert [b.X, b.Y, b.Z] == pytest.approx([-r * math.sin(math.radians(50)), 0.0, r * math.cos(math.radians(50))],
                                             abs=1e-6)
+
+
+def _radial_and_y(solid) -> tuple[np.ndarray, np.ndarray]:
+    """Each vertex's distance from the rotation axis (y) and its y (mm)."""
+    verts, _ = solid.tessellate(0.05, 0.2)
+    v = np.array([[q.X, q.Y, q.Z] for q in verts])
+    return np.hypot(v[:, 0], v[:, 2]), v[:, 1]
+
+
+def test_the_arms_pass_each_other_at_any_angle(parts):
+    """The detector's parts in the plane of incidence stay within 80 mm of the axis, the collimator beyond it, and
+    the arms' bars in planes of their own: the detector can cross the light arm (to both sides of a normal
+    incidence: the white reference's sweep of gonio-align)."""
+    tube_r, tube_y = _radial_and_y(parts["detector-tube"])
+    col_r, col_y = _radial_and_y(parts["collimator-mount"])
+    col_y = -col_y                                                  # mirrored to -y with its arm
+    assert tube_r.max() < 80.0 < col_r.min()
+    light_arm_y = -_radial_and_y(parts["arm-xm430-light"])[1]       # the light arm is mirrored to -y
+    det_arm_y = _radial_and_y(parts["arm-xm430-detector"])[1]
+    assert light_arm_y.max() < min(tube_y.min(), det_arm_y.min())
+    assert col_y.min() > -P["arm"]["plane_offset_mm"] - 1e-6 and col_y.max() < det_arm_y.min()
 
 
 def test_build_writes_watertight_stl_and_step_files(tmp_path):

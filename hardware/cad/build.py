@@ -21,7 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import params  # noqa: E402  (hardware/cad/params.py, beside this script)
 
 DESCRIPTIONS = {
-    "arm-xl430-light": "light arm on an XL430's horn (the collimator at 100/130 mm)",
+    "arm-xl430-light": "light arm on an XL430's horn (the collimator at 126/156 mm)",
     "arm-xl430-detector": "detector arm on an XL430's horn (the tube at 50/64 mm)",
     "arm-xm430-light": "light arm on an XM430's horn",
     "arm-xm430-detector": "detector arm on an XM430's horn",
