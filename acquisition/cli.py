@@ -34,6 +34,7 @@ examples:
   gonio-capture --config configs/simulated.toml --out out/demo --resume --force   # another sample, on purpose
   gonio-capture --config configs/simulated.toml --out out/paint --scene configs/scenes/glossy-product.toml
   gonio-capture --config configs/dynamixel-bench.toml --check
+  gonio-capture --config configs/mirror-misaligned.toml --align     # = gonio-align --config ...
 
 exit status: 0 complete, 1 stopped by a hardware/communication fault or a full disk (resumable), 2 bad
 config/plan, output folder not writable or in use by another capture (nothing moved), or a resume whose last
@@ -74,6 +75,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--live-host", metavar="ADDRESS",
                    help="serve the live view on this address instead of 127.0.0.1 (reachable from the network: "
                         "on purpose only)")
+    p.add_argument("--align", action="store_true",
+                   help="align the bench instead of capturing: `gonio-align --config CONFIG` (a mirror as the "
+                        "sample; see gonio-align --help for its options)")
     p.add_argument("--json", action="store_true", help="print the result as one JSON object on stdout")
     p.add_argument("--log-level", default="warning", choices=("debug", "info", "warning", "error"),
                    help="stderr log level (the log file always gets info)")
@@ -101,6 +105,10 @@ def main(argv: list[str] | None = None, *, process: bool | None = None) -> int:
     args = parser.parse_args(argv)
     if args.force and not args.resume:
         parser.error("--force goes with --resume (it accepts another sample in a capture being resumed)")
+    if args.align:
+        from acquisition.align import main as align_main
+
+        return align_main(["--config", args.config] + (["--json"] if args.json else []))
     from acquisition.run.interrupts import SignalGuard
 
     # once a signal stopped the capture this run ends: a second one while it prints where to resume, or in the

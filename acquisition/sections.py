@@ -67,6 +67,7 @@ class BenchSection:
     beam_diameter_mm: float | None = None
     sample_diameter_mm: float | None = None
     source_spectrum: str = "halogen-3000K"
+    detector_distance_mm: float | None = None
 
 
 @dataclass(frozen=True)

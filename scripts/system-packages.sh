@@ -11,8 +11,11 @@
 #   make                                                    builds the firmware and GRBL's host simulator
 #                                                           (tests/test_grbl_conformance.py; gcc is on a Python
 #                                                           machine already)
+#   libgl1 libx11-6                                         loaded by build123d's OpenCascade kernel (the wheel
+#                                                           cadquery-ocp-novtk links libGL and libX11): the printed
+#                                                           parts built and checked (tests/test_hardware_cad.py)
 # Set GONIO_NO_SYSTEM_PACKAGES=1 to install nothing (those tests then skip and say why).
-PKGS="make gcc-avr avr-libc simavr libsimavr-dev libsimavrparts1 chromium ngspice"
+PKGS="make gcc-avr avr-libc simavr libsimavr-dev libsimavrparts1 chromium ngspice libgl1 libx11-6"
 
 missing=""
 for p in $PKGS; do
@@ -41,6 +44,6 @@ if [ -z "$why" ]; then
     fi
     why="apt-get install failed (no network to Debian's mirrors?)"
 fi
-echo "system packages: NOT installed:$missing ($why); the firmware tests (gcc-avr, simavr) and the live view's" \
-     "browser test (chromium) and the amplifier's circuit tests (ngspice) will be skipped and say so"
+echo "system packages: NOT installed:$missing ($why); the firmware tests (gcc-avr, simavr), the live view's" \
+     "browser test (chromium), the amplifier's circuit tests (ngspice) and the CAD tests (libgl1, libx11-6) will be skipped and say so"
 exit 0

@@ -3,7 +3,8 @@
 Only the sections the simulator needs are interpreted, and in those only the keys it reads, through the same
 schema as ``gonio-capture`` (:mod:`reconstruction.schema.bench`; the other keys are ``gonio-capture``'s to
 check). Angles in degrees, times in seconds. The simulator-only keys live in
-``[simulator]``, ``[simulator.faults]`` and ``[simulator.spectrometer]`` (all optional, defaults below), which are
+``[simulator]``, ``[simulator.faults]``, ``[simulator.spectrometer]`` and ``[simulator.misalignment]`` (all
+optional, defaults below), which are
 validated strictly: unknown keys, wrong types and impossible values are errors (:class:`ConfigError`, whose message
 names the file, the table and the key).
 """
@@ -24,7 +25,7 @@ from reconstruction.schema import SchemaError, Table
 from reconstruction.schema import describe as _describe
 from reconstruction.schema.bench import AXIS_LETTERS, DXL_MODELS, AxisTable, BenchTable, DetectorTable
 from reconstruction.schema.files import UserFileError, read_user_text
-from reconstruction.schema.simulator import FaultsSection, SimulatorSection, SpectrometerSection
+from reconstruction.schema.simulator import FaultsSection, MisalignmentSection, SimulatorSection, SpectrometerSection
 
 #: Dynamixel model names -> model numbers (Protocol 2.0 ping reply).
 MODEL_NUMBERS = DXL_MODELS
@@ -111,6 +112,8 @@ class BenchConfig:
     beam_diameter_mm: float | None = None
     sample_diameter_mm: float | None = None
     source_spectrum: str = "halogen-3000K"
+    #: [bench].detector_distance_mm: the detector's aperture from the axis (the misalignment's geometry)
+    detector_distance_mm: float | None = None
     raw: dict[str, Any] = field(default_factory=dict)
     base_dir: Path = field(default_factory=Path.cwd)
 
@@ -174,8 +177,11 @@ def config_from_dict(raw: dict[str, Any], base_dir: Path | None = None, source: 
                    strict=True)
     spectrometer = _read(src, "simulator.spectrometer", _table(src, "simulator.spectrometer", s.get("spectrometer")),
                          SpectrometerSection, strict=True)
-    sim = _read(src, "simulator", s, SimulatorSection, strict=True, skip=("faults", "spectrometer")).build(
-        faults=faults.build(), spectrometer=spectrometer.build())
+    misalignment = _read(src, "simulator.misalignment", _table(src, "simulator.misalignment", s.get("misalignment")),
+                         MisalignmentSection, strict=True)
+    sim = _read(src, "simulator", s, SimulatorSection, strict=True,
+                skip=("faults", "spectrometer", "misalignment")).build(
+        faults=faults.build(), spectrometer=spectrometer.build(), misalignment=misalignment.build())
     if sim.spectrometer.wl_max_nm < sim.spectrometer.wl_min_nm:
         raise ConfigError(f"{src}: [simulator.spectrometer].wl_max_nm: {sim.spectrometer.wl_max_nm:g} is less than "
                           f"wl_min_nm {sim.spectrometer.wl_min_nm:g}")
@@ -224,6 +230,7 @@ def config_from_dict(raw: dict[str, Any], base_dir: Path | None = None, source: 
         beam_diameter_mm=bench["beam_diameter_mm"],
         sample_diameter_mm=bench["sample_diameter_mm"],
         source_spectrum=bench["source_spectrum"],
+        detector_distance_mm=bench["detector_distance_mm"],
         raw=raw,
         base_dir=base,
     )

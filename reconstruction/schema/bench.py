@@ -75,6 +75,10 @@ class BenchTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
                                               description="diameter of the sample (mm)")] | None = None
     source_spectrum: Annotated[str, Meta(description='"halogen-3000K" (built in), "D65", or a wavelength_nm,value '
                                                      "CSV (relative to the bench file)")] = "halogen-3000K"
+    detector_distance_mm: Annotated[float, _num(gt=0.0, hi=10000.0, check=_pos_within(1.0, 10000, " mm"),
+                                                description="distance from the rotation axis to the detector's "
+                                                            "aperture (mm; gonio-align's surface offset)")
+                                    ] | None = None
 
 
 def _units_per_deg(v: float) -> str | None:

@@ -14,7 +14,7 @@ from msgspec import Meta
 
 from reconstruction.schema.core import describe
 
-__all__ = ["FaultsSection", "SpectrometerSection", "SimulatorSection"]
+__all__ = ["FaultsSection", "SpectrometerSection", "MisalignmentSection", "SimulatorSection"]
 
 
 def _checks(*rules: tuple[Callable[[Any], bool], str]) -> Callable[[Any], str | None]:
@@ -71,6 +71,31 @@ class SpectrometerSection(msgspec.Struct, kw_only=True, forbid_unknown_fields=Tr
         return self.wl_min_nm + self.wl_step_nm * np.arange(n)
 
 
+class MisalignmentSection(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
+    """``[simulator.misalignment]``: a bench out of alignment, for ``gonio-align`` to find
+    (:mod:`reconstruction.bench.alignment`; docs/build-a-bench.md, Alignment). Degrees and mm."""
+
+    light_zero_deg: Annotated[float, _m(-10.0, 10.0, _within(-10, 10), description="the light arm stands this far "
+                                                                                   "past its reading")] = 0.0
+    detector_zero_deg: Annotated[float, _m(-10.0, 10.0, _within(-10, 10), description="the detector arm stands "
+                                                                                     "this far past its reading")] = 0.0
+    sample_tilt_deg: Annotated[float, _m(-10.0, 10.0, _within(-10, 10), description="the sample's normal tilted in "
+                                                                                   "the plane, towards the "
+                                                                                   "detector's side")] = 0.0
+    reference_tilt_deg: Annotated[float, _m(-10.0, 10.0, _within(-10, 10), description="the white reference's "
+                                                                                      "normal, likewise")] = 0.0
+    surface_offset_mm: Annotated[float, _m(-20.0, 20.0, _within(-20, 20), description="the sample's surface this "
+                                                                                     "far above the rotation axis "
+                                                                                     "(towards the arms)")] = 0.0
+    sample_turned: Annotated[bool, Meta(description="the sample turned 180 deg about its normal in its holder "
+                                                    "(its tilt reversed)")] = False
+
+    @property
+    def active(self) -> bool:
+        return any((self.light_zero_deg, self.detector_zero_deg, self.sample_tilt_deg, self.reference_tilt_deg,
+                    self.surface_offset_mm))
+
+
 class SimulatorSection(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     """``[simulator]``: the virtual bench's physics, noise, timing and faults."""
 
@@ -108,3 +133,4 @@ class SimulatorSection(msgspec.Struct, kw_only=True, forbid_unknown_fields=True)
     homing_required: Annotated[bool, Meta(description="the stepper controller refuses MOVE until HOME")] = False
     faults: FaultsSection = msgspec.field(default_factory=FaultsSection)
     spectrometer: SpectrometerSection = msgspec.field(default_factory=SpectrometerSection)
+    misalignment: MisalignmentSection = msgspec.field(default_factory=MisalignmentSection)

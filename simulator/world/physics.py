@@ -18,7 +18,9 @@ own transfer at the range of g takes the place of ``g * (...) + dark_offset``: t
 ``[simulator].frontend = "netlist"``): each gain has its own offset (``g * input_offset``) and noise
 (``sqrt(read_noise**2 + (g * input_noise)**2)``); ``shot`` is Poisson(S e) / e - S with ``e`` =
 ``electrons_per_count`` when ``shot_noise`` is on. ``[detector].gains`` lists the gains ``GAIN`` accepts. The
-source arm shadows the detector when ``|theta_i + theta_o| < blind_spot_half_width_deg``: then S = 0.
+source arm shadows the detector when ``|theta_i + theta_o| < blind_spot_half_width_deg``: then S = 0. A bench out of
+alignment (``[simulator.misalignment]``) reads at the true angles against the sample's normal
+(:meth:`BenchPhysics.true_angles`).
 
 Channels: a photodiode sees one channel, the material's reflectance weighted by the band (``[detector]
 .responsivity`` x ``[bench].source_spectrum``, :mod:`reconstruction.schema.optics`), an RGB material (linear sRGB)
@@ -277,6 +279,24 @@ class BenchPhysics:
         out = np.stack([cache[k] for k in keys])[np.asarray(inv).ravel()]
         return out.reshape(ti.shape + out.shape[-1:])
 
+    def true_angles(self, theta_i_deg: np.ndarray, theta_o_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The angles (degrees) against the normal of the sample in the beam for the arms' angles: the arms' own
+        with no ``[simulator.misalignment]``, else through its zero offsets, the sample's (or the white
+        reference's) tilt and the surface's offset from the axis
+        (:func:`reconstruction.bench.alignment.true_angles`; the detector at ``[bench].detector_distance_mm``,
+        70 mm when not given)."""
+        m = self.cfg.sim.misalignment
+        if not m.active:
+            return theta_i_deg, theta_o_deg
+        from reconstruction.bench.alignment import true_angles
+
+        if self.sample == "REF":
+            tilt = m.reference_tilt_deg
+        else:
+            tilt = -m.sample_tilt_deg if m.sample_turned else m.sample_tilt_deg
+        return true_angles(theta_i_deg, theta_o_deg, m.light_zero_deg, m.detector_zero_deg, tilt,
+                           m.surface_offset_mm, self.cfg.detector_distance_mm or 70.0)
+
     def expected_signal(self, theta_i_deg, theta_o_deg, source_on: bool = True,
                         integration_time_s: float | None = None) -> np.ndarray:
         """Noise-free signal S in counts at gain 1, before dark offset: (..., n_det); 0 in the blind spot."""
@@ -285,12 +305,14 @@ class BenchPhysics:
         to = np.asarray(theta_o_deg, dtype=float)
         if not source_on:
             return np.zeros(np.broadcast_shapes(ti.shape, to.shape) + (self.detector.n_channels,))
+        arm_ti, arm_to = ti, to
+        ti, to = self.true_angles(ti, to)
         fc = self.f_cos(ti, to)
         from reconstruction.schema.optics import footprint_fraction
 
         s = self.source_power * fc * self.solid_angle * (t_int / self.detector.ref_integration_time_s)
         s = s * footprint_fraction(ti, self.cfg.beam_diameter_mm, self.cfg.sample_diameter_mm)[..., None]
-        blind = np.abs(ti + to) < self.blind_half_width
+        blind = np.abs(arm_ti + arm_to) < self.blind_half_width
         s = np.where(blind[..., None], 0.0, s)
         if not source_on:
             s = np.zeros_like(s)
