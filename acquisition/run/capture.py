@@ -269,7 +269,7 @@ class RunEngine:
                 check_writable(self.out)
                 self.record = RunRecord.load(self.sidecar_path)
                 res = check_resume(self.cfg, self.plan, self.out, self.resume, self.record, self.fingerprint,
-                                   self.settings, self.force)
+                                   self.settings, self.force, self._measurable, geom)
                 est = self._estimate(chk, res.existing)
                 self._run_locked(chk, est, res, stale_pid=stale, t_wall0=t_wall0)
             finally:
