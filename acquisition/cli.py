@@ -255,10 +255,10 @@ def _run(args: argparse.Namespace) -> int:
                 print(f"gonio-capture: {e}", file=sys.stderr)
                 return 1
         if not bench.cfg.detector.on_board and bench.cfg.bench.transport != "simulated":
-            from acquisition.devices.external import external_library
+            from acquisition.devices.external import check_external_library
 
-            try:  # the detector's library (seabreeze, pyvisa) is installed: the capture will need it
-                external_library(bench.cfg)
+            try:  # the detector's library (seabreeze; pyvisa and a VISA library) is installed: the capture needs it
+                check_external_library(bench.cfg)
             except ConfigError as e:
                 print(f"gonio-capture: {e}; nothing was moved", file=sys.stderr)
                 return 2
@@ -305,7 +305,11 @@ def _run(args: argparse.Namespace) -> int:
                 settings = "; ".join(f"{k}{'' if 'gain' in k else ' s'}: {v}"
                                      for k, v in result.auto_range_settings.items())
                 what = ranged_wording(result.auto_range_settings, bench.cfg.detector.integration_time_s)
-                ranged = (f"\n  auto-ranged {result.auto_ranged} point(s), read {what} ({settings});"
+                count = f"{result.auto_ranged} point(s)"
+                if result.samples_total > result.samples_new:  # a resume: this run's, then the capture's
+                    count = (f"{result.auto_ranged_new} of this run's {result.samples_new} point(s) "
+                             f"({result.auto_ranged} of the capture's {result.samples_total})")
+                ranged = (f"\n  auto-ranged {count}, read {what} ({settings});"
                           f" {result.auto_range_overhead_s:.2f} s of extra integration in this run")
             print(f"gonio-capture: {result.message}{extra}\n{_time_summary(result)}{ranged}", file=sys.stderr)
         return 0

@@ -124,7 +124,8 @@ def test_resume_force_sets_refused_rows_aside_says_so_in_the_log_and_completes(d
     assert code == 0, capsys.readouterr().err
     s = read(out / "slice.csv")
     ref = read(base / "slice.csv")
-    assert sorted(zip(s.theta_i_deg, s.theta_o_deg)) == sorted(zip(ref.theta_i_deg, ref.theta_o_deg))
+    assert sorted(zip(s.theta_i_deg, s.theta_o_deg, strict=True)) == sorted(zip(ref.theta_i_deg, ref.theta_o_deg,
+                                                                             strict=True))
     aside = (out / "slice.set-aside.csv").read_text()
     assert aside.startswith("# gonio-brdf slice\n") and "70.0," + edited[len("30.0,"):] in aside
     assert read(out / "slice.set-aside.csv").theta_i_deg.tolist() == [70.0]  # a slice file of its own

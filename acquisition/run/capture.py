@@ -456,8 +456,8 @@ class RunEngine:
                         bench.simulator_log = self.out / SIM_LOG_NAME
                     try:
                         bench.open()
-                    except PortError:
-                        self._unopened = self._before_motion = True
+                    except (PortError, DeviceError) as e:  # a port or a library (no VISA): nothing started
+                        self._unopened = self._before_motion = not isinstance(e, HardwareError)
                         raise
                     opened_here = True
                 bench.motion.cancel = self._guard.check

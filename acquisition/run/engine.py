@@ -318,6 +318,7 @@ class Engine:
                 self.record.save(durable=False)  # before the sample is appended: a point measured again is counted once
         if self.sink is not None:
             self.sink.append(ti, to, f.tolist(), fs.tolist(), m.reading.n if m.repeats <= 0 else m.repeats)
+        r.auto_ranged_new += int(rg is not None and rg.ranged)
         r.samples_new += 1  # counted the moment the row is durable: a link lost in the clock read below (TIME?)
         r.samples_total += 1  # still counts it, as it is on disk
         if self.bar is not None:

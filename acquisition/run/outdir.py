@@ -89,8 +89,11 @@ class Resume:
     legacy: bool = False
     sample_changes: list[tuple[str, Any, Any]] = field(default_factory=list)  # [material], accepted with --force
     set_aside: tuple[list[RowProblem], Path] | None = None  # rows moved out of the slice, as --force asks
+    notes: list[str] = field(default_factory=list)  # what reading the slice warned of (a torn last line)
 
     def log_checks(self, slice_path: Path) -> None:
+        for note in self.notes:
+            log.warning("resume: %s; it is cut off before appending", note)
         if self.set_aside is not None:
             probs, aside = self.set_aside
             log.warning("resume: set aside %d row(s) of %s in %s, as --force asks: %s", len(probs), slice_path, aside,
@@ -173,7 +176,7 @@ def check_resume(cfg: BenchConfig, plan: Plan, out: Path, resume: bool, record: 
     if not resume:
         raise PlanError(f"{out} already holds a capture ({slice_path}); continue it with --resume, "
                         "or choose another --out")
-    existing = _read_quietly(slice_path)
+    existing = _read_quietly(slice_path, res.notes)
     meta = existing.meta
     _check_fingerprint(res, meta, slice_path, fp, settings, force)
     fpr = meta.get("plan_fingerprint")
@@ -211,10 +214,15 @@ def check_resume(cfg: BenchConfig, plan: Plan, out: Path, resume: bool, record: 
     return res
 
 
-def _read_quietly(slice_path: Path) -> Slice:
+def _read_quietly(slice_path: Path, notes: list[str] | None = None) -> Slice:
+    """The slice being resumed; what the reader warned of (a torn last line) goes to ``notes``, which the resume
+    logs in one line each, not a Python warning on the console."""
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            return read_slice(slice_path)
+        with warnings.catch_warnings(record=True) as seen:
+            warnings.simplefilter("always")
+            s = read_slice(slice_path)
     except SliceError as e:
         raise PlanError(f"cannot resume: {e}") from None
+    if notes is not None:
+        notes.extend(str(w.message) for w in seen)
+    return s

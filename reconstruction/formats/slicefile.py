@@ -186,7 +186,8 @@ class SliceWriter:
     """Append samples to a slice file durably: each :meth:`append` writes one row, flushes and fsyncs.
 
     Opening an existing file (a resumed capture) checks that it has exactly the columns of ``channels`` and cuts
-    off a torn last line left by a crash, so appending continues cleanly. Rows are appended in the file's own
+    off a torn last line left by a crash, so appending continues cleanly (``notes`` says so, for the caller's log,
+    instead of a Python warning). Rows are appended in the file's own
     column order and with its own line ending (a file whose columns another tool reordered, or whose line endings
     it converted, stays consistent); a file with other columns is refused. Use as a context manager.
     """
@@ -198,8 +199,12 @@ class SliceWriter:
         header = _header(self.channels, meta or {})
         self.columns = _columns(self.channels)
         self.newline = "\n"
+        self.notes: list[str] = []  # what reading the existing file warned of (a torn last line, cut off below)
         if self.path.exists() and self.path.stat().st_size > 0:
-            existing = read_slice(self.path)  # validates; warns on a torn last line
+            with warnings.catch_warnings(record=True) as seen:  # the caller logs them (a resumed capture: its log)
+                warnings.simplefilter("always")
+                existing = read_slice(self.path)  # validates; warns on a torn last line
+            self.notes = [str(w.message) for w in seen]
             if sorted(existing.channels) != sorted(self.channels):
                 raise SliceError(f"{self.path}: has value columns {_show_list(existing.channels)}, "
                                  f"cannot append {_show_list(self.channels)}")
