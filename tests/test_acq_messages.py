@@ -141,3 +141,14 @@ def test_a_torn_last_line_on_resume_is_one_logged_line_and_the_summary_counts_th
     assert "torn last line" in (out / "capture.log").read_text()
     assert "captured 1 new sample(s); 28 in" in err
     assert "auto-ranged 1 of this run's 1 point(s) (28 of the capture's 28)" in err, err
+
+
+def test_a_simulator_faster_than_real_time_explains_why_the_capture_outruns_the_estimate(tmp_path, capsys):
+    """At time_scale K > 1 the software's own wall time counts K times over as bench time (issue 49: a Dynamixel
+    plan estimated 46.0 s took 57.6 s); the summary says so, and not at K = 0 (time jumps: the model is exact)."""
+    plan = {"plan": {"theta_i_deg": [30.0], "theta_o_step_deg": 35.0}}
+    for k, note in ((10.0, True), (0.0, False)):
+        cfg = write_config(tmp_path / f"k{k:g}.toml", make_raw(plan, {"simulator": {"time_scale": k}}))
+        assert main(["--config", str(cfg), "--out", str(tmp_path / f"o{k:g}"), "--no-progress"]) == 0
+        err = capsys.readouterr().err
+        assert ("at [simulator].time_scale = 10 the software's own wall time" in err) is note, err
