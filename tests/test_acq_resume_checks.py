@@ -131,3 +131,36 @@ def test_resume_force_sets_refused_rows_aside_says_so_in_the_log_and_completes(d
     assert read(out / "slice.set-aside.csv").theta_i_deg.tolist() == [70.0]  # a slice file of its own
     log = (out / "capture.log").read_text()
     assert "set aside 1 row(s)" in log and "(70, 50): not a point of the plan" in log and "--force" in log
+
+
+def test_a_flipped_digit_is_caught_by_the_rows_check_value(done, tmp_path, capsys):
+    """Every row's CRC-32 is kept in slice.crc as it is appended: a value edited by one digit (still a point of
+    the plan, still plausible) no longer matches and is refused; --force sets it aside and measures it again."""
+    cfg, base = done
+    out = _copy(base, tmp_path / "o")
+    (out / "slice.crc").write_bytes((base / "slice.crc").read_bytes())
+    row = next(ln for ln in (out / "slice.csv").read_text().splitlines() if ln.startswith("30.0,50.0,"))
+    value = row.split(",")[2]
+    flipped = value[:4] + str((int(value[4]) + 1) % 10) + value[5:]  # one digit of f_r
+    _edit(out / "slice.csv", row, row.replace(value, flipped, 1))
+    code = main(["--config", str(cfg), "--out", str(out), "--resume", "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 2 and "(30, 50): edited or corrupted since it was written" in err, err
+    assert main(["--config", str(cfg), "--out", str(out), "--resume", "--force", "--no-progress"]) == 0
+    s = read(out / "slice.csv")
+    assert len(s) == 28 and flipped not in (out / "slice.csv").read_text()
+    assert flipped in (out / "slice.set-aside.csv").read_text()
+    # the point measured again has its own check value: a further resume finds nothing to refuse
+    assert main(["--config", str(cfg), "--out", str(out), "--resume", "--no-progress"]) == 0
+
+
+def test_a_slice_without_row_checks_still_resumes_and_gets_them(done, tmp_path, capsys):
+    cfg, base = done
+    out = _copy(base, tmp_path / "o")  # an older capture: no slice.crc
+    rows = (out / "slice.csv").read_text().splitlines(keepends=True)
+    (out / "slice.csv").write_text("".join(rows[:-3]))  # three points still to measure
+    assert main(["--config", str(cfg), "--out", str(out), "--resume", "--no-progress"]) == 0, capsys.readouterr().err
+    checks = (out / "slice.crc").read_text().splitlines()
+    assert len([c for c in checks if not c.startswith("#")]) == 28  # the 25 rows found, then the 3 new ones
+    assert "# gonio-brdf slice" in (out / "slice.csv").read_text()  # the slice file itself is unchanged in form
+    assert read(out / "slice.csv").channels == ["value"]

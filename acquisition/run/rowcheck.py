@@ -7,9 +7,10 @@ tolerance of a planned incidence, its theta_o lies within that incidence's plann
 measure it. A row's values are impossible when a channel lies below zero by more than
 :data:`~reconstruction.core.slicedata.NEGATIVE_SIGMAS` standard deviations plus
 :data:`~reconstruction.core.slicedata.NEGATIVE_FLOOR` of the slice's largest value
-(:func:`reconstruction.core.slicedata.below_zero`). Set-aside rows move, as they were written, to
-``DIR/slice.set-aside.csv`` (the slice's header lines, then the rows), and the slice is rewritten atomically
-without them.
+(:func:`reconstruction.core.slicedata.below_zero`). A row whose check value in ``slice.crc`` does not match its
+line (a digit flipped, an edit; :mod:`acquisition.run.sliceout`) is refused too. Set-aside rows move, as they
+were written, to ``DIR/slice.set-aside.csv`` (the slice's header lines, then the rows), and the slice is
+rewritten atomically without them.
 """
 
 from __future__ import annotations
@@ -91,10 +92,13 @@ def row_problems(existing: Slice, measurable: Sequence[Sequence[float]], toleran
     f, sd = existing.brdf()
     low = below_zero(f, sd)
     first = _header_lines(path) + 1 if path is not None else 1
+    edited = _check_values(path, n) if path is not None else {}
     out = []
-    for i in np.flatnonzero(off | low):
+    for i in np.flatnonzero(off | low | np.isin(np.arange(n), list(edited))):
         ti, to = float(rows[i, 0]), float(rows[i, 1])
-        if off[i]:
+        if i in edited:
+            why = edited[int(i)]
+        elif off[i]:
             if len(pts):
                 p = pts[near[i]]
                 why = (f"not a point of the plan (nearest planned point ({p[0]:g}, {p[1]:g}) is {dist[i]:.3g} deg "
@@ -107,6 +111,34 @@ def row_problems(existing: Slice, measurable: Sequence[Sequence[float]], toleran
             why = (f"f_r {f[i, c]:.4g} +- {sd[i, c]:.2g} 1/sr is {sig:.0f} standard deviations below zero "
                    "(impossible for its uncertainty)")
         out.append(RowProblem(int(i), first + int(i), ti, to, why))
+    return out
+
+
+def _check_values(path: Path, n: int) -> dict[int, str]:
+    """The rows (index -> why) whose check value in ``slice.crc`` (:mod:`acquisition.run.sliceout`) does not match
+    their line, or that have none while a later row has one; {} without the file."""
+    from acquisition.run.sliceout import ROWCHECK_NAME, read_row_checks, row_crc
+
+    checks = read_row_checks(path)
+    if checks is None:
+        return {}
+    with open(path, encoding="utf-8-sig", newline="") as fh:
+        lines = fh.read().splitlines(keepends=True)
+    head = _header_lines(path)
+    columns = [c.strip() for c in lines[head - 1].split(",")]
+    body = [ln for ln in lines[head:] if ln.endswith(("\n", "\r"))][:n]
+    k_i, k_o = columns.index("theta_i_deg"), columns.index("theta_o_deg")
+    cells = [ln.rstrip("\r\n").split(",") for ln in body]
+    want = [checks.get((c[k_i].strip(), c[k_o].strip())) if len(c) > max(k_i, k_o) else None for c in cells]
+    later = np.flip(np.cumsum(np.flip([w is not None for w in want]))) > 0  # a row at or after it has one
+    out = {}
+    for i, (ln, w) in enumerate(zip(body, want, strict=True)):
+        if w is None:
+            if i + 1 < len(want) and later[i + 1]:
+                out[i] = f"no check value for it in {ROWCHECK_NAME}: the capture did not write this row"
+        elif w != row_crc(ln):
+            out[i] = (f"edited or corrupted since it was written (its check value in {ROWCHECK_NAME} does not "
+                      "match)")
     return out
 
 

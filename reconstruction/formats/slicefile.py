@@ -244,8 +244,9 @@ class SliceWriter:
         os.fsync(self._fh.fileno())
 
     def append(self, theta_i_deg: float, theta_o_deg: float, values: Sequence[float],
-               std: Sequence[float], repeats: int, unix_time_s: float) -> None:
-        """Write one sample (in the file's column order) and make it durable before returning."""
+               std: Sequence[float], repeats: int, unix_time_s: float) -> str:
+        """Write one sample (in the file's column order) and make it durable before returning; returns the line
+        written (with its line ending)."""
         if len(values) != len(self.channels) or len(std) != len(self.channels):
             raise SliceError(f"{self.path}: expected {len(self.channels)} values and stds, "
                              f"got {len(values)} and {len(std)}")
@@ -254,11 +255,13 @@ class SliceWriter:
         for c, v, e in zip(self.channels, values, std, strict=True):
             cells[c] = _fmt(v)
             cells[f"{c}_std"] = _fmt(e)
+        line = ",".join(cells[c] for c in self.columns) + self.newline
         try:
-            self._fh.write(",".join(cells[c] for c in self.columns) + self.newline)
+            self._fh.write(line)
             self._sync()
         except OSError as e:  # a full disk: name the file (buffered writes do not)
             raise OSError(e.errno, e.strerror or str(e), str(self.path)) from None
+        return line
 
     def close(self) -> None:
         if not self._fh.closed:
