@@ -117,7 +117,7 @@ def row_problems(existing: Slice, measurable: Sequence[Sequence[float]], toleran
 def _check_values(path: Path, n: int) -> dict[int, str]:
     """The rows (index -> why) whose check value in ``slice.crc`` (:mod:`acquisition.run.sliceout`) does not match
     their line, or that have none while a later row has one; {} without the file."""
-    from acquisition.run.sliceout import ROWCHECK_NAME, read_row_checks, row_crc
+    from acquisition.run.sliceout import ROWCHECK_NAME, read_row_checks, row_check
 
     checks = read_row_checks(path)
     if checks is None:
@@ -127,16 +127,15 @@ def _check_values(path: Path, n: int) -> dict[int, str]:
     head = _header_lines(path)
     columns = [c.strip() for c in lines[head - 1].split(",")]
     body = [ln for ln in lines[head:] if ln.endswith(("\n", "\r"))][:n]
-    k_i, k_o = columns.index("theta_i_deg"), columns.index("theta_o_deg")
-    cells = [ln.rstrip("\r\n").split(",") for ln in body]
-    want = [checks.get((c[k_i].strip(), c[k_o].strip())) if len(c) > max(k_i, k_o) else None for c in cells]
+    have = [row_check(ln, columns) for ln in body]  # the file was read as a slice: its rows are numbers
+    want = [checks.get((a, b)) for a, b, _ in have]
     later = np.flip(np.cumsum(np.flip([w is not None for w in want]))) > 0  # a row at or after it has one
     out = {}
-    for i, (ln, w) in enumerate(zip(body, want, strict=True)):
+    for i, (got, w) in enumerate(zip(have, want, strict=True)):
         if w is None:
             if i + 1 < len(want) and later[i + 1]:
                 out[i] = f"no check value for it in {ROWCHECK_NAME}: the capture did not write this row"
-        elif w != row_crc(ln):
+        elif w != got[2]:
             out[i] = (f"edited or corrupted since it was written (its check value in {ROWCHECK_NAME} does not "
                       "match)")
     return out

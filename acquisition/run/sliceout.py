@@ -1,8 +1,9 @@
 """Where a capture's samples go: ``slice.csv`` (:class:`SliceOutput`, the engine's sink) and the check value of
 each of its rows, ``slice.crc`` (:class:`RowChecks`).
 
-``slice.crc`` holds one line per row appended, ``theta_i,theta_o,crc``: the row's two angle cells as written and
-the CRC-32 (``zlib.crc32``, 8 hex digits) of the row's line as written (without its line ending). A resume
+``slice.crc`` holds one line per row appended, ``theta_i,theta_o,crc``: the row's angles and the CRC-32
+(``zlib.crc32``, 8 hex digits) of its numbers (:func:`row_check`: independent of column order, line endings and
+number formatting, so another tool's harmless rewrite of the slice keeps them valid). A resume
 (:mod:`acquisition.run.rowcheck`) recomputes it for every row on disk: a row edited or corrupted since it was
 written (a flipped digit) no longer matches, and a row the capture never wrote has no entry. The newest entry of a
 point counts (a point set aside and measured again). The file is flushed with each row but not fsynced: a power
@@ -27,20 +28,27 @@ from reconstruction.formats.slicefile import SliceWriter
 
 log = logging.getLogger("acquisition.engine")
 
-__all__ = ["SliceOutput", "RowChecks", "ROWCHECK_NAME", "row_crc", "read_row_checks"]
+__all__ = ["SliceOutput", "RowChecks", "ROWCHECK_NAME", "row_check", "read_row_checks"]
 
 ROWCHECK_NAME = "slice.crc"
-_HEADER = "# gonio-brdf row checks: theta_i_deg,theta_o_deg,crc32 of the row's line in slice.csv\n"
+_HEADER = "# gonio-brdf row checks: theta_i_deg,theta_o_deg,crc32 of the row's numbers (acquisition.run.sliceout)\n"
 
 
-def row_crc(line: str) -> str:
-    """The check value of a slice row: CRC-32 of its text (line ending excluded), 8 lower-case hex digits."""
-    return f"{zlib.crc32(line.rstrip(chr(13) + chr(10)).encode('utf-8')):08x}"
+_FIXED = ("theta_i_deg", "theta_o_deg", "repeats", "unix_time_s")
 
 
-def _angle_cells(line: str, columns: Sequence[str]) -> tuple[str, str]:
-    cells = line.rstrip("\r\n").split(",")
-    return cells[columns.index("theta_i_deg")].strip(), cells[columns.index("theta_o_deg")].strip()
+def row_check(line: str, columns: Sequence[str]) -> tuple[str, str, str]:
+    """(theta_i, theta_o, crc) of a slice row: the angles as ``repr`` of their floats, and the CRC-32 (8 lower-case
+    hex digits) of the row's numbers in the format's own column order (theta_i, theta_o, the values, their
+    standard deviations, repeats, unix_time_s), each as ``repr`` of its float, joined by commas: independent of the
+    file's column order, line endings and number formatting (a tool that reorders columns or writes ``30`` for
+    ``30.0`` changes nothing), changed by any number that changes. Raises ValueError for a row that is not
+    numbers in ``columns``."""
+    cells = dict(zip(columns, line.rstrip("\r\n").split(","), strict=True))
+    channels = [c for c in columns if c not in _FIXED and not c.endswith("_std")]
+    order = ["theta_i_deg", "theta_o_deg", *channels, *(f"{c}_std" for c in channels), "repeats", "unix_time_s"]
+    nums = [repr(float(cells[c])) for c in order]
+    return nums[0], nums[1], f"{zlib.crc32(','.join(nums).encode('ascii')):08x}"
 
 
 def read_row_checks(path: Path) -> dict[tuple[str, str], str] | None:
@@ -80,17 +88,15 @@ class RowChecks:
                     rows = [ln for ln in slice_path.read_text(encoding="utf-8-sig").splitlines(keepends=True)
                             if ln[:1] not in ("#", "") and ln.endswith(("\n", "\r"))][1:]  # after the header
                     with open(side, "a", encoding="utf-8", newline="\n") as fh:
-                        fh.writelines(f"{a},{b},{row_crc(ln)}\n" for ln in rows
-                                      for a, b in [_angle_cells(ln, columns)])
+                        fh.writelines(",".join(row_check(ln, columns)) + "\n" for ln in rows)
             return cls(side, columns)
         except (OSError, ValueError, IndexError) as e:
             log.warning("cannot keep the row checks in %s (%s); the capture goes on without them", side, e)
             return None
 
     def add(self, line: str) -> None:
-        a, b = _angle_cells(line, self.columns)
         try:
-            self._fh.write(f"{a},{b},{row_crc(line)}\n")
+            self._fh.write(",".join(row_check(line, self.columns)) + "\n")
             self._fh.flush()
         except OSError as e:  # the slice row is safe; only its check value is lost
             log.warning("cannot write %s: %s", self.path, e)
