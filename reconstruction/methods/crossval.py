@@ -222,7 +222,9 @@ def score_predictions(s: Slice, name: str, pred: Array, masks: list[NDArray[np.b
             sq += float(np.sum(d * d))
             n += d.size
     why = None
-    if not per:  # nothing was held out: say why, so that a refusal names each method's real reason
+    if not per and score_mask is not None and any(h.any() for h in masks):
+        why = "no held-out sample lies inside the scene's directions to judge it by"
+    elif not per:  # nothing was held out: say why, so that a refusal names each method's real reason
         why = ("no sample could be held out to judge it (every sample is kept for training: too few samples away "
                "from the mirror direction, or one block of theta_o)")
     elif den <= 0:
