@@ -357,8 +357,8 @@ class Bench:
             log.error("parking failed: %s", e)
         finally:
             try:
-                m.release()
-                log.info("motion released (torque off)")
+                if m.release() is not False:  # False: the driver said why torque could not be switched off
+                    log.info("motion released (torque off)")
             except Exception as e:  # pragma: no cover - best effort
                 log.error("torque off failed: %s", e)
 

@@ -155,8 +155,9 @@ def _duration(seconds: float) -> str:
     return f"{seconds / 86400:.1f} days"
 
 
-def _time_summary(r: Any) -> str:
-    """Estimate and bench time of a capture side by side (two lines, indented)."""
+def _time_summary(r: Any, time_scale: float = 0.0) -> str:
+    """Estimate and bench time of a capture side by side (two lines, indented; a third on a simulator running
+    faster than real time, ``time_scale`` > 1, whose bench time magnifies the software's own wall time)."""
     clock = "simulated " if r.bench_clock == "controller" else ""
     est = r.estimate_s + r.estimate_refinement_s
     dev = f" ({100.0 * (est - r.bench_time_s) / r.bench_time_s:+.1f} %)" if r.bench_time_s > 0 else ""
@@ -168,7 +169,11 @@ def _time_summary(r: Any) -> str:
             f"  actual (estimate): moving {r.motion_s:.2f} s ({e.get('motion_s', r.plan_motion_estimate_s):.2f} s; "
             f"{r.naive_motion_estimate_s:.2f} s in naive order), settling {r.settle_s:.2f} s "
             f"({e.get('settle_s', 0.0):.2f} s), detector {r.read_s:.2f} s ({e.get('read_s', 0.0):.2f} s), darks "
-            f"and white reference {other:.2f} s ({e.get('calibration_s', 0.0):.2f} s)")
+            f"and white reference {other:.2f} s ({e.get('calibration_s', 0.0):.2f} s)"
+            + (f"\n  at [simulator].time_scale = {time_scale:g} the software's own wall time (its commands, polls and "
+               f"file writes) counts {time_scale:g} times over as bench time, beyond what the estimate models for a "
+               "real bench: the capture takes longer than estimated (docs/capture.md, Capture time: one model)"
+               if time_scale > 1 and r.bench_clock == "controller" else ""))
 
 
 def _start_live(args: argparse.Namespace) -> Any:
@@ -261,10 +266,10 @@ def _run(args: argparse.Namespace) -> int:
                 print(f"gonio-capture: {e}", file=sys.stderr)
                 return 1
         if not bench.cfg.detector.on_board and bench.cfg.bench.transport != "simulated":
-            from acquisition.devices.external import external_library
+            from acquisition.devices.external import check_external_library
 
-            try:  # the detector's library (seabreeze, pyvisa) is installed: the capture will need it
-                external_library(bench.cfg)
+            try:  # the detector's library (seabreeze; pyvisa and a VISA library) is installed: the capture needs it
+                check_external_library(bench.cfg)
             except ConfigError as e:
                 print(f"gonio-capture: {e}; nothing was moved", file=sys.stderr)
                 return 2
@@ -311,9 +316,16 @@ def _run(args: argparse.Namespace) -> int:
                 settings = "; ".join(f"{k}{'' if 'gain' in k else ' s'}: {v}"
                                      for k, v in result.auto_range_settings.items())
                 what = ranged_wording(result.auto_range_settings, bench.cfg.detector.integration_time_s)
-                ranged = (f"\n  auto-ranged {result.auto_ranged} point(s), read {what} ({settings});"
+                count = f"{result.auto_ranged} point(s)"
+                if result.samples_total > result.samples_new:  # a resume: this run's, then the capture's
+                    count = (f"{result.auto_ranged_new} of this run's {result.samples_new} point(s) "
+                             f"({result.auto_ranged} of the capture's {result.samples_total})")
+                ranged = (f"\n  auto-ranged {count}, read {what} ({settings});"
                           f" {result.auto_range_overhead_s:.2f} s of extra integration in this run")
-            print(f"gonio-capture: {result.message}{extra}\n{_time_summary(result)}{ranged}", file=sys.stderr)
+            from acquisition.plans.geometry import _simulator_timing
+
+            scale = (_simulator_timing(bench.cfg) or {}).get("time_scale", 0.0)
+            print(f"gonio-capture: {result.message}{extra}\n{_time_summary(result, scale)}{ranged}", file=sys.stderr)
         return 0
     print(f"gonio-capture: {result.message}", file=sys.stderr)
     return result.exit_code or 1

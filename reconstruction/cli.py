@@ -451,7 +451,9 @@ def _main(ap: argparse.ArgumentParser, args: argparse.Namespace) -> int:
         written += [o[k] for k in ("report", "html") if k in o]
         print(f"{PROG}: method {rep['method']}{model}: wrote {', '.join(written)}"
               + (f"; IMPLAUSIBLE, written because of --allow-implausible: check(s) failed: {', '.join(failed)}"
-                 if failed else "; checks passed"), file=sys.stderr)
+                 if failed else "; checks passed" + (f", but see the {len(rep['warnings'])} warning(s) above"
+                                                      if rep.get("warnings") else "")),
+              file=sys.stderr)
         if "uncertainty" in rep:
             u = rep["uncertainty"]
             ms = u["median_sigma"]

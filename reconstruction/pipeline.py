@@ -364,7 +364,8 @@ def _warn(rep: dict[str, Any], files: list[str]) -> None:
 
     from reconstruction.report.summary import guard_warnings
 
-    said = guard_warnings(rep["coverage"], rep.get("cross_validation"), ", ".join(files))
+    said = guard_warnings(rep["coverage"], rep.get("cross_validation"), ", ".join(files), rep.get("method"),
+                          rep.get("parameters"))
     for msg in said:
         warnings.warn(msg, UserWarning, stacklevel=2)
     if said:

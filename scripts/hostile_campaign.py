@@ -7,6 +7,9 @@ Parts (the corpora are those of the test suite, tests/hostile.py):
 
 * hostile inputs and outputs of ``gonio-reconstruct`` and hostile bench / scene files of ``gonio-capture --check``
   (subprocesses): clean = exit 0 or 2 (1 only for an I/O fault), one line, no traceback, no output half-written;
+* silent wrong answers (issue 49, tests/hostile_silent.py): tampered capture folders resumed, ``--check`` of a PM100
+  bench without a VISA library, reconstructions the samples cannot support: refused naming why (the files left as
+  they were) or done with the warning they need;
 * mutations of every shipped config: refused by ``--check`` naming the file and the key, or captured to
   completion on the simulator;
 * two captures started together on one ``--out``: one completes, the other refuses at once;
@@ -33,7 +36,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from tests import hostile  # noqa: E402
+from tests import hostile, hostile_silent  # noqa: E402
 from tests.helpers import planned  # noqa: E402
 from tests.test_acq_support import keys, make_raw, read, write_config  # noqa: E402
 from tests.test_fault_storms import MAX_RUNS, STORMS, storm_raw  # noqa: E402
@@ -70,7 +73,7 @@ def _main_quietly(argv: list[str]) -> tuple[int, str]:
 def corpus(name: str, cases: list[hostile.Case]) -> Tally:
     t = Tally(name)
     for o in hostile.run_all(cases):
-        t.add(o.clean, o.traceback, int(o.half_written), f"{o.case.name}: {'; '.join(o.problems)}")
+        t.add(o.clean, o.traceback, int(o.lost), f"{o.case.name}: {'; '.join(o.problems)}")
     return t
 
 
@@ -208,6 +211,9 @@ def main(argv: list[str] | None = None) -> int:
         parts = [
             corpus("hostile inputs/outputs of gonio-reconstruct", hostile.reconstruct_cases(work / "reconstruct")),
             corpus("hostile configs/scenes of gonio-capture --check", hostile.capture_check_cases(work / "capture")),
+            corpus("silent wrong answers: tampered resumes, unsupported tables (issue 49)",
+                   hostile_silent.capture_cases(work / "silent-capture")
+                   + hostile_silent.reconstruct_cases(work / "silent-reconstruct")),
             mutations(work / "mutations"),
             concurrency(work / "concurrency", trials),
             kills(work / "kills", trials),

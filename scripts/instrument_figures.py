@@ -141,7 +141,8 @@ def gains_figure(out: Path) -> dict[str, float]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--out", default="docs", help="folder for the PNG files (default: docs)")
+    ap.add_argument("--out", default="out/figures",
+                    help="folder for the PNG files (default: out/figures; --out docs updates the docs' figures)")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

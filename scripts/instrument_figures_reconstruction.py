@@ -49,7 +49,8 @@ def capture(alpha: float, inst: Instrument) -> tuple[Material, Slice]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default=str(REPO / "docs"))
+    ap.add_argument("--out", default=str(REPO / "out" / "figures"),
+                    help="folder for the PNG (default: out/figures; --out docs updates the docs' figure)")
     args = ap.parse_args(argv)
     import matplotlib
 
@@ -90,6 +91,7 @@ def main(argv: list[str] | None = None) -> int:
     axes[1].legend(fontsize=8, loc="upper right")
     fig.tight_layout()
     out = Path(args.out) / "instrument-aperture-blur.png"
+    out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
     print(f"wrote {out}")
     return 0

@@ -6,7 +6,8 @@ It reads what the README's first command writes (the capture, then ``gonio-recon
     .venv/bin/gonio-capture --config configs/simulated.toml --out out/demo
     .venv/bin/gonio-reconstruct out/demo/slice.csv --method auto --out out/demo/material.binary \\
         --preview out/demo/material.exr --report out/demo/material.json
-    .venv/bin/python scripts/readme_figure.py [--demo out/demo] [--out docs/demo.png]
+    .venv/bin/python scripts/readme_figure.py [--demo out/demo] [--out FILE.png]   # out/demo/demo.png
+    .venv/bin/python scripts/readme_figure.py --update-docs                        # docs/demo.png, the README's
 
 The prediction is read from the written MERL table (trilinear between bin centres, as ``merl.lookup`` does), so
 the figure shows the file a renderer gets, not the method's internal model; the sphere is
@@ -112,8 +113,13 @@ def main(argv: list[str] | None = None) -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--demo", type=Path, default=REPO / "out" / "demo",
                     help="the folder of the demo capture and reconstruction (default: out/demo)")
-    ap.add_argument("--out", type=Path, default=REPO / "docs" / "demo.png", help="PNG to write (docs/demo.png)")
+    ap.add_argument("--out", type=Path, default=None,
+                    help="PNG to write (default: demo.png in the --demo folder; the tracked docs/demo.png only with "
+                         "--update-docs)")
+    ap.add_argument("--update-docs", action="store_true", help="write the README's picture, docs/demo.png")
     args = ap.parse_args(argv)
+    if args.out is None:
+        args.out = REPO / "docs" / "demo.png" if args.update_docs else args.demo / "demo.png"
     for name in ("slice.csv", "material.binary"):
         if not (args.demo / name).is_file():
             print(f"readme_figure: {args.demo / name} not found: run the README's first command first",

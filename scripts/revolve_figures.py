@@ -229,7 +229,8 @@ def figures(out_dir: Path) -> None:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--out", type=Path, default=REPO / "docs", help="folder for the PNGs (default: the repo's docs/)")
+    ap.add_argument("--out", type=Path, default=REPO / "out" / "figures",
+                    help="folder for the PNGs (default: out/figures; --out docs updates the docs' figures)")
     ap.add_argument("--only", choices=("table", "figures"), help="only the table, or only the figures")
     args = ap.parse_args()
     t0 = time.perf_counter()

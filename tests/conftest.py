@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import shutil
 import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -113,7 +115,13 @@ def pytest_configure(config: pytest.Config) -> None:
     and where ``PYTHONDONTWRITEBYTECODE`` is set (CI machines often do) every child would compile the modules it
     imports again (0.03-0.1 s each). Up-to-date bytecode is left as it is."""
     import compileall
+    import os
+    import tempfile
 
+    if not hasattr(config, "workerinput"):  # the controller: a folder where every process says what it wrote
+        os.environ[worktree.AUDIT_ENV] = tempfile.mkdtemp(prefix="gonio-test-writes-")
+    if os.environ.get(worktree.AUDIT_ENV):  # the controller and each xdist worker (which inherit the variable)
+        worktree.start_audit(REPO, Path(os.environ[worktree.AUDIT_ENV]))
     if hasattr(config, "workerinput"):  # a pytest-xdist worker: the controller has done it
         return
     for pkg in COMPILED_PACKAGES:
@@ -152,13 +160,19 @@ def pytest_sessionstart(session: pytest.Session) -> None:
 
 def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
     """Fail the session if its tests left files in the working tree (or changed committed ones): tests write only
-    to temporary folders. Only after a whole run (a selection of tests or ``-x`` may be cut short, yet it is
-    checked too: what it wrote, it wrote)."""
+    to temporary folders. Not counted: what other programs (a user's capture into ``out/``) write into git-ignored
+    folders meanwhile (tests/worktree.py). Only after a whole run (a selection of tests or ``-x`` may be cut short,
+    yet it is checked too: what it wrote, it wrote)."""
     state = session.config.stash.get(_WORKTREE, None)
     if state is None or state["before"] is None:
         return
     after = worktree.snapshot(REPO)
-    state["left"] = worktree.left_behind(state["before"], after or {})
+    left = set(worktree.left_behind(state["before"], after or {}))
+    log_dir = os.environ.get(worktree.AUDIT_ENV)
+    if log_dir:  # what the test processes themselves wrote, in ignored folders too (out/, build/)
+        left.update(worktree.audited(REPO, Path(log_dir)))
+        shutil.rmtree(log_dir, ignore_errors=True)
+    state["left"] = sorted(left)
     if state["left"] and session.exitstatus == pytest.ExitCode.OK:
         session.exitstatus = pytest.ExitCode.TESTS_FAILED
 

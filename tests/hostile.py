@@ -65,6 +65,9 @@ class Case:
     ok: bool | None = None
     unprivileged: bool = False
     file_size_limit: int | None = None
+    says: list[str] = field(default_factory=list)  # text stderr must contain whatever the exit status
+    never: list[str] = field(default_factory=list)  # text stderr must not contain
+    unchanged: list[Path] = field(default_factory=list)  # files the run must leave byte for byte as they were
 
 
 @dataclass
@@ -85,6 +88,11 @@ class Outcome:
     @property
     def half_written(self) -> bool:
         return any(p.startswith("half-written") or p.startswith("temporary") for p in self.problems)
+
+    @property
+    def lost(self) -> bool:
+        """Data lost: an output half-written, or a file the run had to leave alone changed."""
+        return self.half_written or any(p.startswith("changed") for p in self.problems)
 
 
 # --- running -----------------------------------------------------------------------------------------------------
@@ -158,6 +166,7 @@ def run_case(case: Case, timeout: float = 120.0, server: ForkServer | None = Non
     """``case`` as ``python -m MODULE ARGV...``: a new interpreter, or (``server``) a child forked from a warm one
     (tests/forkserver.py: the same process boundary, exit status and stderr, without the interpreter's start)."""
     module = {"reconstruct": "reconstruction.cli", "capture": "acquisition.cli"}[case.program]
+    kept = {p: p.read_bytes() if p.exists() else None for p in case.unchanged}
     if server is not None:
         if case.unprivileged:
             raise ValueError(f"{case.name}: dropping privileges needs a new interpreter (no fork server)")
@@ -188,6 +197,9 @@ def run_case(case: Case, timeout: float = 120.0, server: ForkServer | None = Non
         for text in case.expect:
             if text not in err:
                 problems.append(f"message lacks {text!r}")
+    problems += [f"message lacks {t!r}" for t in case.says if t not in err]
+    problems += [f"message has {t!r}" for t in case.never if t in err]
+    problems += [f"changed {p}" for p, data in kept.items() if (p.read_bytes() if p.exists() else None) != data]
     for out in case.outputs:
         what = _complete(out)
         if what:

@@ -66,7 +66,7 @@ def test_check_groups_the_unmeasurable_points(capsys):
     assert head == "576 measurable points, 68 not measurable", head
     listed = [ln for ln in rest if ln.startswith("  ")]
     assert listed == [f"  theta_i {ti}, theta_o {-ti - 8} to {-ti + 8} (17 points): collision: arms closer than "
-                      "min_separation_deg 8 (at the goals sent, in whole servo units)" for ti in (15, 30, 45, 60)]
+                      "min_separation_deg 8 (at the goals sent)" for ti in (15, 30, 45, 60)]
 
 
 def test_a_point_at_the_separation_limit_says_where_the_servos_put_it():

@@ -9,7 +9,7 @@ import shutil
 
 import pytest
 
-from tests import hostile
+from tests import hostile, hostile_silent
 
 #: every 6th case (and the full disk) as a new interpreter, ``python -m`` as a user runs it; the others as children
 #: of warm interpreters (tests/forkserver.py): the same process boundary, exit status and stderr, a fraction of the
@@ -48,3 +48,17 @@ def test_hostile_configs_and_scenes_of_gonio_capture_check(work):
     assert len(cases) >= 20
     outcomes = hostile.run_all(cases, real_every=REAL_EVERY)
     assert all(o.clean for o in outcomes), _report(outcomes)
+
+
+@pytest.mark.slow
+def test_issue_49_silent_wrong_answers_are_refused_or_said(work):
+    """Tampered capture folders resumed (a row off the plan, a value 7000 sigma below zero, a flipped digit, the
+    slice deleted or emptied under a run record, a torn line, --force), --check of a PM100 bench without a VISA
+    library, and reconstructions the samples cannot support: each refused in one line naming why (the files left
+    as they were) or done with the warning it needs, never a traceback, never a Python warning."""
+    cases = hostile_silent.capture_cases(work / "silent-capture") + hostile_silent.reconstruct_cases(
+        work / "silent-reconstruct")
+    assert len(cases) >= 14
+    outcomes = hostile.run_all(cases, real_every=REAL_EVERY)
+    assert all(o.clean for o in outcomes), _report(outcomes)
+    assert sum(o.code == 2 for o in outcomes) >= 6

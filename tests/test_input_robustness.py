@@ -94,8 +94,9 @@ def test_a_torn_cr_only_file_is_cut_at_its_last_line_not_emptied(tmp_path):
     text = p.read_text().replace("\n", "\r")
     p.write_bytes(text.encode() + b"30.0,85.0,0.1")  # torn last line after CR-only lines
     n = len(read_slice(slice_text(tmp_path, "ref.csv")))
-    with pytest.warns(UserWarning, match="torn last line"):
-        SliceWriter(p, ["value"]).close()
+    w = SliceWriter(p, ["value"])  # what it cut is the caller's to log (SliceWriter.notes), not a Python warning
+    w.close()
+    assert any("torn last line" in note for note in w.notes)
     assert len(read_slice(p)) == n
 
 

@@ -111,17 +111,17 @@ class BoardBacked:
 
     _swap: Callable[[str], None] | None = None
 
-    def set_sample(self, which: str) -> None:
-        """"REF" (the white reference) or "TARGET": the board's sample changer, else the operator."""
+    def set_sample(self, which: str) -> bool:
+        """"REF" (the white reference) or "TARGET": the board's sample changer, else the operator (then True)."""
         if self._board is not None:
-            self._board.set_sample(which)
-            return
+            return bool(self._board.set_sample(which))
         if which == "TARGET" and self._swap is None:
-            return
+            return False
         if self._swap is None:
             raise DeviceError(f"{self.name}: no sample changer (no detector board) and no operator prompt: mount "
                               "the white reference by hand, or use absolute calibration")
         self._swap(which)
+        return True
 
     # -- darks ----------------------------------------------------------------------------------------------------
     def with_source_off(self, read: Callable[[int], Reading], n: int) -> Reading:

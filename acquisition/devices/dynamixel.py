@@ -332,14 +332,16 @@ class DynamixelAxes:
         except Exception as e:
             log.warning("Dynamixel bus: stop failed: %s", e)
 
-    def release(self) -> None:
-        """Torque off on every servo (best effort, each tried even if another fails)."""
+    def release(self) -> bool:
+        """Torque off on every servo (best effort, each tried even if another fails). False when none could be
+        confirmed (the bus is gone: the log says to cut the servo power), so nobody reports the motion released."""
         if self.port is None:
-            return
+            return True
         if self.port_dead:
             log.error("Dynamixel bus on %s is gone: cannot switch torque off; cut the servo power", self.port_name)
-            return
+            return False
         self.torque_on = False
+        confirmed = 0
         for ax in self.axes.values():
             for _ in range(self.retries + 1):
                 try:
@@ -348,9 +350,11 @@ class DynamixelAxes:
                     log.warning("%s: torque off failed: %s", self._who(int(ax.id)), e)
                     break
                 if ret[0] == COMM_SUCCESS:
+                    confirmed += 1
                     break
             else:
                 log.warning("%s: torque off not confirmed", self._who(int(ax.id)))
+        return confirmed > 0
 
     def healthy(self) -> bool:
         """False once a hardware error was seen (then the arms must not be moved) or the port failed."""

@@ -17,7 +17,7 @@ from acquisition.devices.seabreeze import SeabreezeDetector, import_seabreeze
 from acquisition.devices.serial_link import SerialLink
 from acquisition.errors import ConfigError, DeviceError
 
-__all__ = ["EXTERNAL_TYPES", "external_detector", "external_library"]
+__all__ = ["EXTERNAL_TYPES", "external_detector", "external_library", "check_external_library"]
 
 #: ``[detector].type`` values whose detector is not the board's.
 EXTERNAL_TYPES = ("seabreeze", "pm100")
@@ -38,6 +38,26 @@ def external_library(cfg: BenchConfig, simulated: bool = False) -> Any:
         return import_seabreeze() if d.type == "seabreeze" else import_pyvisa()
     except DeviceError as e:
         raise ConfigError(f"{cfg.path}: {e}") from None
+
+
+def check_external_library(cfg: BenchConfig) -> None:
+    """What ``--check`` asks of an external detector's library: :func:`external_library` imports it, and for a
+    PM100 pyvisa must also find a VISA library underneath (``pyvisa.ResourceManager()`` raises without one; it only
+    loads the library, no instrument is opened). A :class:`ConfigError` in one line naming what to install."""
+    lib = external_library(cfg)
+    if cfg.detector.type != "pm100":
+        return
+    from acquisition.devices.pm100 import INSTALL_HINT
+
+    try:
+        rm = lib()
+    except Exception as e:  # noqa: BLE001 - ValueError / OSError: no VISA implementation underneath pyvisa
+        raise ConfigError(f'{cfg.path}: [detector].type = "pm100": pyvisa has no VISA library to use ({e}); '
+                          f"{INSTALL_HINT}") from None
+    try:
+        rm.close()
+    except Exception:  # noqa: BLE001 - closing what was only opened to check it
+        pass
 
 
 def external_detector(cfg: BenchConfig, link: SerialLink | None, library: Any) -> SeabreezeDetector | Pm100Detector:

@@ -400,22 +400,23 @@ class SerialDetector:
         return {"type": self.type, "channels": len(self.channels), "integration_time_s": self.integration_time_s,
                 "saturation": self.saturation}
 
-    def set_sample(self, which: str) -> None:
-        """Sample changer: "REF" (white reference) or "TARGET". Without a changer, ask the operator."""
+    def set_sample(self, which: str) -> bool:
+        """Sample changer: "REF" (white reference) or "TARGET". Without a changer, ask the operator (then True)."""
         if self.has_sample_changer:
             try:
                 self.link.command(f"SAMPLE {which}")
-                return
+                return False
             except ControllerError as e:
                 if e.code not in (1, 10):
                     raise
                 self.has_sample_changer = False
         if which == "TARGET" and self.manual_swap is None:
-            return  # nothing to ask: the sample is in place unless we asked for the reference
+            return False  # nothing to ask: the sample is in place unless we asked for the reference
         if self.manual_swap is None:
             raise DeviceError(f"{self.link.name}: no sample changer (SAMPLE not supported) and no operator "
                               "prompt: mount the white reference by hand, or use absolute calibration")
         self.manual_swap(which)
+        return True
 
     def time(self) -> float | None:
         """The controller's clock (s): simulated time on the simulator; None if not supported."""

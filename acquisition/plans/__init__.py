@@ -3,8 +3,9 @@
 ``messages`` (what a plan may ask: ``Move``, ``Read``, ``Dark``, ...), ``generators`` (the capture's plans:
 ``measure_points``, ``calibrate``, ``adaptive``, ``final_dark``, ``capture``; ``acquisition.plans.measure_points``
 is the name the examples use), ``plan`` (``Plan``: a grid of points and its checks), ``planconfig`` (the bench
-file's ``[plan]``), ``geometry`` (what the arms can reach; ``Reason``), ``ordering`` (short arm travel) and
-``refine`` (adaptive refinement's criterion). Imports the bench file's types and calibration, never a driver or
+file's ``[plan]``), ``geometry`` (what the arms can reach; ``Reason``), ``ordering`` (short arm travel),
+``refine`` (adaptive refinement's criterion) and ``reference`` (is the white reference plausible, before the
+sweep). Imports the bench file's types and calibration, never a driver or
 the run (``Plan.estimate`` asks the dry run only when called).
 """
 

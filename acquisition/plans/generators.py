@@ -45,6 +45,7 @@ from acquisition.plans.messages import (
 )
 from acquisition.plans.ordering import TWO_OPT_MAX_EVALUATIONS, order_points, path_time
 from acquisition.plans.planconfig import AdaptiveConfig
+from acquisition.plans.reference import check_reference
 from acquisition.plans.refine import refine_points
 
 log = logging.getLogger("acquisition.plans")
@@ -113,13 +114,15 @@ def measure(points: Sequence[Point], geometry: Geometry, repeats: int,
             done[point_key((ti, to))] = sample
 
 
-def white_reference(cfg: BenchConfig) -> PlanGen:
+def white_reference(cfg: BenchConfig, by_hand: list[bool] | None = None) -> PlanGen:
     """Read the white reference at the reference geometry (the reference in front of the detector meanwhile).
-    Returns (reading, its Ranged record or None)."""
+    Returns (reading, its Ranged record or None); ``by_hand`` gets whether the operator mounted it (no changer)."""
     c = cfg.calibration
     log.info("measuring the white reference at (%g, %g) (%d repeats)", c.reference_theta_i_deg,
              c.reference_theta_o_deg, c.reference_repeats)
-    yield SelectSample("REF")
+    asked = yield SelectSample("REF")
+    if by_hand is not None:
+        by_hand.append(bool(asked))
     try:
         yield Move(c.reference_theta_i_deg, c.reference_theta_o_deg, checkpoint=False)
         yield Settle()
@@ -158,7 +161,8 @@ def calibrate(cfg: BenchConfig, rho_ref: np.ndarray) -> PlanGen:
             yield Dark(d.dark_repeats, f"dark reading at gain {g:g}", setting=k)
     t_ref_read = cfg.detector.integration_time_s
     if c.mode == "relative":
-        ref, ranged = yield from white_reference(cfg)
+        by_hand: list[bool] = []
+        ref, ranged = yield from white_reference(cfg, by_hand)
         if ranged is not None:
             t_ref_read = ranged.integration_time_s
             if ranged.ranged:
@@ -176,6 +180,7 @@ def calibrate(cfg: BenchConfig, rho_ref: np.ndarray) -> PlanGen:
             raise DeviceError(f"white reference at ({c.reference_theta_i_deg:g}, {c.reference_theta_o_deg:g}): "
                               f"{e} (reference {ref.mean.tolist()[:4]}, dark {dark.mean.tolist()[:4]} counts)"
                               ) from None
+        yield from check_reference(ref, dark, c.reference_repeats, rho_ref, any(by_hand))  # named before the sweep
     else:
         assert c.source_power is not None and c.detector_solid_angle_sr is not None
         # source_power is counts at gain 1; readings are converted to the reference setting's gain

@@ -66,6 +66,8 @@ class Why(str):
 #: bench, or a simulator with time_scale > 0), not when simulated time jumps.
 QUERY_S = 0.0005
 HOST_S_PER_READING = 0.004
+#: the whole unit of each ``[bench].motion``'s arms, as messages name it
+UNIT_NAMES = {"dynamixel": "servo units", "grbl": "steps", "serial": "controller units"}
 
 #: The trapezoid of the shared time model (kept under its old name).
 _trapezoid_time = trapezoid_duration
@@ -98,6 +100,7 @@ class Geometry:
     poll_s: float = 0.0
     host_s: float = 0.0
     coordinated: bool = False  # both arms on one straight line (GRBL), see reconstruction.bench.timing
+    units: str = "controller units"  # what a whole unit of the arms is called: "servo units", "steps"
 
     @classmethod
     def from_config(cls, cfg: BenchConfig) -> Geometry:
@@ -122,7 +125,7 @@ class Geometry:
         arrive = 0.0 if sim is None or grbl else sim["settle_time_s"]
         return cls(cfg.light, cfg.det_axis, cfg.bench.min_separation_deg, cfg.bench.blind_spot_half_width_deg,
                    speeds[0], speeds[1], cfg.motion.settle_s, arrive, (cfg.motion.poll_interval_s + QUERY_S) * scale,
-                   HOST_S_PER_READING * scale, grbl)
+                   HOST_S_PER_READING * scale, grbl, UNIT_NAMES.get(cfg.bench.motion, "controller units"))
 
     @cached_property
     def timing(self) -> MoveTiming:
@@ -155,7 +158,7 @@ class Geometry:
             # the planned angles, and where whole controller units put the arms when that differs (a point planned
             # exactly min_separation_deg apart may fall short by a fraction of a unit: it is refused, and says why)
             planned = abs(ti + to)
-            sent = f" ({sep:.3f} at the goals sent, in whole servo units)" if abs(planned - sep) > 5e-4 else ""
+            sent = f" ({sep:.3f} at the goals sent, in whole {self.units})" if abs(planned - sep) > 5e-4 else ""
             return Why(f"collision: arms {planned:g} deg apart{sent}, closer than min_separation_deg "
                        f"{self.min_separation_deg:g}", Reason.COLLISION)
         if sep < self.blind_spot_half_width_deg:

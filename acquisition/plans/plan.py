@@ -117,8 +117,8 @@ class PlanCheck:
 
 
 #: what makes a reason's text specific to one point, and its general form (a group's)
-_GENERAL = ((re.compile(r"arms [\d.]+ deg apart( \([\d.]+ at the goals sent, in whole servo units\))?, closer than "
-                        r"(min_separation_deg \S+)"), r"arms closer than \2 (at the goals sent, in whole servo units)"),
+_GENERAL = ((re.compile(r"arms [\d.]+ deg apart( \([\d.]+ at the goals sent, in whole [a-z ]+\))?, closer than "
+                        r"(min_separation_deg \S+)"), r"arms closer than \2 (at the goals sent)"),
             (re.compile(r"= [\d.]+ <"), "<"), (re.compile(r"^theta_([io]) \S+ outside"), r"theta_\1 outside"))
 
 

@@ -44,7 +44,7 @@ from acquisition.errors import (
     PortError,
     SampleChanged,
 )
-from acquisition.optics import footprint_meta, footprint_warning, instrument_of
+from acquisition.optics import footprint_warning
 from acquisition.plans.generators import (
     CaptureContext,
     PointsPlan,
@@ -79,22 +79,14 @@ from acquisition.run.record import (
     exit_status,
     result_dict,
 )
+from acquisition.run.sliceout import SliceOutput
 from reconstruction.atomic import is_no_space
-from reconstruction.formats.slicefile import Slice, SliceWriter
+from reconstruction.formats.slicefile import Slice
 
 log = logging.getLogger("acquisition.engine")
 
 __all__ = ["RunEngine", "CaptureResult", "SLICE_NAME", "SIDECAR_NAME", "LOG_NAME", "SIM_LOG_NAME",
            "out_dir_problem", "result_dict"]
-
-
-def _software_version() -> str:
-    try:
-        from importlib.metadata import version
-
-        return version("gonio-brdf")
-    except Exception:  # pragma: no cover
-        return "unknown"
 
 
 class _LogFile(logging.FileHandler):
@@ -146,68 +138,6 @@ class _Bar:
     def close(self) -> None:
         if self.pbar is not None:
             self.pbar.close()
-
-
-class _SliceOutput:
-    """The engine's sink: ``slice.csv``, created with its metadata once the calibration is known (a resume
-    appends to the existing file)."""
-
-    def __init__(self, eng: RunEngine, resume: bool, watch: ProgressFile | None = None) -> None:
-        self.eng = eng
-        self.resume = resume
-        self.watch = watch
-        self.writer: SliceWriter | None = None
-
-    def open(self, cal: Calibration, reference_integration_time_s: float | None) -> None:
-        eng = self.eng
-        det = eng.bench.detector
-        if self.resume:
-            self.writer = SliceWriter(eng.slice_path, det.channels)
-            return
-        cfg, c = eng.cfg, eng.cfg.calibration
-        meta = {
-            "bench": str(cfg.path),
-            "bench_name": cfg.bench.name,
-            "transport": cfg.bench.transport,
-            "software_version": _software_version(),
-            "quantity": "brdf",
-            "calibration": {**c.to_meta(), **cal.to_meta()},
-            "detector": {"type": det.type, "integration_time_s": cfg.detector.integration_time_s,
-                         "saturation": det.saturation, "auto_range": cfg.detector.auto_range,
-                         **({} if cfg.detector.on_board else {"device": det.describe()})},
-            "instrument": instrument_of(cfg).to_meta(),
-            "plan": eng.plan.to_meta(),
-            "plan_fingerprint": eng.plan.fingerprint(),
-            "config_fingerprint": eng.fingerprint,
-            "config_settings": eng.settings,
-            "unmeasurable": eng.result.unmeasurable,
-            "started": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-        }
-        if cfg.detector.gains:
-            meta["detector"]["gains"] = list(cfg.detector.gains)
-        fp = footprint_meta(cfg, [p[0] for p in eng.plan_points()])
-        if fp is not None:
-            meta["calibration"]["footprint"] = fp
-        if cfg.detector.auto_range:
-            meta["detector"]["min_integration_time_s"] = cfg.detector.min_integration_time_s
-            if c.mode == "relative" and reference_integration_time_s is not None:
-                meta["calibration"]["reference_reading_integration_time_s"] = reference_integration_time_s
-        if cfg.sample_name:
-            meta["material"] = cfg.sample_name
-        self.writer = SliceWriter(eng.slice_path, det.channels, meta)
-
-    def append(self, ti: float, to: float, f: list[float], std: list[float], repeats: int) -> None:
-        assert self.writer is not None
-        self.writer.append(ti, to, f, std, repeats, time.time())
-        if self.watch is not None:
-            self.watch.sample(ti, to, f, std, repeats)
-
-    def close(self) -> None:
-        if self.writer is not None:
-            try:
-                self.writer.close()
-            except OSError as e:  # every row was fsynced when appended; only the final sync failed
-                log.info("closing %s: %s", self.eng.slice_path, e)
 
 
 class RunEngine:
@@ -269,7 +199,7 @@ class RunEngine:
                 check_writable(self.out)
                 self.record = RunRecord.load(self.sidecar_path)
                 res = check_resume(self.cfg, self.plan, self.out, self.resume, self.record, self.fingerprint,
-                                   self.settings, self.force)
+                                   self.settings, self.force, self._measurable, geom)
                 est = self._estimate(chk, res.existing)
                 self._run_locked(chk, est, res, stale_pid=stale, t_wall0=t_wall0)
             finally:
@@ -446,7 +376,7 @@ class RunEngine:
         opened_here = False
         hardware_fault = False
         watch = ProgressFile(self.out / PROGRESS_NAME, r.estimate_s, r.points_planned) if self.live else None
-        sink = _SliceOutput(self, resume=existing is not None, watch=watch)
+        sink = SliceOutput(self, resume=existing is not None, watch=watch)
         bar = _Bar(self.progress, watch)
         try:
             try:
@@ -456,8 +386,8 @@ class RunEngine:
                         bench.simulator_log = self.out / SIM_LOG_NAME
                     try:
                         bench.open()
-                    except PortError:
-                        self._unopened = self._before_motion = True
+                    except (PortError, DeviceError) as e:  # a port or a library (no VISA): nothing started
+                        self._unopened = self._before_motion = not isinstance(e, HardwareError)
                         raise
                     opened_here = True
                 bench.motion.cancel = self._guard.check

@@ -43,6 +43,7 @@ from acquisition.plans.messages import (
     UseReference,
     Where,
 )
+from acquisition.plans.reference import reference_doubts
 from acquisition.run.record import CaptureResult, RunRecord
 
 log = logging.getLogger("acquisition.engine")
@@ -206,8 +207,9 @@ class Engine:
             self.ranger.ref_dark = rd
         return rd
 
-    def _select(self, m: SelectSample) -> None:
-        self.dev.detector.set_sample(m.which)
+    def _select(self, m: SelectSample) -> bool:
+        """Put the sample or the reference in the beam; True when the operator was asked to (no changer)."""
+        return bool(self.dev.detector.set_sample(m.which))
 
     # -- auto-ranging --------------------------------------------------------------------------------------------
     def _setup_ranger(self, t_ref: float, t_min: float, dark_repeats: int, gains: tuple[float, ...] | None = None
@@ -291,6 +293,8 @@ class Engine:
             raise DeviceError("a new white reference reading needs a relative calibration to replace")
         cal = replace(self.calibration, reference=m.reading)
         cal.scale(cal.reference_theta_o_deg)  # raises if the reference reads no signal
+        for why in reference_doubts(m.reading, cal.dark, previous=self.calibration.reference):
+            log.warning("white reference read again, doubtful: %s", why)
         log.info("white reference read again: %s counts (was %s)", np.round(m.reading.mean, 3).tolist()[:8],
                  np.round(self.calibration.reference.mean, 3).tolist()[:8])
         self.calibration = cal
@@ -318,12 +322,13 @@ class Engine:
                 self.record.save(durable=False)  # before the sample is appended: a point measured again is counted once
         if self.sink is not None:
             self.sink.append(ti, to, f.tolist(), fs.tolist(), m.reading.n if m.repeats <= 0 else m.repeats)
-        if self.account:
-            self._account()
-        r.samples_new += 1
-        r.samples_total += 1
+        r.auto_ranged_new += int(rg is not None and rg.ranged)
+        r.samples_new += 1  # counted the moment the row is durable: a link lost in the clock read below (TIME?)
+        r.samples_total += 1  # still counts it, as it is on disk
         if self.bar is not None:
             self.bar.advance()
+        if self.account:
+            self._account()
         return (ti, to, float(np.mean(f)), float(np.mean(fs)))
 
     def _convert(self, m: Convert) -> tuple[float, float, float, float]:

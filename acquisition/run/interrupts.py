@@ -61,7 +61,8 @@ class SignalGuard:
             self._messages.put(f"{name} received: stopping after the current step (send it again to abort parking)")
         elif not self.abort:
             self.abort = True
-            self._messages.put(f"{name} received again: not waiting for the arms to park")
+            again = "again" if signum == self.signum else f"after {_NAMES.get(self.signum, str(self.signum))}"
+            self._messages.put(f"{name} received {again}: not waiting for the arms to park")
 
     def _report(self) -> None:
         """The reporter thread: logs the handler's messages as they come, until :meth:`drain` sends None."""

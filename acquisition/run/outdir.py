@@ -9,6 +9,7 @@ import logging
 import math
 import os
 import tempfile
+import time
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,12 +20,13 @@ from acquisition.errors import PlanError
 from acquisition.plans.plan import Plan
 from acquisition.run.fingerprint import describe_differences, differences
 from acquisition.run.record import RunRecord
+from acquisition.run.rowcheck import SET_ASIDE_NAME, RowProblem, describe_problems, row_problems, set_aside
 from reconstruction.formats.slicefile import Slice, SliceError, read_slice
 
 log = logging.getLogger("acquisition.outdir")
 
 __all__ = ["SLICE_NAME", "LOG_NAME", "SIM_LOG_NAME", "out_dir_problem", "make_out_dir", "check_writable",
-           "has_rows", "Resume", "check_resume"]
+           "has_rows", "Resume", "check_resume", "recorded_samples"]
 
 SLICE_NAME = "slice.csv"
 LOG_NAME = "capture.log"
@@ -86,8 +88,16 @@ class Resume:
     setting_changes: list[tuple[str, Any, Any]] = field(default_factory=list)
     legacy: bool = False
     sample_changes: list[tuple[str, Any, Any]] = field(default_factory=list)  # [material], accepted with --force
+    set_aside: tuple[list[RowProblem], Path] | None = None  # rows moved out of the slice, as --force asks
+    notes: list[str] = field(default_factory=list)  # what reading the slice warned of (a torn last line)
 
     def log_checks(self, slice_path: Path) -> None:
+        for note in self.notes:
+            log.warning("resume: %s; it is cut off before appending", note)
+        if self.set_aside is not None:
+            probs, aside = self.set_aside
+            log.warning("resume: set aside %d row(s) of %s in %s, as --force asks: %s", len(probs), slice_path, aside,
+                        describe_problems(slice_path, probs))
         if self.sample_changes:
             log.warning("resuming with another [material] (the simulated sample), as --force asks: %s",
                         describe_differences(self.sample_changes))
@@ -122,13 +132,38 @@ def _check_fingerprint(res: Resume, meta: dict[str, Any], slice_path: Path, fp: 
         res.setting_changes = differences(old_settings, settings)
 
 
+def recorded_samples(record: RunRecord) -> int:
+    """How many samples the run record says the slice held: the most any run ended with or started from."""
+    counts = [run.get(k, 0) for run in record.runs for k in ("samples_total", "samples_before")]
+    return max((int(c) for c in counts if isinstance(c, (int, float)) and not isinstance(c, bool)), default=0)
+
+
+def _refuse_lost_slice(slice_path: Path, record: RunRecord) -> None:
+    """A resume whose slice is missing or holds no sample while the run record names captured samples: the slice
+    was deleted or emptied; starting over would hide that, so it is a :class:`PlanError` naming what was captured."""
+    n = recorded_samples(record)
+    if n <= 0:
+        return
+    last = next((run for run in reversed(record.runs) if "ended_unix" in run), record.runs[-1])
+    when = time.strftime("%Y-%m-%d %H:%M", time.localtime(float(last.get("ended_unix", last.get("started_unix", 0)))))
+    state = "is missing" if not slice_path.exists() else "holds no sample"
+    raise PlanError(f"cannot resume: {slice_path} {state}, but {record.path} records {n} sample(s) captured "
+                    f"({len(record.runs)} run(s), the last {last.get('status', 'unfinished')} at {when}); restore "
+                    "the slice file, or choose another --out to start a new capture")
+
+
 def check_resume(cfg: BenchConfig, plan: Plan, out: Path, resume: bool, record: RunRecord, fp: dict[str, Any],
-                 settings: dict[str, Any], force: bool = False) -> Resume:
+                 settings: dict[str, Any], force: bool = False, measurable: list[Any] | None = None,
+                 geometry: Any = None) -> Resume:
     """What the run in ``out`` continues, or a :class:`PlanError` if it may not (another experiment, or a capture
-    there without ``--resume``). A slice without a complete sample is removed (nothing to keep); the record of
-    a folder without a slice keeps its history of runs only."""
+    there without ``--resume``, or rows on disk that are not points of the plan or whose values are impossible:
+    :mod:`acquisition.run.rowcheck`, given the plan's ``measurable`` points; ``force`` sets them aside). A slice
+    without a complete sample is removed (nothing to keep) unless the run record names captured samples (then a
+    resume refuses); the record of a folder without a slice keeps its history of runs only."""
     slice_path = out / SLICE_NAME
     res = Resume()
+    if resume and not (slice_path.exists() and has_rows(slice_path)):
+        _refuse_lost_slice(slice_path, record)
     if slice_path.exists() and not has_rows(slice_path):
         # killed before the first sample was complete: nothing to keep (the calibration is re-measured)
         log.info("%s holds no complete sample; starting it again", slice_path)
@@ -141,12 +176,7 @@ def check_resume(cfg: BenchConfig, plan: Plan, out: Path, resume: bool, record: 
     if not resume:
         raise PlanError(f"{out} already holds a capture ({slice_path}); continue it with --resume, "
                         "or choose another --out")
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            existing = read_slice(slice_path)
-    except SliceError as e:
-        raise PlanError(f"cannot resume: {e}") from None
+    existing = _read_quietly(slice_path, res.notes)
     meta = existing.meta
     _check_fingerprint(res, meta, slice_path, fp, settings, force)
     fpr = meta.get("plan_fingerprint")
@@ -170,5 +200,29 @@ def check_resume(cfg: BenchConfig, plan: Plan, out: Path, resume: bool, record: 
     if t_was is not None and not math.isclose(float(t_was), t_now, rel_tol=1e-9):
         raise PlanError(f"cannot resume: {slice_path} was calibrated at [detector].integration_time_s = "
                         f"{float(t_was):g} s, the config now says {t_now:g} s; restore it or choose another --out")
+    if measurable is not None:
+        probs = row_problems(existing, measurable, cfg.motion.tolerance_deg, plan.adaptive is not None, geometry,
+                             slice_path)
+        if probs and not force:
+            raise PlanError(f"cannot resume: {len(probs)} row(s) on disk cannot be continued from: "
+                            f"{describe_problems(slice_path, probs, 3)}; restore them, or set them aside with "
+                            f"--resume --force (they move to {SET_ASIDE_NAME})")
+        if probs:
+            res.set_aside = (probs, set_aside(slice_path, probs))
+            existing = _read_quietly(slice_path)
     res.existing = existing
     return res
+
+
+def _read_quietly(slice_path: Path, notes: list[str] | None = None) -> Slice:
+    """The slice being resumed; what the reader warned of (a torn last line) goes to ``notes``, which the resume
+    logs in one line each, not a Python warning on the console."""
+    try:
+        with warnings.catch_warnings(record=True) as seen:
+            warnings.simplefilter("always")
+            s = read_slice(slice_path)
+    except SliceError as e:
+        raise PlanError(f"cannot resume: {e}") from None
+    if notes is not None:
+        notes.extend(str(w.message) for w in seen)
+    return s

@@ -89,6 +89,7 @@ class CaptureResult:
     dark_drift: list[float] | None = None
     adaptive_rounds: int = 0
     auto_ranged: int = 0                  # points of the capture (all runs) read at a shorter integration time
+    auto_ranged_new: int = 0              # of them, the points this run measured
     auto_range_settings: dict[str, int] = field(default_factory=dict)  # integration time (s) -> points
     auto_range_readings: int = 0          # readings discarded by auto-ranging in this run
     auto_range_overhead_s: float = 0.0    # their integration time plus new dark readings, this run (s)

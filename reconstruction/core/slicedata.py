@@ -169,3 +169,42 @@ class Slice:
             i = int(first[np.argmax(counts > 1)])
             raise SliceError(f"{self.source}: duplicate sample theta_i_deg = {self.theta_i_deg[i]}, "
                              f"theta_o_deg = {self.theta_o_deg[i]}")
+
+
+#: A value is impossibly far below zero when it lies below -(NEGATIVE_SIGMAS standard deviations + NEGATIVE_FLOOR of
+#: the slice's largest |value|): dark-subtracted noise scatters around zero by its standard deviation, so 5 sigma is
+#: one chance in 3.5 million per sample, and the floor keeps a zero or tiny std (one repeat) from flagging noise.
+NEGATIVE_SIGMAS = 5.0
+NEGATIVE_FLOOR = 1e-3
+
+
+def below_zero(values: ArrayLike, std: ArrayLike) -> NDArray[np.bool_]:
+    """(N,) True for the samples with a channel impossibly far below zero for its uncertainty (see
+    :data:`NEGATIVE_SIGMAS`); ``values``, ``std``: (N, C) in one unit (e.g. f_r in 1/sr)."""
+    v = np.asarray(values, dtype=np.float64)
+    s = np.asarray(std, dtype=np.float64)
+    if v.size == 0:
+        return np.zeros(v.shape[:1], dtype=bool)
+    v = v.reshape(v.shape[0], -1)
+    s = s.reshape(v.shape)
+    floor = NEGATIVE_FLOOR * float(np.max(np.abs(v)))
+    return np.any(v < -(NEGATIVE_SIGMAS * s + floor), axis=1)
+
+
+def describe_below_zero(s: Slice, limit: int = 4) -> str | None:
+    """One phrase naming the samples of ``s`` impossibly far below zero for their standard deviation (None: none),
+    e.g. ``2 sample(s) below zero far beyond their uncertainty: (40, 10) f_r -0.5 +- 7e-05 (7143 sigma), ...``."""
+    assert s.std is not None
+    f, sd = s.brdf()
+    bad = np.flatnonzero(below_zero(f, sd))
+    if bad.size == 0:
+        return None
+    shown = []
+    for i in bad[:limit]:
+        c = int(np.argmin(f[i]))
+        sig = -f[i, c] / sd[i, c] if sd[i, c] > 0 else float("inf")
+        shown.append(f"({s.theta_i_deg[i]:g}, {s.theta_o_deg[i]:g}) f_r {f[i, c]:.4g} +- {sd[i, c]:.2g} "
+                     f"({sig:.0f} sigma)")
+    more = f", ... ({bad.size} in all)" if bad.size > limit else ""
+    return (f"{bad.size} sample(s) below zero far beyond their uncertainty (more than {NEGATIVE_SIGMAS:g} sigma): "
+            f"{', '.join(shown)}{more}")

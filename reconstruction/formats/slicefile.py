@@ -168,7 +168,8 @@ class SliceWriter:
     """Append samples to a slice file durably: each :meth:`append` writes one row, flushes and fsyncs.
 
     Opening an existing file (a resumed capture) checks that it has exactly the columns of ``channels`` and cuts
-    off a torn last line left by a crash, so appending continues cleanly. Rows are appended in the file's own
+    off a torn last line left by a crash, so appending continues cleanly (``notes`` says so, for the caller's log,
+    instead of a Python warning). Rows are appended in the file's own
     column order and with its own line ending (a file whose columns another tool reordered, or whose line endings
     it converted, stays consistent); a file with other columns is refused. Use as a context manager.
     """
@@ -180,8 +181,12 @@ class SliceWriter:
         header = _header(self.channels, meta or {})
         self.columns = _columns(self.channels)
         self.newline = "\n"
+        self.notes: list[str] = []  # what reading the existing file warned of (a torn last line, cut off below)
         if self.path.exists() and self.path.stat().st_size > 0:
-            existing = read_slice(self.path)  # validates; warns on a torn last line
+            with warnings.catch_warnings(record=True) as seen:  # the caller logs them (a resumed capture: its log)
+                warnings.simplefilter("always")
+                existing = read_slice(self.path)  # validates; warns on a torn last line
+            self.notes = [str(w.message) for w in seen]
             if sorted(existing.channels) != sorted(self.channels):
                 raise SliceError(f"{self.path}: has value columns {_show_list(existing.channels)}, "
                                  f"cannot append {_show_list(self.channels)}")
@@ -221,8 +226,9 @@ class SliceWriter:
         os.fsync(self._fh.fileno())
 
     def append(self, theta_i_deg: float, theta_o_deg: float, values: Sequence[float],
-               std: Sequence[float], repeats: int, unix_time_s: float) -> None:
-        """Write one sample (in the file's column order) and make it durable before returning."""
+               std: Sequence[float], repeats: int, unix_time_s: float) -> str:
+        """Write one sample (in the file's column order) and make it durable before returning; returns the line
+        written (with its line ending)."""
         if len(values) != len(self.channels) or len(std) != len(self.channels):
             raise SliceError(f"{self.path}: expected {len(self.channels)} values and stds, "
                              f"got {len(values)} and {len(std)}")
@@ -231,11 +237,13 @@ class SliceWriter:
         for c, v, e in zip(self.channels, values, std, strict=True):
             cells[c] = _fmt(v)
             cells[f"{c}_std"] = _fmt(e)
+        line = ",".join(cells[c] for c in self.columns) + self.newline
         try:
-            self._fh.write(",".join(cells[c] for c in self.columns) + self.newline)
+            self._fh.write(line)
             self._sync()
         except OSError as e:  # a full disk: name the file (buffered writes do not)
             raise OSError(e.errno, e.strerror or str(e), str(self.path)) from None
+        return line
 
     def close(self) -> None:
         if not self._fh.closed:

@@ -344,8 +344,16 @@ def _choose(s: Slice, full: Slice, opts: Options, fit_rec: Any, ranked: list[CVS
         break
     if chosen is None:
         raise ReconstructionError(f"{s.source}: no method gives a physically plausible BRDF from these samples ("
-                                  + "; ".join(rejected or [f"{c.method}: {c.failure}" for c in scores]) + ")")
+                                  + "; ".join(rejected or _reasons(scores)) + ")")
     return chosen, best, rejected
+
+
+def _reasons(scores: list[CVScore]) -> list[str]:
+    """Each method's reason it could not be judged, for a refusal; one line for all when they share it."""
+    why = [c.failure or "no finite held-out error" for c in scores]
+    if len(set(why)) == 1 and len(why) > 1:
+        return [f"{', '.join(c.label for c in scores)}: {why[0]}"]
+    return [f"{c.label}: {w}" for c, w in zip(scores, why, strict=True)]
 
 
 def _reason(scheme: str, chosen: Reconstruction, best: CVScore, ranked: list[CVScore], rejected: list[str],

@@ -221,8 +221,16 @@ def score_predictions(s: Slice, name: str, pred: Array, masks: list[NDArray[np.b
             d = image_values(pred[out], ci[out], exposure) - image_values(f[out], ci[out], exposure)
             sq += float(np.sum(d * d))
             n += d.size
-    return CVScore(name, math.sqrt(num / den) if den > 0 else math.inf, per, seconds, predictions=np.array(pred),
-                   image_error=math.sqrt(sq / n) if n else math.nan)
+    why = None
+    if not per and score_mask is not None and any(h.any() for h in masks):
+        why = "no held-out sample lies inside the scene's directions to judge it by"
+    elif not per:  # nothing was held out: say why, so that a refusal names each method's real reason
+        why = ("no sample could be held out to judge it (every sample is kept for training: too few samples away "
+               "from the mirror direction, or one block of theta_o)")
+    elif den <= 0:
+        why = "the held-out samples carry no signal to judge it by (f_r cos cos is zero on all of them)"
+    return CVScore(name, math.sqrt(num / den) if den > 0 else math.inf, per, seconds, why,
+                   predictions=np.array(pred), image_error=math.sqrt(sq / n) if n else math.nan)
 
 
 class SceneBudgetWarning(UserWarning):

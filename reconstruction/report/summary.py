@@ -13,7 +13,8 @@ Top-level report keys: ``method`` (the method used), ``method_requested``, ``met
 ``residuals``, ``coverage``, ``checks``, ``inputs``, ``colour``, ``table``, ``outputs``, ``timings_s``,
 ``details`` (everything the method reported) and, for ``--method auto``, ``cross_validation`` (the scheme, every
 method's held-out error, the choice) and, when there is something to say, ``warnings`` (:func:`guard_warnings`:
-samples spanning too narrow a range, auto's choice predicting its held-out samples badly). The method's own
+too few samples, samples spanning too narrow a range, auto's choice predicting its held-out samples badly or
+judged on one fold, fitted parameters at their bounds, values impossibly far below zero). The method's own
 ``residuals`` are on the samples it was built from: they
 are reported as such and never used to choose a method.
 """
@@ -38,13 +39,15 @@ from reconstruction.core.checks import (
 )
 from reconstruction.core.geometry import inplane_to_dirs
 from reconstruction.core.metrics import relative_rmse_cos_dirs
+from reconstruction.core.slicedata import describe_below_zero
 from reconstruction.formats import merl
 from reconstruction.formats.slicefile import Slice
 
 Array = NDArray[np.float64]
 
 __all__ = ["ALBEDO_TOLERANCE", "RECIPROCITY_TOLERANCE", "sample_residuals", "checked_albedo", "plausibility",
-           "coverage", "build_report", "write_json", "guard_warnings", "NARROW_SPAN_DEG", "LARGE_HELD_OUT"]
+           "coverage", "build_report", "write_json", "guard_warnings", "NARROW_SPAN_DEG", "LARGE_HELD_OUT",
+           "FEW_SAMPLES", "AT_BOUND", "parameters_at_bounds"]
 
 #: samples whose widest outgoing range at any incidence is narrower than this (deg) leave almost the whole table
 #: to extrapolation: said (a bench's one slice spans 160 deg; radians read as degrees span about 3)
@@ -52,6 +55,11 @@ NARROW_SPAN_DEG = 20.0
 #: auto's choice predicting the samples it did not see worse than this (relative RMSE of f cos cos) is said: the
 #: table is a guess from these samples (the demo's choice predicts to 1.3 %; the radians of issue 41 to 79 %)
 LARGE_HELD_OUT = 0.3
+#: fewer samples than this cannot support a full table whatever the method (issue 49: 3 samples forced through fit,
+#: revolve and bivariate wrote tables 70-168 % off the demo's with no word): said
+FEW_SAMPLES = 10
+#: a fitted parameter within this relative distance (in log space) of its bound is "at its bound": said
+AT_BOUND = 0.01
 
 def _json_safe(x: Any) -> Any:
     """Recursively turn numpy values into plain Python and non-finite floats into None (strict JSON)."""
@@ -106,14 +114,57 @@ def coverage(s: Slice, dropped_blind_spot: int = 0) -> dict[str, Any]:
     hit[merl.theta_h_index(th), merl.theta_d_index(td)] = True
     out["half_diff_bins_with_samples"] = int(hit.sum())
     out["half_diff_bins_total"] = merl.N_TH * merl.N_TD
+    low = describe_below_zero(s)
+    if low is not None:  # values impossibly far below zero for their uncertainty (NEGATIVE_SIGMAS): named
+        out["below_zero"] = low
     return out
 
 
-def guard_warnings(cov: dict[str, Any], cv: dict[str, Any] | None, source: str) -> list[str]:
-    """The run's warnings about what its samples can support, from the report's ``coverage`` and
-    ``cross_validation`` (None without auto): a narrow outgoing range (:data:`NARROW_SPAN_DEG`) and a chosen
-    method whose held-out error exceeds :data:`LARGE_HELD_OUT`. ``source``: the inputs, for the messages."""
+def parameters_at_bounds(params: Any) -> list[str]:
+    """The fitted parameters (the report's ``parameters``: a list of lobes) lying at a bound of the fit
+    (:data:`AT_BOUND`): alpha at 0.005 or 1.5, an index of refraction or an exponent at its limit; e.g.
+    ``["ggx alpha 1.5 (its upper bound)"]``."""
+    from reconstruction.methods.fit.model import ALPHA_MAX, ALPHA_MIN, EXP_MAX, EXP_MIN, IOR_MAX, IOR_MIN
+
+    bounds = {"alpha": (ALPHA_MIN, ALPHA_MAX), "ior": (IOR_MIN, IOR_MAX), "exponent": (EXP_MIN, EXP_MAX)}
     out = []
+    for lobe in params if isinstance(params, list) else []:
+        if not isinstance(lobe, dict):
+            continue
+        for key, (lo, hi) in bounds.items():
+            v = lobe.get(key)
+            if not isinstance(v, (int, float)) or isinstance(v, bool) or not v > 0:
+                continue
+            near = abs(np.log(v / lo)) <= AT_BOUND * abs(np.log(hi / lo)), abs(np.log(hi / v)) <= AT_BOUND * abs(
+                np.log(hi / lo))
+            if near[0] or near[1]:
+                out.append(f"{lobe.get('type', 'lobe')} {key} {v:.4g} (its {'lower' if near[0] else 'upper'} bound)")
+    return out
+
+
+def guard_warnings(cov: dict[str, Any], cv: dict[str, Any] | None, source: str, method: str | None = None,
+                   params: Any = None) -> list[str]:
+    """The run's warnings about what its samples can support, from the report's ``coverage`` and
+    ``cross_validation`` (None without auto) and ``parameters``: fewer samples than :data:`FEW_SAMPLES`, a narrow
+    outgoing range (:data:`NARROW_SPAN_DEG`), a chosen method whose held-out error exceeds :data:`LARGE_HELD_OUT`
+    or rests on a single held-out fold, fitted parameters at their bounds (:func:`parameters_at_bounds`), values
+    impossibly far below zero for their uncertainty (``coverage.below_zero``). ``source``: the inputs, ``method``
+    the method that wrote the table, for the messages."""
+    out = []
+    n = cov.get("samples")
+    what = f"{method}'s table" if method else "the table"
+    if isinstance(n, int) and n < FEW_SAMPLES:
+        out.append(f"{source}: only {n} sample(s) at {len(cov.get('incidences', []))} incidence(s): too few to support "
+                   f"{what} (fewer than {FEW_SAMPLES}); it is extrapolated from them almost everywhere and can be far "
+                   f"off{'' if cv else ' (a forced --method is not checked on held-out samples)'}; measure a wider "
+                   "slice")
+    if cov.get("below_zero"):
+        out.append(f"{source}: {cov['below_zero']}: a dark, sign or unit error? these samples are impossible as "
+                   "measured")
+    bound = parameters_at_bounds(params)
+    if bound:
+        out.append(f"{source}: fitted parameter(s) at their bounds: {', '.join(bound)}: the samples do not "
+                   f"determine them, so {what} rests on the bound, not on the data")
     spans = [float(c["theta_o_max_deg"]) - float(c["theta_o_min_deg"]) for c in cov.get("incidences", [])]
     if spans and max(spans) < NARROW_SPAN_DEG:
         out.append(f"{source}: the samples span only {max(spans):.3g} deg of theta_o (at most, over "
@@ -123,6 +174,9 @@ def guard_warnings(cov: dict[str, Any], cv: dict[str, Any] | None, source: str) 
     if cv:
         best = next((c for c in cv.get("scores", []) if c.get("label") == cv.get("chosen_label")), None)
         err = best.get("held_out_relative_rmse_cos") if best else None
+        if best is not None and isinstance(cv.get("folds"), int) and cv["folds"] < 2:
+            out.append(f"{source}: the chosen method, {cv.get('chosen_label')}, was judged on {cv['folds']} held-out "
+                       "fold only: too few samples to tell how well it predicts the ones it did not see")
         if err is not None and err > LARGE_HELD_OUT:
             out.append(f"{source}: the chosen method, {cv.get('chosen_label')}, predicts the samples it did not "
                        f"see to {err:.0%} relative RMSE of f cos cos (above {LARGE_HELD_OUT:.0%}): the table is a "
