@@ -95,6 +95,20 @@ class SimulatorSection(msgspec.Struct, kw_only=True, forbid_unknown_fields=True)
     electrons_per_count: Annotated[float, _m(1e-3, 1e9, _POS, _within(1e-3, 1e9), description="photo-electrons "
                                                                                                "per count at gain 1 "
                                                                                                "(shot noise)")] = 1.0
+    ambient: Annotated[float, _m(0.0, 1e15, _NONNEG, _within(0, 1e15), description=(
+        "room light on the detector, counts at gain 1 over [detector].integration_time_s (as the signal); "
+        "0 = dark room"))] = 0.0
+    flicker_depth: Annotated[float, _m(0.0, 1.0, _within(0, 1), description="the room light's modulation at "
+                                                                         "flicker_hz (mains lamps: 0.1-1)")] = 0.0
+    flicker_hz: Annotated[float, _m(0.0, 1000.0, _within(0, 1000), description="the room light's flicker "
+                                                                            "frequency (twice the mains')")] = 100.0
+    source_drift_per_h: Annotated[float, _m(-0.9, 10.0, _within(-0.9, 10), description="relative change of the "
+                                                                                      "source's power per hour "
+                                                                                      "of bench time")] = 0.0
+    monitor_mv: Annotated[float, _m(0.0, 5000.0, _within(0, 5000), description="the monitor photodiode's "
+                                                                            "amplifier output (mV) at the "
+                                                                            "source's nominal power (firmware "
+                                                                            "built with MONITOR=1)")] = 2000.0
     backlash_deg: Annotated[float, _m(0.0, 10.0, _NONNEG, _within(0, 10))] = 0.0
     settle_time_s: Annotated[float, _m(0.0, 60.0, _NONNEG, _within(0, 60), description="mechanical settling after a "
                                                                                      "profile ends")] = 0.05

@@ -28,7 +28,8 @@
  *                                            after a new SYNC, the output is ADC's whatever the source pin
  *   in   FLICKER <mV> <hz>                   room light's flicker: amp * sin(2 pi hz t) added to the amplifier's
  *                                            output at every conversion (t: emulated time); FLICKER 0 0: none
- *   in   MON <mV>                            the voltage on ADC1 (A1): the monitor photodiode's amplifier
+ *   in   MON <mV>                            the voltage on ADC1 (A1): the monitor photodiode's amplifier, while
+ *                                            the source pin is high (it sees the source only; 0 V while low)
  *   in   AIN1 <mV>                           the ADS1115's AIN1: the amplifier's reference (its AIN0 is the output)
  *   in   ADS1115 0|1                         the ADS1115 absent (never acknowledges: a missing or broken device)
  *                                            or present (the default unless --no-ads1115)
@@ -177,7 +178,7 @@ static void adc_trigger(struct avr_irq_t *irq, uint32_t value, void *param)
 {
     (void)irq; (void)value; (void)param;
     int ch = avr->data[0x7C] & 0x0F; /* ADMUX */
-    double mv = ch == 1 ? mon_mv : tia_mv(seconds());
+    double mv = ch == 1 ? (source() ? mon_mv : 0.0) : tia_mv(seconds());
     if (dither_lsb > 0) mv += dither_lsb * gauss() * 5000.0 / 1023.0;
     double units = mv * 10.0;
     if (units < 0) units = 0;

@@ -348,7 +348,8 @@ class SerialController(Paced):
         t0 = self.clock.now()
         times = t0 + (np.arange(n) + 0.5) * t_int
         angles = np.array([self.arm_angles(float(tk)) for tk in times])
-        codes, sat = self.physics.read(angles[:, 0], angles[:, 1], source_on=source_on and self.physics.source_on)
+        codes, sat = self.physics.read(angles[:, 0], angles[:, 1], source_on=source_on and self.physics.source_on,
+                                       t_s=times)
         self._advance(n * t_int)
         tag = "READ" if source_on else "DARK"
         mean = codes.mean(axis=0)
