@@ -140,6 +140,11 @@ class CalibrationConfig:
     reference_repeats: int
     source_power: float | None
     detector_solid_angle_sr: float | None
+    gain_ratios: str = "measured"
+    warmup_readings: int = 0
+    warmup_interval_s: float = 10.0
+    warmup_max_drift: float = 0.002
+    warmup_timeout_s: float = 1800.0
 
     def to_meta(self) -> dict[str, Any]:
         d: dict[str, Any] = {"mode": self.mode}

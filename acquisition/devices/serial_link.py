@@ -258,6 +258,10 @@ class SerialDetector:
         self.expected_type = expected_type
         self.integration_time_s = integration_time_s
         self.saturation = saturation
+        self._config_saturation = saturation
+        #: the detector is a DC amplifier read by oversampling (``DETECTOR?`` says ``amplifier=dc``, the detector
+        #: board): a shorter integration time does not lower a conversion, so auto-ranging uses its gains only
+        self.dc_amplifier = False
         self.type = expected_type
         self.wavelengths_nm: np.ndarray | None = None
         self.n_channels = 1
@@ -289,7 +293,8 @@ class SerialDetector:
             if self.wavelengths_nm.size != self.n_channels:
                 raise DeviceError(f"{self.link.name}: DETECTOR? lists {self.wavelengths_nm.size} wavelengths for "
                                   f"{self.n_channels} channels")
-        self.saturation = min(self.saturation, float(d["saturation"]))
+        self.saturation = min(self._config_saturation, float(d["saturation"]))
+        self.dc_amplifier = d.get("amplifier") == "dc"
         if abs(float(d["t_int"]) - self.integration_time_s) > 1e-9 * max(1.0, self.integration_time_s):
             self.set_integration_time(self.integration_time_s)  # a board may round it (INT?): believed
         if self.gains:
@@ -334,11 +339,15 @@ class SerialDetector:
         """Set the integration time per repeat (``INT``, s) and return the one the detector reports (``INT?``),
         which later readings are checked against. A detector that rounds the setting is believed; one without
         ``INT?`` is taken at its word."""
+        before = self.integration_time_s
         actual = self._set_and_read_back("INT", "INT?", "t_int", seconds)
         if abs(actual - seconds) > _T_INT_RTOL * seconds:
             log.warning("%s: integration time %.6g s requested, the detector uses %.6g s", self.link.name, seconds,
                         actual)
         self.integration_time_s = actual
+        if actual != before:  # a summing ADC's saturation grows with the time: read it for the time now set
+            d = self.link.fields("DETECTOR?", check=_check_detector)
+            self.saturation = min(self._config_saturation, float(d["saturation"]))
         return actual
 
     def _parse(self, f: dict[str, str], n: int) -> Reading:

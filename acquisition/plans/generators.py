@@ -35,6 +35,7 @@ from acquisition.plans.messages import (
     Msg,
     Now,
     Read,
+    ReadAt,
     RestoreSetting,
     Save,
     SelectSample,
@@ -113,26 +114,50 @@ def measure(points: Sequence[Point], geometry: Geometry, repeats: int,
             done[point_key((ti, to))] = sample
 
 
-def white_reference(cfg: BenchConfig) -> PlanGen:
-    """Read the white reference at the reference geometry (the reference in front of the detector meanwhile).
-    Returns (reading, its Ranged record or None)."""
+def white_reference(cfg: BenchConfig, gain_ratios: bool = False) -> PlanGen:
+    """Read the white reference at the reference geometry (the reference in front of the detector meanwhile);
+    ``gain_ratios``: then at every other gain as well (auto-ranging over gains). Returns (reading, its Ranged
+    record or None, {nominal gain: (raw reading, raw dark)} of the gain ratios or None)."""
     c = cfg.calibration
     log.info("measuring the white reference at (%g, %g) (%d repeats)", c.reference_theta_i_deg,
              c.reference_theta_o_deg, c.reference_repeats)
     yield SelectSample("REF")
+    at_gains = None
     try:
         yield Move(c.reference_theta_i_deg, c.reference_theta_o_deg, checkpoint=False)
         yield Settle()
         ref, ranged = yield Read(c.reference_repeats, "white reference", rung=0)
+        if gain_ratios:
+            at_gains = yield from _reference_at_gains(cfg, ranged)
     finally:
         yield SelectSample("TARGET")
-    return ref, ranged
+    return ref, ranged, at_gains
+
+
+def _reference_at_gains(cfg: BenchConfig, ranged: Any) -> PlanGen:
+    """The white reference at every gain other than the one it was ranged to, with the dark there (every gain's
+    dark is the calibration's): {nominal gain: (raw reading, raw dark)}, for the gain ratios. Not auto-ranged (a
+    dry run: ``ranged`` None): the same readings, for their time, and None."""
+    gains = sorted(cfg.detector.gains or (), reverse=True)
+    if ranged is None or ranged.gain is None:
+        for k, g in enumerate(gains[1:], start=1):
+            yield ReadAt(cfg.calibration.reference_repeats, k, f"white reference at gain {g:g}")
+        return None
+    out: dict[float, tuple[Reading, Reading]] = {}
+    for k, g in enumerate(gains):
+        dark = yield Dark(cfg.detector.dark_repeats, f"dark reading at gain {g:g}", setting=k)
+        if abs(g - ranged.gain) <= 1e-9 * g:
+            out[float(g)] = (ranged.raw, dark)
+            continue
+        rd, _ = yield ReadAt(cfg.calibration.reference_repeats, k, f"white reference at gain {g:g}")
+        out[float(g)] = (rd, dark)
+    return out
 
 
 def rereference(cfg: BenchConfig) -> PlanGen:
     """Read the white reference again and convert with it from now on (relative calibration; the dark level and
     the slice's metadata keep the first reading, the log records each new one)."""
-    ref, _ = yield from white_reference(cfg)
+    ref, _, _ = yield from white_reference(cfg)
     yield UseReference(ref)
 
 
@@ -157,8 +182,12 @@ def calibrate(cfg: BenchConfig, rho_ref: np.ndarray) -> PlanGen:
         for k, g in enumerate(sorted(d.gains, reverse=True)[1:], start=1):  # converts with, known to the estimate
             yield Dark(d.dark_repeats, f"dark reading at gain {g:g}", setting=k)
     t_ref_read = cfg.detector.integration_time_s
+    factors: tuple[dict[float, float] | None, tuple[float, ...]] = (None, ())
     if c.mode == "relative":
-        ref, ranged = yield from white_reference(cfg)
+        ratios = bool(d.auto_range and d.gains and len(d.gains) > 1 and c.gain_ratios == "measured")
+        ref, ranged, at_gains = yield from white_reference(cfg, gain_ratios=ratios)
+        if at_gains:
+            factors = _gain_factors(at_gains, ranged, cfg)
         if ranged is not None:
             t_ref_read = ranged.integration_time_s
             if ranged.ranged:
@@ -169,7 +198,8 @@ def calibrate(cfg: BenchConfig, rho_ref: np.ndarray) -> PlanGen:
                     ref = Reading(ref.mean, np.sqrt(ref.std ** 2 + ref.n * d.std_of_mean ** 2), ref.n,
                                   ref.saturated)
         cal = Calibration("relative", dark, ref, rho_ref, c.reference_theta_o_deg, footprint=footprint_of(cfg),
-                          reference_theta_i_deg=c.reference_theta_i_deg)
+                          reference_theta_i_deg=c.reference_theta_i_deg, gain_factors=factors[0],
+                          gain_factors_measured=factors[1])
         try:
             cal.scale(c.reference_theta_o_deg)  # raises if the reference reads no signal
         except ValueError as e:
@@ -188,6 +218,21 @@ def calibrate(cfg: BenchConfig, rho_ref: np.ndarray) -> PlanGen:
              f"K = {cal.k_counts:g} counts")
     yield Calibrate(cal, t_ref_read if c.mode == "relative" else None)
     return cal
+
+
+def _gain_factors(at_gains: dict[float, tuple[Reading, Reading]], ranged: Any, cfg: BenchConfig
+                  ) -> tuple[dict[float, float], tuple[float, ...]]:
+    """The gain factors from the white reference at every gain (:func:`measure_gain_factors`), logged."""
+    from acquisition.calibration import measure_gain_factors
+
+    sat = float(cfg.detector.saturation) if cfg.detector.saturation is not None else math.inf  # (the device's)
+    factors, measured = measure_gain_factors(at_gains, float(ranged.gain), sat)
+    nominal = sorted(set(factors) - set(measured) - {float(ranged.gain)}, reverse=True)
+    log.info("gain ratios measured on the white reference (real / nominal, relative to gain %g): %s%s",
+             ranged.gain, ", ".join(f"{g:g}: {factors[g]:.4f}" for g in measured) or "none",
+             f"; nominal ratio kept at {', '.join(f'{g:g}' for g in nominal)} (the reference saturates there or "
+             "reads too little)" if nominal else "")
+    return factors, measured
 
 
 def adaptive(ctx: CaptureContext, t_start: float) -> PlanGen:

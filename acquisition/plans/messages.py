@@ -9,8 +9,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["Msg", "Move", "Settle", "Read", "Dark", "SelectSample", "Calibrate", "UseReference", "Save", "Convert",
-           "Checkpoint",
+__all__ = ["Msg", "Move", "Settle", "Read", "ReadAt", "Dark", "SelectSample", "Calibrate", "UseReference", "Save",
+           "Convert", "Checkpoint",
            "Where", "Now", "Announce", "RestoreSetting", "Tally"]
 
 
@@ -49,6 +49,18 @@ class Read(Msg):
     @property
     def label(self) -> str:
         return self.what or (f"point ({self.point[0]:g}, {self.point[1]:g})" if self.point else "reading")
+
+
+@dataclass(slots=True)
+class ReadAt(Msg):
+    """``repeats`` readings with the source on at the auto-ranging setting (rung) ``setting``, not ranged and not
+    re-read (a clipped reading comes back as it is) -> (Reading in raw counts, the gain read at or None). The white
+    reference at every gain, for the gain ratios (:func:`acquisition.calibration.measure_gain_factors`); a detector
+    not auto-ranged reads at its present setting (a dry run)."""
+
+    repeats: int
+    setting: int
+    what: str = ""
 
 
 @dataclass(slots=True)

@@ -109,6 +109,9 @@ class SimulatorSection(msgspec.Struct, kw_only=True, forbid_unknown_fields=True)
                                                                             "amplifier output (mV) at the "
                                                                             "source's nominal power (firmware "
                                                                             "built with MONITOR=1)")] = 2000.0
+    gain_errors: Annotated[list[Annotated[float, Meta(ge=-0.5, le=0.5)]], Meta(description=(
+        "the amplifier's real gains' relative errors, by [detector].gains in ascending order (1 % and 5 % "
+        "resistors, the multiplexer's leakage); missing ones 0"))] = msgspec.field(default_factory=list)
     backlash_deg: Annotated[float, _m(0.0, 10.0, _NONNEG, _within(0, 10))] = 0.0
     settle_time_s: Annotated[float, _m(0.0, 60.0, _NONNEG, _within(0, 60), description="mechanical settling after a "
                                                                                      "profile ends")] = 0.05

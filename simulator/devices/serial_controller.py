@@ -420,7 +420,10 @@ class SerialController(Paced):
         """``SOURCE ON|OFF``: the source's pin (the darks of a detector that is not the board's)."""
         if len(args) != 1 or args[0].upper() not in ("ON", "OFF"):
             return self._err(E_ARGUMENT)
-        self.physics.source_on = args[0].upper() == "ON"
+        on = args[0].upper() == "ON"
+        if on != self.physics.source_on:
+            self.physics.source_switches += 1
+        self.physics.source_on = on
         log.info("source: %s", args[0].upper())
         return ["ok"]
 

@@ -165,6 +165,8 @@ class BenchPhysics:
         #: the source, switched by the board's ``SOURCE ON|OFF`` pin (a dark of a seabreeze/pm100 bench); a
         #: ``DARK`` reading is dark whatever it says
         self.source_on = True
+        #: how often the source was switched (a spectrometer's scan running at a switch sees both states)
+        self.source_switches = 0
         wl = s.spectrometer.grid() if cfg.detector.type == "spectrometer" else None
         self.detector = Detector(
             type=cfg.detector.type,
@@ -188,6 +190,9 @@ class BenchPhysics:
         self.flicker_depth = float(s.flicker_depth)
         self.flicker_hz = float(s.flicker_hz)
         self.source_drift_per_h = float(s.source_drift_per_h)
+        #: the amplifier's real gain over its nominal one, by nominal gain ([simulator].gain_errors)
+        self.gain_factors = {float(g): 1.0 + float(e) for g, e in zip(sorted(cfg.detector.gains or ()),
+                                                                       s.gain_errors, strict=False)}
         self.gains = cfg.detector.gains
         from reconstruction.bench.instrument import Instrument
 
@@ -315,7 +320,12 @@ class BenchPhysics:
     def expected_reading(self, theta_i_deg, theta_o_deg, source_on: bool = True) -> np.ndarray:
         """Noise-free reading (counts): gain * S + dark, clipped to the detector range (not quantised)."""
         s = self.expected_signal(theta_i_deg, theta_o_deg, source_on)
-        return np.clip(self.detector.gain * (s + self.input_offset) + self.dark_offset, 0.0, self.detector.max_code)
+        return np.clip(self.real_gain() * (s + self.input_offset) + self.dark_offset, 0.0, self.detector.max_code)
+
+    def real_gain(self, gain: float | None = None) -> float:
+        """The amplifier's real gain at nominal ``gain`` (default: the present one): ``[simulator].gain_errors``."""
+        g = self.detector.gain if gain is None else gain
+        return g * self.gain_factors.get(float(g), 1.0)
 
     def noise_rms(self, gain: float | None = None) -> float:
         """Dark-reading noise (counts rms) at ``gain`` (default: the present one): ADC and amplifier."""
@@ -335,7 +345,7 @@ class BenchPhysics:
                 self.rng.poisson(np.maximum(s, 0.0)).astype(float)
         if self.input_noise > 0:
             s = s + self.input_noise * self.rng.standard_normal(s.shape)
-        x = det.gain * (s + self.input_offset) + self.dark_offset
+        x = self.real_gain() * (s + self.input_offset) + self.dark_offset
         if self.read_noise > 0:
             x = x + self.read_noise * self.rng.standard_normal(x.shape)
         x = np.round(x)

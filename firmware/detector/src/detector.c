@@ -305,6 +305,7 @@ static void cmd_detector(void)
     uart_puts_P(PSTR(" gains="));
     put_gains();
     field_u64(PSTR(" conversions="), c);
+    uart_puts_P(PSTR(" amplifier=dc"));
     uart_puts_P(chop ? PSTR(" chop=ON") : PSTR(" chop=OFF"));
     field_u64(PSTR(" clip="), (uint64_t)CLIP_COUNT);
     uart_putc('\n');
