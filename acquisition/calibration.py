@@ -29,8 +29,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["Reading", "Calibration", "reference_rho", "pool", "measure_gain_factors", "GAIN_RATIO_TOLERANCE",
-           "GAIN_RATIO_PRECISION"]
+__all__ = ["Reading", "Calibration", "reference_rho", "pool", "measure_gain_factors", "gain_factors_of",
+           "GAIN_RATIO_TOLERANCE", "GAIN_RATIO_PRECISION", "drift_of"]
 
 #: A measured gain ratio further than this from the nominal one is not believed (a reading gone wrong, not a 1 %
 #: or 5 % resistor): the nominal ratio is kept, with a warning.
@@ -169,6 +169,20 @@ class Calibration:
             d["gain_factors"] = {f"{g:g}": float(f) for g, f in sorted(self.gain_factors.items())}
             d["gain_factors_measured"] = [float(g) for g in self.gain_factors_measured]
         return d
+
+
+def gain_factors_of(meta: dict[str, Any]) -> tuple[dict[float, float] | None, tuple[float, ...]]:
+    """(gain_factors, gain_factors_measured) of a calibration's metadata (:meth:`Calibration.to_meta`)."""
+    if "gain_factors" not in meta:
+        return None, ()
+    return ({float(g): float(f) for g, f in meta["gain_factors"].items()},
+            tuple(float(g) for g in meta.get("gain_factors_measured", ())))
+
+
+def drift_of(nets: Sequence[float]) -> float:
+    """The relative spread of readings of one source (a warm-up check): (max - min) / mean of ``nets``."""
+    v = np.asarray(nets, dtype=float)
+    return float((v.max() - v.min()) / max(abs(float(v.mean())), 1e-300))
 
 
 def measure_gain_factors(readings: dict[float, tuple[Reading, Reading]], anchor: float, saturation: float,

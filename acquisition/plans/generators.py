@@ -42,6 +42,7 @@ from acquisition.plans.messages import (
     Settle,
     Tally,
     UseReference,
+    Wait,
     Where,
 )
 from acquisition.plans.ordering import TWO_OPT_MAX_EVALUATIONS, order_points, path_time
@@ -154,6 +155,43 @@ def _reference_at_gains(cfg: BenchConfig, ranged: Any) -> PlanGen:
     return out
 
 
+def warm_up(cfg: BenchConfig, dark: Reading) -> PlanGen:
+    """The warm-up check before the calibration: the white reference read every ``warmup_interval_s`` until its
+    last ``warmup_readings`` readings (above the dark) agree within ``warmup_max_drift``; a DeviceError that says
+    so after ``warmup_timeout_s`` of bench time."""
+    from acquisition.calibration import drift_of
+
+    c = cfg.calibration
+    k = max(int(c.warmup_readings), 2)
+    log.info("warm-up check: the white reference every %g s until %d readings in a row agree within %g %%",
+             c.warmup_interval_s, k, 100 * c.warmup_max_drift)
+    nets: list[float] = []
+    t0 = yield Now()
+    yield SelectSample("REF")
+    try:
+        yield Move(c.reference_theta_i_deg, c.reference_theta_o_deg, checkpoint=False)
+        yield Settle()
+        while True:
+            rd, _ = yield Read(c.reference_repeats, "warm-up reading of the white reference")
+            nets.append(float(np.max(rd.mean - dark.mean)))
+            t = (yield Now()) - t0
+            if len(nets) >= k and drift_of(nets[-k:]) <= c.warmup_max_drift:
+                log.info("warm-up check: the source is steady (%d readings within %.3g %%) after %.0f s", k,
+                         100 * drift_of(nets[-k:]), t)
+                return
+            if t + c.warmup_interval_s > c.warmup_timeout_s:
+                drift = drift_of(nets[-k:]) if len(nets) >= 2 else float("nan")
+                raise DeviceError(
+                    f"the source has not warmed up: its white-reference reading still drifts {100 * drift:.3g} % "
+                    f"over the last {min(k, len(nets))} readings ({c.warmup_interval_s:g} s apart; the bound is "
+                    f"[calibration].warmup_max_drift = {100 * c.warmup_max_drift:g} %) after {t:.0f} s "
+                    f"(warmup_timeout_s = {c.warmup_timeout_s:g}); let the lamp warm up longer (a halogen lamp "
+                    "takes 10-20 min, an LED a few) and check its supply, then run the capture again")
+            yield Wait(c.warmup_interval_s)
+    finally:
+        yield SelectSample("TARGET")
+
+
 def rereference(cfg: BenchConfig) -> PlanGen:
     """Read the white reference again and convert with it from now on (relative calibration; the dark level and
     the slice's metadata keep the first reading, the log records each new one)."""
@@ -177,6 +215,8 @@ def calibrate(cfg: BenchConfig, rho_ref: np.ndarray) -> PlanGen:
     c = cfg.calibration
     log.info("measuring the dark level (%d repeats, source off)", cfg.detector.dark_repeats)
     dark = yield Dark(cfg.detector.dark_repeats, "dark reading", calibration=True)
+    if c.mode == "relative" and c.warmup_readings:
+        yield from warm_up(cfg, dark)
     d = cfg.detector
     if d.auto_range and d.gains:  # a dark at every other gain now, with the source off anyway: what auto-ranging
         for k, g in enumerate(sorted(d.gains, reverse=True)[1:], start=1):  # converts with, known to the estimate

@@ -9,8 +9,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["Msg", "Move", "Settle", "Read", "ReadAt", "Dark", "SelectSample", "Calibrate", "UseReference", "Save",
-           "Convert", "Checkpoint",
+__all__ = ["Msg", "Move", "Settle", "Wait", "Read", "ReadAt", "Dark", "SelectSample", "Calibrate", "UseReference",
+           "Save", "Convert", "Checkpoint",
            "Where", "Now", "Announce", "RestoreSetting", "Tally"]
 
 
@@ -33,6 +33,13 @@ class Move(Msg):
 @dataclass(slots=True)
 class Settle(Msg):
     """Wait ``[motion].settle_s`` of bench time -> None."""
+
+
+@dataclass(slots=True)
+class Wait(Msg):
+    """Let ``seconds`` of bench time pass (the detector board's ``DWELL``) -> None."""
+
+    seconds: float
 
 
 @dataclass(slots=True)

@@ -42,6 +42,7 @@ from acquisition.plans.messages import (
     Settle,
     Tally,
     UseReference,
+    Wait,
     Where,
 )
 from acquisition.run.record import SIDECAR_NAME, CaptureResult, RunRecord, result_dict  # noqa: F401 - kept importable here
@@ -109,7 +110,8 @@ class Engine:
         if auto_range is not None:
             self._setup_ranger(*auto_range, gains=gains)
         self._handlers: dict[type, Callable[[Any], Any]] = {
-            Move: self._move, Settle: self._settle, Read: self._read, ReadAt: self._read_at, Dark: self._dark,
+            Move: self._move, Settle: self._settle, Wait: self._wait, Read: self._read, ReadAt: self._read_at,
+            Dark: self._dark,
             SelectSample: self._select, Calibrate: self._calibrate, Save: self._save, Convert: self._convert,
             Checkpoint: self._checkpoint,
             Where: self._where, Now: self._now, Announce: self._announce, RestoreSetting: self._restore,
@@ -158,6 +160,9 @@ class Engine:
 
     def _settle(self, m: Settle) -> None:
         self.dev.clock.dwell(self.settle_s)
+
+    def _wait(self, m: Wait) -> None:
+        self.dev.clock.dwell(m.seconds)
 
     def _where(self, m: Where) -> tuple[float, float]:
         """The goal the arms last reached in this run (what the plan ordered them to, so a dry run and the capture

@@ -105,6 +105,11 @@ class SimulatorSection(msgspec.Struct, kw_only=True, forbid_unknown_fields=True)
     source_drift_per_h: Annotated[float, _m(-0.9, 10.0, _within(-0.9, 10), description="relative change of the "
                                                                                       "source's power per hour "
                                                                                       "of bench time")] = 0.0
+    source_warmup_depth: Annotated[float, _m(0.0, 0.9, _within(0, 0.9), description=(
+        "the source's power below nominal at power-up, relative; it rises as 1 - depth exp(-t / "
+        "source_warmup_s) over bench time (a lamp warming up)"))] = 0.0
+    source_warmup_s: Annotated[float, _m(1e-3, 1e5, _within(1e-3, 1e5), description="the warm-up's time "
+                                                                                    "constant")] = 300.0
     monitor_mv: Annotated[float, _m(0.0, 5000.0, _within(0, 5000), description="the monitor photodiode's "
                                                                             "amplifier output (mV) at the "
                                                                             "source's nominal power (firmware "

@@ -190,6 +190,8 @@ class BenchPhysics:
         self.flicker_depth = float(s.flicker_depth)
         self.flicker_hz = float(s.flicker_hz)
         self.source_drift_per_h = float(s.source_drift_per_h)
+        self.source_warmup_depth = float(s.source_warmup_depth)
+        self.source_warmup_s = float(s.source_warmup_s)
         #: the amplifier's real gain over its nominal one, by nominal gain ([simulator].gain_errors)
         self.gain_factors = {float(g): 1.0 + float(e) for g, e in zip(sorted(cfg.detector.gains or ()),
                                                                        s.gain_errors, strict=False)}
@@ -285,9 +287,11 @@ class BenchPhysics:
         return out.reshape(ti.shape + out.shape[-1:])
 
     def source_scale(self, t_s) -> np.ndarray:
-        """The source's power relative to nominal at bench times ``t_s`` (s): its drift,
-        ``1 + source_drift_per_h * t / 3600``."""
-        return 1.0 + self.source_drift_per_h * np.asarray(t_s, dtype=float) / 3600.0
+        """The source's power relative to nominal at bench times ``t_s`` (s): its drift and its warm-up,
+        ``(1 + source_drift_per_h * t / 3600) * (1 - source_warmup_depth * exp(-t / source_warmup_s))``."""
+        t = np.asarray(t_s, dtype=float)
+        return (1.0 + self.source_drift_per_h * t / 3600.0) * \
+            (1.0 - self.source_warmup_depth * np.exp(-t / self.source_warmup_s))
 
     def ambient_signal(self, integration_time_s: float | None = None) -> float:
         """The room light's mean signal (counts at gain 1) over an integration time: ``[simulator].ambient``
@@ -313,7 +317,7 @@ class BenchPhysics:
         s = s * footprint_fraction(ti, self.cfg.beam_diameter_mm, self.cfg.sample_diameter_mm)[..., None]
         blind = np.abs(ti + to) < self.blind_half_width
         s = np.where(blind[..., None], 0.0, s)
-        if t_s is not None and self.source_drift_per_h:
+        if t_s is not None and (self.source_drift_per_h or self.source_warmup_depth):
             s = s * self.source_scale(np.broadcast_to(t_s, blind.shape))[..., None]
         return s + room
 
