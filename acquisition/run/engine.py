@@ -208,9 +208,7 @@ class Engine:
         if self.ranger is None:
             return self.dev.detector.read(m.repeats), None
         self.ranger.set_setting(m.setting)
-        rd = self.dev.detector.read(m.repeats)
-        self.result.auto_range_overhead_s += m.repeats * self.dev.detector.integration_time_s
-        return rd, self.ranger.gain_of(m.setting)
+        return self.dev.detector.read(m.repeats), self.ranger.gain_of(m.setting)  # calibration time (estimated)
 
     def _dark(self, m: Dark) -> Reading:
         if m.setting is not None and self.ranger is not None:
