@@ -110,6 +110,7 @@ class DetectorConfig:
     source_off: str = "auto"                   # seabreeze, pm100: "auto", "board", "shutter" or "prompt"
     resource: str | None = None                # pm100: the VISA resource (None: the first PM100 found)
     wavelength_nm: float | None = None         # pm100: SENS:CORR:WAV (nm); None: the band's centroid
+    chop: bool = False                         # the detector board chops the source (CHOP ON)
 
     @property
     def on_board(self) -> bool:

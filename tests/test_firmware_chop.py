@@ -145,3 +145,29 @@ def test_clip_at_the_op_amps_swing_and_settle(rig):
     port.fields("DARK 1")  # already off and settled: no wait
     port.fields("DARK 1")
     assert float(port.fields("TIME?")["t"]) - t0 < 0.2
+
+
+def test_the_driver_chops_reads_the_saturation_after_int_and_knows_a_dc_amplifier(rig):
+    """acquisition's SerialDetector on the board: [detector].chop sends CHOP ON; the saturation is the board's for
+    the integration time set (read again after INT), and amplifier=dc makes auto-ranging use the gains only."""
+    from acquisition.autorange import AutoRanger
+    from acquisition.devices.serial_link import SerialDetector, SerialLink
+
+    physics, board, port = rig
+    port.close()
+    physics.ambient = 1000.0  # the Python physics clips a repeat's sum at 65535 counts: kept below it
+    link = SerialLink(board.port, timeout_s=2.0, retries=0, name="detector board")
+    try:
+        det = SerialDetector(link, "photodiode", 0.01, 1e12, gains=(1.0, 10.0, 100.0, 1000.0, 10000.0),
+                             start_gain=10.0)
+        det.chop = True
+        det.connect()
+        assert det.dc_amplifier and det.integration_time_s == 0.02  # rounded to one chopping half
+        assert det.saturation == 1023 * 160
+        assert det.set_integration_time(0.04) == 0.04 and det.saturation == 1023 * 320  # read after INT
+        rd = det.read(4)
+        assert rd.saturated == 0 and 2 * 3000 < rd.mean[0] < 2 * 5000  # the source's light alone, 2 halves of it
+        ranger = AutoRanger(det, 0.04, 1e-5, read_dark=lambda: det.dark(2), gains=det.gains)
+        assert set(ranger.ladder) == {0.04}  # no shorter integration time: it would not lower a conversion
+    finally:
+        link.close()

@@ -259,9 +259,8 @@ class SerialDetector:
         self.integration_time_s = integration_time_s
         self.saturation = saturation
         self._config_saturation = saturation
-        #: the detector is a DC amplifier read by oversampling (``DETECTOR?`` says ``amplifier=dc``, the detector
-        #: board): a shorter integration time does not lower a conversion, so auto-ranging uses its gains only
-        self.dc_amplifier = False
+        self.dc_amplifier = False  # DETECTOR? says amplifier=dc (the board): auto-ranging over its gains only
+        self.chop = False  # [detector].chop: CHOP ON at connect
         self.type = expected_type
         self.wavelengths_nm: np.ndarray | None = None
         self.n_channels = 1
@@ -282,6 +281,8 @@ class SerialDetector:
         self.has_time = "TIME?" in cmds
         self.has_dwell = "DWELL" in cmds
         self.has_sample_changer = "SAMPLE" in cmds
+        if self.chop:  # a controller without CHOP answers error:1, named
+            self.link.command("CHOP ON")
         d = self.link.fields("DETECTOR?", check=_check_detector)
         self.type = d["type"]
         if self.type != self.expected_type:

@@ -174,6 +174,9 @@ class DetectorTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     gains: Annotated[list[float] | None, Meta(description="the amplifier's switchable gains, e.g. [1, 10, 100, "
                                                           "1000, 10000] (GAIN n); auto-ranging uses them all",
                                               extra={"check": _gains_check})] = None
+    chop: Annotated[bool, Meta(description="the detector board chops the source (CHOP ON): readings are on-minus-off "
+                                           "sums in which room light, its flicker and the amplifier's offset "
+                                           "cancel (docs/serial-protocol.md; an LED source)")] = False
     serial_number: Annotated[str, Meta(description='seabreeze: the spectrometer\'s serial number (default: the '
                                                    "first one found)")] | None = None
     correct_dark_counts: Annotated[bool, Meta(description="seabreeze: subtract the electrical dark pixels' level "
