@@ -260,6 +260,7 @@ class SerialDetector:
         self.saturation = saturation
         self._config_saturation = saturation
         self.dc_amplifier = False  # DETECTOR? says amplifier=dc (the board): auto-ranging over its gains only
+        self.summing = False  # DETECTOR? lists conversions= (the board): its saturation grows with INT
         self.chop = False  # [detector].chop: CHOP ON at connect
         self.type = expected_type
         self.wavelengths_nm: np.ndarray | None = None
@@ -295,7 +296,7 @@ class SerialDetector:
                 raise DeviceError(f"{self.link.name}: DETECTOR? lists {self.wavelengths_nm.size} wavelengths for "
                                   f"{self.n_channels} channels")
         self.saturation = min(self._config_saturation, float(d["saturation"]))
-        self.dc_amplifier = d.get("amplifier") == "dc"
+        self.dc_amplifier, self.summing = d.get("amplifier") == "dc", "conversions" in d
         if abs(float(d["t_int"]) - self.integration_time_s) > 1e-9 * max(1.0, self.integration_time_s):
             self.set_integration_time(self.integration_time_s)  # a board may round it (INT?): believed
         if self.gains:
@@ -346,7 +347,7 @@ class SerialDetector:
             log.warning("%s: integration time %.6g s requested, the detector uses %.6g s", self.link.name, seconds,
                         actual)
         self.integration_time_s = actual
-        if actual != before:  # a summing ADC's saturation grows with the time: read it for the time now set
+        if self.summing and actual != before:  # a summing ADC's saturation: read it for the time now set
             d = self.link.fields("DETECTOR?", check=_check_detector)
             self.saturation = min(self._config_saturation, float(d["saturation"]))
         return actual
