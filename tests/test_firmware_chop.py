@@ -171,3 +171,34 @@ def test_the_driver_chops_reads_the_saturation_after_int_and_knows_a_dc_amplifie
         assert set(ranger.ladder) == {0.04}  # no shorter integration time: it would not lower a conversion
     finally:
         link.close()
+
+
+def test_a_usb_detectors_dark_through_the_board_waits_the_sources_settle_time(rig):
+    """A spectrometer's dark through the board's SOURCE pin (acquisition.devices.board.BoardBacked): the driver
+    reads SETTLE? and dwells that long after each switch, and marks the switch (its next scan is discarded)."""
+    from acquisition.calibration import Reading
+    from acquisition.devices.board import BoardBacked
+    from acquisition.devices.serial_link import SerialLink
+
+    physics, board, port = rig
+    assert port.cmd("SETTLE 0.3") == ["ok"]  # a halogen lamp
+    port.close()
+    link = SerialLink(board.port, timeout_s=2.0, retries=0, name="detector board")
+    try:
+        b = BoardBacked(link, "board", name="spectrometer")
+        b.connect_board()
+        assert b.dark_way == "board" and b.source_settle_s == 0.3
+        seen: list[tuple[float, bool]] = []
+
+        def scan(n: int) -> Reading:
+            seen.append((b.time(), board.source))
+            return Reading(np.zeros(1), np.zeros(1), n)
+
+        t0 = b.time()
+        b.with_source_off(scan, 4)
+        t1 = b.time()
+        assert seen[0][1] is False and seen[0][0] - t0 >= 0.3  # read dark, 0.3 s after the switch
+        assert t1 - seen[0][0] >= 0.3 and board.wait_for(lambda: board.source)  # on again, and settled
+        assert b.source_switched  # the spectrometer's next scan began before the switch: discarded
+    finally:
+        link.close()

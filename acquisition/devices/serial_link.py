@@ -62,7 +62,8 @@ _FIELD = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*=[^\s=]*$")
 _WORD = re.compile(r"^[A-Za-z][A-Za-z0-9_?]*$")
 #: data-line tag expected for a command (by its first word)
 _TAGS = {"ID?": "ID", "STATUS?": "STATUS", "?": "STATUS", "TIME?": "TIME", "READ": "READ", "DARK": "DARK",
-         "DETECTOR?": "DETECTOR", "INT?": "INT", "GAIN?": "GAIN", "SAMPLE?": "SAMPLE", "HELP": "HELP"}
+         "HELP": "HELP", "DETECTOR?": "DETECTOR", "INT?": "INT", "GAIN?": "GAIN", "SAMPLE?": "SAMPLE",
+         "SETTLE?": "SETTLE"}
 
 
 class ControllerError(DeviceError):
