@@ -31,6 +31,10 @@ the last point needed, and one whose setting is a guess (the white reference) se
 :data:`PROBE_REPEATS` repeats before reading the rest. With gains, the darks at every gain are measured with the
 calibration's (:func:`acquisition.plans.calibrate`), so the estimate counts them.
 
+A photodiode on a DC amplifier read by oversampling (the detector board: ``DETECTOR?`` says ``amplifier=dc``) is
+ranged over its gains only: a shorter integration time sums fewer conversions of the same voltage, which clips just
+as soon.
+
 A reading at time ``t`` is converted to the reference exposure: the signal above the dark level scales with the
 integration time, the dark level itself is measured at ``t`` (once, then cached: a photodiode's dark current
 scales with ``t`` while its offset does not, and neither is assumed), so::
@@ -195,9 +199,15 @@ class AutoRanger:
         self.retries = retries
         self.t_ref = float(t_ref)
         self.t_min = float(t_min)
+        if gains and getattr(detector, "dc_amplifier", False):
+            # a DC amplifier read by oversampling: a shorter integration time sums fewer conversions of the same
+            # voltage and clips as soon, so it cannot lower the signal: the gains are the whole ladder
+            self.t_min = self.t_ref
         self.settings = settings_ladder(self.t_ref, self.t_min, gains)
         self.ladder = [t for _, t in self.settings]
         self.gains = [g for g, _ in self.settings] if gains else None
+        #: real / nominal gain by nominal gain (measured on the white reference); empty: the nominal gains
+        self.gain_factors: dict[float, float] = {}
         self.read_dark = read_dark
         self.on_dark = on_dark
         self.darks: dict[str, Reading] = {}      # setting_key(actual t, gain) -> dark reading at that setting
@@ -213,9 +223,26 @@ class AutoRanger:
         self._seen: dict[float, tuple[list[float], list[float], list[int]]] = {}
 
     def sensitivity(self, i: int) -> float:
-        """Counts per unit signal on rung ``i`` relative to gain 1 and ``t_ref`` (gain x time / t_ref)."""
+        """Counts per unit signal on rung ``i`` relative to gain 1 and ``t_ref`` (gain x time / t_ref; the gain's
+        measured factor when the calibration measured one, :meth:`set_gain_factors`)."""
         g = self._gain.get(i, self.settings[i][0])
-        return (1.0 if g is None else g) * self._actual.get(i, self.ladder[i]) / self.t_ref
+        real = 1.0 if g is None else g * self.gain_factors.get(float(g), 1.0)
+        return real * self._actual.get(i, self.ladder[i]) / self.t_ref
+
+    def set_gain_factors(self, factors: Mapping[float, float]) -> None:
+        """Convert with the amplifier's real gains from now on: ``factors`` = real / nominal gain, by nominal
+        gain (:func:`acquisition.calibration.measure_gain_factors`)."""
+        self.gain_factors = {float(g): float(f) for g, f in factors.items()}
+        log.info("auto-ranging converts with the measured gain factors %s",
+                 ", ".join(f"{g:g}: {f:.4f}" for g, f in sorted(self.gain_factors.items())))
+
+    def set_setting(self, i: int) -> float:
+        """Put the detector on rung ``i`` (as a reading there would); returns its integration time (s)."""
+        return self._set(i)
+
+    def gain_of(self, i: int) -> float | None:
+        """The gain of rung ``i`` (the amplifier's report once set, else the nominal one)."""
+        return self._gain.get(i, self.settings[i][0])
 
     def _describe(self, i: int) -> str:
         """Rung ``i`` for a log line: "t_int = 0.01 s" (and ", gain 100" when the gain is switched)."""

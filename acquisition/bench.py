@@ -299,6 +299,7 @@ class Bench:
                                                cfg.detector.saturation, cfg.detector.gains,
                                                start_gain=max(cfg.detector.gains) if cfg.detector.gains
                                                and cfg.detector.auto_range else None)
+                self.detector.chop = cfg.detector.chop
             if sys.stdin is not None and sys.stdin.isatty():
                 self.detector.manual_swap = _prompt_swap
             self.detector.connect()

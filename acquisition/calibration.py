@@ -29,7 +29,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["Reading", "Calibration", "reference_rho", "pool"]
+__all__ = ["Reading", "Calibration", "reference_rho", "pool", "measure_gain_factors", "gain_factors_of",
+           "GAIN_RATIO_TOLERANCE", "GAIN_RATIO_PRECISION", "drift_of"]
+
+#: A measured gain ratio further than this from the nominal one is not believed (a reading gone wrong, not a 1 %
+#: or 5 % resistor): the nominal ratio is kept, with a warning.
+GAIN_RATIO_TOLERANCE = 0.2
+#: A gain's ratio is measured only where the white reference's net signal there is known to this relative
+#: standard uncertainty (a lower gain reads less of it).
+GAIN_RATIO_PRECISION = 0.002
 
 Array = NDArray[np.float64]
 
@@ -101,6 +109,10 @@ class Calibration:
     k_counts: float | None = None
     footprint: tuple[float, float, float] | None = None  # (beam_diameter_mm, sample_diameter_mm, min fraction)
     reference_theta_i_deg: float = 0.0
+    #: the amplifier's real gains over its nominal ones (by nominal gain), measured on the white reference
+    #: (:func:`measure_gain_factors`); auto-ranging converts with them. None: the nominal gains
+    gain_factors: dict[float, float] | None = None
+    gain_factors_measured: tuple[float, ...] = ()
 
     def footprint_factor(self, theta_i_deg: float | Array | None) -> Array | float:
         """The footprint correction at ``theta_i_deg``: frac(theta_i_ref) / frac(theta_i) (absolute: 1 /
@@ -153,4 +165,56 @@ class Calibration:
         if self.k_counts is not None:
             d["k_counts"] = self.k_counts
         d["common_relative_uncertainty"] = [float(x) for x in self.relative_uncertainty()]
+        if self.gain_factors is not None:
+            d["gain_factors"] = {f"{g:g}": float(f) for g, f in sorted(self.gain_factors.items())}
+            d["gain_factors_measured"] = [float(g) for g in self.gain_factors_measured]
         return d
+
+
+def gain_factors_of(meta: dict[str, Any]) -> tuple[dict[float, float] | None, tuple[float, ...]]:
+    """(gain_factors, gain_factors_measured) of a calibration's metadata (:meth:`Calibration.to_meta`)."""
+    if "gain_factors" not in meta:
+        return None, ()
+    return ({float(g): float(f) for g, f in meta["gain_factors"].items()},
+            tuple(float(g) for g in meta.get("gain_factors_measured", ())))
+
+
+def drift_of(nets: Sequence[float]) -> float:
+    """The relative spread of readings of one source (a warm-up check): (max - min) / mean of ``nets``."""
+    v = np.asarray(nets, dtype=float)
+    return float((v.max() - v.min()) / max(abs(float(v.mean())), 1e-300))
+
+
+def measure_gain_factors(readings: dict[float, tuple[Reading, Reading]], anchor: float, saturation: float,
+                         headroom: float = 0.8) -> tuple[dict[float, float], tuple[float, ...]]:
+    """The amplifier's real gains relative to its nominal ones, from the white reference read at every gain
+    (``readings``: nominal gain -> (reference reading, dark at that gain), raw counts at one integration time).
+
+    The gain the reference was ranged to (``anchor``) is the reference: its factor is 1 (the white reference
+    calibrates it). A gain below it whose reading is clean (no clipped repeat, mean + 3 std below ``headroom`` of
+    ``saturation``) and whose net signal is known to :data:`GAIN_RATIO_PRECISION` gets the measured factor
+    ``(net_g / net_anchor) * anchor / g``; a gain not measurable that way (above the anchor the reference
+    saturates; far below it the signal is lost in the noise) keeps the factor of its measured neighbour towards the
+    anchor, i.e. the nominal ratio to it. Returns ({nominal gain: factor}, the gains measured)."""
+    gains = sorted(readings, reverse=True)
+    ref, dark = readings[anchor]
+    net_anchor = float(np.max(ref.mean - dark.mean))
+    factors = {g: 1.0 for g in gains}
+    measured: list[float] = []
+    if net_anchor <= 0:
+        return factors, ()
+    last = 1.0
+    for g in gains:
+        if g >= anchor:
+            continue
+        rd, dk = readings[g]
+        net = float(np.max(rd.mean - dk.mean))
+        err = float(np.max(np.hypot(rd.std_of_mean, dk.std_of_mean)))
+        clean = not rd.saturated and np.all(rd.mean + 3 * rd.std < headroom * saturation)
+        if clean and net > 0 and err <= GAIN_RATIO_PRECISION * net:
+            f = net / net_anchor * anchor / g
+            if abs(f - 1.0) <= GAIN_RATIO_TOLERANCE:
+                last = f
+                measured.append(g)
+        factors[g] = last
+    return factors, tuple(measured)

@@ -300,7 +300,9 @@ def _read_calibration(src: str, raw: Any, base_dir: Path) -> CalibrationConfig:
     return CalibrationConfig(mode, t["reference_reflectance"], spectrum, t["reference_spectrum"],
                              t["reference_theta_i_deg"] if t["reference_theta_i_deg"] is not None else 0.0,
                              t["reference_theta_o_deg"] if t["reference_theta_o_deg"] is not None else 10.0,
-                             t["reference_repeats"], t["source_power"], t["detector_solid_angle_sr"])
+                             t["reference_repeats"], t["source_power"], t["detector_solid_angle_sr"],
+                             t["gain_ratios"], t["warmup_readings"], t["warmup_interval_s"], t["warmup_max_drift"],
+                             t["warmup_timeout_s"])
 
 
 # --- whole file --------------------------------------------------------------------------------------------------

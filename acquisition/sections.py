@@ -111,6 +111,7 @@ class DetectorConfig:
     source_off: str = "auto"                   # seabreeze, pm100: "auto", "board", "shutter" or "prompt"
     resource: str | None = None                # pm100: the VISA resource (None: the first PM100 found)
     wavelength_nm: float | None = None         # pm100: SENS:CORR:WAV (nm); None: the band's centroid
+    chop: bool = False                         # the detector board chops the source (CHOP ON)
 
     @property
     def on_board(self) -> bool:
@@ -141,6 +142,11 @@ class CalibrationConfig:
     reference_repeats: int
     source_power: float | None
     detector_solid_angle_sr: float | None
+    gain_ratios: str = "measured"
+    warmup_readings: int = 0
+    warmup_interval_s: float = 10.0
+    warmup_max_drift: float = 0.002
+    warmup_timeout_s: float = 1800.0
 
     def to_meta(self) -> dict[str, Any]:
         d: dict[str, Any] = {"mode": self.mode}

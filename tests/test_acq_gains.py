@@ -79,7 +79,11 @@ def test_a_reading_in_the_noise_floor_keeps_its_honest_std(tmp_path, capsys):
     truth = ground_truth(raw, s)[:, 0]
     assert np.all(s.std[:, 0] > 0.3 * truth.max())  # the floor, not a relative error of a value
     f_cos_std = s.std[:, 0] * np.cos(np.radians(s.theta_o_deg))
-    np.testing.assert_allclose(f_cos_std, floor_f_cos(s), rtol=0.6)  # the floor's std (dark noise at 1e4)
+    # the floor's std (dark noise at 1e4): a std of 4 repeats scatters as sqrt(chi2_3 / 3) (above 1.6 x in 5 % of
+    # samples, above 2.6 x in 1e-4): the median close to it, every sample within those bounds
+    floor = floor_f_cos(s)
+    assert abs(np.median(f_cos_std) / floor - 1.0) < 0.3
+    assert np.all((f_cos_std > 0.2 * floor) & (f_cos_std < 2.6 * floor))
     assert np.any(s.values[:, 0] < 0.0) or np.all(np.abs(z) < 3.0)
 
 

@@ -117,7 +117,7 @@ def test_in_process_captures_of_one_folder_exclude_each_other(tmp_path):
 
 
 def partial_capture(tmp_path: Path, capsys) -> tuple[Path, dict]:
-    raw = make_raw({"simulator": {"faults": {"port_vanish_after_s": 4.5, "vanish_ports": "dynamixel"}}})
+    raw = make_raw({"simulator": {"faults": {"port_vanish_after_s": 5.8, "vanish_ports": "dynamixel"}}})
     cfg = write_config(tmp_path / "vanish.toml", raw)
     out = tmp_path / "out"
     assert main(["--config", str(cfg), "--out", str(out), "--no-progress"]) == 1

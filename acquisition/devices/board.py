@@ -51,6 +51,12 @@ class BoardBacked:
             sys.stdin.isatty() else None
         self._t0 = time.monotonic()
         self.dark_way = "none"
+        #: the wait after the source is switched before a reading (s): the board's ``SETTLE?`` (its source's
+        #: settle time: an LED's 2 ms, a halogen lamp's 300 ms), 0 without one
+        self.source_settle_s = 0.0
+        #: the source was switched since the last reading: a free-running spectrometer's next scan began before
+        #: (the driver discards it)
+        self.source_switched = False
 
     # -- the board --------------------------------------------------------------------------------------------
     def connect_board(self) -> None:
@@ -62,6 +68,8 @@ class BoardBacked:
             b.has_dwell = "DWELL" in cmds
             b.has_sample_changer = "SAMPLE" in cmds
             self.has_source_pin = "SOURCE" in cmds
+            if "SETTLE?" in cmds:
+                self.source_settle_s = float(self.link.fields("SETTLE?")["source"])
         self.dark_way = self._choose_dark_way()
         if self.dark_way == "board":
             self.link.command("SOURCE ON")  # type: ignore[union-attr]
@@ -150,6 +158,9 @@ class BoardBacked:
         elif self.operator is not None:
             self.operator("Switch the source ON again" if on else "Switch the source OFF (or block the beam) for "
                           "a dark reading")
+        self.source_switched = True
+        if way in ("board", "shutter") and self.source_settle_s > 0:
+            self.dwell(self.source_settle_s)  # the lamp at full light, or dark, before the next scan
 
     def board_description(self) -> dict[str, Any]:
         return {"board": self._board is not None, "darks": self.dark_way}

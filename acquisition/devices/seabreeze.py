@@ -12,7 +12,8 @@ correct_nonlinearity)``, ``.integration_time_micros(us)``, ``.integration_time_m
   spectrometer's;
 - the integration time (s) is set in microseconds within the device's limits, so auto-ranging walks its ladder
   over the device's own range; the saturation is the device's maximum intensity (or ``[detector].saturation`` if
-  lower); after a change one scan is discarded (many models deliver one scan begun at the old time);
+  lower); after a change one scan is discarded (many models deliver one scan begun at the old time), and so after
+  the source is switched (for a dark and back: the scan running then saw both), after the board's settle time;
 - electrical-dark correction and non-linearity correction (``[detector].correct_dark_counts``,
   ``correct_nonlinearity``) are applied when the device offers them: a correction the device refuses is dropped
   with a log line, once;
@@ -197,9 +198,9 @@ class SeabreezeDetector(BoardBacked):
         return out
 
     def _read(self, n: int) -> Reading:
-        if self._stale:  # the first scan after a change of integration time may have begun at the old one
-            self._scan()
-            self._stale = False
+        if self._stale or self.source_switched:  # the first scan after a change of integration time or a switch
+            self._scan()                          # of the source began before it: discarded
+            self._stale = self.source_switched = False
         scans = np.stack([self._scan() for _ in range(n)])
         clip = self.saturation - self._electrical_dark - 0.5
         sat = int(np.sum(np.max(scans, axis=1) >= clip))

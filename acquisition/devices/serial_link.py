@@ -62,7 +62,8 @@ _FIELD = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*=[^\s=]*$")
 _WORD = re.compile(r"^[A-Za-z][A-Za-z0-9_?]*$")
 #: data-line tag expected for a command (by its first word)
 _TAGS = {"ID?": "ID", "STATUS?": "STATUS", "?": "STATUS", "TIME?": "TIME", "READ": "READ", "DARK": "DARK",
-         "DETECTOR?": "DETECTOR", "INT?": "INT", "GAIN?": "GAIN", "SAMPLE?": "SAMPLE", "HELP": "HELP"}
+         "HELP": "HELP", "DETECTOR?": "DETECTOR", "INT?": "INT", "GAIN?": "GAIN", "SAMPLE?": "SAMPLE",
+         "SETTLE?": "SETTLE"}
 
 
 class ControllerError(DeviceError):
@@ -258,6 +259,10 @@ class SerialDetector:
         self.expected_type = expected_type
         self.integration_time_s = integration_time_s
         self.saturation = saturation
+        self._config_saturation = saturation
+        self.dc_amplifier = False  # DETECTOR? says amplifier=dc (the board): auto-ranging over its gains only
+        self.summing = False  # DETECTOR? lists conversions= (the board): its saturation grows with INT
+        self.chop = False  # [detector].chop: CHOP ON at connect
         self.type = expected_type
         self.wavelengths_nm: np.ndarray | None = None
         self.n_channels = 1
@@ -278,6 +283,8 @@ class SerialDetector:
         self.has_time = "TIME?" in cmds
         self.has_dwell = "DWELL" in cmds
         self.has_sample_changer = "SAMPLE" in cmds
+        if self.chop:  # a controller without CHOP answers error:1, named
+            self.link.command("CHOP ON")
         d = self.link.fields("DETECTOR?", check=_check_detector)
         self.type = d["type"]
         if self.type != self.expected_type:
@@ -289,7 +296,8 @@ class SerialDetector:
             if self.wavelengths_nm.size != self.n_channels:
                 raise DeviceError(f"{self.link.name}: DETECTOR? lists {self.wavelengths_nm.size} wavelengths for "
                                   f"{self.n_channels} channels")
-        self.saturation = min(self.saturation, float(d["saturation"]))
+        self.saturation = min(self._config_saturation, float(d["saturation"]))
+        self.dc_amplifier, self.summing = d.get("amplifier") == "dc", "conversions" in d
         if abs(float(d["t_int"]) - self.integration_time_s) > 1e-9 * max(1.0, self.integration_time_s):
             self.set_integration_time(self.integration_time_s)  # a board may round it (INT?): believed
         if self.gains:
@@ -334,11 +342,15 @@ class SerialDetector:
         """Set the integration time per repeat (``INT``, s) and return the one the detector reports (``INT?``),
         which later readings are checked against. A detector that rounds the setting is believed; one without
         ``INT?`` is taken at its word."""
+        before = self.integration_time_s
         actual = self._set_and_read_back("INT", "INT?", "t_int", seconds)
         if abs(actual - seconds) > _T_INT_RTOL * seconds:
             log.warning("%s: integration time %.6g s requested, the detector uses %.6g s", self.link.name, seconds,
                         actual)
         self.integration_time_s = actual
+        if self.summing and actual != before:  # a summing ADC's saturation: read it for the time now set
+            d = self.link.fields("DETECTOR?", check=_check_detector)
+            self.saturation = min(self._config_saturation, float(d["saturation"]))
         return actual
 
     def _parse(self, f: dict[str, str], n: int) -> Reading:

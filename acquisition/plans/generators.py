@@ -35,12 +35,14 @@ from acquisition.plans.messages import (
     Msg,
     Now,
     Read,
+    ReadAt,
     RestoreSetting,
     Save,
     SelectSample,
     Settle,
     Tally,
     UseReference,
+    Wait,
     Where,
 )
 from acquisition.plans.ordering import TWO_OPT_MAX_EVALUATIONS, order_points, path_time
@@ -114,28 +116,90 @@ def measure(points: Sequence[Point], geometry: Geometry, repeats: int,
             done[point_key((ti, to))] = sample
 
 
-def white_reference(cfg: BenchConfig, by_hand: list[bool] | None = None) -> PlanGen:
-    """Read the white reference at the reference geometry (the reference in front of the detector meanwhile).
-    Returns (reading, its Ranged record or None); ``by_hand`` gets whether the operator mounted it (no changer)."""
+def white_reference(cfg: BenchConfig, by_hand: list[bool] | None = None, gain_ratios: bool = False) -> PlanGen:
+    """Read the white reference at the reference geometry (the reference in front of the detector meanwhile);
+    ``gain_ratios``: then at every other gain as well (auto-ranging over gains). Returns (reading, its Ranged
+    record or None, {nominal gain: (raw reading, raw dark)} of the gain ratios or None); ``by_hand`` gets whether
+    the operator mounted it (no changer)."""
     c = cfg.calibration
     log.info("measuring the white reference at (%g, %g) (%d repeats)", c.reference_theta_i_deg,
              c.reference_theta_o_deg, c.reference_repeats)
     asked = yield SelectSample("REF")
     if by_hand is not None:
         by_hand.append(bool(asked))
+    at_gains = None
     try:
         yield Move(c.reference_theta_i_deg, c.reference_theta_o_deg, checkpoint=False)
         yield Settle()
         ref, ranged = yield Read(c.reference_repeats, "white reference", rung=0)
+        if gain_ratios:
+            at_gains = yield from _reference_at_gains(cfg, ranged)
     finally:
         yield SelectSample("TARGET")
-    return ref, ranged
+    return ref, ranged, at_gains
+
+
+def _reference_at_gains(cfg: BenchConfig, ranged: Any) -> PlanGen:
+    """The white reference at every gain other than the one it was ranged to, with the dark there (every gain's
+    dark is the calibration's): {nominal gain: (raw reading, raw dark)}, for the gain ratios. Not auto-ranged (a
+    dry run: ``ranged`` None): the same readings, for their time, and None."""
+    gains = sorted(cfg.detector.gains or (), reverse=True)
+    if ranged is None or ranged.gain is None:
+        for k, g in enumerate(gains[1:], start=1):
+            yield ReadAt(cfg.calibration.reference_repeats, k, f"white reference at gain {g:g}")
+        return None
+    out: dict[float, tuple[Reading, Reading]] = {}
+    for k, g in enumerate(gains):
+        dark = yield Dark(cfg.detector.dark_repeats, f"dark reading at gain {g:g}", setting=k)
+        if abs(g - ranged.gain) <= 1e-9 * g:
+            out[float(g)] = (ranged.raw, dark)
+            continue
+        rd, _ = yield ReadAt(cfg.calibration.reference_repeats, k, f"white reference at gain {g:g}")
+        out[float(g)] = (rd, dark)
+    return out
+
+
+def warm_up(cfg: BenchConfig, dark: Reading) -> PlanGen:
+    """The warm-up check before the calibration: the white reference read every ``warmup_interval_s`` until its
+    last ``warmup_readings`` readings (above the dark) agree within ``warmup_max_drift``; a DeviceError that says
+    so after ``warmup_timeout_s`` of bench time."""
+    from acquisition.calibration import drift_of
+
+    c = cfg.calibration
+    k = max(int(c.warmup_readings), 2)
+    log.info("warm-up check: the white reference every %g s until %d readings in a row agree within %g %%",
+             c.warmup_interval_s, k, 100 * c.warmup_max_drift)
+    nets: list[float] = []
+    t0 = yield Now()
+    yield SelectSample("REF")
+    try:
+        yield Move(c.reference_theta_i_deg, c.reference_theta_o_deg, checkpoint=False)
+        yield Settle()
+        while True:
+            rd, _ = yield Read(c.reference_repeats, "warm-up reading of the white reference")
+            nets.append(float(np.max(rd.mean - dark.mean)))
+            t = (yield Now()) - t0
+            if len(nets) >= k and drift_of(nets[-k:]) <= c.warmup_max_drift:
+                log.info("warm-up check: the source is steady (%d readings within %.3g %%) after %.0f s", k,
+                         100 * drift_of(nets[-k:]), t)
+                return
+            if t + c.warmup_interval_s > c.warmup_timeout_s:
+                drift = drift_of(nets[-k:]) if len(nets) >= 2 else float("nan")
+                raise DeviceError(
+                    f"the source has not warmed up: its white-reference reading still drifts {100 * drift:.3g} % "
+                    f"over the last {min(k, len(nets))} readings ({c.warmup_interval_s:g} s apart; the bound is "
+                    f"[calibration].warmup_max_drift = {100 * c.warmup_max_drift:g} %) after {t:.0f} s "
+                    f"(warmup_timeout_s = {c.warmup_timeout_s:g}); let the lamp warm up longer (a halogen lamp "
+                    "takes 10-20 min, an LED a few) and check its supply, then run the capture again")
+            yield Wait(c.warmup_interval_s)
+    finally:
+        yield SelectSample("TARGET")
 
 
 def rereference(cfg: BenchConfig) -> PlanGen:
     """Read the white reference again and convert with it from now on (relative calibration; the dark level and
     the slice's metadata keep the first reading, the log records each new one)."""
-    ref, _ = yield from white_reference(cfg)
+    ref, _, _ = yield from white_reference(cfg)
     yield UseReference(ref)
 
 
@@ -155,14 +219,20 @@ def calibrate(cfg: BenchConfig, rho_ref: np.ndarray) -> PlanGen:
     c = cfg.calibration
     log.info("measuring the dark level (%d repeats, source off)", cfg.detector.dark_repeats)
     dark = yield Dark(cfg.detector.dark_repeats, "dark reading", calibration=True)
+    if c.mode == "relative" and c.warmup_readings:
+        yield from warm_up(cfg, dark)
     d = cfg.detector
     if d.auto_range and d.gains:  # a dark at every other gain now, with the source off anyway: what auto-ranging
         for k, g in enumerate(sorted(d.gains, reverse=True)[1:], start=1):  # converts with, known to the estimate
             yield Dark(d.dark_repeats, f"dark reading at gain {g:g}", setting=k)
     t_ref_read = cfg.detector.integration_time_s
+    factors: tuple[dict[float, float] | None, tuple[float, ...]] = (None, ())
     if c.mode == "relative":
         by_hand: list[bool] = []
-        ref, ranged = yield from white_reference(cfg, by_hand)
+        ratios = bool(d.auto_range and d.gains and len(d.gains) > 1 and c.gain_ratios == "measured")
+        ref, ranged, at_gains = yield from white_reference(cfg, by_hand, gain_ratios=ratios)
+        if at_gains:
+            factors = _gain_factors(at_gains, ranged, cfg)
         if ranged is not None:
             t_ref_read = ranged.integration_time_s
             if ranged.ranged:
@@ -173,7 +243,8 @@ def calibrate(cfg: BenchConfig, rho_ref: np.ndarray) -> PlanGen:
                     ref = Reading(ref.mean, np.sqrt(ref.std ** 2 + ref.n * d.std_of_mean ** 2), ref.n,
                                   ref.saturated)
         cal = Calibration("relative", dark, ref, rho_ref, c.reference_theta_o_deg, footprint=footprint_of(cfg),
-                          reference_theta_i_deg=c.reference_theta_i_deg)
+                          reference_theta_i_deg=c.reference_theta_i_deg, gain_factors=factors[0],
+                          gain_factors_measured=factors[1])
         try:
             cal.scale(c.reference_theta_o_deg)  # raises if the reference reads no signal
         except ValueError as e:
@@ -193,6 +264,21 @@ def calibrate(cfg: BenchConfig, rho_ref: np.ndarray) -> PlanGen:
              f"K = {cal.k_counts:g} counts")
     yield Calibrate(cal, t_ref_read if c.mode == "relative" else None)
     return cal
+
+
+def _gain_factors(at_gains: dict[float, tuple[Reading, Reading]], ranged: Any, cfg: BenchConfig
+                  ) -> tuple[dict[float, float], tuple[float, ...]]:
+    """The gain factors from the white reference at every gain (:func:`measure_gain_factors`), logged."""
+    from acquisition.calibration import measure_gain_factors
+
+    sat = float(cfg.detector.saturation) if cfg.detector.saturation is not None else math.inf  # (the device's)
+    factors, measured = measure_gain_factors(at_gains, float(ranged.gain), sat)
+    nominal = sorted(set(factors) - set(measured) - {float(ranged.gain)}, reverse=True)
+    log.info("gain ratios measured on the white reference (real / nominal, relative to gain %g): %s%s",
+             ranged.gain, ", ".join(f"{g:g}: {factors[g]:.4f}" for g in measured) or "none",
+             f"; nominal ratio kept at {', '.join(f'{g:g}' for g in nominal)} (the reference saturates there or "
+             "reads too little)" if nominal else "")
+    return factors, measured
 
 
 def adaptive(ctx: CaptureContext, t_start: float) -> PlanGen:

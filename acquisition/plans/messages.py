@@ -9,8 +9,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["Msg", "Move", "Settle", "Read", "Dark", "SelectSample", "Calibrate", "UseReference", "Save", "Convert",
-           "Checkpoint",
+__all__ = ["Msg", "Move", "Settle", "Wait", "Read", "ReadAt", "Dark", "SelectSample", "Calibrate", "UseReference",
+           "Save", "Convert", "Checkpoint",
            "Where", "Now", "Announce", "RestoreSetting", "Tally"]
 
 
@@ -36,6 +36,13 @@ class Settle(Msg):
 
 
 @dataclass(slots=True)
+class Wait(Msg):
+    """Let ``seconds`` of bench time pass (the detector board's ``DWELL``) -> None."""
+
+    seconds: float
+
+
+@dataclass(slots=True)
 class Read(Msg):
     """``repeats`` readings with the source on, auto-ranged when the detector is -> (Reading in counts at the
     reference integration time, its Ranged record or None). ``what`` names it in messages (or ``point``, the
@@ -49,6 +56,18 @@ class Read(Msg):
     @property
     def label(self) -> str:
         return self.what or (f"point ({self.point[0]:g}, {self.point[1]:g})" if self.point else "reading")
+
+
+@dataclass(slots=True)
+class ReadAt(Msg):
+    """``repeats`` readings with the source on at the auto-ranging setting (rung) ``setting``, not ranged and not
+    re-read (a clipped reading comes back as it is) -> (Reading in raw counts, the gain read at or None). The white
+    reference at every gain, for the gain ratios (:func:`acquisition.calibration.measure_gain_factors`); a detector
+    not auto-ranged reads at its present setting (a dry run)."""
+
+    repeats: int
+    setting: int
+    what: str = ""
 
 
 @dataclass(slots=True)

@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from acquisition.calibration import Calibration, Reading, reference_rho
+from acquisition.calibration import Calibration, Reading, gain_factors_of, reference_rho
 from acquisition.errors import (
     CaptureInterrupted,
     CommError,
@@ -360,7 +360,7 @@ class RunEngine:
                           np.asarray(m["rho_ref"]) if "rho_ref" in m else None,
                           float(m.get("reference_theta_o_deg", c.reference_theta_o_deg)), m.get("k_counts"),
                           footprint_of(self.cfg) if "footprint" in m else None,
-                          float(m.get("reference_theta_i_deg", c.reference_theta_i_deg)))
+                          float(m.get("reference_theta_i_deg", c.reference_theta_i_deg)), *gain_factors_of(m))
         done: dict[tuple[float, float], Sample] = {}
         for ti, to, v, s in zip(existing.theta_i_deg, existing.theta_o_deg, existing.values.mean(axis=1),
                                 existing.std.mean(axis=1), strict=True):

@@ -35,12 +35,14 @@ from acquisition.plans.messages import (
     Move,
     Now,
     Read,
+    ReadAt,
     RestoreSetting,
     Save,
     SelectSample,
     Settle,
     Tally,
     UseReference,
+    Wait,
     Where,
 )
 from acquisition.plans.reference import reference_doubts
@@ -109,7 +111,8 @@ class Engine:
         if auto_range is not None:
             self._setup_ranger(*auto_range, gains=gains)
         self._handlers: dict[type, Callable[[Any], Any]] = {
-            Move: self._move, Settle: self._settle, Read: self._read, Dark: self._dark,
+            Move: self._move, Settle: self._settle, Wait: self._wait, Read: self._read, ReadAt: self._read_at,
+            Dark: self._dark,
             SelectSample: self._select, Calibrate: self._calibrate, Save: self._save, Convert: self._convert,
             Checkpoint: self._checkpoint,
             Where: self._where, Now: self._now, Announce: self._announce, RestoreSetting: self._restore,
@@ -159,6 +162,9 @@ class Engine:
     def _settle(self, m: Settle) -> None:
         self.dev.clock.dwell(self.settle_s)
 
+    def _wait(self, m: Wait) -> None:
+        self.dev.clock.dwell(m.seconds)
+
     def _where(self, m: Where) -> tuple[float, float]:
         """The goal the arms last reached in this run (what the plan ordered them to, so a dry run and the capture
         order the points from the same place), else their present positions."""
@@ -198,6 +204,12 @@ class Engine:
         self.result.auto_range_readings += rg.readings - 1
         self.result.auto_range_overhead_s += rg.overhead_s
         return rg.reading, rg
+
+    def _read_at(self, m: ReadAt) -> tuple[Reading, float | None]:
+        if self.ranger is None:
+            return self.dev.detector.read(m.repeats), None
+        self.ranger.set_setting(m.setting)
+        return self.dev.detector.read(m.repeats), self.ranger.gain_of(m.setting)  # calibration time (estimated)
 
     def _dark(self, m: Dark) -> Reading:
         if m.setting is not None and self.ranger is not None:
@@ -282,6 +294,8 @@ class Engine:
             self.t_last = self.dev.clock.now()
         if self.ranger is not None:
             self.ranger.ref_dark = m.calibration.dark
+            if m.calibration.gain_factors:
+                self.ranger.set_gain_factors(m.calibration.gain_factors)
             rec = self.record.auto_range if self.record is not None else None
             if rec is not None and m.reference_integration_time_s is not None:
                 rec.extra["white_reference_integration_time_s"] = m.reference_integration_time_s

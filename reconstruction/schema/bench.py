@@ -178,6 +178,9 @@ class DetectorTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     gains: Annotated[list[float] | None, Meta(description="the amplifier's switchable gains, e.g. [1, 10, 100, "
                                                           "1000, 10000] (GAIN n); auto-ranging uses them all",
                                               extra={"check": _gains_check})] = None
+    chop: Annotated[bool, Meta(description="the detector board chops the source (CHOP ON): readings are on-minus-off "
+                                           "sums in which room light, its flicker and the amplifier's offset "
+                                           "cancel (docs/serial-protocol.md; an LED source)")] = False
     serial_number: Annotated[str, Meta(description='seabreeze: the spectrometer\'s serial number (default: the '
                                                    "first one found)")] | None = None
     correct_dark_counts: Annotated[bool, Meta(description="seabreeze: subtract the electrical dark pixels' level "
@@ -206,6 +209,20 @@ class CalibrationTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True)
     reference_theta_i_deg: Annotated[float, _num(-89.9, 89.9)] | None = None
     reference_theta_o_deg: Annotated[float, _num(-89.9, 89.9)] | None = None
     reference_repeats: Annotated[int, _num(1, 1000)] = 32
+    gain_ratios: Annotated[Literal["measured", "nominal"], Meta(description=(
+        '"measured": the amplifier\'s gain ratios measured on the white reference at every gain where it reads '
+        'clean and above the noise, used instead of the nominal [detector].gains; "nominal": taken as exact'))
+    ] = "measured"
+    warmup_readings: Annotated[int, _num(0, 1000, description="warm-up check before the calibration: this many "
+                                                              "readings of the white reference in a row must "
+                                                              "agree within warmup_max_drift; 0 = no check")] = 0
+    warmup_interval_s: Annotated[float, _num(0.0, 3600.0, description="bench time between the warm-up check's "
+                                                                      "readings")] = 10.0
+    warmup_max_drift: Annotated[float, _num(1e-6, 1.0, description="the largest relative change between two "
+                                                                   "warm-up readings of a source that has "
+                                                                   "warmed up")] = 0.002
+    warmup_timeout_s: Annotated[float, _num(0.0, 86400.0, description="give up (an error) when the source has "
+                                                                      "not settled after this long")] = 1800.0
     source_power: Annotated[float, _num(1e-6, 1e18, check=_pos_within(1e-6, 1e18))] | None = None
     detector_solid_angle_sr: Annotated[float, _num(1e-12, 2 * math.pi,
                                                           check=_pos_within(1e-12, 2 * math.pi))] | None = None

@@ -124,6 +124,28 @@ class SimulatorSection(msgspec.Struct, kw_only=True, forbid_unknown_fields=True)
         description="the photodiode amplifier: 'ideal' (gain x signal + dark_offset) or 'netlist' (the circuit's "
                     "transfer from hardware/frontend/transfer.json, as the emulated detector board reads "
                     "it)")] = "ideal"
+    ambient: Annotated[float, _m(0.0, 1e15, _NONNEG, _within(0, 1e15), description=(
+        "room light on the detector, counts at gain 1 over [detector].integration_time_s (as the signal); "
+        "0 = dark room"))] = 0.0
+    flicker_depth: Annotated[float, _m(0.0, 1.0, _within(0, 1), description="the room light's modulation at "
+                                                                         "flicker_hz (mains lamps: 0.1-1)")] = 0.0
+    flicker_hz: Annotated[float, _m(0.0, 1000.0, _within(0, 1000), description="the room light's flicker "
+                                                                            "frequency (twice the mains')")] = 100.0
+    source_drift_per_h: Annotated[float, _m(-0.9, 10.0, _within(-0.9, 10), description="relative change of the "
+                                                                                      "source's power per hour "
+                                                                                      "of bench time")] = 0.0
+    source_warmup_depth: Annotated[float, _m(0.0, 0.9, _within(0, 0.9), description=(
+        "the source's power below nominal at power-up, relative; it rises as 1 - depth exp(-t / "
+        "source_warmup_s) over bench time (a lamp warming up)"))] = 0.0
+    source_warmup_s: Annotated[float, _m(1e-3, 1e5, _within(1e-3, 1e5), description="the warm-up's time "
+                                                                                    "constant")] = 300.0
+    monitor_mv: Annotated[float, _m(0.0, 5000.0, _within(0, 5000), description="the monitor photodiode's "
+                                                                            "amplifier output (mV) at the "
+                                                                            "source's nominal power (firmware "
+                                                                            "built with MONITOR=1)")] = 2000.0
+    gain_errors: Annotated[list[Annotated[float, Meta(ge=-0.5, le=0.5)]], Meta(description=(
+        "the amplifier's real gains' relative errors, by [detector].gains in ascending order (1 % and 5 % "
+        "resistors, the multiplexer's leakage); missing ones 0"))] = msgspec.field(default_factory=list)
     backlash_deg: Annotated[float, _m(0.0, 10.0, _NONNEG, _within(0, 10))] = 0.0
     settle_time_s: Annotated[float, _m(0.0, 60.0, _NONNEG, _within(0, 60), description="mechanical settling after a "
                                                                                      "profile ends")] = 0.05

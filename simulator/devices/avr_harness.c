@@ -3,24 +3,38 @@
  * Build (tests and gonio-sim do it at run time, simulator/devices/firmware.py):
  *   gcc -O2 -o avr_harness avr_harness.c -I/usr/include/simavr -lsimavr -lsimavrparts -lutil
  * Run:
- *   avr_harness [--dither LSB] [--seed N] firmware.elf
+ *   avr_harness [--dither LSB] [--seed N] [--no-ads1115] firmware.elf
  *
  * UART0 is a pseudo-terminal of its own (so that several harnesses can run at once): the first line on stdout is
  * "PTY <path>". stdin/stdout are a line-oriented control channel:
  *
- *   out  PTY <path> vref_mv=5000 full=1023   the pty; the ADC reads floor(full * mV / vref_mv), clipped at full
+ *   out  PTY <path> vref_mv=5000 full=1023 ads1115=0x48
+ *                                            the pty; the ADC reads floor(full * mV / vref_mv), clipped at full;
+ *                                            an ADS1115 answers on I2C at 0x48 (firmware built with ADC=ads1115)
  *   out  PIN gsel=<0..7> source=<0|1> reference=<0|1> t=<s>
  *                                            the gain-select pins PB0..PB2, the source pin PD7 and the sample
  *                                            changer's pin PD6, at start and on every change
- *   out  SYNC first=<0|1> n=<n> nconv=<c> gsel=<g> source=<s> t=<s>
+ *   out  SYNC first=<0|1> n=<n> nconv=<c> gsel=<g> source=<s> chop=<0|1> t=<s>
  *                                            (sync mode) a repeat starts (the LED pin PB5 rises): the emulation
- *                                            waits for ADC <mV> (the amplifier's output for this repeat)
+ *                                            waits for ADC <mV> (the amplifier's output for this repeat); chop=1:
+ *                                            the firmware switches the source within the repeat (send DARKADC)
  *   out  TIME t=<s>                          reply to TIME?: emulated seconds since start
  *   out  BYE <reason>                        the harness stops
  *   in   ADC <mV> [<mV> ...]                 the voltage on ADC0 (A0), millivolts (to 0.1 mV; 0..6553 mV); in sync
  *                                            mode further values are those of the reading's next repeats, set at
  *                                            their LED edges without a SYNC (one round trip a reading)
- *   in   DITHER <lsb>                        Gaussian noise added to every conversion, rms in ADC counts
+ *   in   DARKADC <mV> [<mV> ...]             the amplifier's output while the source pin is low, for this repeat
+ *                                            and the next ones (as ADC's list; send it before ADC). Without it, or
+ *                                            after a new SYNC, the output is ADC's whatever the source pin
+ *   in   FLICKER <mV> <hz>                   room light's flicker: amp * sin(2 pi hz t) added to the amplifier's
+ *                                            output at every conversion (t: emulated time); FLICKER 0 0: none
+ *   in   MON <mV>                            the voltage on ADC1 (A1): the monitor photodiode's amplifier, while
+ *                                            the source pin is high (it sees the source only; 0 V while low)
+ *   in   AIN1 <mV>                           the ADS1115's AIN1: the amplifier's reference (its AIN0 is the output)
+ *   in   ADS1115 0|1                         the ADS1115 absent (never acknowledges: a missing or broken device)
+ *                                            or present (the default unless --no-ads1115)
+ *   in   DITHER <lsb>                        Gaussian noise added to every conversion, rms in ADC counts (the
+ *                                            ATmega's, or the ADS1115's codes)
  *   in   SYNC 0|1                            off / on: wait for ADC at every repeat
  *   in   UNTIL <s>                           emulated time runs on to at least <s> (the board idles meanwhile;
  *                                            bytes from the host are delivered from then on)
@@ -35,6 +49,14 @@
  * reading, bytes to send); while it sleeps waiting for input (its probe's busy flag is clear) time is held, so
  * emulated time only advances with work and with UNTIL, like gonio-sim's fast time (time_scale = 0). The sleep
  * callback never waits for wall time.
+ *
+ * The ADS1115 (TI SBAS444): a slave at 0x48 on the TWI (simavr's i2c irqs, as simavr's parts/i2c_eeprom). A write
+ * sets the pointer register (first byte) and then writes the register it points to, MSB first (config 0x01, the
+ * thresholds 0x02/0x03; the conversion register 0x00 is read-only); a read returns the pointed register, MSB first.
+ * Config: OS (write 1: start a single conversion; read 0 while converting), MUX (AINp - AINn of the datasheet's
+ * table), PGA (+-6.144 .. +-0.256 V), MODE (1 single shot, 0 continuous), DR (8 .. 860 samples/s); power-up value
+ * 0x8583. A conversion takes 1/DR s and reads the mean input over that time, rounded to the LSB (FS / 32768),
+ * clipped to -32768..32767 (16-bit two's complement).
  */
 #define _GNU_SOURCE
 #include <errno.h>
@@ -52,6 +74,7 @@
 
 #include <avr_adc.h>
 #include <avr_ioport.h>
+#include <avr_twi.h>
 #include <avr_uart.h>
 #include <sim_avr.h>
 #include <sim_elf.h>
@@ -70,7 +93,11 @@ static avr_uart_t *uart;
 static uint16_t probe_addr;
 static int master = -1, slave_keep = -1, quit_flag;
 static int sync_mode, waiting_sync, frozen, pins_dirty, last_gsel = -1, last_source = -1, last_reference = -1;
-static double adc_mv, dither_lsb;
+static double adc_mv, dither_lsb, flicker_mv, flicker_hz, mon_mv, ain1_mv;
+static double dark_mv;          /* the output while the source pin is low (have_dark) */
+static int have_dark;
+static double queue_dark[MAX_QUEUE];
+static int dark_len, dark_pos;
 static uint64_t rng_state = 0x9e3779b97f4a7c15ULL, until_cycle;
 static uint8_t inbuf[IN_SIZE];
 static size_t in_len;
@@ -123,19 +150,161 @@ static uint32_t probe_nconv(void)
 }
 
 static int gsel(void) { return avr->data[0x25] & 0x07; }           /* PORTB */
+static int chop_flag(void) { return probe8(10); }
 static int source(void) { return (avr->data[0x2B] >> 7) & 1; }     /* PORTD */
 static int reference(void) { return (avr->data[0x2B] >> 6) & 1; }
+
+/* the amplifier's output at time t (s): the source pin chooses the lit or the dark level, room light flickers */
+static double tia_mv(double t)
+{
+    double mv = (have_dark && !source()) ? dark_mv : adc_mv;
+    if (flicker_mv != 0 && flicker_hz > 0) mv += flicker_mv * sin(2.0 * M_PI * flicker_hz * t);
+    return mv;
+}
+
+/* its mean over [t0, t1] (the flicker's sine integrated) */
+static double tia_mean_mv(double t0, double t1)
+{
+    double mv = (have_dark && !source()) ? dark_mv : adc_mv;
+    if (flicker_mv != 0 && flicker_hz > 0 && t1 > t0) {
+        double w = 2.0 * M_PI * flicker_hz;
+        mv += flicker_mv * (cos(w * t0) - cos(w * t1)) / (w * (t1 - t0));
+    }
+    return mv;
+}
 
 /* --- IRQ callbacks --------------------------------------------------------------------------------------------- */
 static void adc_trigger(struct avr_irq_t *irq, uint32_t value, void *param)
 {
     (void)irq; (void)value; (void)param;
-    double mv = adc_mv;
+    int ch = avr->data[0x7C] & 0x0F; /* ADMUX */
+    double mv = ch == 1 ? (source() ? mon_mv : 0.0) : tia_mv(seconds());
     if (dither_lsb > 0) mv += dither_lsb * gauss() * 5000.0 / 1023.0;
     double units = mv * 10.0;
     if (units < 0) units = 0;
     if (units > 65535.0) units = 65535.0;
-    avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_ADC0), (uint32_t)(units + 0.5));
+    avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ch == 1 ? ADC_IRQ_ADC1 : ADC_IRQ_ADC0),
+                  (uint32_t)(units + 0.5));
+}
+
+/* --- the ADS1115 on the TWI --------------------------------------------------------------------------------------- */
+#define ADS_ADDR 0x48
+static struct {
+    int present, selected, index;
+    uint8_t pointer, wbuf[2];
+    uint16_t config, lo_thresh, hi_thresh;
+    int16_t conversion;
+    uint64_t busy_until; /* cycle at which the running conversion ends (0: none) */
+    double t_start;
+} ads = {1, 0, 0, 0, {0, 0}, 0x8583, 0x8000, 0x7FFF, 0, 0, 0};
+static avr_irq_t *ads_irq;
+
+static const double ads_fs_mv[8] = {6144, 4096, 2048, 1024, 512, 256, 256, 256};
+static const double ads_sps[8] = {8, 16, 32, 64, 128, 250, 475, 860};
+
+/* the input AINp - AINn (mV) of a MUX setting: AIN0 = the amplifier's output, AIN1 its reference, AIN2/3 at 0 V */
+static double ads_input(int mux, double t0, double t1)
+{
+    double ain[4] = {tia_mean_mv(t0, t1), ain1_mv, 0.0, 0.0};
+    static const int pos[8] = {0, 0, 1, 2, 0, 1, 2, 3}, neg[8] = {1, 3, 3, 3, -1, -1, -1, -1};
+    return ain[pos[mux]] - (neg[mux] < 0 ? 0.0 : ain[neg[mux]]);
+}
+
+static int16_t ads_code(double t0, double t1)
+{
+    int mux = (ads.config >> 12) & 7, pga = (ads.config >> 9) & 7;
+    double lsb_mv = ads_fs_mv[pga] / 32768.0;
+    double code = ads_input(mux, t0, t1) / lsb_mv;
+    if (dither_lsb > 0) code += dither_lsb * gauss();
+    code = floor(code + 0.5);
+    if (code > 32767) code = 32767;
+    if (code < -32768) code = -32768;
+    return (int16_t)code;
+}
+
+static double ads_period(void) { return 1.0 / ads_sps[(ads.config >> 5) & 7]; }
+
+/* bring the conversion register up to date: a finished single shot, or the last one of continuous mode */
+static void ads_update(void)
+{
+    if (ads.busy_until && avr->cycle >= ads.busy_until) {
+        ads.conversion = ads_code(ads.t_start, ads.t_start + ads_period());
+        ads.busy_until = 0;
+        ads.config |= 0x8000; /* OS reads 1: no conversion running */
+    }
+    if (!(ads.config & 0x0100)) { /* MODE 0: continuous conversions */
+        double p = ads_period(), t1 = floor(seconds() / p) * p;
+        ads.conversion = ads_code(t1 - p, t1);
+    }
+}
+
+static void ads_write_reg(uint8_t reg, uint16_t v)
+{
+    ads_update();
+    if (reg == 1) {
+        int start = (v & 0x8000) && (v & 0x0100) && !ads.busy_until;
+        ads.config = v & 0x7FFF;
+        if (start) {
+            ads.t_start = seconds();
+            ads.busy_until = avr->cycle + (uint64_t)(ads_period() * FREQ + 0.5);
+        } else if (!ads.busy_until) {
+            ads.config |= 0x8000;
+        }
+    } else if (reg == 2) {
+        ads.lo_thresh = v;
+    } else if (reg == 3) {
+        ads.hi_thresh = v;
+    }
+}
+
+static uint16_t ads_read_reg(uint8_t reg)
+{
+    ads_update();
+    switch (reg & 3) {
+    case 0: return (uint16_t)ads.conversion;
+    case 1: return ads.config;
+    case 2: return ads.lo_thresh;
+    default: return ads.hi_thresh;
+    }
+}
+
+static void ads_twi(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq; (void)param;
+    avr_twi_msg_irq_t v;
+    v.u.v = value;
+    if (v.u.twi.msg & TWI_COND_STOP) ads.selected = 0;
+    if (v.u.twi.msg & TWI_COND_START) {
+        ads.selected = 0;
+        ads.index = 0;
+        if (ads.present && (v.u.twi.addr >> 1) == ADS_ADDR) {
+            ads.selected = v.u.twi.addr;
+            avr_raise_irq(ads_irq + TWI_IRQ_INPUT, avr_twi_irq_msg(TWI_COND_ACK, ads.selected, 1));
+        }
+    }
+    if (!ads.selected) return;
+    if (v.u.twi.msg & TWI_COND_WRITE) {
+        avr_raise_irq(ads_irq + TWI_IRQ_INPUT, avr_twi_irq_msg(TWI_COND_ACK, ads.selected, 1));
+        if (ads.index == 0) ads.pointer = v.u.twi.data & 3;
+        else if (ads.index <= 2) ads.wbuf[ads.index - 1] = v.u.twi.data;
+        if (ads.index == 2) ads_write_reg(ads.pointer, (uint16_t)((ads.wbuf[0] << 8) | ads.wbuf[1]));
+        ads.index++;
+    }
+    if (v.u.twi.msg & TWI_COND_READ) {
+        uint16_t r = ads_read_reg(ads.pointer);
+        uint8_t b = (ads.index & 1) ? (uint8_t)r : (uint8_t)(r >> 8); /* MSB, LSB, MSB, ... */
+        avr_raise_irq(ads_irq + TWI_IRQ_INPUT, avr_twi_irq_msg(TWI_COND_READ, ads.selected, b));
+        ads.index++;
+    }
+}
+
+static void ads_attach(void)
+{
+    static const char *names[2] = {"8>ads1115.out", "32<ads1115.in"};
+    ads_irq = avr_alloc_irq(&avr->irq_pool, 0, 2, names);
+    avr_irq_register_notify(ads_irq + TWI_IRQ_OUTPUT, ads_twi, NULL);
+    avr_connect_irq(ads_irq + TWI_IRQ_INPUT, avr_io_getirq(avr, AVR_IOCTL_TWI_GETIRQ(0), TWI_IRQ_INPUT));
+    avr_connect_irq(avr_io_getirq(avr, AVR_IOCTL_TWI_GETIRQ(0), TWI_IRQ_OUTPUT), ads_irq + TWI_IRQ_OUTPUT);
 }
 
 static void pin_changed(struct avr_irq_t *irq, uint32_t value, void *param)
@@ -150,11 +319,13 @@ static void led_changed(struct avr_irq_t *irq, uint32_t value, void *param)
     if (!value || !sync_mode) return;
     if (!probe8(1) && queue_pos < queue_len) { /* a later repeat of the reading: its value came with the first */
         adc_mv = queue_mv[queue_pos++];
+        if (dark_pos < dark_len) dark_mv = queue_dark[dark_pos++];
         return;
     }
     queue_pos = queue_len = 0;
-    say("SYNC first=%u n=%u nconv=%u gsel=%d source=%d t=%.9f", probe8(1), probe_n(), probe_nconv(), gsel(),
-        source(), seconds());
+    dark_pos = dark_len = have_dark = 0;
+    say("SYNC first=%u n=%u nconv=%u gsel=%d source=%d chop=%d t=%.9f", probe8(1), probe_n(), probe_nconv(),
+        gsel(), source(), chop_flag(), seconds());
     waiting_sync = 1;
 }
 
@@ -230,6 +401,28 @@ static void control_line(char *s)
             if (end == p) break;
             queue_mv[queue_len++] = q;
         }
+    } else if (!strcmp(word, "DARKADC") && n == 2) {
+        char *p, *end;
+        dark_mv = v;
+        have_dark = 1;
+        strtod(s + 8, &end);
+        dark_pos = dark_len = 0;
+        for (p = end; dark_len < MAX_QUEUE; p = end) {
+            double q = strtod(p, &end);
+            if (end == p) break;
+            queue_dark[dark_len++] = q;
+        }
+    } else if (!strcmp(word, "FLICKER") && n == 2) {
+        double hz = 0;
+        sscanf(s, "%*s %*f %lf", &hz);
+        flicker_mv = v;
+        flicker_hz = hz;
+    } else if (!strcmp(word, "MON") && n == 2) {
+        mon_mv = v;
+    } else if (!strcmp(word, "AIN1") && n == 2) {
+        ain1_mv = v;
+    } else if (!strcmp(word, "ADS1115") && n == 2) {
+        ads.present = v != 0;
     } else if (!strcmp(word, "DITHER") && n == 2) {
         dither_lsb = v;
     } else if (!strcmp(word, "SYNC") && n == 2) {
@@ -250,6 +443,7 @@ static void control_line(char *s)
         in_len = 0;                                /* bytes in flight do not reach a board in reset */
         uart->input.read = uart->input.write = 0;
         queue_pos = queue_len = 0;
+        dark_pos = dark_len = have_dark = 0;
         waiting_sync = 0;
         pins_dirty = 1;
     } else if (!strcmp(word, "FREEZE") && n == 2) {
@@ -350,11 +544,12 @@ int main(int argc, char **argv)
     const char *elf = NULL;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--dither") && i + 1 < argc) dither_lsb = atof(argv[++i]);
+        else if (!strcmp(argv[i], "--no-ads1115")) ads.present = 0;
         else if (!strcmp(argv[i], "--seed") && i + 1 < argc) rng_state ^= strtoull(argv[++i], NULL, 10) * 0x2545F4914F6CDD1DULL;
         else elf = argv[i];
     }
     if (!elf) {
-        fprintf(stderr, "usage: avr_harness [--dither LSB] [--seed N] firmware.elf\n");
+        fprintf(stderr, "usage: avr_harness [--dither LSB] [--seed N] [--no-ads1115] firmware.elf\n");
         return 2;
     }
     avr_global_logger_set(logger);
@@ -389,6 +584,7 @@ int main(int argc, char **argv)
     for (int pin = 6; pin < 8; pin++)
         avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), pin), pin_changed, NULL);
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('B'), 5), led_changed, NULL);
+    ads_attach();
 
     char name[256];
     if (!open_pty(name)) {
@@ -396,7 +592,7 @@ int main(int argc, char **argv)
         return 2;
     }
     fcntl(STDIN_FILENO, F_SETFL, fcntl(STDIN_FILENO, F_GETFL) | O_NONBLOCK);
-    say("PTY %s vref_mv=5000 full=1023", name);
+    say("PTY %s vref_mv=5000 full=1023 ads1115=0x%02x", name, ADS_ADDR);
 
     while (!quit_flag) {
         read_control();

@@ -70,11 +70,14 @@ def _run(cmd: list[str], what: str) -> None:
         raise FirmwareError(f"building {what} failed: {' | '.join(tail)} (Debian packages: {DEBIAN_PACKAGES})")
 
 
-def build_firmware(build_dir: Path | None = None, gains: str | None = None, sample_changer: bool = False) -> Path:
+def build_firmware(build_dir: Path | None = None, gains: str | None = None, sample_changer: bool = False,
+                   adc: str = "atmega", monitor: bool = False) -> Path:
     """``make -C firmware/detector`` into ``build_dir`` (default ``firmware/detector/build``); returns the ELF.
     ``gains``: the amplifier's gains by multiplexer channel, e.g. ``"1,10,100"`` (the Makefile's default else);
-    ``sample_changer``: the board drives a sample changer on D6 (``SAMPLE REF``/``TARGET``)."""
-    cmd = ["make", "-s", "-C", str(FIRMWARE_DIR), f"SAMPLE_CHANGER={int(sample_changer)}"]
+    ``sample_changer``: the board drives a sample changer on D6 (``SAMPLE REF``/``TARGET``); ``adc``: ``"atmega"``
+    (its 10-bit ADC) or ``"ads1115"`` (the 16-bit ADS1115 on I2C); ``monitor``: a monitor photodiode on A1."""
+    cmd = ["make", "-s", "-C", str(FIRMWARE_DIR), f"SAMPLE_CHANGER={int(sample_changer)}", f"ADC={adc}",
+           f"MONITOR={int(monitor)}"]
     if build_dir is not None:
         cmd.append(f"BUILD={Path(build_dir).resolve()}")
     if gains is not None:
@@ -116,6 +119,8 @@ class SyncEvent:
     gsel: int
     source: bool
     t: float
+    #: the reading is chopped (CHOP ON): the source switches within each repeat, whose value is on minus off
+    chop: bool = False
 
     @property
     def t_int(self) -> float:
@@ -206,7 +211,7 @@ class EmulatedBoard:
 
     def _sync(self, f: dict[str, str]) -> None:
         ev = SyncEvent(f["first"] == "1", int(f["n"]), int(f["nconv"]), int(f["gsel"]), f["source"] == "1",
-                       float(f["t"]))
+                       float(f["t"]), f.get("chop") == "1")
         try:
             counts = self.on_sync(ev) if self.on_sync is not None else 0.0
         except BaseException as e:  # keep the board running; the caller sees the error
@@ -322,6 +327,12 @@ class PhysicsFeed:
     A reading that starts while the amplifier still settles after the board's last gain or source switch reads
     short of the settled value (:meth:`_settling`).
 
+    Room light (``[simulator].ambient``) is in every value (the physics adds it to the signal); its flicker goes to
+    the harness as ``FLICKER`` (its amplitude at this gain), which adds it conversion by conversion. A chopped
+    reading (``CHOP ON``: the firmware switches the source within each repeat) gets its dark levels too
+    (``DARKADC``: the physics with the source off), which the harness puts on A0 while the source pin is low. The
+    monitor photodiode (A1, ``MON``) reads ``[simulator].monitor_mv`` times the source's drift.
+
     Time: the board's clock (emulated cycles) and the simulator's (``clock``) move together: every jump of the
     simulator's fast time lets the board idle on to it (``UNTIL``), and every reading moves the simulator's clock
     on to the board's (its start, then over its repeats), so ``TIME?`` is the bench time of both.
@@ -336,6 +347,8 @@ class PhysicsFeed:
         self.gains = tuple(gains) if gains else (float(physics.detector.gain),)
         self.board: EmulatedBoard | None = None
         self._queue: list[tuple[float, bool]] = []
+        self._dark: list[tuple[float, bool]] = []
+        self._sent: dict[str, tuple[float, float] | float] = {}
         self.readings = 0
 
     def attach(self, board: EmulatedBoard) -> None:
@@ -354,7 +367,16 @@ class PhysicsFeed:
             if ev.first or not self._queue:
                 self._start_reading(ev)
             values, self._queue = self._queue, []
-            self.clock.jump_to(ev.t + len(values) * ev.t_int)
+            dark, self._dark = self._dark, []
+            self.clock.jump_to(ev.t + len(values) * ev.t_int * (2 if ev.chop else 1))
+        if dark and self.board is not None:
+            mv = (min(millivolts(c), 6500.0) for c in self._per_conv(dark, ev))
+            self.board.send("DARKADC " + " ".join(f"{v:.4f}" for v in mv))
+        return self._per_conv(values, ev)
+
+    @staticmethod
+    def _per_conv(values: list[tuple[float, bool]], ev: SyncEvent) -> list[float]:
+        """Counts per conversion of each repeat (a clipped repeat beyond full scale)."""
         return [ADC_FULL + 1.0 if clipped else counts / ev.nconv for counts, clipped in values]
 
     def _start_reading(self, ev: SyncEvent) -> None:
@@ -368,11 +390,31 @@ class PhysicsFeed:
         t0 = self.clock.now()
         times = t0 + (np.arange(ev.n) + 0.5) * ev.t_int
         angles = np.array([self.arm_angles(float(t)) for t in times])
-        codes, sat = self.physics.read(angles[:, 0], angles[:, 1], source_on=ev.source)
+        # the room light and the source: one term each, in the physics (photocurrent -> counts)
+        codes, sat = self.physics.read(angles[:, 0], angles[:, 1], source_on=ev.source or ev.chop, t_s=times)
         codes = self._settling(ev, codes, angles)
         self._queue = [(float(c), bool(s)) for c, s in zip(codes[:, 0], sat, strict=True)]
+        self._dark = []
+        if ev.chop:  # the halves with the source off
+            codes, sat = self.physics.read(angles[:, 0], angles[:, 1], source_on=False, t_s=times)
+            self._dark = [(float(c), bool(s)) for c, s in zip(codes[:, 0], sat, strict=True)]
+        self._send_room_and_monitor(det.gain, t0)
         self.readings += 1
 
+    def _send_room_and_monitor(self, gain: float, t0: float) -> None:
+        """The room light's flicker at this gain (``FLICKER``) and the monitor photodiode's output (``MON``)."""
+        ph = self.physics
+        amp_counts = gain * ph.ambient_signal(125e-6) * ph.flicker_depth  # per conversion of 125 us
+        flicker = (round(amp_counts * VREF_MV / ADC_FULL, 4), ph.flicker_hz)
+        monitor = round(float(ph.cfg.sim.monitor_mv * ph.source_scale(t0)), 4)
+        if self.board is None:
+            return
+        if flicker != self._sent.get("flicker"):
+            self.board.send(f"FLICKER {flicker[0]:.4f} {flicker[1]:g}")
+            self._sent["flicker"] = flicker
+        if monitor != self._sent.get("monitor"):
+            self.board.send(f"MON {monitor:.4f}")
+            self._sent["monitor"] = monitor
 
     def _settling(self, ev: SyncEvent, codes, angles):
         """The repeats' counts with the amplifier still settling after the board's last gain or source switch

@@ -122,6 +122,7 @@ class SerialController(Paced):
         self._arm_angles = arm_angles
         self._collision = collision
         self.alarm = 0
+        self.chop = False  # CHOP ON: readings are the source's on-time minus as long off (the detector board's)
         self.homed = not cfg.sim.homing_required or not axes
         self._buf = bytearray()
         self._discarding = False
@@ -348,7 +349,12 @@ class SerialController(Paced):
         t0 = self.clock.now()
         times = t0 + (np.arange(n) + 0.5) * t_int
         angles = np.array([self.arm_angles(float(tk)) for tk in times])
-        codes, sat = self.physics.read(angles[:, 0], angles[:, 1], source_on=source_on and self.physics.source_on)
+        codes, sat = self.physics.read(angles[:, 0], angles[:, 1], source_on=source_on and self.physics.source_on,
+                                       t_s=times)
+        if self.chop:  # as long with the source off, subtracted: room light and offsets cancel
+            off, sat_off = self.physics.read(angles[:, 0], angles[:, 1], source_on=False, t_s=times)
+            codes, sat = codes - off, sat | sat_off
+            self._advance(n * t_int)
         self._advance(n * t_int)
         tag = "READ" if source_on else "DARK"
         mean = codes.mean(axis=0)
@@ -419,15 +425,31 @@ class SerialController(Paced):
         """``SOURCE ON|OFF``: the source's pin (the darks of a detector that is not the board's)."""
         if len(args) != 1 or args[0].upper() not in ("ON", "OFF"):
             return self._err(E_ARGUMENT)
-        self.physics.source_on = args[0].upper() == "ON"
+        on = args[0].upper() == "ON"
+        if on != self.physics.source_on:
+            self.physics.source_switches += 1
+        self.physics.source_on = on
         log.info("source: %s", args[0].upper())
         return ["ok"]
+
+    def _cmd_chop(self, args: list[str]) -> list[str]:
+        """``CHOP ON|OFF``: chopped readings, as the detector board makes them (docs/serial-protocol.md): here one
+        half is the integration time with the source on, the other as long with it off."""
+        if len(args) != 1 or args[0].upper() not in ("ON", "OFF"):
+            return self._err(E_ARGUMENT)
+        self.chop = args[0].upper() == "ON"
+        return ["ok"]
+
+    def _cmd_chop_q(self, args: list[str]) -> list[str]:
+        return [f"CHOP chop={'ON' if self.chop else 'OFF'} half={self.physics.detector.integration_time_s:g}", "ok"]
 
     def _cmd_source_q(self, args: list[str]) -> list[str]:
         return [f"SOURCE source={'ON' if self.physics.source_on else 'OFF'}", "ok"]
 
     _COMMANDS = {
         "HELP": _cmd_help,
+        "CHOP": _cmd_chop,
+        "CHOP?": _cmd_chop_q,
         "ID?": _cmd_id,
         "STATUS?": _cmd_status,
         "TIME?": _cmd_time,

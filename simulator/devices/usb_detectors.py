@@ -70,6 +70,7 @@ class UsbDetector(Paced):
         self._buf = bytearray()
         self._wait = 0.0
         self.t_us = int(round(cfg.detector.integration_time_s * 1e6))
+        self._switches_seen = 0
         self.wavelength_nm = 633.0
         self.averages = 1
         self.auto_range = True
@@ -127,6 +128,10 @@ class UsbDetector(Paced):
             det.integration_time_s = t
             ti, to = self._angles(t)
             codes, _ = self.physics.read(ti, to, source_on=self.physics.source_on)
+            if self.physics.source_switches != self._switches_seen:  # a free-running scan began before the
+                self._switches_seen = self.physics.source_switches  # switch: half of it saw the old state
+                old, _ = self.physics.read(ti, to, source_on=not self.physics.source_on)
+                codes = np.round((codes + old) / 2)
             noise = self.physics.noise_rms() / math.sqrt(_DARK_PIXELS)
             dark = self.physics.dark_offset + self.physics.detector.gain * self.physics.input_offset \
                 + noise * float(self.physics.rng.standard_normal())

@@ -12,6 +12,12 @@ so f at the centre for a smooth BRDF and the lobe's energy for a mirror. ``frac`
 spot that falls on the sample (:func:`reconstruction.schema.optics.footprint_fraction`): the light lost where
 the spot, growing as 1 / cos theta_i, overfills it.
 
+Room light (``[simulator].ambient``, in the units of S) reaches the detector whether the source is on or off: it
+is added to S (and to its shot noise) in :meth:`BenchPhysics.expected_signal`; its flicker
+(``flicker_depth`` at ``flicker_hz``) averages out over a reading here and is put on the emulated board's ADC
+conversion by conversion (:class:`simulator.devices.firmware.PhysicsFeed`). The source drifts by
+``source_drift_per_h`` (relative, per hour of bench time) when a reading's times are given.
+
 A reading at gain g is ``round(g * (S + shot + input_offset + input_noise) + dark_offset + read_noise)`` clipped
 to ``[0, min(saturation, 2**adc_bits - 1)]`` (with ``frontend`` set, :mod:`simulator.world.frontend`, the circuit's
 own transfer at the range of g takes the place of ``g * (...) + dark_offset``: the emulated board, and
@@ -163,6 +169,8 @@ class BenchPhysics:
         #: the source, switched by the board's ``SOURCE ON|OFF`` pin (a dark of a seabreeze/pm100 bench); a
         #: ``DARK`` reading is dark whatever it says
         self.source_on = True
+        #: how often the source was switched (a spectrometer's scan running at a switch sees both states)
+        self.source_switches = 0
         wl = s.spectrometer.grid() if cfg.detector.type == "spectrometer" else None
         self.detector = Detector(
             type=cfg.detector.type,
@@ -182,6 +190,15 @@ class BenchPhysics:
         self.electrons_per_count = float(s.electrons_per_count)
         self.shot_noise = bool(s.shot_noise)
         self.blind_half_width = float(cfg.blind_spot_half_width_deg)
+        self.ambient = float(s.ambient)
+        self.flicker_depth = float(s.flicker_depth)
+        self.flicker_hz = float(s.flicker_hz)
+        self.source_drift_per_h = float(s.source_drift_per_h)
+        self.source_warmup_depth = float(s.source_warmup_depth)
+        self.source_warmup_s = float(s.source_warmup_s)
+        #: the amplifier's real gain over its nominal one, by nominal gain ([simulator].gain_errors)
+        self.gain_factors = {float(g): 1.0 + float(e) for g, e in zip(sorted(cfg.detector.gains or ()),
+                                                                       s.gain_errors, strict=False)}
         self.gains = cfg.detector.gains
         from reconstruction.bench.instrument import Instrument
 
@@ -297,14 +314,30 @@ class BenchPhysics:
         return true_angles(theta_i_deg, theta_o_deg, m.light_zero_deg, m.detector_zero_deg, tilt,
                            m.surface_offset_mm, self.cfg.detector_distance_mm or 70.0)
 
+    def source_scale(self, t_s) -> np.ndarray:
+        """The source's power relative to nominal at bench times ``t_s`` (s): its drift and its warm-up,
+        ``(1 + source_drift_per_h * t / 3600) * (1 - source_warmup_depth * exp(-t / source_warmup_s))``."""
+        t = np.asarray(t_s, dtype=float)
+        return (1.0 + self.source_drift_per_h * t / 3600.0) * \
+            (1.0 - self.source_warmup_depth * np.exp(-t / self.source_warmup_s))
+
+    def ambient_signal(self, integration_time_s: float | None = None) -> float:
+        """The room light's mean signal (counts at gain 1) over an integration time: ``[simulator].ambient``
+        scaled from the configured integration time; its flicker averages out."""
+        t_int = self.detector.integration_time_s if integration_time_s is None else integration_time_s
+        return self.ambient * t_int / self.detector.ref_integration_time_s
+
     def expected_signal(self, theta_i_deg, theta_o_deg, source_on: bool = True,
-                        integration_time_s: float | None = None) -> np.ndarray:
-        """Noise-free signal S in counts at gain 1, before dark offset: (..., n_det); 0 in the blind spot."""
+                        integration_time_s: float | None = None, t_s=None) -> np.ndarray:
+        """Noise-free signal S in counts at gain 1, before dark offset: (..., n_det); 0 in the blind spot; the
+        room light added whether the source is on or not. ``t_s``: the bench time of each reading (s, broadcast
+        with the angles) for the source's drift (none without)."""
         t_int = self.detector.integration_time_s if integration_time_s is None else integration_time_s
         ti = np.asarray(theta_i_deg, dtype=float)
         to = np.asarray(theta_o_deg, dtype=float)
+        room = self.ambient_signal(t_int)
         if not source_on:
-            return np.zeros(np.broadcast_shapes(ti.shape, to.shape) + (self.detector.n_channels,))
+            return np.full(np.broadcast_shapes(ti.shape, to.shape) + (self.detector.n_channels,), room)
         arm_ti, arm_to = ti, to
         ti, to = self.true_angles(ti, to)
         fc = self.f_cos(ti, to)
@@ -314,9 +347,9 @@ class BenchPhysics:
         s = s * footprint_fraction(ti, self.cfg.beam_diameter_mm, self.cfg.sample_diameter_mm)[..., None]
         blind = np.abs(arm_ti + arm_to) < self.blind_half_width
         s = np.where(blind[..., None], 0.0, s)
-        if not source_on:
-            s = np.zeros_like(s)
-        return s
+        if t_s is not None and (self.source_drift_per_h or self.source_warmup_depth):
+            s = s * self.source_scale(np.broadcast_to(t_s, blind.shape))[..., None]
+        return s + room
 
     def expected_reading(self, theta_i_deg, theta_o_deg, source_on: bool = True) -> np.ndarray:
         """Noise-free reading (counts): gain * S + dark, clipped to the detector range (not quantised)."""
@@ -336,19 +369,27 @@ class BenchPhysics:
         formula, or the circuit's transfer when ``frontend`` is set."""
         det = self.detector
         if self.frontend is None:
-            return det.gain * x_in + self.dark_offset
-        return self.frontend.reading_counts(x_in, self.range_index(), det.integration_time_s)
+            return self.real_gain() * x_in + self.dark_offset
+        # a resistor's error ([simulator].gain_errors) scales the range's output above Vref as a photocurrent would
+        factor = self.gain_factors.get(float(det.gain), 1.0)
+        return self.frontend.reading_counts(x_in * factor, self.range_index(), det.integration_time_s)
+
+    def real_gain(self, gain: float | None = None) -> float:
+        """The amplifier's real gain at nominal ``gain`` (default: the present one): ``[simulator].gain_errors``."""
+        g = self.detector.gain if gain is None else gain
+        return g * self.gain_factors.get(float(g), 1.0)
 
     def noise_rms(self, gain: float | None = None) -> float:
         """Dark-reading noise (counts rms) at ``gain`` (default: the present one): ADC and amplifier."""
         g = self.detector.gain if gain is None else gain
         return float(np.hypot(self.read_noise, g * self.input_noise))
 
-    def read(self, theta_i_deg, theta_o_deg, source_on: bool = True) -> tuple[np.ndarray, np.ndarray]:
-        """Noisy readings for arrays of angles (one per repeat): (codes (n, n_det) float, saturated (n,) bool)."""
+    def read(self, theta_i_deg, theta_o_deg, source_on: bool = True, t_s=None) -> tuple[np.ndarray, np.ndarray]:
+        """Noisy readings for arrays of angles (one per repeat): (codes (n, n_det) float, saturated (n,) bool);
+        ``t_s``: the repeats' bench times (s) for the source's drift."""
         ti = np.atleast_1d(np.asarray(theta_i_deg, dtype=float))
         to = np.atleast_1d(np.asarray(theta_o_deg, dtype=float))
-        s = self.expected_signal(ti, to, source_on)
+        s = self.expected_signal(ti, to, source_on, t_s=None if t_s is None else np.atleast_1d(t_s))
         det = self.detector
         if self.shot_noise:
             e = self.electrons_per_count

@@ -16,6 +16,7 @@
 #define E_ARGUMENT 2
 #define E_LINE_TOO_LONG 4
 #define E_NOT_AVAILABLE 10
+#define E_ADC 12 /* the ADC does not answer (ADC=ads1115: no acknowledge from the ADS1115 at 0x48) */
 
 static const uint32_t gains[] = {GAIN_LIST};
 #define N_GAINS (sizeof(gains) / sizeof(gains[0]))
@@ -23,8 +24,44 @@ typedef char gains_fit_the_multiplexer[(N_GAINS >= 1 && N_GAINS <= 8) ? 1 : -1];
 
 static uint32_t nconv = DEFAULT_NCONV;   /* conversions per repeat */
 static uint8_t gain_index;
-static uint8_t settled;                 /* no source or gain switch since the last reading */
+static uint32_t settle_due_us;          /* the wait still owed for a source or gain switch before integrating */
 static uint8_t source_enabled = 1;      /* SOURCE ON/OFF: the pin's state between readings and during READ */
+static uint8_t chop;                    /* CHOP ON: readings are on-minus-off sums of chopped halves */
+static uint32_t source_settle_us = SOURCE_SETTLE_US; /* SETTLE <s> */
+
+static void owe_settle(uint32_t us)
+{
+    if (us > settle_due_us) settle_due_us = us;
+}
+
+/* switch the source pin (when it changes) and owe its settle time */
+static void switch_source(uint8_t on)
+{
+    if (fw_probe.source != on) {
+        set_source(on);
+        owe_settle(source_settle_us);
+    }
+}
+
+static void settle(void)
+{
+    if (settle_due_us) sleep_us(settle_due_us);
+    settle_due_us = 0;
+}
+
+/* conversions per repeat (the source's on-time when chopped: a whole number of chopping halves) */
+static uint32_t repeat_nconv(void)
+{
+    if (!chop) return nconv;
+    uint32_t halves = (nconv + CHOP_HALF_NCONV / 2) / CHOP_HALF_NCONV;
+    return (halves ? halves : 1) * CHOP_HALF_NCONV;
+}
+
+static void upcase(char *p)
+{
+    for (; p && *p; p++)
+        if (*p >= 'a' && *p <= 'z') *p -= 'a' - 'A';
+}
 
 /* --- replies -------------------------------------------------------------------------------------------------- */
 static void ok(void) { uart_puts_P(PSTR("ok\n")); }
@@ -40,6 +77,24 @@ static void field_u64(const char *key_P, uint64_t v)
 {
     uart_puts_P(key_P);
     uart_put_u64(v);
+}
+
+static void put_i64_milli(int64_t v)
+{
+    if (v < 0) {
+        uart_putc('-');
+        v = -v;
+    }
+    uart_put_fixed((uint64_t)v, 3);
+}
+
+static void put_i32(int32_t v)
+{
+    if (v < 0) {
+        uart_putc('-');
+        v = -v;
+    }
+    uart_put_u64((uint64_t)v);
 }
 
 static void put_gains(void)
@@ -148,26 +203,22 @@ static void cmd_time(void)
 
 static void cmd_help(void)
 {
-    uart_puts_P(PSTR("HELP DARK DETECTOR? DWELL GAIN GAIN? HELP ID? INT INT? READ RESET"));
+    uart_puts_P(PSTR("HELP CHOP CHOP? DARK DETECTOR? DWELL GAIN GAIN? HELP ID? INT INT? READ RESET"));
     if (SAMPLE_CHANGER) uart_puts_P(PSTR(" SAMPLE SAMPLE?"));
-    uart_puts_P(PSTR(" SOURCE SOURCE? STATUS? STOP TIME?\n"));
+    uart_puts_P(PSTR(" SETTLE SETTLE? SOURCE SOURCE? STATUS? STOP TIME?\n"));
     ok();
 }
 
 static void cmd_source(char *arg)
 {
-    for (char *p = arg; p && *p; p++)
-        if (*p >= 'a' && *p <= 'z') *p -= 'a' - 'A';
+    upcase(arg);
     if (arg && strcmp_P(arg, PSTR("ON")) == 0) source_enabled = 1;
     else if (arg && strcmp_P(arg, PSTR("OFF")) == 0) source_enabled = 0;
     else {
         error(E_ARGUMENT);
         return;
     }
-    if (fw_probe.source != source_enabled) {
-        set_source(source_enabled);
-        settled = 0;
-    }
+    switch_source(source_enabled);
     ok();
 }
 
@@ -202,15 +253,61 @@ static void cmd_sample_q(void)
     ok();
 }
 
+static void cmd_chop(char *arg)
+{
+    upcase(arg);
+    if (arg && strcmp_P(arg, PSTR("ON")) == 0) chop = 1;
+    else if (arg && strcmp_P(arg, PSTR("OFF")) == 0) chop = 0;
+    else {
+        error(E_ARGUMENT);
+        return;
+    }
+    ok();
+}
+
+static void cmd_chop_q(void)
+{
+    uart_puts_P(chop ? PSTR("CHOP chop=ON half=") : PSTR("CHOP chop=OFF half="));
+    uart_put_seconds_us(CHOP_HALF_US);
+    uart_putc('\n');
+    ok();
+}
+
+static void cmd_settle(const char *arg)
+{
+    uint64_t us;
+    if (!arg || !parse_scaled(arg, 6, &us) || us > MAX_SETTLE_US) {
+        error(E_ARGUMENT);
+        return;
+    }
+    source_settle_us = (uint32_t)us;
+    ok();
+}
+
+static void cmd_settle_q(void)
+{
+    uart_puts_P(PSTR("SETTLE source="));
+    uart_put_seconds_us(source_settle_us);
+    uart_puts_P(PSTR(" gain="));
+    uart_put_seconds_us(GAIN_SETTLE_US);
+    uart_putc('\n');
+    ok();
+}
+
 static void cmd_detector(void)
 {
-    field_u64(PSTR("DETECTOR type=photodiode channels=1 bits=10 gain="), gains[gain_index]);
-    field_u64(PSTR(" saturation="), 1023ULL * nconv);
+    uint32_t c = repeat_nconv();
+    field_u64(PSTR("DETECTOR type=photodiode channels=1 bits="), ADC_BITS);
+    field_u64(PSTR(" gain="), gains[gain_index]);
+    field_u64(PSTR(" saturation="), (uint64_t)ADC_FULL * c);
     uart_puts_P(PSTR(" t_int="));
-    uart_put_seconds_us((uint64_t)nconv * SAMPLE_PERIOD_US);
+    uart_put_seconds_us((uint64_t)c * SAMPLE_PERIOD_US);
     uart_puts_P(PSTR(" gains="));
     put_gains();
-    field_u64(PSTR(" conversions="), nconv);
+    field_u64(PSTR(" conversions="), c);
+    uart_puts_P(PSTR(" amplifier=dc"));
+    uart_puts_P(chop ? PSTR(" chop=ON") : PSTR(" chop=OFF"));
+    field_u64(PSTR(" clip="), (uint64_t)CLIP_COUNT);
     uart_putc('\n');
     ok();
 }
@@ -231,7 +328,7 @@ static void cmd_int(const char *arg)
 static void cmd_int_q(void)
 {
     uart_puts_P(PSTR("INT t_int="));
-    uart_put_seconds_us((uint64_t)nconv * SAMPLE_PERIOD_US);
+    uart_put_seconds_us((uint64_t)repeat_nconv() * SAMPLE_PERIOD_US);
     uart_putc('\n');
     ok();
 }
@@ -247,7 +344,7 @@ static void cmd_gain(const char *arg)
         uint64_t g = (uint64_t)gains[i] * 1000000ULL;
         uint64_t diff = micro > g ? micro - g : g - micro;
         if (diff <= gains[i]) { /* within 1e-6 relative */
-            if (i != gain_index) settled = 0;
+            if (i != gain_index) owe_settle(GAIN_SETTLE_US);
             gain_index = i;
             set_gain_index(i);
             ok();
@@ -275,6 +372,29 @@ static void cmd_dwell(const char *arg)
     ok();
 }
 
+/* One repeat: c conversions with the source on (READ) or off (DARK); chopped, the sum of the "on" halves minus
+ * the "off" halves (DARK keeps the source off in both: it reads what the chopping leaves of the room light). */
+static int32_t one_repeat(uint8_t source_on, uint32_t c, uint8_t *clipped, uint8_t *fault)
+{
+    if (!chop) return integrate(ADC_CHANNEL, c, clipped, fault);
+    int32_t v = 0;
+    *clipped = 0;
+    for (uint32_t done = 0; done < c && !*fault; done += CHOP_HALF_NCONV) {
+        uint8_t clip_on, clip_off;
+        switch_source(source_on);
+        owe_settle(source_settle_us);
+        settle();
+        v += integrate(ADC_CHANNEL, CHOP_HALF_NCONV, &clip_on, fault);
+        if (*fault) break;
+        switch_source(0);
+        owe_settle(source_settle_us); /* the same wait in both halves, whichever the source does */
+        settle();
+        v -= integrate(ADC_CHANNEL, CHOP_HALF_NCONV, &clip_off, fault);
+        *clipped |= clip_on | clip_off;
+    }
+    return v;
+}
+
 /* READ / DARK: the values are sent while they are measured (a reading of 1000 repeats does not fit in RAM), so
  * sat, mean and std follow them on the same line. */
 static void cmd_read(const char *arg, uint8_t is_read)
@@ -285,43 +405,62 @@ static void cmd_read(const char *arg, uint8_t is_read)
         error(E_ARGUMENT);
         return;
     }
-    if (fw_probe.source != source_on) {
-        set_source(source_on);
-        settled = 0;
+    if (!adc_present()) {
+        error(E_ADC);
+        return;
     }
-    if (!settled) sleep_us(SETTLE_US);
-    settled = 1;
+    uint32_t c = repeat_nconv();
+    if (!chop) {
+        switch_source(source_on);
+        settle();
+    }
     uart_puts_P(is_read ? PSTR("READ n=") : PSTR("DARK n="));
     uart_put_u64(n);
     uart_puts_P(PSTR(" t_int="));
-    uart_put_seconds_us((uint64_t)nconv * SAMPLE_PERIOD_US);
+    uart_put_seconds_us((uint64_t)c * SAMPLE_PERIOD_US);
     field_u64(PSTR(" gain="), gains[gain_index]);
     uart_puts_P(PSTR(" values="));
     struct stats st;
     stats_init(&st);
     uint16_t sat = 0;
+    uint8_t fault = 0;
     fw_probe.n = n;
-    fw_probe.nconv = nconv;
-    for (uint16_t k = 0; k < n; k++) {
+    fw_probe.nconv = c;
+    fw_probe.chop = chop;
+    for (uint16_t k = 0; k < n && !fault; k++) {
         uint8_t clipped;
         fw_probe.first = (k == 0);
-        uint32_t v = integrate(nconv, &clipped);
+        repeat_led(1); /* the harness sets the amplifier's output at this edge */
+        int32_t v = one_repeat(source_on, c, &clipped, &fault);
+        repeat_led(0);
         sat += clipped;
         stats_add(&st, v);
         if (k) uart_putc(',');
-        uart_put_u64(v);
+        put_i32(v);
     }
     fw_probe.first = 0;
+    if (fault) { /* the ADS1115 stopped answering mid-reading: end the line, then the error */
+        uart_putc('\n');
+        switch_source(source_enabled);
+        error(E_ADC);
+        return;
+    }
     field_u64(PSTR(" sat="), sat);
     uart_puts_P(PSTR(" mean="));
-    uart_put_fixed(stats_mean_milli(&st), 3);
+    put_i64_milli(stats_mean_milli(&st));
     uart_puts_P(PSTR(" std="));
     uart_put_fixed(stats_std_milli(&st), 3);
-    uart_putc('\n');
-    if (fw_probe.source != source_enabled) {
-        set_source(source_enabled); /* back to SOURCE's state (on, unless switched off) */
-        settled = 0;
+#if MONITOR
+    { /* the monitor photodiode, source as for the reading, over one repeat's integration time */
+        uint8_t clipped, f;
+        switch_source(source_on);
+        settle();
+        int32_t m = integrate(MONITOR_CHANNEL, c, &clipped, &f);
+        field_u64(PSTR(" monitor="), (uint64_t)(m < 0 ? 0 : m));
     }
+#endif
+    uart_putc('\n');
+    switch_source(source_enabled); /* back to SOURCE's state (on, unless switched off) */
     ok();
 }
 
@@ -361,6 +500,10 @@ static void handle(char *line)
     else if (is(w, PSTR("DWELL"))) one ? cmd_dwell(arg) : error(E_ARGUMENT);
     else if (is(w, PSTR("SOURCE"))) one ? cmd_source(argv[1]) : error(E_ARGUMENT);
     else if (is(w, PSTR("SOURCE?"))) none ? cmd_source_q() : error(E_ARGUMENT);
+    else if (is(w, PSTR("CHOP"))) one ? cmd_chop(argv[1]) : error(E_ARGUMENT);
+    else if (is(w, PSTR("CHOP?"))) none ? cmd_chop_q() : error(E_ARGUMENT);
+    else if (is(w, PSTR("SETTLE"))) one ? cmd_settle(arg) : error(E_ARGUMENT);
+    else if (is(w, PSTR("SETTLE?"))) none ? cmd_settle_q() : error(E_ARGUMENT);
     else if (is(w, PSTR("STOP")) || is(w, PSTR("RESET"))) ok(); /* no axes, no alarms */
     else if (SAMPLE_CHANGER && is(w, PSTR("SAMPLE"))) {
         if (arg)

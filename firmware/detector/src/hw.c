@@ -222,7 +222,8 @@ void set_reference(uint8_t in_beam)
 }
 
 /* --- ADC integration: Timer0 CTC at 8 kHz starts a conversion every 125 us ------------------------------------ */
-static volatile uint32_t adc_sum, adc_to_start, adc_to_finish;
+static volatile uint32_t adc_to_start, adc_to_finish;
+static volatile int32_t adc_sum;
 static volatile uint8_t adc_clip;
 
 ISR(TIMER0_COMPA_vect)
@@ -238,12 +239,20 @@ ISR(ADC_vect)
     uint16_t v = ADC;
     if (!adc_to_finish) return; /* the warm-up conversion */
     adc_sum += v;
-    if (v >= 1023) adc_clip = 1;
+    if (v >= CLIP_COUNT) adc_clip = 1;
     adc_to_finish--;
 }
 
-uint32_t integrate(uint32_t nconv, uint8_t *clipped)
+void repeat_led(uint8_t on)
 {
+    if (on) LED_PORT |= _BV(LED_BIT);
+    else LED_PORT &= ~_BV(LED_BIT);
+}
+
+/* the ATmega's ADC on channel ch (Timer0 paces the conversions at 8 kHz) */
+static int32_t integrate_avr(uint8_t ch, uint32_t nconv, uint8_t *clipped)
+{
+    ADMUX = _BV(REFS0) | ch;
     cli();
     adc_sum = 0;
     adc_clip = 0;
@@ -252,7 +261,6 @@ uint32_t integrate(uint32_t nconv, uint8_t *clipped)
     TCNT0 = 0;
     TIFR0 = _BV(OCF0A);
     sei();
-    LED_PORT |= _BV(LED_BIT); /* the harness sets the amplifier's output at this edge */
     ADCSRA |= _BV(ADSC);      /* the first conversion now, the others every sample period */
     if (nconv > 1) TCCR0B = _BV(CS01);
     while (adc_to_finish) {
@@ -260,10 +268,32 @@ uint32_t integrate(uint32_t nconv, uint8_t *clipped)
         SLEEP_UNLESS(adc_to_finish == 0);
     }
     TCCR0B = 0;
-    LED_PORT &= ~_BV(LED_BIT);
+    if (ch != ADC_CHANNEL) ADMUX = _BV(REFS0) | ADC_CHANNEL;
     *clipped = adc_clip;
     return adc_sum;
 }
+
+#if ADC_ADS1115
+#include "ads1115.h"
+
+int32_t integrate(uint8_t channel, uint32_t nconv, uint8_t *clipped, uint8_t *fault)
+{
+    *fault = 0;
+    if (channel != ADC_CHANNEL) /* the monitor on the ATmega's ADC over the same time */
+        return integrate_avr(channel, nconv * (SAMPLE_PERIOD_US / AVR_PERIOD_US), clipped);
+    return ads1115_integrate(nconv, clipped, fault);
+}
+
+uint8_t adc_present(void) { return ads1115_present(); }
+#else
+int32_t integrate(uint8_t channel, uint32_t nconv, uint8_t *clipped, uint8_t *fault)
+{
+    *fault = 0;
+    return integrate_avr(channel, nconv, clipped);
+}
+
+uint8_t adc_present(void) { return 1; }
+#endif
 
 void hw_init(void)
 {
@@ -288,10 +318,10 @@ void hw_init(void)
     TIMSK1 = _BV(TOIE1);
 
     TCCR0A = _BV(WGM01); /* CTC */
-    OCR0A = (uint8_t)(SAMPLE_PERIOD_US * 2 - 1); /* clk/8 = 2 MHz */
+    OCR0A = (uint8_t)(AVR_PERIOD_US * 2 - 1); /* clk/8 = 2 MHz */
     TIMSK0 = _BV(OCIE0A);
 
-    DIDR0 = _BV(ADC_CHANNEL);
+    DIDR0 = _BV(ADC_CHANNEL) | _BV(MONITOR_CHANNEL);
     ADMUX = _BV(REFS0) | ADC_CHANNEL; /* AVcc reference */
     ADCSRA = _BV(ADEN) | _BV(ADIE) | _BV(ADPS2) | _BV(ADPS1) | _BV(ADPS0);
     set_sleep_mode(SLEEP_MODE_IDLE);
@@ -299,5 +329,8 @@ void hw_init(void)
     ADCSRA |= _BV(ADSC); /* the first conversion after enabling takes 25 ADC clocks: do it now */
     while (ADCSRA & _BV(ADSC)) {
     }
+#if ADC_ADS1115
+    ads1115_init();
+#endif
     wdt_enable(WDTO_2S);
 }

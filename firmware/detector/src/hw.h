@@ -6,7 +6,8 @@
 
 /* What the emulation harness (simulator/devices/avr_harness.c) reads from RAM by this symbol's address; no
  * effect on a real board. busy: the board has work (a command, a reading, bytes to send); first: set for the
- * first repeat of a reading; n: repeats of the reading; nconv: conversions per repeat; source, gain: state. */
+ * first repeat of a reading; n: repeats of the reading; nconv: conversions per repeat (per half when chopped);
+ * source, gain: state; chop: the reading is chopped (the source switches within each repeat). */
 struct fw_probe {
     uint8_t busy;
     uint8_t first;
@@ -14,6 +15,7 @@ struct fw_probe {
     uint8_t gain;
     uint16_t n;
     uint32_t nconv;
+    uint8_t chop;
 };
 extern volatile struct fw_probe fw_probe;
 
@@ -40,7 +42,17 @@ void set_source(uint8_t on);
 void set_gain_index(uint8_t i);
 void set_reference(uint8_t in_beam);   /* the sample changer's pin */
 
-/* one repeat: sum of nconv conversions, sample period SAMPLE_PERIOD_US; *clipped set if one read 1023 */
-uint32_t integrate(uint32_t nconv, uint8_t *clipped);
+/* the on-board LED (D13), lit while a repeat integrates: the emulation harness sets the amplifier's output for
+ * the repeat at its rising edge */
+void repeat_led(uint8_t on);
+
+/* Sum of nconv conversions of the amplifier (channel ADC_CHANNEL, or the ADS1115 when built with ADC=ads1115) or of
+ * the monitor (MONITOR_CHANNEL, the ATmega's ADC), one every SAMPLE_PERIOD_US; *clipped set when one read at or
+ * above CLIP_COUNT (the amplifier's swing) or at the ADS1115's limits. Returns 0 with *fault set when the
+ * ADS1115 does not answer. */
+int32_t integrate(uint8_t channel, uint32_t nconv, uint8_t *clipped, uint8_t *fault);
+
+/* ADC=ads1115: 1 when the ADS1115 acknowledges its address (always 1 on the ATmega's own ADC) */
+uint8_t adc_present(void);
 
 #endif

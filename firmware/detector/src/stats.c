@@ -1,5 +1,5 @@
 /* Exact mean and sample standard deviation in integer arithmetic (avr-gcc's double is 32 bits: too coarse for
- * the 3 decimals the driver checks against the values). Values are at most 1023 * 80000 < 2^27, n <= 1000:
+ * the 3 decimals the driver checks against the values). Values are at most 1023 * 80000 < 2^27 in size (negative ones from a chopped reading), n <= 1000:
  * V = n * S2 - S1^2 < 2^75 needs 128-bit arithmetic, written here on pairs of 64-bit words. */
 #include "stats.h"
 
@@ -96,7 +96,7 @@ void stats_init(struct stats *s)
     s->sum = 0;
 }
 
-void stats_add(struct stats *s, uint32_t x)
+void stats_add(struct stats *s, int32_t x)
 {
     if (s->n == 0) s->x0 = x;
     int64_t d = (int64_t)x - (int64_t)s->x0;
@@ -106,10 +106,11 @@ void stats_add(struct stats *s, uint32_t x)
     s->s2 += (uint64_t)(d * d);
 }
 
-uint64_t stats_mean_milli(const struct stats *s)
+int64_t stats_mean_milli(const struct stats *s)
 {
     if (!s->n) return 0;
-    return (s->sum * 1000 + s->n / 2) / s->n;
+    int64_t half = s->n / 2;
+    return s->sum >= 0 ? (s->sum * 1000 + half) / s->n : -((-s->sum * 1000 + half) / s->n);
 }
 
 uint64_t stats_std_milli(const struct stats *s)

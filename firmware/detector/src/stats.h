@@ -6,15 +6,15 @@
 
 struct stats {
     uint16_t n;
-    uint32_t x0;     /* the first value: deviations from it keep the sums small */
+    int32_t x0;     /* the first value: deviations from it keep the sums small */
     int64_t s1;      /* sum of (x - x0) */
     uint64_t s2;     /* sum of (x - x0)^2 */
-    uint64_t sum;    /* sum of x */
+    int64_t sum;     /* sum of x */
 };
 
 void stats_init(struct stats *s);
-void stats_add(struct stats *s, uint32_t x);
-uint64_t stats_mean_milli(const struct stats *s);  /* round(1000 * mean) */
+void stats_add(struct stats *s, int32_t x);  /* chopped readings can be negative */
+int64_t stats_mean_milli(const struct stats *s);   /* round(1000 * mean), halves away from zero */
 uint64_t stats_std_milli(const struct stats *s);   /* round(1000 * sample std), 0 for n < 2 */
 
 #endif
