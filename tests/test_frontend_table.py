@@ -94,12 +94,17 @@ def test_physics_through_the_circuit_reads_what_the_ideal_formula_reads_above_it
 
 class PinsOnly:
     """Stands in for the emulated board (simulator.devices.firmware.EmulatedBoard) where the feed looks: its pin
-    history (time s, multiplexer channel, source pin) and its sample changer pin."""
+    history (time s, multiplexer channel, source pin), its sample changer pin, and the control lines the feed sends
+    it (the room light's flicker and the monitor photodiode: kept, not acted on)."""
 
     reference = False
 
     def __init__(self, history):
         self.pin_history = history
+        self.sent: list[str] = []
+
+    def send(self, line: str) -> None:
+        self.sent.append(line)
 
 
 def test_the_board_reads_short_of_the_light_while_the_amplifier_settles_after_a_gain_switch(config_dict):
