@@ -161,7 +161,7 @@ def test_the_driver_chops_reads_the_saturation_after_int_and_knows_a_dc_amplifie
     physics, board, port = rig
     port.close()
     physics.ambient = 1000.0  # the Python physics clips a repeat's sum at 65535 counts: kept below it
-    link = SerialLink(board.port, timeout_s=20.0, retries=0, name="detector board")  # an emulated board on a busy machine
+    link = SerialLink(board.port, timeout_s=20.0, retries=0, name="detector board")  # busy machine
     try:
         det = SerialDetector(link, "photodiode", 0.01, 1e12, gains=(1.0, 10.0, 100.0, 1000.0, 10000.0),
                              start_gain=10.0)
@@ -188,7 +188,7 @@ def test_a_usb_detectors_dark_through_the_board_waits_the_sources_settle_time(ri
     physics, board, port = rig
     assert port.cmd("SETTLE 0.3") == ["ok"]  # a halogen lamp
     port.close()
-    link = SerialLink(board.port, timeout_s=20.0, retries=0, name="detector board")  # an emulated board on a busy machine
+    link = SerialLink(board.port, timeout_s=20.0, retries=0, name="detector board")  # busy machine
     try:
         b = BoardBacked(link, "board", name="spectrometer")
         b.connect_board()
