@@ -76,6 +76,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--live-host", metavar="ADDRESS",
                    help="serve the live view on this address instead of 127.0.0.1 (reachable from the network: "
                         "on purpose only)")
+    p.add_argument("--live-allow-host", action="append", default=[], metavar="NAME",
+                   help="a host name the live view may be reached by (repeatable), beside localhost, IP addresses "
+                        "and --live-host; any other Host is refused (a page elsewhere cannot read it by DNS "
+                        "rebinding)")
     p.add_argument("--json", action="store_true", help="print the result as one JSON object on stdout")
     p.add_argument("--log-level", default="warning", choices=("debug", "info", "warning", "error"),
                    help="stderr log level (the log file always gets info)")
@@ -172,7 +176,7 @@ def _start_live(args: argparse.Namespace) -> Any:
         return None
     from acquisition.live import LiveView
 
-    view = LiveView(args.out, args.live_host or "127.0.0.1", args.live_port or 0)
+    view = LiveView(args.out, args.live_host or "127.0.0.1", args.live_port or 0, tuple(args.live_allow_host))
     url = view.start()
     if url is None:
         return None
