@@ -42,6 +42,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from reconstruction.base import ReconstructionError
+from reconstruction.core.samples import thin_samples
 from reconstruction.formats.angleunits import to_degrees
 from reconstruction.formats.merl import MAX_CELL_VALUE
 from reconstruction.formats.slicefile import (
@@ -527,7 +528,8 @@ def load_inputs(paths: Sequence[str | Path], *, quantity: str | None = None,
     quantities: list[str] = []
     capture: dict[str, object] = {}
     for p in paths:
-        s = read_input(p, quantity=quantity, columns=columns, angles_in=angles_in)
+        s, thinned = thin_samples(read_input(p, quantity=quantity, columns=columns, angles_in=angles_in))
+        notes += [thinned] if thinned else []  # a file of millions of rows: memory stays bounded
         quantities.append(s.quantity)
         if not capture and "config_settings" in s.meta:
             capture = {"file": str(p), "meta": dict(s.meta)}
@@ -553,7 +555,8 @@ def load_inputs(paths: Sequence[str | Path], *, quantity: str | None = None,
         out.append(Slice(s.theta_i_deg, s.theta_o_deg, f, list(s.channels), sd, s.repeats, s.unix_time_s,
                          meta={"quantity": "brdf", **({"instrument": inst} if inst is not None else {})},
                          source=s.source))
-    merged = _merge(out)
+    merged, thinned = thin_samples(_merge(out))  # several such files
+    notes += [thinned] if thinned else []
     check_slice(merged)
     return LoadedInput(merged, [str(p) for p in paths], quantities, dropped, notes, capture)
 
