@@ -190,15 +190,26 @@ def thin_samples(s: Slice, max_samples: int = MAX_SAMPLES, max_incidences: int =
     n = len(s)
     if n <= max_samples and np.unique(s.theta_i_deg).size <= max_incidences:
         return s, None
+    # lean on millions of rows: int32 positions, each temporary freed as soon as it is used
     order = np.lexsort((s.theta_o_deg, s.theta_i_deg))
-    ti, to = s.theta_i_deg[order], s.theta_o_deg[order]
+    ti = s.theta_i_deg[order]
     first = np.r_[True, ti[1:] != ti[:-1]]
-    group = np.cumsum(first) - 1  # incidence number (0, 1, ...) of each sorted sample
-    rank = np.arange(n) - np.flatnonzero(first)[group]  # position within its incidence
-    peak_order = np.lexsort((np.abs(to - ti), group))  # within each incidence, nearest the mirror first
+    starts = np.flatnonzero(first).astype(np.int32)  # each incidence's first sorted position
+    n_inc = starts.size
+    dist = s.theta_o_deg[order] - ti  # from the mirror direction: increasing within each incidence
+    del ti
+    group = (np.cumsum(first, dtype=np.int32) - 1).astype(np.int32)  # incidence number of each sorted sample
+    del first
+    rank = np.arange(n, dtype=np.int32) - starts[group]  # position within its incidence
+    ends = np.r_[starts[1:], n]
+    near = starts + np.add.reduceat((dist < 0).astype(np.int32), starts)  # where the mirror direction falls
+    cand = near[:, None] + np.arange(-PEAK_SAMPLES, PEAK_SAMPLES)[None, :]  # (incidences, 2 x PEAK_SAMPLES)
+    ok = (cand >= starts[:, None]) & (cand < ends[:, None])
+    d = np.where(ok, np.abs(dist[np.clip(cand, 0, n - 1)]), np.inf)
+    del dist
+    pick = np.take_along_axis(cand, np.argsort(d, axis=1, kind="stable")[:, :PEAK_SAMPLES], axis=1)
     peak = np.zeros(n, dtype=bool)
-    peak[peak_order[(np.arange(n) - np.flatnonzero(first)[group[peak_order]]) < PEAK_SAMPLES]] = True
-    n_inc = int(group[-1]) + 1
+    peak[pick[np.take_along_axis(ok, np.argsort(d, axis=1, kind="stable")[:, :PEAK_SAMPLES], axis=1)]] = True
     g = max(1, int(np.ceil(n_inc * 4 * PEAK_SAMPLES / max_samples)), int(np.ceil(n_inc / max_incidences)))
     k = max(1, n // (g * max_samples))
     while True:  # a few steps: k grows until the samples fit
@@ -206,6 +217,7 @@ def thin_samples(s: Slice, max_samples: int = MAX_SAMPLES, max_incidences: int =
         if int(keep.sum()) <= max_samples:
             break
         k = int(np.ceil(k * 1.25))
+    del group, rank, peak
     idx = np.sort(order[keep])
     sub = s.take(idx)
     note = (f"{s.source}: {n:,} samples; the reconstruction uses {idx.size:,} of them (at most {max_samples:,} in "

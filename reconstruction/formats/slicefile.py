@@ -369,6 +369,13 @@ def _first_duplicate(key: NDArray[np.float64]) -> tuple[int, int] | None:
     return int(order[i]), int(order[start[i]])
 
 
+def _columns_of(data: NDArray[np.float64], cols: list[int]) -> NDArray[np.float64]:
+    """``data[:, cols]``: a view when the columns are consecutive (as the writer lays them out), else a copy."""
+    if cols == list(range(cols[0], cols[0] + len(cols))):
+        return data[:, cols[0]:cols[0] + len(cols)]
+    return data[:, cols]
+
+
 def read_slice(path: str | Path) -> Slice:
     """Read and validate a slice file; a torn last line (from a crash) is dropped with a warning.
 
@@ -454,9 +461,9 @@ def read_slice(path: str | Path) -> Slice:
     return Slice(
         theta_i_deg=data[:, col["theta_i_deg"]],
         theta_o_deg=data[:, col["theta_o_deg"]],
-        values=data[:, [col[c] for c in channels]],
+        values=_columns_of(data, [col[c] for c in channels]),
         channels=channels,
-        std=data[:, [col[f"{c}_std"] for c in channels]],
+        std=_columns_of(data, [col[f"{c}_std"] for c in channels]),
         repeats=data[:, col["repeats"]].astype(np.int64),
         unix_time_s=data[:, col["unix_time_s"]],
         meta=meta,
