@@ -21,7 +21,7 @@ from reconstruction.core.slicedata import Slice
 Array = NDArray[np.float64]
 
 __all__ = ["DirectionalSlice", "SliceWithPoints", "sample_directions", "everywhere", "directional_slice",
-           "out_of_plane", "points_anywhere", "PointFolds", "samples_used", "thin_samples", "MAX_SAMPLES"]
+           "out_of_plane", "points_anywhere", "PointFolds", "samples_used", "thin_samples", "MAX_SAMPLES", "at_samples"]
 
 
 @dataclass
@@ -227,3 +227,13 @@ def thin_samples(s: Slice, max_samples: int = MAX_SAMPLES, max_incidences: int =
             + f", and the {PEAK_SAMPLES} nearest the mirror direction in each")
     sub.meta = {**sub.meta, "samples_thinned": note}
     return sub, note
+
+
+def at_samples(w: Array, rows: NDArray[Any], idx: NDArray[np.intp], chunk: int = 4096) -> NDArray[Any]:
+    """(R, n): each row of ``rows`` (R, M) interpolated at the samples (``idx``, ``w``: (n, J) cells and weights),
+    ``chunk`` samples at a time: ``rows[:, idx]`` whole would be R x n x J numbers (2.7 GB for the analytic
+    prior's 84 rows at a million samples, 13 GB for 141 materials' 423)."""
+    out = np.empty((rows.shape[0], idx.shape[0]), dtype=np.result_type(rows.dtype, w.dtype))
+    for a in range(0, idx.shape[0], chunk):  # samples in blocks: a few MB of temporaries each
+        out[:, a:a + chunk] = np.einsum("nj,tnj->tn", w[a:a + chunk], rows[:, idx[a:a + chunk]])
+    return out
