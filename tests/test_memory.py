@@ -130,3 +130,16 @@ def test_the_reader_parses_in_chunks(tmp_path, monkeypatch):
     path.write_text("".join(dup))
     with pytest.raises(SliceError, match=r"s\.csv:2501: duplicate sample .* \(first at line 1001\)"):
         read_slice(path)
+
+
+def test_a_row_the_thinning_leaves_out_is_still_checked(tmp_path):
+    from reconstruction.formats.inputs import InputError, load_inputs
+
+    path = tmp_path / "s.csv"
+    write_slice(path, big_slice(120_000, 60))
+    lines = path.read_text().splitlines(keepends=True)
+    cells = lines[4].split(",")  # the second sample of the first incidence (theta_o = -85): thinned out
+    cells[2] = "1e9"
+    path.write_text("".join(lines[:4] + [",".join(cells)] + lines[5:]))
+    with pytest.raises(InputError, match=r"beyond the physical bound"):
+        load_inputs([path])

@@ -528,8 +528,7 @@ def load_inputs(paths: Sequence[str | Path], *, quantity: str | None = None,
     quantities: list[str] = []
     capture: dict[str, object] = {}
     for p in paths:
-        s, thinned = thin_samples(read_input(p, quantity=quantity, columns=columns, angles_in=angles_in))
-        notes += [thinned] if thinned else []  # a file of millions of rows: memory stays bounded
+        s = read_input(p, quantity=quantity, columns=columns, angles_in=angles_in)
         quantities.append(s.quantity)
         if not capture and "config_settings" in s.meta:
             capture = {"file": str(p), "meta": dict(s.meta)}
@@ -552,9 +551,12 @@ def load_inputs(paths: Sequence[str | Path], *, quantity: str | None = None,
             f, sd = s.brdf()
         _check_bounds(s, f, sd)
         inst = s.meta.get("instrument")  # how the samples were taken (docs/slice-format.md): kept for the methods
-        out.append(Slice(s.theta_i_deg, s.theta_o_deg, f, list(s.channels), sd, s.repeats, s.unix_time_s,
-                         meta={"quantity": "brdf", **({"instrument": inst} if inst is not None else {})},
-                         source=s.source))
+        one, thinned = thin_samples(Slice(  # every row checked above; a file of millions of rows thinned here
+            s.theta_i_deg, s.theta_o_deg, f, list(s.channels), sd, s.repeats, s.unix_time_s,
+            meta={"quantity": "brdf", **({"instrument": inst} if inst is not None else {})}, source=s.source))
+        notes += [thinned] if thinned else []
+        out.append(one)
+        del s, f, sd
     merged, thinned = thin_samples(_merge(out))  # several such files
     notes += [thinned] if thinned else []
     check_slice(merged)
