@@ -8,7 +8,10 @@ of the resident memory of it and its children (``/proc``, sampled every 50 ms: a
 it). ``read`` is the input step alone (``reconstruction.formats.inputs.load_inputs``: the reader and the
 thinning). The table gives both peaks in MB and per million rows of input.
 
-Run: .venv/bin/python benchmarks/bench_memory.py [--rows 250000 1000000] [--methods read fit auto ...]
+``--largest`` measures instead the largest slice file the reader accepts: the shortest rows (``1.125,-3.07,0.1,
+0.01,1,0``: one channel, angles in hundredths) up to ``MAX_INPUT_BYTES`` (about 10.6 million rows).
+
+Run: .venv/bin/python benchmarks/bench_memory.py [--rows 250000 1000000] [--methods read fit auto ...] [--largest]
 """
 
 from __future__ import annotations
@@ -40,6 +43,26 @@ def write_big(path: Path, rows: int, incidences: int) -> int:
     s = synthetic_slice(Material.from_toml(ROOT / "configs" / "simulated.toml"), inc, to, noise=0.02, seed=1)
     write_slice(path, s)
     return len(s)
+
+
+def write_largest(path: Path) -> int:
+    """The largest slice file the reader accepts, of the shortest rows; its number of rows."""
+    from reconstruction.formats.slicefile import MAX_INPUT_BYTES
+
+    n = 0
+    with open(path, "w", encoding="utf-8", newline="\n") as fh:
+        fh.write('# gonio-brdf slice\n# meta: {"format_version": 1, "quantity": "brdf"}\n'
+                 "theta_i_deg,theta_o_deg,value,value_std,repeats,unix_time_s\n")
+        size = fh.tell()
+        to = np.round(np.arange(-89, 89, 0.01), 2)
+        for a in np.round(np.arange(1, 89, 0.125), 3):  # one incidence at a time
+            block = "".join(f"{a:g},{b:g},0.1,0.01,1,0\n" for b in to)
+            if size + len(block) > MAX_INPUT_BYTES:
+                break
+            fh.write(block)
+            size += len(block)
+            n += to.size
+    return n
 
 
 def _tree_rss_kb(pid: int) -> int:
@@ -93,13 +116,14 @@ def main() -> int:
     ap.add_argument("--rows", type=int, nargs="+", default=[250_000], help="rows of each slice (default 250000)")
     ap.add_argument("--incidences", type=int, default=400, help="incidences of each slice (default 400)")
     ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
+    ap.add_argument("--largest", action="store_true", help="the largest file the reader accepts, shortest rows")
     args = ap.parse_args()
     print(f"{'rows':>9} {'method':<11} {'ru_maxrss MB':>12} {'tree MB':>8} {'MB / M rows':>11} {'wall s':>7}  "
           "result")
     with tempfile.TemporaryDirectory(prefix="gonio-bench-memory-") as tmp:
-        for rows in args.rows:
+        for rows in ([0] if args.largest else args.rows):
             path = Path(tmp) / f"slice-{rows}.csv"
-            n = write_big(path, rows, args.incidences)
+            n = write_largest(path) if args.largest else write_big(path, rows, args.incidences)
             for m in args.methods:
                 if m == "read":
                     code = ("import sys; from reconstruction.formats.inputs import load_inputs; "
