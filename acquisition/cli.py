@@ -78,6 +78,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--align", action="store_true",
                    help="align the bench instead of capturing: `gonio-align --config CONFIG` (a mirror as the "
                         "sample; see gonio-align --help for its options)")
+    p.add_argument("--live-allow-host", action="append", default=[], metavar="NAME",
+                   help="a host name the live view may be reached by (repeatable), beside localhost, IP addresses "
+                        "and --live-host; any other Host is refused (a page elsewhere cannot read it by DNS "
+                        "rebinding)")
     p.add_argument("--json", action="store_true", help="print the result as one JSON object on stdout")
     p.add_argument("--log-level", default="warning", choices=("debug", "info", "warning", "error"),
                    help="stderr log level (the log file always gets info)")
@@ -183,7 +187,7 @@ def _start_live(args: argparse.Namespace) -> Any:
         return None
     from acquisition.live import LiveView
 
-    view = LiveView(args.out, args.live_host or "127.0.0.1", args.live_port or 0)
+    view = LiveView(args.out, args.live_host or "127.0.0.1", args.live_port or 0, tuple(args.live_allow_host))
     url = view.start()
     if url is None:
         return None

@@ -27,7 +27,7 @@ from reconstruction.atomic import is_no_space
 from reconstruction.base import ReconstructionError
 from reconstruction.core.models import MaterialError
 from reconstruction.formats.merl import FILE_SIZE, MerlError
-from reconstruction.formats.slicefile import QUANTITIES, SliceError
+from reconstruction.formats.slicefile import QUANTITIES, SliceError, shorten
 from reconstruction.pipeline import ImplausibleError, Job, implausible_message
 from reconstruction.pipeline import run as pipeline_run
 
@@ -308,6 +308,8 @@ def _batch_one(job: tuple[Job, str, Path]) -> dict[str, Any]:
         return {"name": name, "input": str(path), "ok": False, "error": str(e)}
     except OSError as e:
         return {"name": name, "input": str(path), "ok": False, "error": _os_error(e)}
+    except MemoryError as e:
+        return {"name": name, "input": str(path), "ok": False, "error": out_of_memory(e)}
     except Exception as e:  # noqa: BLE001 - one file must never abort the batch
         return {"name": name, "input": str(path), "ok": False, "error": f"unexpected error: {type(e).__name__}: "
                                                                         f"{str(e)[:300]}"}
@@ -406,6 +408,15 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted; nothing was left half-written", file=sys.stderr)
         return 130
+    except MemoryError as e:  # numpy's _ArrayMemoryError among them: one line, never a traceback
+        print(f"{PROG}: error: {out_of_memory(e)}", file=sys.stderr)
+        return 1
+
+
+def out_of_memory(e: MemoryError) -> str:
+    """The one line an out-of-memory says (exit status 1: a resource fault, as a full disk)."""
+    what = f" ({shorten(str(e), 120)})" if str(e) else ""
+    return f"out of memory{what}; nothing was left half-written: free memory or raise the limit (ulimit -v), run again"
 
 
 def _main(ap: argparse.ArgumentParser, args: argparse.Namespace) -> int:

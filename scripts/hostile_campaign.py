@@ -14,7 +14,9 @@ Parts (the corpora are those of the test suite, tests/hostile.py):
   completion on the simulator;
 * two captures started together on one ``--out``: one completes, the other refuses at once;
 * ``kill -9`` of a capture at a random moment, then ``--resume``: the slice ends with exactly the planned samples;
-* fault storms: every fault kind at 0.01 / 0.05 / 0.2, resumed until complete.
+* fault storms: every fault kind at 0.01 / 0.05 / 0.2, resumed until complete;
+* the live view under abuse (tests/hostile_live.py) and ``gonio-reconstruct --method auto`` on 300,000 rows under
+  a 1.5 GB and a 400 MB address-space limit (issue 49).
 
 "Data lost" counts samples lost, changed or taken twice, and outputs left half-written under their real names.
 """
@@ -199,6 +201,43 @@ def storms(work: Path) -> Tally:
     return t
 
 
+# --- issue 49 (items 7-10): the live view under abuse, large inputs under a memory limit ------------------------
+
+
+def live_view(work: Path) -> Tally:
+    """The live view's abuse (tests/hostile_live.py): a header flood, 1000 half-open connections, foreign Host
+    names on 127.0.0.1 and 0.0.0.0, links out of the capture folder."""
+    from tests import hostile_live
+
+    t = Tally("live view under abuse (flood, half-open, Host, links)")
+    for case in hostile_live.LIVE_CASES:
+        try:
+            out = case(work)
+            t.add(out.clean, note=f"{out.name}: {out.note}")
+        except Exception:  # noqa: BLE001 - a case that breaks is counted, not fatal
+            t.add(False, True, note=traceback.format_exc(limit=3))
+    return t
+
+
+def large_inputs(work: Path) -> Tally:
+    """gonio-reconstruct --method auto on 300,000 rows under a 1.5 GB address-space limit (completes), and under
+    400 MB (one line, exit 1, nothing written)."""
+    from reconstruction.formats.slicefile import write_slice
+    from tests.test_memory import LIMIT_BYTES, _run_limited, big_slice
+
+    t = Tally("auto on 300,000 rows under 1.5 GB / 400 MB")
+    work.mkdir(parents=True, exist_ok=True)
+    big = work / "big.csv"
+    write_slice(big, big_slice(300_000))
+    for limit, want in ((LIMIT_BYTES, 0), (400 * 1024 * 1024, 1)):
+        out = work / f"m-{limit}.binary"
+        code, err, _ = _run_limited([str(big), "--method", "auto", "--out", str(out)], limit)
+        one_line = want == 0 or (err.count("\n") == 1 and "out of memory" in err and not out.exists())
+        t.add(code == want and one_line and "Traceback" not in err, "Traceback" in err,
+              note=f"limit {limit >> 20} MB: exit {code}: {err.strip()[-300:]}")
+    return t
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="fewer kill / concurrency trials")
@@ -218,6 +257,8 @@ def main(argv: list[str] | None = None) -> int:
             concurrency(work / "concurrency", trials),
             kills(work / "kills", trials),
             storms(work / "storms"),
+            live_view(work / "live"),
+            large_inputs(work / "large"),
         ]
     finally:
         if not args.keep:

@@ -1,6 +1,7 @@
-"""``python -m acquisition.live --dir DIR [--host H] [--port P] [--parent PID]``: serve the live view of the capture
-in DIR until SIGTERM/SIGINT or until the process PID (the capture) is gone. The first line on stdout is JSON,
-``{"url": "http://127.0.0.1:PORT/"}``; a server that cannot start prints one line on stderr and exits 2."""
+"""``python -m acquisition.live --dir DIR [--host H] [--port P] [--parent PID] [--allow-host NAME]...``: serve the
+live view of the capture in DIR until SIGTERM/SIGINT or until the process PID (the capture) is gone. The first
+line on stdout is JSON, ``{"url": "http://127.0.0.1:PORT/"}``; a server that cannot start prints
+one line on stderr and exits 2."""
 
 from __future__ import annotations
 
@@ -18,6 +19,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--host", default="127.0.0.1")
     p.add_argument("--port", type=int, default=0, help="0: a free port")
     p.add_argument("--parent", type=int, default=0, help="exit when this process is gone")
+    p.add_argument("--allow-host", action="append", default=[], metavar="NAME",
+                   help="a host name the page may be reached by, beside localhost and the bound name (repeatable)")
     args = p.parse_args(argv)
     try:
         os.nice(10)  # the capture comes first
@@ -26,7 +29,7 @@ def main(argv: list[str] | None = None) -> int:
     from acquisition.live.server import LiveServer
 
     try:
-        srv = LiveServer(args.dir, args.host, args.port)
+        srv = LiveServer(args.dir, args.host, args.port, tuple(args.allow_host))
     except (OSError, OverflowError, ValueError) as e:
         print(f"live view: cannot serve on {args.host}:{args.port}: {e}", file=sys.stderr)
         return 2

@@ -4,23 +4,32 @@
 ``GET /state.json`` what the page draws: the samples of ``slice.csv`` so far (angles, f_r and its standard
 deviation averaged over the channels), ``progress.json`` (points done and planned, time left, the last
 sample, the status: :mod:`acquisition.run.progress`) and the run record's status and estimate
-(``capture.json``); ``GET /files/NAME`` one regular file directly in the folder, as it is.
+(``capture.json``); ``GET /files/NAME`` one of the files the capture writes for it (:data:`SERVED`), as it is.
 
-It changes nothing: GET and HEAD only (any other method: 405). It serves nothing outside the folder: a name with
-a ``/`` or a ``..`` once percent-decoded, an absolute path, or a symbolic link that resolves outside the folder is
-refused (403); anything else not there is 404. A request whose ``Host`` is not the address it was reached at is
-refused (403: a web page elsewhere cannot read it through DNS rebinding). The slice is read incrementally (only the
-complete lines appended since the last request), so a poll costs little however long the capture.
+It changes nothing: GET and HEAD only (any other method: 405). It serves only the files of :data:`SERVED`: a name
+with a ``/`` or a ``..`` once percent-decoded or an absolute path is refused (403), any other name is 404, and a
+served name that is not the file the capture wrote (a symbolic link, a hard link: more than one name, another
+owner, not a regular file) is refused (403); the files it reads for ``state.json`` are opened the same way. A
+request whose ``Host`` is neither an IP address nor a name on its allow-list (``localhost``, the bound name, the
+``--allow-host`` names) is refused (403: a web page elsewhere cannot read it through DNS rebinding, whatever the
+address it is bound to). It holds under abuse: at most :data:`MAX_CONNECTIONS` connections at once (one more is
+closed at once), :data:`MAX_HEADER_BYTES` and :data:`MAX_HEADERS` of headers (431 beyond), and a request must
+arrive within :data:`READ_TIMEOUT_S` (the connection is closed otherwise). The slice is read incrementally (only
+the complete lines appended since the last request), so a poll costs little however long the capture.
 """
 
 from __future__ import annotations
 
+import http.client
+import ipaddress
 import json
 import logging
 import math
 import os
 import socket
+import stat
 import threading
+import time
 import urllib.parse
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -35,13 +44,37 @@ __all__ = ["LiveServer", "SliceTail", "state_of"]
 
 #: The files of a capture the live view reads (names in the folder, as the run writes them).
 SLICE, RECORD, PROGRESS = "slice.csv", "capture.json", "progress.json"
+#: The only files served under /files/: what a capture writes in its folder (acquisition.run's names; the live
+#: view imports no run code): the slice, the run record, the progress file, the log and a simulated bench's log.
+SERVED = frozenset({SLICE, RECORD, PROGRESS, "capture.log", "simulator.log"})
 #: Largest file served under /files/ (bytes): a capture's log or slice, not anything bigger.
 MAX_FILE_BYTES = 64 * 1024 * 1024
+#: Connections served at once; one more is closed at once (a browser polls on one or two).
+MAX_CONNECTIONS = 32
+#: A request's header lines: at most this many, of at most this many bytes in all (request line apart); 431 beyond.
+MAX_HEADERS, MAX_HEADER_BYTES = 64, 16 * 1024
+#: Seconds a connection may take to send its whole request (and each read of it); then it is closed.
+READ_TIMEOUT_S = 10.0
 _TYPES = {".csv": "text/csv; charset=utf-8", ".json": "application/json", ".log": "text/plain; charset=utf-8",
           ".txt": "text/plain; charset=utf-8"}
 _HEADERS = {"Cache-Control": "no-store", "X-Content-Type-Options": "nosniff", "Referrer-Policy": "no-referrer",
             "Content-Security-Policy": "default-src 'none'; script-src 'unsafe-inline'; style-src 'unsafe-inline'; "
                                        "connect-src 'self'; img-src 'self' data:; base-uri 'none'; form-action 'none'"}
+
+
+def open_own(path: Path) -> int:
+    """A read-only descriptor of ``path`` if it is the file the capture wrote there: a regular file reached without
+    following a symbolic link, with one name (no hard link to a file elsewhere) and this process's owner. Raises
+    :class:`PermissionError` otherwise (:class:`FileNotFoundError` when it is not there)."""
+    fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC | os.O_NONBLOCK)
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode) or st.st_nlink != 1 or st.st_uid != os.geteuid():
+            raise PermissionError(f"{path.name}: not the file the capture wrote")
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd
 
 
 class SliceTail:
@@ -60,7 +93,7 @@ class SliceTail:
         """[theta_i, theta_o, f_r (mean of the channels), std (mean of the channels)] per sample so far."""
         with self.lock:
             try:
-                with open(self.path, "rb") as fh:
+                with os.fdopen(open_own(self.path), "rb") as fh:
                     size = os.fstat(fh.fileno()).st_size
                     if size < self.offset:  # a new file (a fresh capture in the folder): start again
                         self.offset, self.rest, self.columns, self.rows = 0, b"", None, []
@@ -110,7 +143,7 @@ def _read_json(path: Path) -> dict[str, Any]:
             hit = _CACHE.get(path)
         if hit is not None and hit[0] == key:
             return hit[1]
-        with open(path, encoding="utf-8") as fh:
+        with os.fdopen(open_own(path), encoding="utf-8") as fh:
             d = json.load(fh)
     except (OSError, ValueError):
         return {}
@@ -131,10 +164,49 @@ def state_of(folder: Path, tail: SliceTail) -> dict[str, Any]:
             "channels": (len(tail.columns) - 4) // 2 if tail.columns else 0}
 
 
+class _Bounded:
+    """The request's stream while its headers are read: at most :data:`MAX_HEADERS` lines and
+    :data:`MAX_HEADER_BYTES` bytes, all before the request's deadline (``http.client.parse_headers`` reads it
+    line by line; its own limits, 100 lines of 64 KB, let 40 connections hold 250 MB)."""
+
+    def __init__(self, raw: Any, sock: socket.socket, deadline: float) -> None:
+        self.raw, self.sock, self.deadline = raw, sock, deadline
+        self.left, self.lines = MAX_HEADER_BYTES, 0
+
+    def readline(self, size: int = -1) -> bytes:
+        self.lines += 1
+        if self.lines > MAX_HEADERS + 1:  # the blank line that ends them is one more
+            raise http.client.HTTPException(f"more than {MAX_HEADERS} headers")
+        left = self.deadline - time.monotonic()
+        if left <= 0:
+            raise TimeoutError("the request's headers took too long")
+        self.sock.settimeout(min(left, READ_TIMEOUT_S))
+        line = self.raw.readline(min(size if size >= 0 else self.left + 1, self.left + 1))
+        self.left -= len(line)
+        if self.left < 0:
+            raise http.client.LineTooLong(f"headers longer than {MAX_HEADER_BYTES} bytes")
+        return line  # type: ignore[no-any-return]
+
+
 class _Handler(BaseHTTPRequestHandler):
     server: LiveServer  # type: ignore[assignment]
     server_version = "gonio-live"
     sys_version = ""
+    timeout = READ_TIMEOUT_S  # each read of the request (socketserver sets it on the socket)
+
+    def setup(self) -> None:
+        self.deadline = time.monotonic() + READ_TIMEOUT_S
+        super().setup()
+
+    def parse_request(self) -> bool:
+        """The base class's, its headers read through :class:`_Bounded` (431 beyond its limits)."""
+        raw = self.rfile
+        self.rfile = _Bounded(raw, self.connection, self.deadline)  # type: ignore[assignment]
+        try:
+            return super().parse_request()
+        finally:
+            self.rfile = raw
+            self.connection.settimeout(self.timeout)
 
     def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 - the base class's name
         log.debug("%s %s", self.address_string(), format % args)
@@ -188,29 +260,65 @@ class LiveServer(ThreadingHTTPServer):
 
     daemon_threads = True
     allow_reuse_address = True
+    request_queue_size = 128  # the listen backlog: a burst of connections waits here, not in SYN retries
 
-    def __init__(self, folder: str | Path, host: str = "127.0.0.1", port: int = 0) -> None:
+    def __init__(self, folder: str | Path, host: str = "127.0.0.1", port: int = 0,
+                 allow_hosts: tuple[str, ...] = ()) -> None:
         self.folder = Path(folder).resolve()
         self.tail = SliceTail(self.folder / SLICE)
+        self.slots = threading.BoundedSemaphore(MAX_CONNECTIONS)
         if ":" in host:  # an IPv6 address
             self.address_family = socket.AF_INET6
         super().__init__((host, port), _Handler)
         h, p = self.server_address[:2]
         shown = f"[{h}]" if ":" in str(h) else str(h)
         self.url = f"http://{shown}:{p}/"
-        self._hosts = {f"{shown}:{p}".lower(), f"localhost:{p}", f"127.0.0.1:{p}", f"[::1]:{p}"}
-        self.any_host = host in ("0.0.0.0", "::", "")
+        self.port = int(p)
+        self.names = {"localhost", host.strip("[]").lower(), *(n.strip().strip("[]").lower() for n in allow_hosts)}
+
+    def process_request(self, request: Any, client_address: Any) -> None:
+        """A thread for the connection while fewer than :data:`MAX_CONNECTIONS` are served; else it is closed."""
+        if not self.slots.acquire(blocking=False):
+            log.debug("live view: %s refused, %d connections already", client_address, MAX_CONNECTIONS)
+            self.shutdown_request(request)
+            return
+        try:
+            super().process_request(request, client_address)
+        except BaseException:
+            self.slots.release()
+            raise
+
+    def process_request_thread(self, request: Any, client_address: Any) -> None:
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            self.slots.release()
 
     def handle_error(self, request: Any, client_address: Any) -> None:
         """A request that failed (a bug, a browser gone): logged at debug level, never printed."""
         log.debug("live view: request from %s failed", client_address, exc_info=True)
 
     def host_ok(self, host: str) -> bool:
-        """The ``Host`` header names this server (on a wildcard address, whatever the network calls it)."""
-        return self.any_host or host.strip().lower() in self._hosts
+        """The ``Host`` header names this server's port and, as the host, an IP address (no name was resolved:
+        nothing to rebind) or a name on the allow-list (``localhost``, the bound name, ``allow_hosts``), whatever
+        the address it is bound to."""
+        host = host.strip().lower()
+        name, sep, port = host.rpartition(":") if not host.endswith("]") else (host, "", "")
+        if not sep:
+            name, port = host, "80"
+        if port != str(self.port) or not name:
+            return False
+        name = name[1:-1] if name.startswith("[") and name.endswith("]") else name
+        if name in self.names:
+            return True
+        try:
+            ipaddress.ip_address(name)
+        except ValueError:
+            return False
+        return True
 
     def file(self, name: str) -> tuple[int, bytes, str]:
-        """(status, body, content type) of ``/files/NAME``: a regular file directly in the folder."""
+        """(status, body, content type) of ``/files/NAME``: one of :data:`SERVED`, the file the capture wrote."""
         text = "text/plain; charset=utf-8"
         try:
             name = urllib.parse.unquote(name, errors="strict")  # once: "%252e" stays the name "%2e"
@@ -219,17 +327,19 @@ class LiveServer(ThreadingHTTPServer):
         if (not name or "/" in name or "\\" in name or "\0" in name or name in (".", "..")
                 or name.startswith("..") or os.path.isabs(name)):
             return HTTPStatus.FORBIDDEN, b"forbidden\n", text
-        path = self.folder / name
-        try:
-            real = path.resolve(strict=True)
-        except (OSError, RuntimeError):
+        if name not in SERVED:
             return HTTPStatus.NOT_FOUND, b"not found\n", text
-        if real.parent != self.folder or not real.is_file():
+        try:
+            fd = open_own(self.folder / name)
+        except FileNotFoundError:
+            return HTTPStatus.NOT_FOUND, b"not found\n", text
+        except OSError:  # a symbolic link (ELOOP), a hard link, another owner, not a regular file
             return HTTPStatus.FORBIDDEN, b"forbidden\n", text
-        try:
-            if real.stat().st_size > MAX_FILE_BYTES:
-                return HTTPStatus.FORBIDDEN, b"too large for the live view\n", text
-            body = real.read_bytes()
-        except OSError:
-            return HTTPStatus.NOT_FOUND, b"not found\n", text
-        return HTTPStatus.OK, body, _TYPES.get(real.suffix.lower(), "application/octet-stream")
+        with os.fdopen(fd, "rb") as fh:
+            try:
+                if os.fstat(fh.fileno()).st_size > MAX_FILE_BYTES:
+                    return HTTPStatus.FORBIDDEN, b"too large for the live view\n", text
+                body = fh.read(MAX_FILE_BYTES + 1)[:MAX_FILE_BYTES]
+            except OSError:
+                return HTTPStatus.NOT_FOUND, b"not found\n", text
+        return HTTPStatus.OK, body, _TYPES.get(Path(name).suffix.lower(), "application/octet-stream")

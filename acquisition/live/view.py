@@ -21,12 +21,15 @@ __all__ = ["LiveView"]
 
 
 class LiveView:
-    """The live view of the capture in ``folder`` on ``host``:``port`` (0: a free port)."""
+    """The live view of the capture in ``folder`` on ``host``:``port`` (0: a free port); ``allow_hosts``: host names
+    it may be reached by beside localhost and ``host`` (IP addresses always may)."""
 
-    def __init__(self, folder: str | Path, host: str = "127.0.0.1", port: int = 0) -> None:
+    def __init__(self, folder: str | Path, host: str = "127.0.0.1", port: int = 0,
+                 allow_hosts: tuple[str, ...] = ()) -> None:
         self.folder = Path(folder)
         self.host = host
         self.port = port
+        self.allow_hosts = tuple(allow_hosts)
         self.proc: subprocess.Popen[bytes] | None = None
         self.url: str | None = None
         self._err: IO[bytes] | None = None
@@ -34,7 +37,8 @@ class LiveView:
     def start(self, timeout_s: float = 15.0) -> str | None:
         """Start the server and return its URL; None (and a warning) if it cannot be started."""
         argv = [sys.executable, "-m", "acquisition.live", "--dir", str(self.folder), "--host", self.host,
-                "--port", str(self.port), "--parent", str(os.getpid())]
+                "--port", str(self.port), "--parent", str(os.getpid()),
+                *(a for n in self.allow_hosts for a in ("--allow-host", n))]
         self._err = tempfile.TemporaryFile()  # its stderr (a full pipe could block it): read back on failure
         try:
             self.proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,

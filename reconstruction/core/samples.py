@@ -21,7 +21,7 @@ from reconstruction.core.slicedata import Slice
 Array = NDArray[np.float64]
 
 __all__ = ["DirectionalSlice", "SliceWithPoints", "sample_directions", "everywhere", "directional_slice",
-           "out_of_plane", "points_anywhere", "PointFolds", "samples_used"]
+           "out_of_plane", "points_anywhere", "PointFolds", "samples_used", "thin_samples", "MAX_SAMPLES", "at_samples"]
 
 
 @dataclass
@@ -165,3 +165,75 @@ def samples_used(s: Slice, used: Slice | None, method: str) -> dict[str, Any]:
             "why": ("every point used" if left == 0 else
                     f"at most {MAX_POINTS} points (time): every in-plane point and an even random subset of the "
                     f"rest (seed 0)")}
+
+
+#: The most in-plane samples a reconstruction uses (:func:`thin_samples`; gonio-reconstruct's inputs): far more than
+#: any method's table can tell apart (1000 incidences of 100 outgoing angles; a bench's plan is at most 20,000
+#: points), and few enough that every method, the uncertainty's prior and the report stay well below 1.5 GB
+#: (benchmarks/bench_memory.py).
+MAX_SAMPLES = 100_000
+#: ... and the most incidences (revolve builds a model of each: its memory grows with their number)
+MAX_INCIDENCES = 90
+#: Samples nearest the mirror direction that :func:`thin_samples` keeps in every incidence (the specular peak).
+PEAK_SAMPLES = 3
+
+
+def thin_samples(s: Slice, max_samples: int = MAX_SAMPLES, max_incidences: int = MAX_INCIDENCES
+                 ) -> tuple[Slice, str | None]:
+    """At most ``max_samples`` samples of ``s``, chosen deterministically, and a sentence saying what was left out
+    (None, and ``s`` itself, when it is small enough).
+
+    Within each incidence (theta_o increasing), every k-th sample from the first, k the smallest step that
+    fits, and the :data:`PEAK_SAMPLES` nearest the mirror direction; when there are too many incidences for
+    that or more than ``max_incidences``, every g-th incidence (theta_i increasing) as well. The samples kept
+    stay in the order of ``s``."""
+    n = len(s)
+    if n <= max_samples and np.unique(s.theta_i_deg).size <= max_incidences:
+        return s, None
+    # lean on millions of rows: int32 positions, each temporary freed as soon as it is used
+    order = np.lexsort((s.theta_o_deg, s.theta_i_deg))
+    ti = s.theta_i_deg[order]
+    first = np.r_[True, ti[1:] != ti[:-1]]
+    starts = np.flatnonzero(first).astype(np.int32)  # each incidence's first sorted position
+    n_inc = starts.size
+    dist = s.theta_o_deg[order] - ti  # from the mirror direction: increasing within each incidence
+    del ti
+    group = (np.cumsum(first, dtype=np.int32) - 1).astype(np.int32)  # incidence number of each sorted sample
+    del first
+    rank = np.arange(n, dtype=np.int32) - starts[group]  # position within its incidence
+    ends = np.r_[starts[1:], n]
+    near = starts + np.add.reduceat((dist < 0).astype(np.int32), starts)  # where the mirror direction falls
+    cand = near[:, None] + np.arange(-PEAK_SAMPLES, PEAK_SAMPLES)[None, :]  # (incidences, 2 x PEAK_SAMPLES)
+    ok = (cand >= starts[:, None]) & (cand < ends[:, None])
+    d = np.where(ok, np.abs(dist[np.clip(cand, 0, n - 1)]), np.inf)
+    del dist
+    pick = np.take_along_axis(cand, np.argsort(d, axis=1, kind="stable")[:, :PEAK_SAMPLES], axis=1)
+    peak = np.zeros(n, dtype=bool)
+    peak[pick[np.take_along_axis(ok, np.argsort(d, axis=1, kind="stable")[:, :PEAK_SAMPLES], axis=1)]] = True
+    g = max(1, int(np.ceil(n_inc * 4 * PEAK_SAMPLES / max_samples)), int(np.ceil(n_inc / max_incidences)))
+    k = max(1, n // (g * max_samples))
+    while True:  # a few steps: k grows until the samples fit
+        keep = (group % g == 0) & ((rank % k == 0) | peak)
+        if int(keep.sum()) <= max_samples:
+            break
+        k = int(np.ceil(k * 1.25))
+    del group, rank, peak
+    idx = np.sort(order[keep])
+    sub = s.take(idx)
+    note = (f"{s.source}: {n:,} samples; the reconstruction uses {idx.size:,} of them (at most {max_samples:,} in "
+            f"{max_incidences} incidences: memory and time): "
+            + (f"one theta_o in {k} of " if k > 1 else "every theta_o of ")
+            + (f"one incidence in {g} (of {n_inc})" if g > 1 else f"each of the {n_inc} incidences")
+            + f", and the {PEAK_SAMPLES} nearest the mirror direction in each")
+    sub.meta = {**sub.meta, "samples_thinned": note}
+    return sub, note
+
+
+def at_samples(w: Array, rows: NDArray[Any], idx: NDArray[np.intp], chunk: int = 4096) -> NDArray[Any]:
+    """(R, n): each row of ``rows`` (R, M) interpolated at the samples (``idx``, ``w``: (n, J) cells and weights),
+    ``chunk`` samples at a time: ``rows[:, idx]`` whole would be R x n x J numbers (2.7 GB for the analytic
+    prior's 84 rows at a million samples, 13 GB for 141 materials' 423)."""
+    out = np.empty((rows.shape[0], idx.shape[0]), dtype=np.result_type(rows.dtype, w.dtype))
+    for a in range(0, idx.shape[0], chunk):  # samples in blocks: a few MB of temporaries each
+        out[:, a:a + chunk] = np.einsum("nj,tnj->tn", w[a:a + chunk], rows[:, idx[a:a + chunk]])
+    return out

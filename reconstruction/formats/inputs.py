@@ -42,6 +42,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from reconstruction.base import ReconstructionError
+from reconstruction.core.samples import thin_samples
 from reconstruction.formats.angleunits import to_degrees
 from reconstruction.formats.merl import MAX_CELL_VALUE
 from reconstruction.formats.slicefile import (
@@ -536,10 +537,14 @@ def load_inputs(paths: Sequence[str | Path], *, quantity: str | None = None,
             f, sd = s.brdf()
         _check_bounds(s, f, sd)
         inst = s.meta.get("instrument")  # how the samples were taken (docs/slice-format.md): kept for the methods
-        out.append(Slice(s.theta_i_deg, s.theta_o_deg, f, list(s.channels), sd, s.repeats, s.unix_time_s,
-                         meta={"quantity": "brdf", **({"instrument": inst} if inst is not None else {})},
-                         source=s.source))
-    merged = _merge(out)
+        one, thinned = thin_samples(Slice(  # every row checked above; a file of millions of rows thinned here
+            s.theta_i_deg, s.theta_o_deg, f, list(s.channels), sd, s.repeats, s.unix_time_s,
+            meta={"quantity": "brdf", **({"instrument": inst} if inst is not None else {})}, source=s.source))
+        notes += [thinned] if thinned else []
+        out.append(one)
+        del s, f, sd
+    merged, thinned = thin_samples(_merge(out))  # several such files
+    notes += [thinned] if thinned else []
     check_slice(merged)
     return LoadedInput(merged, [str(p) for p in paths], quantities, dropped, notes, capture)
 

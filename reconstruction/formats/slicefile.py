@@ -304,19 +304,80 @@ def _rows_ok(data: NDArray[np.float64], col: dict[str, int], std_cols: list[int]
                 and np.all(data[:, std_cols] >= 0))
 
 
+#: Characters of data lines parsed at a time by :func:`read_slice`: its temporaries (the lines as strings, a few
+#: times the text) stay a few tens of MB whatever the file's size; the rows go straight into one array.
+CHUNK_CHARS = 4 * 1024 * 1024
+
+
+def _head_lines(text: str, limit: int = 1 << 16) -> tuple[list[str], int]:
+    """The lines up to and including the column header (the magic line, ``#`` lines, the header), at most
+    ``limit`` of them, and the offset in ``text`` where the data lines begin."""
+    lines: list[str] = []
+    pos = 0
+    while pos < len(text) and len(lines) < limit:
+        end = text.find("\n", pos)
+        end = len(text) if end < 0 else end
+        lines.append(text[pos:end])
+        pos = end + 1
+        if len(lines) > 1 and not lines[-1].startswith("#"):
+            break
+    return lines, min(pos, len(text))
+
+
+def _parse_chunk(rows: list[str], first_line: int, path: Path, header: list[str], col: dict[str, int],
+                 std_cols: list[int]) -> NDArray[np.float64]:
+    """The rows of one chunk as an array (vectorised); the first bad line, at its number in the file, raised."""
+    data = parse_rows(rows, len(header))
+    if data is not None and _rows_ok(data, col, std_cols):
+        return data
+    data = np.empty((len(rows), len(header)))  # the slow path: finds the first bad line for the message
+    for r, line in enumerate(rows):
+        where = f"{path}:{first_line + r}"
+        cells = line.split(",")
+        if len(cells) != len(header):
+            raise SliceError(f"{where}: {len(cells)} fields, expected {len(header)} "
+                             f"({shorten(','.join(header), 200)})")
+        for k, (name, cell) in enumerate(zip(header, cells, strict=True)):
+            data[r, k] = _parse_float(cell.strip(), where, name)
+        _check_row(data, r, cells, header, col, std_cols, where)
+    return data  # pragma: no cover - parse_rows or _rows_ok failed on some line, found above
+
+
+def _first_duplicate(key: NDArray[np.float64]) -> tuple[int, int] | None:
+    """(row, row of its first occurrence) of the first (theta_i, theta_o) pair given twice, else None; a stable
+    sort (three arrays of the rows' length, not ``np.unique``'s copies of the pairs)."""
+    if len(key) < 2:
+        return None
+    order = np.lexsort((key[:, 1], key[:, 0]))  # stable: equal pairs in file order
+    same = np.zeros(len(order), dtype=bool)
+    same[1:] = (key[order[1:], 0] == key[order[:-1], 0]) & (key[order[1:], 1] == key[order[:-1], 1])
+    if not same.any():
+        return None
+    start = np.maximum.accumulate(np.where(same, 0, np.arange(len(order))))  # each run's first position
+    dups = np.nonzero(same)[0]
+    i = dups[np.argmin(order[dups])]
+    return int(order[i]), int(order[start[i]])
+
+
+def _columns_of(data: NDArray[np.float64], cols: list[int]) -> NDArray[np.float64]:
+    """``data[:, cols]``: a view when the columns are consecutive (as the writer lays them out), else a copy."""
+    if cols == list(range(cols[0], cols[0] + len(cols))):
+        return data[:, cols[0]:cols[0] + len(cols)]
+    return data[:, cols]
+
+
 def read_slice(path: str | Path) -> Slice:
     """Read and validate a slice file; a torn last line (from a crash) is dropped with a warning.
 
-    UTF-8 with or without a byte-order mark; LF, CRLF or CR-only line endings. Rows are parsed vectorised; a row
-    that fails is then found line by line for the message (``file:line, column NAME: what was expected``).
+    UTF-8 with or without a byte-order mark; LF, CRLF or CR-only line endings. Rows are parsed vectorised, a
+    chunk of :data:`CHUNK_CHARS` at a time into one array (the largest file takes about its own size plus the
+    array); a row that fails is then found line by line for the message (``file:line, column NAME: what was
+    expected``).
     """
     path = Path(path)
     text = _normalise_newlines(read_input_text(path, SliceError, "a slice file"))
-    lines = text.split("\n")
     torn = not text.endswith("\n") and bool(text)
-    del text
-    if lines and lines[-1] == "":
-        lines.pop()
+    lines, body = _head_lines(text)
     if not lines or lines[0].strip() != MAGIC:
         raise SliceError(f"{path}:1: expected the first line {MAGIC!r}, got "
                          f"{lines[0][:60]!r}" if lines else f"{path}: empty file")
@@ -366,39 +427,33 @@ def read_slice(path: str | Path) -> Slice:
         raise SliceError(f"{path}:{header_line}: repeated column names")
     col = {c: k for k, c in enumerate(header)}
     std_cols = [col[f"{c}_std"] for c in channels]
-    rows = lines[lineno + 1:]
     del lines
-    if torn and rows:
-        warnings.warn(f"{path}:{lineno + 1 + len(rows)}: torn last line (interrupted write) dropped: "
-                      f"{rows[-1][:60]!r}", stacklevel=2)
-        rows = rows[:-1]
-    data = parse_rows(rows, len(header))
-    if data is None or not _rows_ok(data, col, std_cols):
-        data = np.empty((len(rows), len(header)))  # the slow path: finds the first bad line for the message
-        for r, line in enumerate(rows):
-            where = f"{path}:{lineno + 2 + r}"
-            cells = line.split(",")
-            if len(cells) != len(header):
-                raise SliceError(f"{where}: {len(cells)} fields, expected {len(header)} "
-                                 f"({shorten(','.join(header), 200)})")
-            for k, (name, cell) in enumerate(zip(header, cells, strict=True)):
-                data[r, k] = _parse_float(cell.strip(), where, name)
-            _check_row(data, r, cells, header, col, std_cols, where)
+    end = max(text.rfind("\n") + 1 if torn else len(text), body)  # the end of the last complete line
+    n_rows = text.count("\n", body, end)
+    if torn and end < len(text):
+        warnings.warn(f"{path}:{lineno + 2 + n_rows}: torn last line (interrupted write) dropped: "
+                      f"{text[end:end + 60]!r}", stacklevel=2)
+    data = np.empty((n_rows, len(header)))
+    pos, r = body, 0
+    while pos < end:  # a chunk of whole lines at a time
+        stop = text.find("\n", min(pos + CHUNK_CHARS, end - 1), end)
+        rows = text[pos:stop].split("\n")
+        data[r:r + len(rows)] = _parse_chunk(rows, lineno + 2 + r, path, header, col, std_cols)
+        r += len(rows)
+        pos = stop + 1
+    del text
     key = data[:, [col["theta_i_deg"], col["theta_o_deg"]]]
-    if len(rows):
-        _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
-        dup = np.nonzero(np.arange(len(rows)) != first[inverse.reshape(-1)])[0]
-        if dup.size:
-            r = int(dup[0])
-            raise SliceError(f"{path}:{lineno + 2 + r}: duplicate sample theta_i_deg = {key[r, 0]}, "
-                             f"theta_o_deg = {key[r, 1]} (first at line "
-                             f"{lineno + 2 + int(first[inverse.reshape(-1)[r]])})")
+    dup = _first_duplicate(key)
+    if dup is not None:
+        raise SliceError(f"{path}:{lineno + 2 + dup[0]}: duplicate sample theta_i_deg = {key[dup[0], 0]}, "
+                         f"theta_o_deg = {key[dup[0], 1]} (first at line {lineno + 2 + dup[1]})")
+    del key
     return Slice(
         theta_i_deg=data[:, col["theta_i_deg"]],
         theta_o_deg=data[:, col["theta_o_deg"]],
-        values=data[:, [col[c] for c in channels]],
+        values=_columns_of(data, [col[c] for c in channels]),
         channels=channels,
-        std=data[:, [col[f"{c}_std"] for c in channels]],
+        std=_columns_of(data, [col[f"{c}_std"] for c in channels]),
         repeats=data[:, col["repeats"]].astype(np.int64),
         unix_time_s=data[:, col["unix_time_s"]],
         meta=meta,

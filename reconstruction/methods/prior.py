@@ -48,7 +48,7 @@ from numpy.typing import NDArray
 from reconstruction.base import ReconstructionError
 from reconstruction.cache import cached_decoded, report_build
 from reconstruction.core.geometry import dirs_from_half_diff, half_diff_from_dirs
-from reconstruction.core.samples import everywhere, sample_directions
+from reconstruction.core.samples import at_samples, everywhere, sample_directions
 from reconstruction.executor import usable_cores
 from reconstruction.formats.slicefile import Slice
 from reconstruction.methods import priorcodec
@@ -245,7 +245,7 @@ class PriorSet:
         rows = (np.asarray(keep)[:, None] * nc + np.arange(nc)).ravel()
         # a run's one basis of every material (not a benchmark's leave-one-out): f cos cos made once, its own copy
         fc = self._fc(cache=False) if self._fc_cache is None and len(keep) == len(self.names) else self._fc()[rows]
-        at = np.einsum("nj,tnj->tn", w, fc[:, idx])  # (T, n) f cos cos at the samples
+        at = at_samples(w, fc, idx)  # (T, n) f cos cos at the samples
         scales = channel_scales(at.reshape(len(keep), nc, -1)).reshape(-1).astype(np.float32)
         y = np.divide(fc, scales[:, None], out=fc)  # in place: fc is this call's own copy (80 MB for 48 materials)
         y += np.float32(EPS)
@@ -471,7 +471,7 @@ def reconstruct_prior(s: Slice, prior: PriorSet | str | Path, exclude: tuple[str
     s, beyond = _within_basis(everywhere(s))  # every point of a file, placed by its directions (up to MAX_POINTS)
     idx, w, cs = _design(s)
     mu, comps, sig, resvar = ps.basis(idx, w, exclude, residual=True)
-    sb = np.einsum("nj,knj->nk", w, comps[:, idx])  # (n, K): the basis at the samples
+    sb = at_samples(w, comps, idx).T  # (n, K): the basis at the samples
     smu = np.sum(w * mu[idx], axis=1)
     obs = np.maximum(np.asarray(s.values, dtype=np.float64), 0.0) * cs[:, None]  # f cos cos, (n, C)
     scale = channel_scales(obs.T)  # as the basis's rows: the median at the samples (floored per channel)
