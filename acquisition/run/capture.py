@@ -594,7 +594,10 @@ class RunEngine:
         log.error(r.message, extra={"final": True})
 
     def resume_command(self) -> str:
-        return f"gonio-capture --config {self.cfg.path} --out {self.out} --resume"
+        # a driver may know what the resume needs (GRBL after an alarm without switches: --unlock)
+        flags = getattr(getattr(self.bench, "motion", None), "resume_flags", "")
+        flags = flags if isinstance(flags, str) else ""
+        return f"gonio-capture --config {self.cfg.path} --out {self.out} --resume{flags}"
 
     def resume_hint(self) -> str:
         return f"Resume with: {self.resume_command()}"
