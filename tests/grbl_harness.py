@@ -207,9 +207,13 @@ class GrblSim:
                         return out
         raise AssertionError(f"grbl-sim: no {what}: {out}")
 
-    def wait_ready(self, timeout_s: float = 10.0) -> list[str]:
+    def wait_ready(self, timeout_s: float = 30.0) -> list[str]:
         """grbl-sim's start-up output up to its welcome line (its first start prints error:7, no EEPROM yet)."""
-        return self._lines_until(lambda t: t.startswith("Grbl 1.1"), timeout_s, "welcome line")
+        try:
+            return self._lines_until(lambda t: t.startswith("Grbl 1.1"), timeout_s, "welcome line")
+        except AssertionError as e:
+            code = self.proc.poll()
+            raise AssertionError(f"{e} (grbl-sim {'running' if code is None else f'exited with {code}'})") from None
 
     def send_line(self, line: str, timeout_s: float = 5.0) -> list[str]:
         """Send one line from the test's side (settings before the driver connects) and return its answer lines;
@@ -230,7 +234,9 @@ class GrblSim:
             self.proc.kill()
         self.proc.wait()
         for t in self._threads:
-            t.join(1.0)
+            # to the end (each looks at _stop every 50 ms): a relay thread still running after its descriptors are
+            # closed would read from their numbers reused by the next grbl-sim's ptys and take its output
+            t.join(60.0)
         for fd in (self.drv_master, self._drv_slave, self.sim_master, self.sim_slave, self.step_master,
                    self._step_slave):
             try:
