@@ -324,6 +324,8 @@ def test_a_reset_mid_sweep_stops_the_capture_and_resumes_after_unlock(sim, detec
     # one sentence, and nothing moved after the alarm (parking with the position lost would drive blind): GRBL
     # planned no block after the reset and is still in its alarm state
     assert sum("ALARM:3" in ln and "ERROR" in ln for ln in log.splitlines()) == 1
+    # the advice is the resume that works on a bench without switches, not a plain --resume (refused below)
+    assert f"Resume with: gonio-capture --config {cfg} --out {out} --resume --unlock" in log
     assert len(sim.blocks_path.read_text().splitlines()) == 4
     probe = GrblAxes(sim.port, AXES, motion())
     try:
