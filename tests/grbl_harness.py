@@ -117,6 +117,11 @@ class GrblSim:
         self.step_master, step_slave = pty.openpty()
         tty.setraw(step_slave)
         self._step_slave = step_slave
+        self._test_ser = None
+        self._buf = b""
+        # the test's end of the port is open before grbl-sim starts: pyserial's open() flushes what is already
+        # queued, which could be grbl-sim's first lines on a loaded machine
+        self._ser()
         env = {**os.environ, "GONIO_GRBL_SWITCHES": switches, "GONIO_GRBL_SLIP": slip}
         self.proc = subprocess.Popen(
             [str(exe), "-n", "-r", f"{report_s:g}", "-s", os.ttyname(step_slave), "-b", str(self.blocks_path)],
@@ -124,8 +129,6 @@ class GrblSim:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self.injected: list[bytes] = []
-        self._test_ser = None
-        self._buf = b""
         self.watch = StallWatch()  # the status reports passing to the driver
         self._threads = [threading.Thread(target=f, daemon=True) for f in (self._to_sim, self._from_sim, self._steps)]
         for t in self._threads:

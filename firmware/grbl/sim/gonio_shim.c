@@ -8,13 +8,14 @@
      interrupt routines in another (sim_loop), unsynchronised: cli() only clears a flag, so on a multi-core host
      an interrupt routine runs *beside* the main loop, and its clock follows the wall clock, so a main loop
      descheduled by a busy machine sees the stepper interrupt empty the segment buffer under it (the stalls
-     and off-by-a-step positions of a loaded machine). Here the interrupts run *in* GRBL's thread, like an
-     AVR's: the clock thread (our sim_loop) sends the GRBL thread a signal, whose handler runs TURN_TICKS ticks of
-     the 16 MHz clock (timers, their interrupt routines, the UART) if GRBL's interrupt flag is set, and nothing
-     if GRBL is inside cli(): GRBL's code is interrupted between two statements, never run beside. Then the
-     main loop gets MAIN_TURN_NS of its own thread's CPU time before the next turn, so simulated time advances
-     only as fast as the main loop runs: a busy host slows the simulation down instead of starving the main loop.
-     _delay_ms/_delay_us (a busy wait on the AVR, with interrupts running) run ticks instead of sleeping.
+     and off-by-a-step positions of a loaded machine). Here the clock runs *in* GRBL's thread: each time GRBL's
+     main loop passes one of the points where it waits or polls (serial_read, st_prep_buffer, serial_write with
+     its buffer full, _delay_ms/_delay_us), and GRBL's interrupt flag is set, TURN_TICKS ticks of the 16 MHz
+     clock run there (timers, their interrupt routines, the UART), as if the interrupts had fired at that
+     point. Simulated time advances only as GRBL's main loop runs, so a busy host slows the simulation down and
+     nothing else. For the few loops of GRBL that wait for an interrupt without calling anything (the limit
+     alarm waiting for a reset), the clock thread (our sim_loop) sends GRBL's thread a signal when no turn ran
+     for a millisecond; its handler runs a turn there, if GRBL is not inside cli().
   2. Limit switches. grbl-sim leaves the pins at 0, so GRBL reads every limit, control and probe input as active
      and homing cannot work. Here each arm's step pulses (the STEP/DIR outputs GRBL writes, as a driver sees
      them) move a simulated arm, whose switch pulls its limit pin low while the arm is at or beyond it
@@ -32,13 +33,11 @@
 #include <errno.h>
 #include <poll.h>
 #include <pthread.h>
-#include <semaphore.h>
 #include <signal.h>
 #include <stdbool.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/prctl.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -47,9 +46,8 @@
 #include "avr/io.h"
 
 #define TURN_SIGNAL SIGUSR2
-#define TURN_TICKS 4000ULL          /* 250 us of the 16 MHz clock per turn of the interrupts */
-#define MAIN_TURN_NS 25000LL        /* then 25 us of the GRBL thread's own CPU time for its main loop */
-#define MAIN_TURN_WALL_NS 50000000LL /* unless it is blocked for 50 ms of wall time (then time goes on) */
+#define TURN_TICKS 1600ULL          /* 100 us of the 16 MHz clock per turn of the interrupts */
+#define IDLE_CHECK_NS 1000000L      /* the clock thread looks every 1 ms whether a turn ran */
 #define POLL_EVERY_TICKS 1600ULL    /* read the serial input at most every 100 us of simulated time */
 
 extern sim_hook_fp sim_hook[4];     /* grbl-sim's hooks: [1] per tick, [2] per byte (simulator.c) */
@@ -58,7 +56,7 @@ void simulate_write_interrupt(void);  /* grbl-sim's UART transmit (serial.c) */
 
 static pthread_t grbl_thread;
 static volatile sig_atomic_t have_thread, in_ticks;
-static sem_t turn_done;
+static volatile unsigned long turns;  /* turns run so far (read by the clock thread) */
 static uint64_t next_byte_tick;
 
 /* -- switches ------------------------------------------------------------------------------------------------- */
@@ -173,20 +171,27 @@ static void run_ticks(uint64_t n)
   }
 }
 
-static void on_turn(int sig)
+/* a turn of the interrupts at this point of GRBL's main loop, if GRBL allows interrupts here */
+static void turn(void)
 {
-  (void)sig;
-  int saved = errno;
-  if (!in_ticks && (io.sreg & SEI)) {
-    in_ticks = 1;
+  if (in_ticks) { return; }
+  in_ticks = 1;
+  if (io.sreg & SEI) {
     run_ticks(TURN_TICKS);
-    in_ticks = 0;
-  } else if (!in_ticks) {
+  } else {
     /* inside cli(): no time passes, but the UART still sends what GRBL queued (grbl-sim never gated it, and
        GRBL 1.1h prints its settings before its first sei() when the EEPROM is new) */
     simulate_write_interrupt();
   }
-  sem_post(&turn_done);
+  turns++;
+  in_ticks = 0;
+}
+
+static void on_turn(int sig)
+{
+  (void)sig;
+  int saved = errno;
+  turn();
   errno = saved;
 }
 
@@ -195,11 +200,38 @@ static void busy_wait_ticks(uint64_t n)
   if (in_ticks || !(io.sreg & SEI)) { return; }
   in_ticks = 1;
   run_ticks(n);
+  turns++;
   in_ticks = 0;
 }
 
 void __wrap__delay_ms(int ms) { busy_wait_ticks((uint64_t)ms * (F_CPU / 1000)); }
 void __wrap__delay_us(int us) { busy_wait_ticks((uint64_t)us * (F_CPU / 1000000)); }
+
+/* the main loop's waiting points (grbl-sim's serial_read slept 0 us there: not needed, one thread) */
+uint8_t orig_serial_read(void);
+uint8_t __wrap_serial_read(void)
+{
+  turn();
+  return orig_serial_read();
+}
+
+void __real_st_prep_buffer(void);
+void __wrap_st_prep_buffer(void)
+{
+  turn();
+  __real_st_prep_buffer();
+}
+
+extern uint8_t serial_tx_buffer_head;
+extern volatile uint8_t serial_tx_buffer_tail;
+void __real_serial_write(uint8_t data);
+void __wrap_serial_write(uint8_t data)
+{
+  uint8_t next = serial_tx_buffer_head + 1;
+  if (next == TX_BUFFER_SIZE + 1) { next = 0; }  /* GRBL serial.c's TX_RING_BUFFER */
+  while (next == serial_tx_buffer_tail && !(sys_rt_exec_state & EXEC_RESET)) { turn(); }  /* buffer full */
+  __real_serial_write(data);
+}
 
 plat_thread_t *__real_platform_start_thread(plat_threadfunc_t f);
 plat_thread_t *__wrap_platform_start_thread(plat_threadfunc_t f)
@@ -209,7 +241,6 @@ plat_thread_t *__wrap_platform_start_thread(plat_threadfunc_t f)
   sa.sa_handler = on_turn;
   sigemptyset(&sa.sa_mask);
   sa.sa_flags = SA_RESTART;
-  sem_init(&turn_done, 0, 0);
   sigaction(TURN_SIGNAL, &sa, NULL);
   switches_init();
   set_limit_pins_at_power_up();
@@ -221,18 +252,11 @@ plat_thread_t *__wrap_platform_start_thread(plat_threadfunc_t f)
   return th;
 }
 
-static int64_t ns_of(clockid_t c)
-{
-  struct timespec ts;
-  clock_gettime(c, &ts);
-  return (int64_t)ts.tv_sec * 1000000000LL + ts.tv_nsec;
-}
-
 static char out_buf[3][4096];
 
 void __wrap_sim_loop(void)
 {
-  /* stdio buffers now, not at their first use inside the signal handler (no malloc there) */
+  /* stdio buffers now, not at their first use inside GRBL's thread's signal handler (no malloc there) */
   FILE *files[3] = {args.serial_out_file, args.block_out_file, args.step_out_file};
   for (int i = 0; i < 3; i++) {
     bool seen = files[i] == stderr;
@@ -240,18 +264,12 @@ void __wrap_sim_loop(void)
     if (!seen) { setvbuf(files[i], out_buf[i], _IOLBF, sizeof out_buf[i]); }
   }
   if (!have_thread) { return; }
-  clockid_t grbl_cpu;
-  if (pthread_getcpuclockid(grbl_thread, &grbl_cpu) != 0) { return; }
-  prctl(PR_SET_TIMERSLACK, 1000UL, 0, 0, 0);
+  unsigned long seen_turns = turns;
   while (sim.exit != exit_OK) {
-    pthread_kill(grbl_thread, TURN_SIGNAL);
-    while (sem_wait(&turn_done) != 0 && errno == EINTR) {}
-    int64_t cpu0 = ns_of(grbl_cpu), wall0 = ns_of(CLOCK_MONOTONIC);
-    for (;;) {
-      struct timespec ts = {0, MAIN_TURN_NS};
-      nanosleep(&ts, NULL);
-      if (ns_of(grbl_cpu) - cpu0 >= MAIN_TURN_NS || ns_of(CLOCK_MONOTONIC) - wall0 >= MAIN_TURN_WALL_NS) { break; }
-    }
+    struct timespec ts = {0, IDLE_CHECK_NS};
+    nanosleep(&ts, NULL);
+    if (turns == seen_turns) { pthread_kill(grbl_thread, TURN_SIGNAL); }  /* GRBL waits without a hook */
+    seen_turns = turns;
   }
 }
 
