@@ -60,9 +60,18 @@ HOMED_AXES = {n: AxisConfig(n, a.id, None, UPD, -UPD * a.max_deg, 1, a.min_deg, 
               for n, a in AXES.items()}
 
 
-def motion(acc: float = FAST[120], **grbl) -> MotionConfig:
+# slow moves (20 deg/s, 100 deg/s^2) for the tests that act while an arm moves: seconds of simulated time, so a
+# test process held back by a busy machine still acts in motion (grbl-sim runs on, whatever the test does)
+SLOW = {**FAST, 110: 1200.0, 111: 1200.0, 120: 100.0, 121: 100.0}
+
+
+def motion(acc: float = FAST[120], vel: float = FAST[110] / 60, **grbl) -> MotionConfig:
     # retries 6: a status report may wait on grbl-sim (CPU-bound) for seconds on a loaded machine
-    return MotionConfig(0, 0, FAST[110] / 60, acc, 0.05, 0.0, 20.0, 6, POLL_S, "grbl", GrblTable(boot_s=0.3, **grbl))
+    return MotionConfig(0, 0, vel, acc, 0.05, 0.0, 60.0, 6, POLL_S, "grbl", GrblTable(boot_s=0.3, **grbl))
+
+
+def slow_motion(**grbl) -> MotionConfig:
+    return motion(SLOW[120], SLOW[110] / 60, **grbl)
 
 
 @pytest.fixture(scope="session")
@@ -160,8 +169,8 @@ def _a_slow_move_running(drv: GrblAxes) -> float:
 
 
 def test_feed_hold_resume_and_reset_as_grbl_documents(sim):
-    configure(sim, {**FAST, 120: 300.0, 121: 300.0})  # slow enough to catch in motion
-    drv = GrblAxes(sim.port, AXES, motion(300.0))
+    configure(sim, SLOW)  # slow enough to catch in motion
+    drv = GrblAxes(sim.port, AXES, slow_motion())
     try:
         deadline = _a_slow_move_running(drv)
         drv._holding = True  # this test's own hold (the driver's stop() sets it too)
@@ -182,7 +191,7 @@ def test_feed_hold_resume_and_reset_as_grbl_documents(sim):
         drv._wait({"light": 40.0, "detector": 40.0}, check_cancel=False)
         drv._holding = False
         # a soft reset in motion: ALARM:3, the position no longer trusted
-        drv._send({"light": 0.0, "detector": -80.0})  # 120 deg, 1.3 s: still running when the reset arrives
+        drv._send({"light": 0.0, "detector": -80.0})  # 120 deg, 6 s: still running when the reset arrives
         while drv.status().state != "Run":
             assert time.monotonic() < deadline + 30, "never saw the move run"
         drv._write(b"\x18")
@@ -193,13 +202,13 @@ def test_feed_hold_resume_and_reset_as_grbl_documents(sim):
             drv.move({"light": 10.0, "detector": 10.0})
     finally:
         drv.close()
-    again = GrblAxes(sim.port, AXES, motion(300.0))
+    again = GrblAxes(sim.port, AXES, slow_motion())
     try:  # a resume refuses ...
         with pytest.raises(DeviceError, match="not trusted, so nothing moves"):
             again.connect()
     finally:
         again.close()
-    unlocked = GrblAxes(sim.port, AXES, motion(300.0, unlock=True))
+    unlocked = GrblAxes(sim.port, AXES, slow_motion(unlock=True))
     try:  # ... until the user unlocks on purpose
         unlocked.connect()
         unlocked.move({"light": 20.0, "detector": 20.0})
@@ -209,8 +218,8 @@ def test_feed_hold_resume_and_reset_as_grbl_documents(sim):
 
 
 def test_stop_is_hold_then_reset_and_keeps_the_position(sim):
-    configure(sim, {**FAST, 120: 300.0, 121: 300.0})  # slow enough to catch in motion
-    drv = GrblAxes(sim.port, AXES, motion(300.0))
+    configure(sim, SLOW)  # slow enough to catch in motion
+    drv = GrblAxes(sim.port, AXES, slow_motion())
     try:
         _a_slow_move_running(drv)
         drv.stop()
@@ -473,8 +482,8 @@ def test_conformance_hard_limit_mid_move_is_alarm_1_and_the_capture_resumes_afte
 
 
 def test_conformance_a_feed_hold_from_outside_is_named_at_once(sim):
-    configure(sim, {**FAST, 120: 300.0, 121: 300.0})  # slow enough to catch in motion
-    drv = GrblAxes(sim.port, AXES, motion(300.0))
+    configure(sim, SLOW)  # slow enough to catch in motion
+    drv = GrblAxes(sim.port, AXES, slow_motion())
 
     def hold_button():  # another program sends '!' once the move runs
         deadline = time.monotonic() + 30

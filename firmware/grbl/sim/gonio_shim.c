@@ -2,7 +2,9 @@
   gonio_shim.c - gonio-brdf's shim for grbl-sim, GRBL 1.1h's host simulator (a test fixture, never flashed).
 
   Linked into grbl_sim.exe by `make -C firmware/grbl sim` with `-Wl,--wrap=...`: grbl-sim's and GRBL's files stay
-  as they are; this file replaces five of grbl-sim's functions.
+  as they are; this file replaces six of grbl-sim's functions (sim_loop, platform_start_thread,
+  platform_poll_stdin, _delay_ms, _delay_us, serial_read) and runs the clock around two of GRBL's (st_prep_buffer,
+  serial_write: their callers are in GRBL's other files).
 
   1. One CPU, as on the ATmega328P. grbl-sim runs GRBL's main loop in one thread and its simulated clock and
      interrupt routines in another (sim_loop), unsynchronised: cli() only clears a flag, so on a multi-core host
