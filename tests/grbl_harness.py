@@ -218,7 +218,7 @@ class GrblSim:
             code = self.proc.poll()
             raise AssertionError(f"{e} (grbl-sim {'running' if code is None else f'exited with {code}'})") from None
 
-    def send_line(self, line: str, timeout_s: float = 5.0) -> list[str]:
+    def send_line(self, line: str, timeout_s: float = 60.0) -> list[str]:
         """Send one line from the test's side (settings before the driver connects) and return its answer lines;
         :meth:`release` before the driver opens the port."""
         self._ser().write((line + "\n").encode())
