@@ -245,6 +245,7 @@ class Bench:
         self._wall0 = time.monotonic()
         self._ranger: AutoRanger | None = None  # read()'s auto-ranging, once used
         self._ref_dark: Reading | None = None  # the last dark() (at the reference setting)
+        self._resume_flags = ""
 
     @classmethod
     def from_config(cls, path: str | Path, **kw: Any) -> Bench:
@@ -335,12 +336,19 @@ class Bench:
             self.link.close()
         if self.sim is not None:
             self.sim.stop()
+        self._resume_flags = self.resume_flags()  # the driver's word outlives it
         self.sim = None
         self.link = None
         self.detector = None
         self.motion = None
         self._ranger = self._ref_dark = None
         self._opened = False
+
+    def resume_flags(self) -> str:
+        """What ``gonio-capture --resume`` needs added after this run, in the arms' driver's word (GRBL in alarm
+        on a bench without switches: ``" --unlock"``; nothing otherwise)."""
+        flags = getattr(self.motion, "resume_flags", None) if self.motion is not None else None
+        return flags if isinstance(flags, str) else self._resume_flags
 
     def shutdown(self, park: bool = True) -> None:
         """Safe end: park the arms (if ``park`` and no axis reports a fault), then torque off. Never raises. The

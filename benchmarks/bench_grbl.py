@@ -1,18 +1,20 @@
-"""The demo plan on a GRBL bench whose arms run on GRBL 1.1h's own code (grbl-sim, built from ../shared/grbl into
-a temporary folder): per move, the bench time grbl-sim simulated against the time model's estimate, and the
-position error at each sample read back from ``MPos``.
+"""The demo plan on a GRBL bench whose arms run on GRBL 1.1h's own code (grbl-sim with the project's configuration
+and shim, ``make -C firmware/grbl sim``, built from ../shared/grbl into a temporary folder): per move, the bench
+time grbl-sim simulated against the time model's estimate, and the position error at each sample read back from
+``MPos``.
 
 The bench is configs/grbl-bench.toml's mechanics (44.44 steps/deg, $110 = 3600 deg/min, $120 = 240 deg/s^2, both
-arms) without switches (grbl-sim has none: the arms start at machine 0 = 0 deg); the plan is configs/simulated.toml's
-``[plan]`` (the demo: 20/40/60 deg incidence, -80..80 every 2 deg) in the capture's own order, or ``--short``
-(30/60 deg, every 10 deg). The arms are moved by ``acquisition.devices.grbl.GrblAxes`` exactly as a capture moves
-them (the detector is left out: it does not change the motion).
+arms) without switches (homing and soft limits off: the arms start at machine 0 = 0 deg); the plan is
+configs/simulated.toml's ``[plan]`` (the demo: 20/40/60 deg incidence, -80..80 every 2 deg) in the capture's own
+order, or ``--short`` (30/60 deg, every 10 deg). The arms are moved by ``acquisition.devices.grbl.GrblAxes``
+exactly as a capture moves them (the detector is left out: it does not change the motion).
 
 Simulated time: grbl-sim's step output (``-r 0.005``) times each block: it starts at the counters printed with the
 block's header (the arms at rest) and ends at its last sample plus the time its dominant axis needs for the steps
 left at the block's deceleration (grbl-sim stops sampling a block when its last segments are prepared, up to a
 few 10-ms segments before its last step). Wall time is what the driver waited (``G0`` sent -> ``Idle`` in
-position), which includes grbl-sim's slowness (it is CPU-bound near real time) and the polling.
+position), which includes grbl-sim's slowness (it simulates every tick of the 16 MHz clock, on one thread) and
+the polling.
 
     .venv/bin/python benchmarks/bench_grbl.py [--short]
 """
@@ -94,10 +96,11 @@ def main() -> int:
         try:
             sim.wait_ready()
             ax_l, ax_d = axes["light"], axes["detector"]
-            for n, v in {100: ax_l.units_per_deg, 101: ax_d.units_per_deg, 110: motion.velocity_deg_s * 60,
-                         111: motion.velocity_deg_s * 60, 120: motion.acceleration_deg_s2,
-                         121: motion.acceleration_deg_s2}.items():
+            for n, v in {20: 0, 22: 0, 100: ax_l.units_per_deg, 101: ax_d.units_per_deg,
+                         110: motion.velocity_deg_s * 60, 111: motion.velocity_deg_s * 60,
+                         120: motion.acceleration_deg_s2, 121: motion.acceleration_deg_s2}.items():
                 sim.send_line(f"${n}={v:.6g}")
+            sim.send_line("$X")  # our build powers up locked (homing on by default); no switches here
             sim.release()
             drv = GrblAxes(sim.port, axes, motion)
             drv.connect()

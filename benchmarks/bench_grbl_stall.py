@@ -1,4 +1,5 @@
-"""How soon grbl-sim stalls (a fixture fault, see ``tests/grbl_harness.stalled_during_test``): back-and-forth
+"""Whether grbl-sim stalls (a fixture fault of grbl-sim alone: its main loop and interrupts ran on two threads
+unsynchronised; the project's shim, firmware/grbl/sim/gonio_shim.c, runs them on one): back-and-forth
 moves of both arms (``$110``/``$111`` 36000, ``$120``/``$121`` 4000, 10 steps/unit, +-80 units) with a ``?``
 status poll at ``--hz``, for ``--seconds`` or until the harness's relay sees a stall (a moving state at one
 ``MPos`` for 3 s). ``--burners N`` runs N busy-looping processes beside it (a loaded CI machine); ``--runs`` repeats
@@ -24,7 +25,8 @@ sys.path.insert(0, str(REPO))
 
 from tests import grbl_harness as gh  # noqa: E402
 
-SETTINGS = ("$100=10", "$101=10", "$110=36000", "$111=36000", "$120=4000", "$121=4000", "$X")
+# our build's defaults home and limit; this bench has no switches
+SETTINGS = ("$20=0", "$22=0", "$100=10", "$101=10", "$110=36000", "$111=36000", "$120=4000", "$121=4000", "$X")
 
 
 def _burn() -> None:

@@ -1,13 +1,14 @@
-"""GRBL 1.1h's own host simulator (grbl-sim, built from ``../shared/grbl``) on a pseudo-terminal, for the
-conformance tests and ``benchmarks/bench_grbl.py``.
+"""GRBL 1.1h's own code on the host, for the conformance tests and ``benchmarks/bench_grbl*.py``: grbl-sim built
+by ``make -C firmware/grbl sim`` from ``../shared/grbl`` with the project's configuration (``firmware/grbl/
+gonio_config.h``: the homing cycle of the two arms) or GRBL's stock one, and the project's shim
+(``firmware/grbl/sim/gonio_shim.c``): the limit switches driven by the simulated arms' steps, and GRBL's main loop
+and interrupts on one thread (interrupts as signals, simulated time paced by the main loop's CPU time), so a
+loaded machine slows grbl-sim down instead of making it stall or skip (see that file).
 
-grbl-sim reads its stdin with ``select`` + ``getchar``: a buffered stdin takes every byte waiting on the
-descriptor into stdio's buffer but hands GRBL one, so the rest of a line written at once waits there until more
-bytes arrive (the last line's answer would come one line late). A real UART has no such buffer; grbl-sim is
-therefore started under ``stdbuf -i0`` (coreutils: stdin unbuffered, one byte per read), and where ``stdbuf`` is
-missing a relay passes the bytes on one at a time, each once grbl-sim has read the one before (``FIONREAD`` on its
-side of the pty; fragile on a loaded machine). The relay between the driver's port and grbl-sim is also where a
-test injects bytes the driver did not send (a reset mid-sweep, as the reset button or a brown-out would).
+The shim reads the serial input itself with read(2) (no stdio buffer, so no ``stdbuf``). A relay between the
+driver's pseudo-terminal and grbl-sim's passes the bytes on and is where a test injects bytes the driver did not
+send (a reset mid-sweep, as the reset button or a brown-out would; a feed hold from another program). It also
+watches the status reports for a frozen move (:class:`StallWatch`), which the shim should make impossible.
 
 Step output: grbl-sim writes ``-s`` through stdio too; to a pseudo-terminal it is line-buffered, so a second pty
 takes it and the relay copies it line by line to ``steps.out``; ``-b`` (which grbl-sim flushes itself) goes to
@@ -16,73 +17,57 @@ takes it and the relay copies it line by line to ``steps.out``; ``-b`` (which gr
 
 from __future__ import annotations
 
-import fcntl
 import os
 import pty
 import re
 import shutil
-import struct
 import subprocess
-import termios
 import threading
 import time
 import tty
 from pathlib import Path
 
-SHARED_GRBL = Path(__file__).resolve().parents[1].parent / "shared" / "grbl"
+REPO = Path(__file__).resolve().parents[1]
+SHARED_GRBL = REPO.parent / "shared" / "grbl"
+GRBL_SRC = SHARED_GRBL / "src" / "grbl"
+GRBL_SIM_SRC = SHARED_GRBL / "src" / "grbl-sim"
+FIRMWARE = REPO / "firmware" / "grbl"
+HOW_TO_GET = ("get GRBL 1.1h's source from its public repository (git clone https://github.com/gnea/grbl, tag "
+              "v1.1h, its grbl/ folder) and grbl-sim (https://github.com/grbl/grbl-sim) into "
+              "../shared/grbl/src/grbl and ../shared/grbl/src/grbl-sim")
 
 
 def missing() -> str | None:
-    """One plain sentence naming what the conformance tests lack, or None."""
-    if not (SHARED_GRBL / "build.sh").is_file():
-        return f"the GRBL 1.1h sources and build script are not at {SHARED_GRBL} (../shared/grbl beside the repository)"
+    """One plain sentence naming what the conformance tests lack (and how to get it), or None."""
+    if not (GRBL_SRC / "grbl.h").is_file() or not (GRBL_SIM_SRC / "simulator.c").is_file():
+        return f"GRBL 1.1h's source and grbl-sim are not at {SHARED_GRBL / 'src'}: {HOW_TO_GET}"
     for tool in ("gcc", "make"):
         if shutil.which(tool) is None:
             return f"{tool} is not installed, so grbl-sim (GRBL's host simulator) cannot be built"
     return None
 
 
-def build(out: Path) -> Path:
-    """Build grbl-sim into ``out`` (about 2-6 s); returns the executable."""
-    r = subprocess.run(["bash", str(SHARED_GRBL / "build.sh"), str(out)], capture_output=True, text=True, timeout=300)
+def build(out: Path, config: str = "gonio") -> Path:
+    """Build grbl-sim with ``config`` ("gonio": the project's; "stock": GRBL's own) and the shim into ``out``
+    (a few seconds); returns the executable."""
+    r = subprocess.run(["make", "-s", "-C", str(FIRMWARE), "sim", f"GRBL_SRC={GRBL_SRC}",
+                        f"GRBL_SIM_SRC={GRBL_SIM_SRC}", f"BUILD={out}", f"CONFIG={config}"],
+                       capture_output=True, text=True, timeout=600)
     if r.returncode != 0:
-        raise RuntimeError(f"building grbl-sim failed: {r.stdout[-2000:]} {r.stderr[-2000:]}")
+        raise RuntimeError(f"building grbl-sim ({config}) failed: {r.stdout[-2000:]} {r.stderr[-2000:]}")
     return Path(r.stdout.strip().splitlines()[-1])
 
 
 STALL_S = 3.0
-STALLS: list[str] = []  # this process's grbl-sim stalls (the conformance tests clear it before each test)
 _MOVING = ("Run", "Jog", "Hold:1")
 STATUS_REPORT = re.compile(rb"<(\w+(?::\d)?)\|MPos:([-\d.,]+)")  # (state[:sub], MPos) of a status report
 
 
-def stalled_during_test() -> bool:
-    """Whether a grbl-sim of this process stalled since :data:`STALLS` was last cleared (the conformance tests'
-    rerun condition: pytest-rerunfailures runs such a test again, on a fresh grbl-sim).
-
-    A stall: GRBL reports a moving state (``Run``, ``Jog``, ``Hold:1``) at the same ``MPos`` for
-    :data:`STALL_S` s or more, seen in the status reports the relay passes on. Real GRBL cannot: in those states
-    its stepper interrupt moves the axes every few ms. grbl-sim runs GRBL's main loop and the simulated interrupts
-    in two unsynchronised threads (``sim_loop`` in ``simulator.c``; ``cli()`` only clears a flag the other thread
-    reads once per tick), so on two host cores an interrupt routine runs *beside* the main loop, and when the
-    machine is busy the main loop can be descheduled while the interrupt empties the stepper's segment buffer,
-    neither of which the single-core AVR allows. Measured by ``benchmarks/bench_grbl_stall.py`` (back-and-forth
-    moves, ``$110`` 36000, ``$120`` 4000, polled with ``?`` beside one CPU burner): stalls after 64, 23, 18 and
-    27 s at 100 Hz; after 55 s, and none in 180 s, at 20 Hz. A soft reset, ``$X`` and a move on the stalled
-    grbl-sim moved again once by hand and stayed in ``Run`` in the benchmark's checks, so a test starts again on a
-    fresh grbl-sim. Pinning grbl-sim to one CPU starves its two busy threads instead (the conformance tests then
-    time out).
-    """
-    return bool(STALLS)
-
-
-def _pending(fd: int) -> int:
-    return struct.unpack("i", fcntl.ioctl(fd, termios.FIONREAD, b"\0\0\0\0"))[0]
-
-
 class StallWatch:
-    """Status reports in, a stall out (see :func:`stalled_during_test`): :attr:`stall` is the first one's sentence,
-    also appended to :data:`STALLS`."""
+    """Status reports in, a stall out: GRBL reporting a moving state (``Run``, ``Jog``, ``Hold:1``) at the same
+    ``MPos`` for :data:`STALL_S` s or more, which real GRBL cannot (its stepper interrupt moves the axes every few
+    ms). grbl-sim alone did, on a busy machine (its threads' race, ``benchmarks/bench_grbl_stall.py``); with the
+    shim it should not: :attr:`stall` is the first one's sentence."""
 
     def __init__(self) -> None:
         self.stall: str | None = None
@@ -104,16 +89,17 @@ class StallWatch:
                 self._seen, self._seen_since = key, now
             elif key[0].decode() in _MOVING and now - self._seen_since >= STALL_S and self.stall is None:
                 self.stall = (f"grbl-sim stalled: {key[0].decode()} at MPos {key[1].decode()} for "
-                              f"{now - self._seen_since:.1f} s without a step (its threads' race; see "
-                              "tests/grbl_harness.stalled_during_test)")
-                STALLS.append(self.stall)
+                              f"{now - self._seen_since:.1f} s without a step")
         self._rx = self._rx[cut + 1:]
 
 
 class GrblSim:
-    """grbl-sim running in ``workdir``; :attr:`port` is the path the driver opens. ``report_s``: ``-r``."""
+    """grbl-sim running in ``workdir``; :attr:`port` is the path the driver opens. ``report_s``: ``-r``.
+    ``switches``: the shim's ``GONIO_GRBL_SWITCHES`` (e.g. "x=-150,y=-200": each arm's start, in steps, below its
+    switch; an axis left out has none), ``slip``: ``GONIO_GRBL_SLIP`` (e.g. "y:+200@400")."""
 
-    def __init__(self, exe: Path, workdir: Path, report_s: float = 0.01) -> None:
+    def __init__(self, exe: Path, workdir: Path, report_s: float = 0.01, switches: str = "",
+                 slip: str = "") -> None:
         self.workdir = Path(workdir)
         self.workdir.mkdir(parents=True, exist_ok=True)
         self.steps_path = self.workdir / "steps.out"
@@ -131,18 +117,19 @@ class GrblSim:
         self.step_master, step_slave = pty.openpty()
         tty.setraw(step_slave)
         self._step_slave = step_slave
-        stdbuf = shutil.which("stdbuf")
-        self.bytewise = stdbuf is None
+        self._test_ser = None
+        self._buf = b""
+        # the test's end of the port is open before grbl-sim starts: pyserial's open() flushes what is already
+        # queued, which could be grbl-sim's first lines on a loaded machine
+        self._ser()
+        env = {**os.environ, "GONIO_GRBL_SWITCHES": switches, "GONIO_GRBL_SLIP": slip}
         self.proc = subprocess.Popen(
-            ([stdbuf, "-i0"] if stdbuf else [])
-            + [str(exe), "-n", "-r", f"{report_s:g}", "-s", os.ttyname(step_slave), "-b", str(self.blocks_path)],
-            stdin=self.sim_master, stdout=self.sim_master, stderr=subprocess.DEVNULL, cwd=self.workdir)
+            [str(exe), "-n", "-r", f"{report_s:g}", "-s", os.ttyname(step_slave), "-b", str(self.blocks_path)],
+            stdin=self.sim_master, stdout=self.sim_master, stderr=subprocess.DEVNULL, cwd=self.workdir, env=env)
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self.injected: list[bytes] = []
-        self._test_ser = None
-        self._buf = b""
-        self.watch = StallWatch()  # the status reports passing to the driver (see stalled_during_test)
+        self.watch = StallWatch()  # the status reports passing to the driver
         self._threads = [threading.Thread(target=f, daemon=True) for f in (self._to_sim, self._from_sim, self._steps)]
         for t in self._threads:
             t.start()
@@ -150,19 +137,7 @@ class GrblSim:
     # -- relay -------------------------------------------------------------------------------------------------------
     def _feed(self, data: bytes) -> None:
         with self._lock:
-            if not self.bytewise:
-                os.write(self.sim_slave, data)
-                return
-            for b in data:
-                os.write(self.sim_slave, bytes([b]))
-                # the byte reaches grbl-sim's side of the pty a moment later (the tty layer's own buffer): see it
-                # arrive (or give it 5 ms), then wait until grbl-sim has read it
-                t0 = time.monotonic()
-                while not _pending(self.sim_master) and time.monotonic() < t0 + 0.005:
-                    time.sleep(0.0001)
-                deadline = time.monotonic() + 2.0
-                while _pending(self.sim_master) and time.monotonic() < deadline:
-                    time.sleep(0.0002)
+            os.write(self.sim_slave, data)
 
     def _to_sim(self) -> None:
         import select
@@ -235,11 +210,15 @@ class GrblSim:
                         return out
         raise AssertionError(f"grbl-sim: no {what}: {out}")
 
-    def wait_ready(self, timeout_s: float = 10.0) -> list[str]:
+    def wait_ready(self, timeout_s: float = 30.0) -> list[str]:
         """grbl-sim's start-up output up to its welcome line (its first start prints error:7, no EEPROM yet)."""
-        return self._lines_until(lambda t: t.startswith("Grbl 1.1"), timeout_s, "welcome line")
+        try:
+            return self._lines_until(lambda t: t.startswith("Grbl 1.1"), timeout_s, "welcome line")
+        except AssertionError as e:
+            code = self.proc.poll()
+            raise AssertionError(f"{e} (grbl-sim {'running' if code is None else f'exited with {code}'})") from None
 
-    def send_line(self, line: str, timeout_s: float = 5.0) -> list[str]:
+    def send_line(self, line: str, timeout_s: float = 60.0) -> list[str]:
         """Send one line from the test's side (settings before the driver connects) and return its answer lines;
         :meth:`release` before the driver opens the port."""
         self._ser().write((line + "\n").encode())
@@ -258,7 +237,9 @@ class GrblSim:
             self.proc.kill()
         self.proc.wait()
         for t in self._threads:
-            t.join(1.0)
+            # to the end (each looks at _stop every 50 ms): a relay thread still running after its descriptors are
+            # closed would read from their numbers reused by the next grbl-sim's ptys and take its output
+            t.join(60.0)
         for fd in (self.drv_master, self._drv_slave, self.sim_master, self.sim_slave, self.step_master,
                    self._step_slave):
             try:

@@ -4,7 +4,6 @@ refused resume after an alarm; the bench file's ``[motion] type = "grbl"``; the 
 
 from __future__ import annotations
 
-import csv
 import math
 from pathlib import Path
 
@@ -23,7 +22,6 @@ from simulator.ports.transports import PtyServer
 from tests import helpers
 
 GRBL_TOML = Path(__file__).resolve().parents[1] / "configs" / "grbl-bench.toml"
-GRBL_DOC = Path(__file__).resolve().parents[1].parent / "shared" / "grbl" / "doc"
 
 
 def _raw() -> dict:
@@ -64,13 +62,7 @@ def test_codes_cover_grbl_tables_in_one_sentence_each():
     assert grbl_settings.error_text(9).startswith("error:9: G-code is locked out")
     assert grbl_settings.alarm_text(3).startswith("ALARM:3: reset while moving")
     assert "does not document" in grbl_settings.error_text(99)
-    if not GRBL_DOC.is_dir():
-        pytest.skip(f"GRBL's code tables are not at {GRBL_DOC}: the sentences were checked, not their coverage")
-    tables = (("error_codes_en_US.csv", grbl_settings.ERRORS), ("alarm_codes_en_US.csv", grbl_settings.ALARMS))
-    for name, table in tables:
-        with open(GRBL_DOC / name, newline="") as fh:
-            codes = {int(row[0]) for row in list(csv.reader(fh))[1:] if row}
-        assert codes == set(table), name
+    # that they cover GRBL's own tables: tests/test_grbl_conformance.py (it needs ../shared/grbl)
 
 
 def test_status_reports_parse():
@@ -249,3 +241,68 @@ def test_unlock_flag_is_for_grbl_benches_only(tmp_path):
     assert "--unlock is for a GRBL bench ([motion] type = \"grbl\"); this bench's motion is 'serial'" in r.stderr
     r = run_capture("--config", str(GRBL_TOML), "--check", "--unlock")
     assert r.returncode == 0, r.stderr
+
+
+def test_stock_grbl_homes_z_first_ends_in_alarm_9_and_the_driver_says_to_flash_ours(rig):
+    drv, grbl, _, _ = rig({"simulator": {"grbl_build": "stock"}})  # the release hex: HOMING_CYCLE_0 is Z
+    with pytest.raises(DeviceError) as e:
+        drv.connect()
+    msg = str(e.value)
+    assert "ALARM:9: homing failed: no limit switch within the search distance" in msg
+    assert "looks like the stock build" in msg and "make -C firmware/grbl" in msg and "\n" not in msg
+    assert grbl.state == "Alarm" and not drv.trusted
+    assert grbl.arm_angles(grbl.clock.now()) == pytest.approx((0.0, 45.0))  # Z searched, the arms never moved
+
+
+def test_our_build_homes_one_arm_on_its_own_the_stock_one_refuses(rig):
+    drv, grbl, _, cfg = rig()
+    drv.connect()
+    drv.move({"light": 30.0, "detector": -20.0})
+    assert drv.command("$HX") == []  # the light arm only: back at its pull-off, the detector where it was
+    assert drv.positions() == pytest.approx({"light": 79.0, "detector": -20.0}, abs=cfg.motion.tolerance_deg)
+    stock, _, _, _ = rig({"simulator": {"grbl_build": "stock"}, "motion": {"grbl": {"homing": False,
+                                                                                     "soft_limits": False}}})
+    with pytest.raises(GrblError, match="error:3"):
+        stock.command("$HX")
+
+
+def test_status_is_polled_at_most_5_hz_while_the_move_is_expected_to_run(rig):
+    over = {"simulator": {"time_scale": 1.0}, "motion": {"grbl": {"homing": False, "soft_limits": False}}}
+    drv, grbl, _, _ = rig(over)
+    drv.connect()
+    asked: list[float] = []  # the virtual GRBL's clock at each '?' it received
+    process = grbl.process
+
+    def counting(data: bytes) -> bytes:
+        asked.extend([grbl.clock.now()] * data.count(b"?"))
+        return process(data)
+
+    grbl.process = counting
+    goal = {"light": 80.0, "detector": -80.0}
+    expected = drv._expected_s(goal)
+    # from machine 0 (no switches: light 80, detector 85 deg): the detector turns 165 deg, the longer axis
+    assert expected == pytest.approx(trapezoid_duration(165.0, 60.0, 240.0), rel=1e-6)
+    t0 = grbl.clock.now()
+    drv.move(goal)
+    running = [t for t in asked if t < t0 + expected]
+    assert len(running) <= expected / 0.2 + 1, (len(running), expected)  # GRBL's interface.md: <= 5 Hz
+    assert drv.positions() == pytest.approx(goal, abs=0.05)
+
+
+def test_after_a_reset_in_motion_the_advice_is_the_resume_that_works(rig):
+    over = {"motion": {"grbl": {"homing": False, "soft_limits": False}}}
+    drv, grbl, _, _ = rig(over)
+    drv.connect()
+    assert drv.resume_flags == ""
+    drv._send({"light": 40.0, "detector": 40.0})
+    drv._write(b"\x18")  # the reset button while moving: ALARM:3, no switches to home with
+    drv._await_welcome(2.0)
+    assert drv.resume_flags == " --unlock"
+    with pytest.raises(HardwareError, match=r"ALARM:3: .*; the capture stopped; check the arms are where GRBL "
+                                            r"believes them \(or move them there\), then resume with --resume "
+                                            r"--unlock \(\$X on purpose\)$"):
+        drv._alarm_stop(3)
+    homing, _, _, _ = rig()
+    homing.connect()
+    homing.trusted = False
+    assert homing.resume_flags == ""  # a bench with switches: the resume homes ($H)

@@ -14,11 +14,17 @@ degrees of the machine coordinate (:mod:`acquisition.grbl_settings`).
   in motion or an alarm: GRBL no longer vouches for the position) is refused unless homing is possible or the bench
   file unlocks on purpose (``[motion.grbl].unlock = true`` -> ``$X``).
 * ``move``: ``G90 G53 G0 X.. Y..`` (absolute machine coordinates, whatever work offset is set), then ``?`` polled
-  until ``Idle`` with ``MPos`` within ``[motion].tolerance_deg`` of the goal.
+  until ``Idle`` with ``MPos`` within ``[motion].tolerance_deg`` of the goal: at most 5 Hz (GRBL's interface.md:
+  "no more than 5Hz") while the move is expected to run (its duration from the time model), then every
+  ``[motion].poll_interval_s`` from its expected end, so that the capture learns of the arrival at once (GRBL
+  is then decelerating or idle, and those few reports cost it little). A feed hold nobody here asked for (the
+  hold button, ``!`` from another program) is named at the first report that shows it.
 * ``stop`` (an abort): feed hold ``!``, wait for the hold to complete (``Hold:0``), then a soft reset (0x18)
   which empties the planner; a reset after a completed hold keeps the position (GRBL raises ``ALARM:3`` only for
   a reset *in* motion, which this driver falls back to if the hold does not complete).
-* every ``error:N`` / ``ALARM:N`` becomes one sentence (:func:`~acquisition.grbl_settings.error_text`).
+* every ``error:N`` / ``ALARM:N`` becomes one sentence (:func:`~acquisition.grbl_settings.error_text`), and the
+  advice after it is the command that works: ``--resume`` when the bench homes (``$H`` first), ``--resume
+  --unlock`` when it has no switches (:attr:`GrblAxes.resume_flags`), never a repeat of what just failed.
 """
 
 from __future__ import annotations
@@ -43,6 +49,7 @@ from acquisition.grbl_settings import (
     machine_deg,
 )
 from acquisition.sections import AxisConfig, MotionConfig
+from reconstruction.bench.timing import line_durations
 from reconstruction.schema.bench import GrblTable
 
 log = logging.getLogger("acquisition.grbl")
@@ -57,10 +64,23 @@ _WELCOME = "Grbl "
 RESET = b"\x18"
 #: Relative tolerance of a ``$`` setting against the bench file (GRBL prints 3 decimals).
 SETTING_RTOL = 1e-3
+#: Status reports while a move is expected to run: at most 5 Hz (GRBL's interface.md).
+MOVING_POLL_S = 0.2
+#: GRBL's homing alarms: ``$H`` failed, so "home them" is not the advice.
+HOMING_ALARMS = frozenset({6, 7, 8, 9, 10})
 
 
 class GrblError(DeviceError):
     """GRBL answered ``error:N`` (``code``) to a line."""
+
+    def __init__(self, message: str, code: int) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+class GrblAlarm(DeviceError):
+    """GRBL pushed ``ALARM:N`` (``code``) while a line waited for its answer (after a limit alarm GRBL answers
+    nothing until it is reset)."""
 
     def __init__(self, message: str, code: int) -> None:
         super().__init__(message)
@@ -110,6 +130,9 @@ class GrblAxes:
         self.dead = False
         self.settings: dict[int, float] = {}
         self.version = ""
+        self.options = ""  # $I's [OPT:...] line: our build (firmware/grbl) has 'H' (single-axis homing) in it
+        self._last: GrblStatus | None = None
+        self._holding = False  # a feed hold this driver asked for (stop)
         self._buf = bytearray()
         try:
             self.ser = serial_factory(port, self.grbl.baudrate, timeout=0.02, write_timeout=2.0)
@@ -165,6 +188,10 @@ class GrblAxes:
                                 f"{self.motion.timeout_s if timeout_s is None else timeout_s:g} s")
             if got == "ok":
                 return lines
+            a = _ALARM.match(got)
+            if a:
+                code = int(a.group(1))
+                raise GrblAlarm(f"GRBL on {self.port}: {line!r} ended in {alarm_text(code)}", code)
             m = _ERROR.match(got)
             if m:
                 code = int(m.group(1))
@@ -172,7 +199,9 @@ class GrblAxes:
             lines.append(got)
 
     def status(self) -> GrblStatus:
-        """A fresh status report (``?``), asked up to ``[motion].retries`` + 1 times."""
+        """A fresh status report (``?``), asked up to ``[motion].retries`` + 1 times. An ``ALARM:N`` pushed
+        meanwhile is returned as state ``Alarm`` at the last known position: after a limit alarm GRBL sends no
+        report until it is reset."""
         for _ in range(self.motion.retries + 1):
             self._write(b"?")
             deadline = time.monotonic() + 1.0
@@ -180,8 +209,11 @@ class GrblAxes:
                 line = self._readline(deadline)
                 if line is None:
                     break
+                if _ALARM.match(line):
+                    return GrblStatus("Alarm", None, self._last.mpos if self._last else (0.0, 0.0, 0.0), line)
                 st = parse_status(line)
                 if st is not None:
+                    self._last = st
                     return st
         raise CommError(f"GRBL on {self.port}: no status report (?) after {self.motion.retries + 1} attempts; "
                         "is this a GRBL 1.1 controller at the configured baud rate?")
@@ -193,6 +225,12 @@ class GrblAxes:
         while (line := self._readline(deadline)) is not None:
             out.append(line)
         return out
+
+    def _await_reset_request(self, wait_s: float) -> None:
+        deadline = time.monotonic() + wait_s
+        while (line := self._readline(deadline)) is not None:
+            if line.startswith("[MSG:Reset to continue"):
+                return
 
     def _await_welcome(self, wait_s: float) -> bool:
         deadline = time.monotonic() + wait_s
@@ -207,6 +245,13 @@ class GrblAxes:
         refuse an untrusted position (see the module)."""
         self._await_welcome(self.grbl.boot_s)
         self._drain(0.05)
+        if not self._answers_status():
+            # after a limit alarm GRBL waits for a reset ([MSG:Reset to continue]) and answers nothing, not even
+            # '?'; it is not moving, so the reset loses nothing (it stays in its alarm state)
+            log.info("GRBL on %s: no status report; resetting it (a limit alarm waits for a reset)", self.port)
+            self._write(RESET)
+            self._await_welcome(3.0)
+            self._drain(0.05)
         self.version = self._sync()
         if not self.version.startswith("[VER:1.1"):
             log.warning("GRBL on %s: %s; this driver is written for GRBL 1.1", self.port,
@@ -220,6 +265,16 @@ class GrblAxes:
         self.command("G21 G90")
         log.info("GRBL on %s ready: %s, arms at %s", self.port, self.version, self.positions())
 
+    def _answers_status(self) -> bool:
+        self._write(b"?")
+        deadline = time.monotonic() + 1.5
+        while (line := self._readline(deadline)) is not None:
+            st = parse_status(line)
+            if st is not None:
+                self._last = st
+                return True
+        return False
+
     def _sync(self) -> str:
         """``$I`` until its ``[VER:...]`` line and the ``ok`` after it: an ``ok`` still owed to a line someone sent
         before the port was ours is skipped, so every later answer belongs to this driver's line. Returns the
@@ -231,6 +286,8 @@ class GrblAxes:
             while (line := self._readline(deadline)) is not None:
                 if line.startswith("[VER:"):
                     version = line
+                elif line.startswith("[OPT:"):
+                    self.options = line
                 elif line == "ok" and version:
                     return version
                 elif _ERROR.match(line) and not version:
@@ -311,23 +368,51 @@ class GrblAxes:
         self.alarm = 0
         self.trusted = True
 
+    @property
+    def stock_build(self) -> bool:
+        """``$I``'s options lack 'H' (``HOMING_SINGLE_AXIS_COMMANDS``, set by this project's build): most likely the
+        release hex, whose homing cycle moves Z first."""
+        return bool(self.options) and "H" not in self.options.split(":", 1)[-1].split(",", 1)[0]
+
+    def _homing_failed(self, why: str) -> DeviceError:
+        advice = ("check each arm's switch and its wiring (a pressed switch shows in the status report's Pn: field; "
+                  "$HX and $HY home one arm), $130/$131 and $27; once homing works, resume; or move the arms where "
+                  "GRBL believes them and resume with --unlock")
+        if self.stock_build and self.alarm == 9:
+            advice = ("this GRBL looks like the stock build ($I lists no 'H' option), whose homing cycle moves Z first "
+                      "and finds no Z switch on this bench: flash the project's build (make -C firmware/grbl, "
+                      "docs/build-a-bench.md), then resume")
+        self.trusted = False
+        return DeviceError(f"GRBL on {self.port}: {why}; homing failed, the arms' position is not known: {advice}")
+
     def home(self) -> None:
-        """``$H``: GRBL's homing cycle (its ``ok`` comes once the arms are on their switches)."""
+        """``$H``: GRBL's homing cycle (its ``ok`` comes once the arms are pulled off their switches)."""
         log.info("GRBL on %s: homing ($H)", self.port)
         try:
             self.command("$H", self.motion.timeout_s * 3)
+        except GrblAlarm as e:
+            self._await_welcome(2.0)  # a failed homing resets GRBL: its welcome follows
+            raise self._homing_failed(alarm_text(e.code)) from None
         except GrblError as e:
             raise DeviceError(f"{e}; homing did not run" + (f" ({alarm_text(self.alarm)})" if self.alarm else "")) \
                 from None
         except CommError:
-            raise DeviceError(f"GRBL on {self.port}: homing gave no answer within {self.motion.timeout_s * 3:g} s"
-                              + (f": {alarm_text(self.alarm)}" if self.alarm else "")) from None
+            raise self._homing_failed(f"$H gave no answer within {self.motion.timeout_s * 3:g} s"
+                                      + (f" ({alarm_text(self.alarm)})" if self.alarm else "")) from None
         st = self.status()
         if st.state != "Idle":
-            raise DeviceError(f"GRBL on {self.port}: homing ended in state {st.state}"
-                              + (f": {alarm_text(self.alarm)}" if self.alarm else ""))
+            raise self._homing_failed(f"$H ended in state {st.state}"
+                                      + (f" ({alarm_text(self.alarm)})" if self.alarm else ""))
         self.alarm = 0
         self.trusted = True
+        log.info("GRBL on %s: homed; arms pulled off their switches at MPos %s", self.port,
+                 ",".join(f"{v:.3f}" for v in st.mpos[:2]))
+
+    @property
+    def resume_flags(self) -> str:
+        """What ``gonio-capture --resume`` needs added to work after this driver stopped: ``" --unlock"`` when the
+        position is not trusted and the bench cannot home (no switches), else nothing (homing runs ``$H``)."""
+        return "" if self.trusted or self.grbl.homing or self.grbl.unlock else " --unlock"
 
     # -- positions and moves ---------------------------------------------------------------------------------------
     def _deg(self, st: GrblStatus) -> dict[str, float]:
@@ -344,10 +429,23 @@ class GrblAxes:
         words = " ".join(f"{AXIS_LETTER[n]}{machine_deg(self.axes[n], d):.4f}" for n, d in goals.items())
         try:
             self.command(f"G90 G53 G0 {words}", 5.0)
+        except GrblAlarm as e:
+            self._alarm_stop(e.code)
         except GrblError as e:
             if self.alarm:
                 self._alarm_stop(self.alarm)
             raise DeviceError(str(e)) from None
+
+    def _expected_s(self, goals: Mapping[str, float]) -> float:
+        """The move's duration from the time model (s): both arms on one line at $110/$120 (0 if unknown)."""
+        if self._last is None:
+            return 0.0
+        here = self._deg(self._last)
+        d = [machine_deg(self.axes[n], goals.get(n, here[n])) - machine_deg(self.axes[n], here[n]) for n in AXIS_LETTER]
+        v, a = self.motion.velocity_deg_s, self.motion.acceleration_deg_s2
+        if v <= 0 or a <= 0:
+            return 0.0
+        return float(line_durations(d[0], d[1], (v, v), (a, a)))
 
     def move(self, goals: Mapping[str, float], check_cancel: bool = True) -> None:
         """Move the named arms to ``goals`` (deg) at once and wait until ``Idle`` and in position."""
@@ -356,15 +454,17 @@ class GrblAxes:
                               + (alarm_text(self.alarm) if self.alarm else "a reset or an alarm")
                               + "; home them or unlock on purpose (gonio-capture --unlock) before moving")
         self.goal.update(goals)
+        expected = self._expected_s(goals)
         self._send(goals)
-        self._wait(dict(goals), check_cancel)
+        self._wait(dict(goals), check_cancel, expected)
 
     def _off(self, st: GrblStatus, goals: Mapping[str, float]) -> dict[str, float]:
         deg = self._deg(st)
         return {n: deg[n] for n, g in goals.items() if abs(deg[n] - g) > self.motion.tolerance_deg}
 
-    def _wait(self, goals: dict[str, float], check_cancel: bool) -> None:
-        t_end = time.monotonic() + self.motion.timeout_s
+    def _wait(self, goals: dict[str, float], check_cancel: bool, expected_s: float = 0.0) -> None:
+        t0 = time.monotonic()
+        t_end = t0 + self.motion.timeout_s
         resends = idle_off = 0
         while True:
             if check_cancel:
@@ -372,6 +472,8 @@ class GrblAxes:
             st = self.status()
             if st.state == "Alarm" or self.alarm:
                 self._alarm_stop(self.alarm)
+            if st.state == "Hold" and not self._holding:
+                self._outside_hold(st)
             if st.state == "Door":
                 self.stop()
                 raise HardwareError(f"GRBL on {self.port}: the safety door input is active; the arms were stopped")
@@ -396,24 +498,51 @@ class GrblAxes:
                 self.stop()
                 raise DeviceError(f"GRBL on {self.port}: the arms still move after {self.motion.timeout_s:g} s "
                                   f"(state {st.state}, goals {goals}); stopped")
-            if self.motion.poll_interval_s:
-                time.sleep(self.motion.poll_interval_s)
+            time.sleep(self._poll_s(time.monotonic() - t0, expected_s))
+
+    def _poll_s(self, elapsed: float, expected_s: float) -> float:
+        """The wait before the next status report: at most 5 Hz until the move's expected end, then
+        ``[motion].poll_interval_s`` (see the module)."""
+        fast = self.motion.poll_interval_s
+        left = expected_s - elapsed
+        if left <= 0:
+            return fast
+        return max(fast, min(MOVING_POLL_S, left))
+
+    def _outside_hold(self, st: GrblStatus) -> None:
+        """GRBL reports a feed hold nobody here asked for (the hold button, ``!`` from another program): stop
+        cleanly (the hold keeps the position) and raise :class:`HardwareError` naming it."""
+        where = self._deg(st)
+        self.stop()
+        raise HardwareError(f"GRBL on {self.port}: a feed hold came from outside gonio-capture ({st.state}:"
+                            f"{st.sub}: the hold button, or '!' from another program on this port); the arms stopped "
+                            "at " + ", ".join(f"{n} {d:.2f} deg" for n, d in where.items())
+                            + " and the capture stopped; the position is kept")
 
     def _alarm_stop(self, code: int) -> None:
-        """An alarm mid-move: GRBL has stopped the steppers itself; recover a soft-limit alarm (position kept),
-        raise :class:`HardwareError` with one sentence."""
-        if code == 2:
-            try:  # GRBL asks for a reset ([MSG:Reset to continue]); the position is kept, $X is safe (its doc)
+        """An alarm mid-move: GRBL has stopped the steppers itself; reset a limit alarm (GRBL answers nothing
+        until then), recover a soft-limit alarm (position kept), raise :class:`HardwareError` with one sentence
+        whose advice is the command that works."""
+        if code in (1, 2):
+            try:  # GRBL asks for a reset ([MSG:Reset to continue]); after ALARM:2 the position is kept, $X is safe
+                self._await_reset_request(3.0)  # a reset before it is lost: GRBL clears it, then waits for one
                 self._write(RESET)
-                self._await_welcome(2.0)
-                self.command("$X", 2.0)
-                self.alarm = 0
-                self.trusted = True
+                self._await_welcome(3.0)
+                if code == 2:
+                    self.command("$X", 2.0)
+                    self.alarm = 0
+                    self.trusted = True
             except Exception as e:  # noqa: BLE001 - best effort; the message below stands
-                log.warning("GRBL on %s: recovery after the soft-limit alarm failed: %s", self.port, e)
+                log.warning("GRBL on %s: reset after %s failed: %s", self.port, alarm_text(code), e)
+        if self.trusted:
+            advice = ""
+        elif self.grbl.homing:
+            advice = "; resume with --resume: the arms are homed ($H) first"
+        else:
+            advice = ("; check the arms are where GRBL believes them (or move them there), then resume with "
+                      "--resume --unlock ($X on purpose)")
         raise HardwareError(f"GRBL on {self.port}: " + (alarm_text(code) if code else "alarm state") +
-                            "; the capture stopped" + ("" if self.trusted else
-                                                       "; home the arms or unlock on purpose before resuming"))
+                            "; the capture stopped" + advice)
 
     def stop(self) -> None:
         """Abort: feed hold (``!``), wait for the hold to complete, then soft reset (0x18) to empty the planner.
@@ -422,6 +551,7 @@ class GrblAxes:
             log.error("GRBL on %s is gone: cannot stop the arms; cut the motor power", self.port)
             return
         try:
+            self._holding = True
             self._write(b"!")
             deadline = time.monotonic() + max(2.0, self.motion.timeout_s / 4)
             while time.monotonic() < deadline:
@@ -440,6 +570,8 @@ class GrblAxes:
                 log.error("GRBL on %s: %s", self.port, alarm_text(self.alarm) if self.alarm else "alarm after reset")
         except Exception as e:  # noqa: BLE001 - best effort
             log.warning("GRBL on %s: stop failed: %s", self.port, e)
+        finally:
+            self._holding = False
 
     def release(self) -> None:
         """GRBL keeps or drops the motor current by its ``$1`` idle delay: nothing to send."""

@@ -523,8 +523,8 @@ class RunEngine:
             r.message = f"{r.message}\n{kept} {self.resume_hint()}"
         log.error(r.message, extra={"final": True})
 
-    def resume_command(self) -> str:
-        return f"gonio-capture --config {self.cfg.path} --out {self.out} --resume"
+    def resume_command(self) -> str:  # the arms' driver adds what a resume needs (GRBL in alarm, no switches)
+        return f"gonio-capture --config {self.cfg.path} --out {self.out} --resume" + self.bench.resume_flags()
 
     def resume_hint(self) -> str:
         return f"Resume with: {self.resume_command()}"

@@ -31,7 +31,7 @@ SIMULATOR_MEANINGFUL = ("source_power", "detector_solid_angle_sr", "aperture_sam
                         "shot_noise", "adc_bits", "gain", "backlash_deg", "settle_time_s", "settle_ringing_deg",
                         "input_noise", "input_offset", "electrons_per_count", "frontend")
 SIMULATOR_HARMLESS = ("seed", "time_scale", "stepper_velocity_deg_s", "stepper_acceleration_deg_s2",
-                      "homing_required")
+                      "homing_required", "grbl_build")
 PLAN_MEANINGFUL = ("theta_i_deg", "theta_i_min_deg", "theta_i_max_deg", "theta_i_step_deg", "theta_o_min_deg",
                    "theta_o_max_deg", "theta_o_step_deg", "points", "repeats", "scene", "sample_name")
 PLAN_HARMLESS = ("order", "strict", "dark_at_end")

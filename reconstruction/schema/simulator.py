@@ -153,6 +153,9 @@ class SimulatorSection(msgspec.Struct, kw_only=True, forbid_unknown_fields=True)
     stepper_velocity_deg_s: Annotated[float, _m(1e-3, 1e5, _POS, _within(1e-3, 1e5))] = 60.0
     stepper_acceleration_deg_s2: Annotated[float, _m(1e-3, 1e7, _POS, _within(1e-3, 1e7))] = 240.0
     homing_required: Annotated[bool, Meta(description="the stepper controller refuses MOVE until HOME")] = False
+    grbl_build: Annotated[Literal["gonio", "stock"], Meta(
+        description='the virtual GRBL\'s firmware: "gonio" (firmware/grbl: $H homes X and Y together) or "stock" '
+                    "(GRBL 1.1h's release: $H homes Z first, and this bench has no Z switch: ALARM:9)")] = "gonio"
     faults: FaultsSection = msgspec.field(default_factory=FaultsSection)
     spectrometer: SpectrometerSection = msgspec.field(default_factory=SpectrometerSection)
     misalignment: MisalignmentSection = msgspec.field(default_factory=MisalignmentSection)

@@ -3,7 +3,12 @@ spoken as GRBL documents it (gnea/grbl ``doc/markdown/interface.md``, ``commands
 documentation (none of GRBL's code).
 
 * lines: G-code (``G0``/``G1`` with ``G90``/``G91``/``G53``, ``G4 P``, ``G21``, ``F``), ``$$``, ``$I``, ``$H``
-  (homing onto switches at machine 0, pulled off by ``$27``), ``$X``, ``$N=value``, answered ``ok``/``error:N``;
+  (homing onto switches at machine 0, pulled off by ``$27``), ``$HX``/``$HY``, ``$X``, ``$N=value``, answered
+  ``ok``/``error:N``;
+* the homing cycles of the firmware the bench was flashed with (``[simulator].grbl_build``): "gonio"
+  (``firmware/grbl``: X and Y in one cycle; ``$HX``/``$HY``; 'H' in ``$I``'s options) or "stock" (GRBL 1.1h's
+  release: Z first, then X and Y; the bench has no Z switch, so ``$H`` searches Z for 1.5 x ``$132`` and ends in
+  ``ALARM:9``, reset, the arms unmoved);
 * realtime bytes picked out of the stream: ``?`` (``<Idle|MPos:x,y,z|FS:f,0>``), ``!`` (feed hold:
   ``Hold:1`` while decelerating, ``Hold:0`` once stopped), ``~`` (resume), 0x18 (soft reset: welcome line; in
   motion ``ALARM:3`` and the position lost);
@@ -34,6 +39,11 @@ __all__ = ["VirtualGrbl", "WELCOME", "default_settings"]
 
 WELCOME = "Grbl 1.1h ['$' for help]"
 VERSION = "[VER:1.1h.20190830:gonio-sim]"
+#: ``$I``'s build options and homing cycles (axis indices, one tuple per cycle) of each firmware build
+OPTIONS = {"gonio": "[OPT:VH,15,128]", "stock": "[OPT:V,15,128]"}
+HOMING_CYCLES = {"gonio": ((0, 1),), "stock": ((2,), (0, 1))}
+#: GRBL's homing search: 1.5 x the largest travel ($13x) of the cycle's axes
+SEARCH_SCALAR = 1.5
 LETTERS = ("X", "Y", "Z")
 _WORD = re.compile(r"([A-Z])([-+]?(?:\d+\.?\d*|\.\d+))")
 _SET = re.compile(r"^\$(\d{1,3})=([-+]?(?:\d+\.?\d*|\.\d+))$")
@@ -74,6 +84,7 @@ class VirtualGrbl(Paced):
         self.clock = clock
         self.settings = dict(settings if settings is not None else default_settings(cfg))
         self.names = ("light", "detector")
+        self.build = getattr(cfg.sim, "grbl_build", "gonio")
         self.motors = [AxisMotion(0.0) for _ in self.names]
         homing = bool(self.settings[22])
         # with switches the arms start where they were parked; without, at machine 0 (where GRBL's count starts)
@@ -249,18 +260,22 @@ class VirtualGrbl(Paced):
             return [f"${k}={v:.3f}" if k in (11, 12, 24, 25, 27) or k >= 100 else f"${k}={v:.0f}"
                     for k, v in sorted(self.settings.items())] + ["ok"]
         if text == "$I":
-            return [VERSION, "[OPT:V,15,128]", "ok"]
+            return [VERSION, OPTIONS[self.build], "ok"]
         if text == "$X":
             if self.state == "Alarm":
                 self.state, self.alarm = "Idle", 0
                 return ["[MSG:Caution: Unlocked]", "ok"]
             return ["ok"]
-        if text == "$H":
+        if text.startswith("$H"):
+            axis = {"$H": None, "$HX": 0, "$HY": 1}.get(text, -1)
+            if axis == -1 or (axis is not None and self.build == "stock"):  # single-axis homing: our build only
+                return ["error:3"]
             if not self.settings[22]:
                 return ["error:5"]
             if not idle:
                 return ["error:8"]
-            return self._home()
+            cycles = HOMING_CYCLES[self.build] if axis is None else ((axis,),)
+            return self._home(cycles)
         m = _SET.match(text)
         if m:
             if not idle:
@@ -276,18 +291,26 @@ class VirtualGrbl(Paced):
             return ["ok"]
         return ["error:3"]
 
-    def _home(self) -> list[str]:
-        """Seek the switches at machine 0 at ``$25``, then pull off by ``$27``: MPos = -$27 afterwards."""
-        t = self.clock.now()
-        dist = max(abs(self.motors[i].motor_position(t) + self.slip[i]) / self.settings[100 + i] for i in range(2))
-        self._advance(dist / (self.settings[25] / 60.0) + 2 * self.settings[27] / (self.settings[24] / 60.0))
-        t = self.clock.now() if self.clock.fast else t
-        pull = self.settings[27]
-        for i, m in enumerate(self.motors):
-            m.profile = type(m.profile)(-pull * self.settings[100 + i], -pull * self.settings[100 + i], t)
-            m.stall_time = m.frozen_at = None
-            self.slip[i] = 0.0
-        self.goal_mm = [-pull, -pull]
+    def _home(self, cycles: tuple[tuple[int, ...], ...]) -> list[str]:
+        """GRBL's homing cycles in order: each seeks its axes' switches (machine 0) at ``$25`` together, then
+        pulls off by ``$27`` (MPos = -$27 afterwards). An axis without a switch (Z on this bench) is searched
+        for 1.5 x its ``$13x`` and the cycle ends in ``ALARM:9`` with a reset (GRBL's behaviour)."""
+        seek, locate, pull = self.settings[25] / 60.0, self.settings[24] / 60.0, self.settings[27]
+        for cycle in cycles:
+            t = self.clock.now()
+            if any(i >= 2 for i in cycle):  # no switch: the whole search distance, then the alarm
+                self._advance(SEARCH_SCALAR * max(self.settings[130 + i] for i in cycle) / seek)
+                self.alarm, self.state = 9, "Alarm"
+                return ["ALARM:9", "ok"] + self._soft_reset(self.clock.now())
+            dist = max(abs(self.motors[i].motor_position(t) + self.slip[i]) / self.settings[100 + i] for i in cycle)
+            self._advance(dist / seek + 2 * pull / locate)
+            t = self.clock.now() if self.clock.fast else t
+            for i in cycle:
+                m = self.motors[i]
+                m.profile = type(m.profile)(-pull * self.settings[100 + i], -pull * self.settings[100 + i], t)
+                m.stall_time = m.frozen_at = None
+                self.slip[i] = 0.0
+                self.goal_mm[i] = -pull
         self.state, self.alarm = "Idle", 0
         return ["ok"]
 
