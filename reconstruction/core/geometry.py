@@ -24,6 +24,7 @@ __all__ = [
     "normalize",
     "safe_acos",
     "inplane_to_dirs",
+    "tilted_to_dirs",
     "dirs_to_inplane",
     "half_diff_from_dirs",
     "dirs_from_half_diff",
@@ -114,6 +115,27 @@ def inplane_to_dirs(theta_i: ArrayLike, theta_o: ArrayLike) -> tuple[Array, Arra
     zero = np.zeros_like(ti)
     wi = np.stack([-np.sin(ti), zero, np.cos(ti)], axis=-1)
     wo = np.stack([np.sin(to), zero, np.cos(to)], axis=-1)
+    return wi, wo
+
+
+def tilted_to_dirs(arm_i: ArrayLike, arm_o: ArrayLike, tilt: ArrayLike) -> tuple[Array, Array]:
+    """(wi, wo) unit vectors in the sample's frame for a bench whose arms sit at ``arm_i`` (the light, on the -x
+    side) and ``arm_o`` (the detector, signed as theta_o: + on the specular side) in its plane while the sample is
+    tilted by ``tilt`` about the axis in that plane (radians):
+
+        wi = (-sin a, cos a sin t, cos a cos t),  wo = (sin b, cos b sin t, cos b cos t).
+
+    ``tilt`` = 0 is :func:`inplane_to_dirs`.
+
+    Examples
+    --------
+    >>> wi, wo = tilted_to_dirs(np.radians(40.0), np.radians(40.0), np.radians(30.0))
+    >>> wi.round(4).tolist(), wo.round(4).tolist()
+    ([-0.6428, 0.383, 0.6634], [0.6428, 0.383, 0.6634])
+    """
+    a, b, t = np.broadcast_arrays(*(np.asarray(x, dtype=np.float64) for x in (arm_i, arm_o, tilt)))
+    wi = np.stack([-np.sin(a), np.cos(a) * np.sin(t), np.cos(a) * np.cos(t)], axis=-1)
+    wo = np.stack([np.sin(b), np.cos(b) * np.sin(t), np.cos(b) * np.cos(t)], axis=-1)
     return wi, wo
 
 

@@ -14,7 +14,8 @@ Two kinds of file are accepted (told apart by the first line):
   - the measured (outgoing) angle, signed, positive on the specular side (degrees): ``theta_o_deg``,
     ``theta_o``, ``outgoing_deg`` or ``outgoing``;
   - the values: ``value`` (one channel), ``R,G,B``, or one column per wavelength (``450nm``, ``450 nm``,
-    ``450.5nm``); optionally ``<name>_std`` per value column, ``repeats`` and ``unix_time_s``.
+    ``450.5nm``); optionally ``<name>_std`` per value column, ``repeats`` and ``unix_time_s``; ``tilt_deg`` or
+    ``phi_i_deg, phi_o_deg`` for rows out of the plane (:mod:`reconstruction.formats.directions`).
 
   Other names are mapped with ``columns={"theta_i": NAME, "theta_o": NAME, "value": NAME}`` (the CLI's
   ``--columns theta_i=NAME,theta_o=NAME``); any column left unknown is an error. Generic tables do not say what
@@ -44,6 +45,14 @@ from numpy.typing import NDArray
 from reconstruction.base import ReconstructionError
 from reconstruction.core.samples import thin_samples
 from reconstruction.formats.angleunits import to_degrees
+from reconstruction.formats.directions import (
+    RowsWithDirections,
+    as_points,
+    role_of,
+    row_keys,
+    same_rows,
+    with_directions,
+)
 from reconstruction.formats.merl import MAX_CELL_VALUE
 from reconstruction.formats.slicefile import (
     MAGIC,
@@ -83,7 +92,7 @@ MIN_SAMPLES = 3  # fewer samples cannot define any reconstruction
 
 THETA_I_NAMES = ("theta_i_deg", "theta_i", "incidence_deg", "incidence")
 THETA_O_NAMES = ("theta_o_deg", "theta_o", "outgoing_deg", "outgoing")
-COLUMN_KEYS = ("theta_i", "theta_o", "value", "R", "G", "B")
+COLUMN_KEYS = ("theta_i", "theta_o", "value", "R", "G", "B", "tilt", "phi_i", "phi_o")
 _WAVELENGTH = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*nm\s*$", re.IGNORECASE)
 
 
@@ -236,7 +245,8 @@ def read_table(path: str | Path, *, quantity: str | None, columns: Mapping[str, 
             r = int(np.argmax(out))
             raise InputError(f"{path}:{line_of[r]}, column {shorten(names_by_role[name])}: {arr[r]} is outside "
                              f"(-90, 90) degrees")
-    _check_duplicates(path, ti, to, lines_arr, shorten(names_by_role["theta_o"]))
+    dirs = {r: data[:, k] for k, r in role.items() if r in ("tilt", "phi_i", "phi_o")}  # rows out of the plane
+    _check_duplicates(path, ti, to, lines_arr, shorten(names_by_role["theta_o"]), *dirs.values())
     values = data[:, value_cols]
     std = np.zeros_like(values)
     for c, k in std_cols.items():
@@ -256,7 +266,10 @@ def read_table(path: str | Path, *, quantity: str | None, columns: Mapping[str, 
     s = Slice(ti, to, values, channels, std, repeats, times,
               meta={"quantity": quantity, "source_kind": "generic table"},
               source=str(path))
-    return s
+    try:
+        return with_directions(s, dirs, str(path), lines_arr)  # s itself without direction columns
+    except SliceError as e:
+        raise InputError(str(e)) from None
 
 
 def _header_roles(path: Path, lines: list[str], columns: dict[str, str]
@@ -303,8 +316,8 @@ def _header_roles(path: Path, lines: list[str], columns: dict[str, str]
         is_std = low.endswith("_std")
         base = name[:-4] if is_std else name
         canon = renamed.get(base.lower()) or _canonical_value_name(base)
-        if low in ("repeats", "unix_time_s"):
-            role[k] = low
+        if low in ("repeats", "unix_time_s") or role_of(low):
+            role[k] = role_of(low) or low
         elif canon is not None and is_std:
             role[k] = canon + "_std"
         elif canon is not None:
@@ -369,13 +382,14 @@ def _read_rows(path: Path, lines: list[str], h: int, header: list[str], delim: s
     return data, line_of
 
 
-def _check_duplicates(path: Path, ti: Array, to: Array, line_of: NDArray[np.int_], to_name: str) -> None:
-    """Rows in any order (a capture's own order included), but no (theta_i, theta_o) twice: the later row of a
-    repeated pair is named with the line of the earlier (vectorised: one sort)."""
+def _check_duplicates(path: Path, ti: Array, to: Array, line_of: NDArray[np.int_], to_name: str, *more: Array
+                      ) -> None:
+    """Rows in any order (a capture's own order included), but no (theta_i, theta_o) twice (with the same
+    direction columns ``more``): the later row is named with the line of the earlier (vectorised: one sort)."""
     if ti.size < 2:
         return
-    order = np.lexsort((line_of, to, ti))  # by incidence, angle, then file order
-    same = (ti[order][1:] == ti[order][:-1]) & (to[order][1:] == to[order][:-1])
+    order = np.lexsort((line_of, *more, to, ti))  # by incidence, angle, then file order
+    same = np.all([a[order][1:] == a[order][:-1] for a in (ti, to, *more)], axis=0)
     if not same.any():
         return
     k = np.nonzero(same)[0]
@@ -473,7 +487,7 @@ def _merge(slices: Sequence[Slice]) -> Slice:
                    cat([s.repeats for s in slices]), cat([s.unix_time_s for s in slices]),  # type: ignore[misc]
                    meta={"quantity": "brdf", **({"instrument": inst} if inst is not None else {})},
                    source=", ".join(s.source for s in slices))
-    key = np.stack([merged.theta_i_deg, merged.theta_o_deg], axis=1)
+    key = np.concatenate([row_keys(s) for s in slices])  # (theta_i, theta_o) and the directions
     _, first_idx, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
     dup = np.nonzero(np.arange(len(merged)) != first_idx[inverse.reshape(-1)])[0]
     if dup.size:
@@ -537,14 +551,21 @@ def load_inputs(paths: Sequence[str | Path], *, quantity: str | None = None,
             f, sd = s.brdf()
         _check_bounds(s, f, sd)
         inst = s.meta.get("instrument")  # how the samples were taken (docs/slice-format.md): kept for the methods
-        one, thinned = thin_samples(Slice(  # every row checked above; a file of millions of rows thinned here
-            s.theta_i_deg, s.theta_o_deg, f, list(s.channels), sd, s.repeats, s.unix_time_s,
-            meta={"quantity": "brdf", **({"instrument": inst} if inst is not None else {})}, source=s.source))
-        notes += [thinned] if thinned else []
+        one = same_rows(s, Slice(s.theta_i_deg, s.theta_o_deg, f, list(s.channels), sd, s.repeats, s.unix_time_s,
+                                 meta={"quantity": "brdf", **({"instrument": inst} if inst is not None else {})},
+                                 source=s.source))
+        if not isinstance(one, RowsWithDirections):  # in the plane: a file of millions of rows thinned here (every
+            one, thinned = thin_samples(one)  # row checked above); rows with directions are kept whole (points)
+            notes += [thinned] if thinned else []
         out.append(one)
         del s, f, sd
-    merged, thinned = thin_samples(_merge(out))  # several such files
-    notes += [thinned] if thinned else []
+    try:  # rows out of the plane of incidence (a tilt or azimuth columns): points, as a Zemax file's
+        merged = as_points(_merge(out), out)
+    except SliceError as e:
+        raise InputError(str(e)) from None
+    if not any(isinstance(p, RowsWithDirections) for p in out):
+        merged, thinned = thin_samples(merged)  # several such files
+        notes += [thinned] if thinned else []
     check_slice(merged)
     return LoadedInput(merged, [str(p) for p in paths], quantities, dropped, notes, capture)
 

@@ -344,13 +344,13 @@ def _parse_chunk(rows: list[str], first_line: int, path: Path, header: list[str]
 
 
 def _first_duplicate(key: NDArray[np.float64]) -> tuple[int, int] | None:
-    """(row, row of its first occurrence) of the first (theta_i, theta_o) pair given twice, else None; a stable
-    sort (three arrays of the rows' length, not ``np.unique``'s copies of the pairs)."""
+    """(row, row of its first occurrence) of the first key (theta_i, theta_o[, tilt]: the columns of ``key``, (N, k))
+    given twice, else None; a stable sort (a few arrays of the rows' length, not ``np.unique``'s copies)."""
     if len(key) < 2:
         return None
-    order = np.lexsort((key[:, 1], key[:, 0]))  # stable: equal pairs in file order
+    order = np.lexsort(key.T[::-1])  # stable: equal keys in file order
     same = np.zeros(len(order), dtype=bool)
-    same[1:] = (key[order[1:], 0] == key[order[:-1], 0]) & (key[order[1:], 1] == key[order[:-1], 1])
+    same[1:] = np.all(key[order[1:]] == key[order[:-1]], axis=1)
     if not same.any():
         return None
     start = np.maximum.accumulate(np.where(same, 0, np.arange(len(order))))  # each run's first position
@@ -414,7 +414,7 @@ def read_slice(path: str | Path) -> Slice:
     for required in ("theta_i_deg", "theta_o_deg", "repeats", "unix_time_s"):
         if required not in header:
             raise SliceError(f"{path}:{header_line}: missing column {required!r}")
-    channels = [c for c in header if c not in ("theta_i_deg", "theta_o_deg", "repeats", "unix_time_s")
+    channels = [c for c in header if c not in ("theta_i_deg", "theta_o_deg", "repeats", "unix_time_s", "tilt_deg")
                 and not c.endswith("_std")]
     try:
         channel_kind(channels)
@@ -442,13 +442,17 @@ def read_slice(path: str | Path) -> Slice:
         r += len(rows)
         pos = stop + 1
     del text
-    key = data[:, [col["theta_i_deg"], col["theta_o_deg"]]]
+    key = data[:, [col[c] for c in ("theta_i_deg", "theta_o_deg", "tilt_deg") if c in col]]
     dup = _first_duplicate(key)
     if dup is not None:
         raise SliceError(f"{path}:{lineno + 2 + dup[0]}: duplicate sample theta_i_deg = {key[dup[0], 0]}, "
-                         f"theta_o_deg = {key[dup[0], 1]} (first at line {lineno + 2 + dup[1]})")
+                         f"theta_o_deg = {key[dup[0], 1]}" + (f", tilt_deg = {key[dup[0], 2]}" if key.shape[1] > 2
+                                                              else "")
+                         + f" (first at line {lineno + 2 + dup[1]})")
     del key
-    return Slice(
+    from reconstruction.formats.directions import with_directions  # the optional tilt column: rows out of the plane
+
+    return with_directions(Slice(
         theta_i_deg=data[:, col["theta_i_deg"]],
         theta_o_deg=data[:, col["theta_o_deg"]],
         values=_columns_of(data, [col[c] for c in channels]),
@@ -458,4 +462,4 @@ def read_slice(path: str | Path) -> Slice:
         unix_time_s=data[:, col["unix_time_s"]],
         meta=meta,
         source=str(path),
-    )
+    ), {"tilt": data[:, col["tilt_deg"]]} if "tilt_deg" in col else {}, str(path), lineno + 2 + np.arange(n_rows))
