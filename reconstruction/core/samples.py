@@ -21,7 +21,8 @@ from reconstruction.core.slicedata import Slice
 Array = NDArray[np.float64]
 
 __all__ = ["DirectionalSlice", "SliceWithPoints", "sample_directions", "everywhere", "directional_slice",
-           "out_of_plane", "points_anywhere", "PointFolds", "samples_used", "thin_samples", "MAX_SAMPLES", "at_samples"]
+           "out_of_plane", "points_anywhere", "scans_hemisphere", "PointFolds", "samples_used", "thin_samples",
+           "MAX_SAMPLES", "at_samples"]
 
 
 @dataclass
@@ -118,6 +119,19 @@ def sample_directions(s: Slice) -> tuple[Array, Array]:
 def out_of_plane(p: DirectionalSlice) -> NDArray[np.bool_]:
     """(N,) True where wo does not lie in the plane of wi and the normal."""
     return np.abs(p.wi[:, 0] * p.wo[:, 1] - p.wi[:, 1] * p.wo[:, 0]) > 1e-9
+
+
+def scans_hemisphere(p: DirectionalSlice, tol: float = 1e-6) -> bool:
+    """True when the outgoing directions of some light direction of ``p`` span the hemisphere in two angles (a
+    Zemax or RGL file's scan), False when those of every light direction lie on one great circle: sweeps of a
+    bench's detector arm, with the sample tilted or not (the smallest eigenvalue of sum(wo wo^T) per light
+    direction, relative to its trace, at most ``tol``)."""
+    _, group = np.unique(np.round(p.wi, 6), axis=0, return_inverse=True)
+    group = group.reshape(-1)
+    scatter = np.zeros((int(group.max()) + 1 if group.size else 0, 3, 3))
+    np.add.at(scatter, group, p.wo[:, :, None] * p.wo[:, None, :])
+    ev = np.linalg.eigvalsh(scatter)  # ascending, per light direction
+    return bool(np.any(ev[:, 0] > tol * np.maximum(ev.sum(axis=1), 1e-300)))
 
 
 def points_anywhere(s: Slice) -> DirectionalSlice | None:

@@ -195,11 +195,13 @@ def _revolve(s: Slice, o: Options, progress: Callable[[str], None] | None) -> Re
 
 
 def _bivariate(s: Slice, o: Options, progress: Callable[[str], None] | None) -> Reconstruction:
-    from reconstruction.core.samples import everywhere, points_anywhere
+    from reconstruction.core.samples import everywhere, points_anywhere, scans_hemisphere
     from reconstruction.methods.bivariate import reconstruct_bivariate
 
     opt = BivariateOptions(fill=o.fill, cos_power=o.cos_power)  # type: ignore[arg-type]
-    if points_anywhere(s) is not None:  # samples anywhere: placed by (theta_h, theta_d, phi_d) on a grid
+    pts = points_anywhere(s)  # a scanned hemisphere: every point placed by (theta_h, theta_d, phi_d) on a grid; a
+    if pts is not None and scans_hemisphere(pts):  # bench's sweeps out of the plane: the in-plane lines (the grid
+        # fills what a few great circles leave by smoothing: worse than the lines, docs/real-materials.md)
         from reconstruction.methods.scattered import reconstruct_scattered
 
         pts = everywhere(s)

@@ -46,7 +46,7 @@ from numpy.typing import NDArray
 
 from reconstruction.base import Reconstruction, ReconstructionError
 from reconstruction.core.checks import ALBEDO_INCIDENCES_DEG, ALBEDO_TOLERANCE, checked_albedo
-from reconstruction.core.samples import PointFolds, everywhere, points_anywhere
+from reconstruction.core.samples import PointFolds, everywhere, points_anywhere, scans_hemisphere
 from reconstruction.executor import Background as _Background
 from reconstruction.executor import forked, release_spare_core
 from reconstruction.formats.slicefile import Slice
@@ -60,6 +60,7 @@ from reconstruction.methods.crossval import (
     noise_level,
     scene_mask,
     score_predictions,
+    sweep_folds,
 )
 
 __all__ = ["reconstruct_auto", "max_albedo", "thin_for_cv", "preference", "at_noise_level", "rank", "import_methods",
@@ -223,7 +224,9 @@ def _reconstruct_auto(s: Slice, opts: Options,
     # hemispherical file) are cross-validated as points: whole incidences held out, every method (revolve on the
     # in-plane points of the training incidences) predicting every held-out point
     s = PointFolds.of(everywhere(full, CV_MAX_POINTS)) if pts is not None else thin_for_cv(full)
-    scheme, masks = folds(s)
+    hemisphere = pts is not None and scans_hemisphere(pts)
+    # a bench's sweeps out of the plane (a tilted sample): the in-plane folds as without them, then each such sweep
+    scheme, masks = sweep_folds(s) if pts is not None and not hemisphere else folds(s)  # type: ignore[arg-type]
     if pts is not None:
         scheme += f" over points anywhere ({len(s)} of the {len(pts)} points)"
     inside = scene_mask(s, opts.scene)
@@ -233,7 +236,9 @@ def _reconstruct_auto(s: Slice, opts: Options,
     scores += _anchored_scores(s, scores, masks, inside)
     single = np.unique(s.theta_i_deg).size == 1
     fit_error = min((c.error for c in scores if c.method == "fit"), default=math.inf)
-    preferred, margin = preference(names, single, _finite_aperture(s), pts is not None, fit_error)
+    # bivariate's grid is preferred for scans of whole hemispheres, not for a bench's sweeps out of the plane (a
+    # tilted sample): from a few great circles its grid fills the rest by smoothing (docs/real-materials.md)
+    preferred, margin = preference(names, single, _finite_aperture(s), hemisphere, fit_error)
     noise = noise_level(s, inside)
     ranked = rank(scores, preferred, margin, noise)
     at_noise = at_noise_level(scores, preferred, noise)

@@ -47,13 +47,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from reconstruction.base import Reconstruction, ReconstructionError
 from reconstruction.core.metrics import IMAGE_GAMMA, tone_map
-from reconstruction.core.samples import sample_directions
+from reconstruction.core.samples import DirectionalSlice, out_of_plane, sample_directions
 from reconstruction.formats.slicefile import Slice
 
 Array = NDArray[np.float64]
 
-__all__ = ["folds", "cross_validate", "score_predictions", "CVScore", "N_BLOCKS", "budget_check", "SceneBudgetWarning",
-           "IMAGE_EXPOSURE_QUANTILE", "IMAGE_GAMMA", "image_values"]
+__all__ = ["folds", "sweep_folds", "cross_validate", "score_predictions", "CVScore", "N_BLOCKS", "budget_check",
+           "SceneBudgetWarning", "IMAGE_EXPOSURE_QUANTILE", "IMAGE_GAMMA", "image_values"]
 
 N_BLOCKS = 8
 #: The held-out image error's exposure: this quantile of the samples' radiance f cos(theta_i) (pooled over channels)
@@ -87,6 +87,33 @@ def folds(s: Slice, n_blocks: int = N_BLOCKS) -> tuple[str, list[NDArray[np.bool
     fwd = "the forward side beyond the peak and " if forward.sum() >= 2 else ""
     return (f"{len(masks)} held-out contiguous blocks of theta_o ({fwd}{k} on the other side; the mirror direction "
             f"+- {2 * step:g} deg always kept)"), masks
+
+
+def sweep_folds(p: DirectionalSlice) -> tuple[str, list[NDArray[np.bool_]]]:
+    """(scheme, held-out masks) for a bench's sweeps in the plane of incidence and out of it (a tilted sample; not
+    a scanned hemisphere): the in-plane samples' folds as :func:`folds` makes them without the others (each trained
+    on every other sample, the sweeps out of the plane included), then each sweep out of the plane (one light
+    direction) held out whole. A capture and its superset so share the subset's folds, and a method is judged on
+    the new sweeps beside them (every method predicts them: in-plane methods from the in-plane rows)."""
+    inplane = ~out_of_plane(p)
+    masks: list[NDArray[np.bool_]] = []
+    scheme = "no in-plane samples"
+    where = np.nonzero(inplane)[0]
+    if where.size:
+        scheme, sub = folds(Slice.take(p, where))  # the in-plane angles of the points (as a slice gives them)
+        for m in sub:  # a handful
+            full = np.zeros(len(p), dtype=bool)
+            full[where[m]] = True
+            masks.append(full)
+    out = np.nonzero(~inplane)[0]
+    _, group = np.unique(np.round(p.wi[out], 6), axis=0, return_inverse=True)
+    group = group.reshape(-1)
+    n_out = int(group.max()) + 1 if out.size else 0
+    for k in range(n_out):  # one per sweep out of the plane
+        m = np.zeros(len(p), dtype=bool)
+        m[out[group == k]] = True
+        masks.append(m)
+    return f"{scheme}; and each of the {n_out} sweep(s) out of the plane of incidence held out whole", masks
 
 
 @dataclass
