@@ -70,7 +70,9 @@ def test_auto_on_300k_rows_stays_below_1_5_gb(slice_300k, tmp_path):
     m = re.search(r"big\.csv: ([0-9,]+) samples; the reconstruction uses ([0-9,]+) of them", note)
     assert m and int(m.group(1).replace(",", "")) > 290_000, note  # every row read; the thinning said
     assert rep["coverage"]["samples"] <= 100_000
-    assert peak_kb < 1_000_000, peak_kb  # resident: well inside the limit
+    # resident: inside the 1.5 GB (0.6-0.9 GB on an idle machine; about 1.15 GB where auto, finding no spare
+    # core on a busy one, runs its methods in this process instead of a forked one)
+    assert peak_kb < 1_400_000, peak_kb
 
 
 @pytest.mark.slow

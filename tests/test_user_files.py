@@ -85,7 +85,9 @@ def test_every_reader_refuses_a_directory_a_pipe_and_a_missing_file_through_the_
 
 def test_no_reader_checks_a_files_type_by_itself():
     """The file-type checks (stat.S_ISREG / S_ISDIR) live in reconstruction/schema/files.py only: a new reader
-    uses check_user_file / read_user_text instead of writing them a ninth time."""
+    uses check_user_file / read_user_text instead of writing them a ninth time. The live view's server is the one
+    other place, and not a reader of a user's file: it serves the files its own capture writes, opened without
+    following links (O_NOFOLLOW) and refused when hard-linked or owned by another user (issue 49)."""
     found = sorted(str(p.relative_to(REPO)) for pkg in ("acquisition", "reconstruction", "simulator")
                    for p in (REPO / pkg).rglob("*.py") if re.search(r"S_ISREG|S_ISDIR", p.read_text(encoding="utf-8")))
-    assert found == ["reconstruction/schema/files.py"]
+    assert found == ["acquisition/live/server.py", "reconstruction/schema/files.py"]
