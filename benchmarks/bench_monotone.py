@@ -107,23 +107,13 @@ def run_material(job: dict[str, Any]) -> list[dict[str, Any]]:
     warnings.simplefilter("ignore")
     from threadpoolctl import threadpool_limits
 
-    from reconstruction.core.models import Material
     from reconstruction.formats import merl
     from reconstruction.report import compare as cmp
 
     name, folder, size = job["name"], job["folder"], job["size"]
     out = []
     with threadpool_limits(1), np.errstate(all="ignore"):
-        mat = Material.from_dict({"name": name, "lobes": [{"type": "nbrdf", "path": str(Path(folder) / name)}]})
-        cached = Path(job["cache"]) / f"{name}.npy" if job["cache"] else None
-        if cached is not None and cached.is_file():
-            truth = np.load(cached).astype(np.float64)
-        else:
-            truth = merl.tabulate(mat.eval)
-            if cached is not None:
-                cached.parent.mkdir(parents=True, exist_ok=True)
-                np.save(cached, truth.astype(np.float32))
-        truth = BR._as_read(truth)
+        mat, truth = BR.material_truth(name, folder, job["cache"])
         ref_images = cmp.render_images(cmp.Brdf(name, "merl", merl.brdf_of(truth), truth), size)
         for spec in job["captures"]:
             s = capture_slice(mat, spec)

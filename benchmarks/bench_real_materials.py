@@ -116,6 +116,21 @@ def _as_read(table: np.ndarray) -> np.ndarray:
     return np.where(merl.valid_mask()[None], table, np.nan)
 
 
+def material_truth(name: str, folder: str | Path, cache: str | Path | None) -> tuple[Any, np.ndarray]:
+    """(the material ``name`` of ``folder`` as a model, its MERL table as the truth's is read: :func:`_as_read`),
+    the table tabulated once and kept as float32 in ``cache`` (a folder; None: not kept)."""
+    mat = Material.from_dict({"name": name, "lobes": [{"type": "nbrdf", "path": str(Path(folder) / name)}]})
+    cached = Path(cache) / f"{name}.npy" if cache else None
+    if cached is not None and cached.is_file():
+        truth = np.load(cached).astype(np.float64)
+    else:
+        truth = merl.tabulate(mat.eval)
+        if cached is not None:
+            cached.parent.mkdir(parents=True, exist_ok=True)
+            np.save(cached, truth.astype(np.float32))
+    return mat, _as_read(truth)
+
+
 def _reconstruct(method: str, s: Slice, prior: str | None, name: str, shared: dict[str, Any] | None = None
                  ) -> tuple[np.ndarray, dict[str, Any]]:
     """(table, facts) of one method on the slices ``s``; ``prior`` leaves ``name`` out. ``shared``: a dict kept
@@ -187,17 +202,8 @@ def run_material(job: dict[str, Any]) -> dict[str, Any]:
     name, folder, size = job["name"], job["folder"], job["size"]
     db = database_of(folder, name)
     with threadpool_limits(1), np.errstate(all="ignore"):
-        mat = Material.from_dict({"name": name, "lobes": [{"type": "nbrdf", "path": str(Path(folder) / name)}]})
         cache = Path(job["cache"]) if job["cache"] else None
-        cached = cache / f"{name}.npy" if cache else None
-        if cached is not None and cached.is_file():
-            truth = np.load(cached).astype(np.float64)
-        else:
-            truth = merl.tabulate(mat.eval)
-            if cached is not None:
-                cached.parent.mkdir(parents=True, exist_ok=True)
-                np.save(cached, truth.astype(np.float32))
-        truth = _as_read(truth)
+        mat, truth = material_truth(name, folder, cache)
         tb = cmp.Brdf(name, "merl", merl.brdf_of(truth), truth)
         ref = cmp.reference(tb, size)
         floor_file = cache / f"{name}.floor-{size}.json" if cache else None
