@@ -9,7 +9,8 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 
-DETECTOR = {"A0", "D7", "D8", "D9", "D10", "D6", "5V", "GND", "OUT", "S0 (pin 11)", "S1 (pin 10)", "S2 (pin 9)",
+DETECTOR = {"A0", "A1", "MONITOR OUT", "monitor (MONITOR=1)", "D7", "D8", "D9", "D10", "D6", "5V", "GND", "OUT",
+            "S0 (pin 11)", "S1 (pin 10)", "S2 (pin 9)",
             "BPW34, shielded cable", "monitor BPW34", "DIM", "VIN", "G: 100 R; 100 k to GND",
             "coil: 1N4007 across it, cathode to +12 V", "D7 high = light on", "D6 high = reference in"}
 WANT = {

@@ -48,10 +48,11 @@ def detector_side(d, elm, x0: float, y0: float) -> dict:
     """The detector board, its front-end, the source and the sample changer, placed from (x0, y0)."""
     uno = _box(d, elm, (x0, y0), "detector board: Arduino Uno R3 (firmware/detector)", (6, 4),
                [("usb", "USB", "L"), ("a0", "A0", "R"), ("d8", "D8", "R"), ("d9", "D9", "R"), ("d10", "D10", "R"),
-                ("v5", "5V", "T"), ("gnd", "GND", "T"), ("d7", "D7", "B"), ("d6", "D6", "B")])
+                ("a1", "A1", "R"), ("v5", "5V", "T"), ("gnd", "GND", "T"), ("d7", "D7", "B"), ("d6", "D6", "B")])
     amp = _box(d, elm, (x0 + 11, y0), "front-end (see The amplifier); 74HC4051 E pin 6, VEE pin 7 to GND", (8, 4),
                [("out", "OUT", "L"), ("sa", "S0 (pin 11)", "L"), ("sb", "S1 (pin 10)", "L"), ("sc", "S2 (pin 9)", "L"),
-                ("pd", "BPW34, shielded cable", "R"), ("mon", "monitor BPW34", "R"), ("v5", "5V", "T"),
+                ("mout", "MONITOR OUT", "L"), ("pd", "BPW34, shielded cable", "R"), ("mon", "monitor BPW34", "R"),
+                ("v5", "5V", "T"),
                 ("gnd", "GND", "T")])
     fet = _box(d, elm, (x0 + 11, y0 - 5.5), "source MOSFET IRLZ44N", (6, 2),
                [("g", "G: 100 R; 100 k to GND", "L"), ("dr", "D", "R"), ("s", "S to GND", "B")])
@@ -64,6 +65,7 @@ def detector_side(d, elm, x0: float, y0: float) -> dict:
     _wire(d, elm, uno.a0, amp.out, SIGNAL, "0-5 V")
     for pin, mux in (("d8", "sa"), ("d9", "sb"), ("d10", "sc")):
         _wire(d, elm, getattr(uno, pin), getattr(amp, mux), SIGNAL)
+    _wire(d, elm, uno.a1, amp.mout, SIGNAL, "monitor (MONITOR=1)")
     _wire(d, elm, uno.d7, fet.g, SIGNAL, "D7 high = light on", "|-")
     _wire(d, elm, uno.d6, sol.g, SIGNAL, "D6 high = reference in", "|-")
     _wire(d, elm, fet.dr, led.dim, SIGNAL, "", "-|")
