@@ -37,7 +37,7 @@ Array = NDArray[np.float64]
 __all__ = ["METHODS", "Options", "reconstruct", "tabulate", "Job", "Progress", "run", "ImplausibleError",
            "check_output", "implausible_message"]
 
-METHODS = ("auto", *REGISTRY)
+METHODS = ("auto", *REGISTRY)  # the methods registered when the pipeline was imported (the command line asks anew)
 def reconstruct(s: Slice, method: str = "auto", opts: Options | None = None,
                 progress: Callable[[str], None] | None = None) -> tuple[Reconstruction, dict[str, Any]]:
     """Reconstruct ``s`` (f_r, grey or RGB) with ``method`` (``auto`` or a registered name); returns
@@ -245,8 +245,7 @@ def _reconstruct_step(job: Job, steps: _Steps, working: Slice, scene: Any, helpe
         if unknown:
             raise ReconstructionError(f"--lobes: unknown kind(s) {unknown}; expected {', '.join(LOBE_KINDS)}")
     t0 = steps.begin("reconstructing")
-    opts = Options(scene=scene, fill=job.fill, lobes=lobes, revolve_axis=job.axis, revolve_smoothing=job.smoothing,
-                   prior=job.prior, prior_anchor=job.prior_anchor, prior_near=job.prior_near)
+    opts = Options(scene=scene, **{**job.method_options(), "lobes": lobes})
     early = None
     # auto cross-validates the methods that do not wait for fit beside it (in its forked child, or a thread of its
     # own): the posterior below waits until that is done (a third busy worker on two cores would slow fit, the
