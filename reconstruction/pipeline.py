@@ -37,7 +37,7 @@ Array = NDArray[np.float64]
 __all__ = ["METHODS", "Options", "reconstruct", "tabulate", "Job", "Progress", "run", "ImplausibleError",
            "check_output", "implausible_message"]
 
-METHODS = ("auto", *REGISTRY)  # the methods registered when the pipeline was imported (the command line asks anew)
+METHODS = ("auto", *REGISTRY)
 def reconstruct(s: Slice, method: str = "auto", opts: Options | None = None,
                 progress: Callable[[str], None] | None = None) -> tuple[Reconstruction, dict[str, Any]]:
     """Reconstruct ``s`` (f_r, grey or RGB) with ``method`` (``auto`` or a registered name); returns

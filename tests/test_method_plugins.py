@@ -60,7 +60,8 @@ def reconstruct_toy(s: Slice, opts: ToyOptions, ctx: Context) -> ToyReconstructi
 
 @pytest.fixture
 def toy():
-    method = methods.register(methods.Method("toy", "a lambert level times a gain", reconstruct_toy, ToyOptions))
+    method = methods.register(methods.Method("toy", "a lambert level times a gain", reconstruct=reconstruct_toy,
+                                             options=ToyOptions))
     yield method
     methods.REGISTRY.pop("toy")
 
@@ -129,7 +130,7 @@ def test_an_option_two_methods_declare_differently_is_refused(toy):
 
     with pytest.raises(ValueError, match=r"method clash: option fill \(--fill\) is declared differently by method "
                                          r"revolve"):
-        methods.register(methods.Method("clash", "clashes", reconstruct_toy, Clash))
+        methods.register(methods.Method("clash", "clashes", reconstruct=reconstruct_toy, options=Clash))
     assert "clash" not in methods.REGISTRY
 
 

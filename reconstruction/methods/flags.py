@@ -52,6 +52,10 @@ def add_arguments(ap: argparse.ArgumentParser | argparse._ArgumentGroup) -> None
     """Add a flag for every registered option that declares one."""
     for spec in flag_specs():
         kw: dict[str, Any] = {"help": spec.help.replace("%", "%%"), "dest": spec.dest}
+        assert spec.flag is not None
+        if spec.kind == "switch":
+            ap.add_argument(spec.flag, action="store_true", **kw)
+            continue
         if spec.metavar:
             kw["metavar"] = spec.metavar
         if spec.kind in ("number", "integer"):
@@ -63,7 +67,6 @@ def add_arguments(ap: argparse.ArgumentParser | argparse._ArgumentGroup) -> None
         if spec.repeat:
             kw["action"] = "append"
         kw["default"] = None if spec.repeat or spec.kind == "list" else spec.default
-        assert spec.flag is not None
         ap.add_argument(spec.flag, **kw)
 
 

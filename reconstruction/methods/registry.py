@@ -1,7 +1,7 @@
 """What a reconstruction method is and where it is registered: one options struct per method, declared once.
 
 A method is a :class:`Method`: a name, a one-line summary, a ``reconstruct(slice, options, context)`` function
-and its options, one :mod:`msgspec` struct whose fields carry their types, defaults, bounds (``Meta(ge=...,
+and its ``options``, one :mod:`msgspec` struct whose fields carry their types, defaults, bounds (``Meta(ge=...,
 le=...)``) and descriptions. Everything else is made from that declaration (:class:`OptionSpec`):
 
 * the common :class:`Options` a run carries (one attribute per option, ``<method>_<field>`` unless the field
@@ -75,7 +75,7 @@ class OptionSpec:
     flag: str | None  # gonio-reconstruct's flag, or None
     help: str
     default: Any
-    kind: str  # "number", "integer", "choice", "text" or "list"
+    kind: str  # "number", "integer", "choice", "text", "list" or "switch" (a bool: the flag sets it)
     choices: tuple[Any, ...] | None = None
     bounds: tuple[tuple[str, float], ...] = ()  # (("ge", 0.0), ("le", 1.0)): msgspec's names
     metavar: str | None = None
@@ -134,6 +134,8 @@ def _unwrap(hint: Any) -> tuple[Any, list[Meta], bool]:
 
 def _kind(method: str, key: str, hint: Any, flag: str | None) -> tuple[str, tuple[Any, ...] | None]:
     origin = typing.get_origin(hint)
+    if hint is bool:
+        return "switch", None
     if hint is float:
         return "number", None
     if hint is int:
@@ -148,7 +150,7 @@ def _kind(method: str, key: str, hint: Any, flag: str | None) -> tuple[str, tupl
     if not flag:
         return "other", None
     raise TypeError(f"method {method}: option {key}: a {hint!r} has no command-line form; declare it with "
-                    "flag=None or as a number, text, a Literal or a list")
+                    "flag=None or as a number, text, a Literal, a list or a bool")
 
 
 @functools.cache
@@ -172,6 +174,8 @@ def struct_specs(method: str, options: type[msgspec.Struct]) -> tuple[OptionSpec
             bounds += [(b, getattr(m, b)) for b in ("ge", "gt", "le", "lt") if getattr(m, b) is not None]
         flag = extra.get("flag", f"--{method}-{key}".replace("_", "-"))
         kind, choices = _kind(method, key, hint, flag)
+        if kind == "switch" and defaults[key] is not False:
+            raise TypeError(f"method {method}: option {key}: a flag sets a bool option, so its default must be False")
         out.append(OptionSpec(method, key, extra.get("attr", f"{method}_{key}"), flag, help_, defaults[key], kind,
                               choices, tuple(bounds), extra.get("metavar"), extra.get("expected"),
                               bool(extra.get("repeat")), optional))
@@ -194,24 +198,27 @@ class Method:
     """One reconstruction method: ``reconstruct(slice, options, context)`` -> Reconstruction, where ``options``
     is an instance of the struct ``options`` (validated) and ``context`` a :class:`Context`.
 
-    ``available``: None (always usable) or whether ``auto`` may try it with the run's :class:`Options` (``prior``
-    needs a folder); ``modules``: the modules ``reconstruct`` imports (scipy's among them), which a run that
-    builds it may import ahead (:func:`reconstruction.methods.auto.import_methods`, while its forked child works).
     ``build(slice, opts, progress)`` is what the pipeline and ``auto`` call: by default ``reconstruct`` with this
-    method's options taken from the run's :class:`Options` (a test may replace it).
+    method's options taken from the run's :class:`Options` (a test may give its own ``build`` instead of
+    ``reconstruct``). ``available``: None (always usable) or whether ``auto`` may try it with the run's
+    :class:`Options` (``prior`` needs a folder); ``modules``: the modules ``reconstruct`` imports (scipy's among
+    them), which a run that builds it may import ahead (:func:`reconstruction.methods.auto.import_methods`, while
+    its forked child works).
     """
 
     name: str
     summary: str
-    reconstruct: Callable[[Slice, Any, Context], Reconstruction]
+    build: Callable[[Slice, Options | None, Callable[[str], None] | None], Reconstruction] = field(
+        default=None, compare=False, repr=False)  # type: ignore[assignment]
     options: type[msgspec.Struct] = NoOptions
     available: Callable[[Options], bool] | None = None
     modules: tuple[str, ...] = ()
-    build: Callable[[Slice, Options | None, Callable[[str], None] | None], Reconstruction] = field(
-        default=None, compare=False, repr=False)  # type: ignore[assignment]
+    reconstruct: Callable[[Slice, Any, Context], Reconstruction] | None = None
 
     def __post_init__(self) -> None:
         if self.build is None or getattr(self.build, "__func__", None) is Method._build:  # (also after replace())
+            if self.reconstruct is None:
+                raise ValueError(f"method {self.name}: give its reconstruct function")
             object.__setattr__(self, "build", self._build)
 
     @property
@@ -229,8 +236,9 @@ class Method:
         return self.available is None or self.available(opts)
 
     def options_from(self, opts: Options) -> Any:
-        """This method's options, taken from the common ``opts`` and validated against its struct."""
-        return self.parse_options({s.key: getattr(opts, s.attr) for s in self.specs})
+        """This method's options, taken from the common ``opts`` (an option they do not carry: its declared default)
+        and validated against its struct."""
+        return self.parse_options({s.key: getattr(opts, s.attr, s.default) for s in self.specs})
 
     def parse_options(self, raw: Mapping[str, Any]) -> Any:
         """Validate ``raw`` (e.g. a table of a study or a script) against the method's struct; a value out of its
@@ -248,6 +256,7 @@ class Method:
                progress: Callable[[str], None] | None = None) -> Reconstruction:
         """The reconstruction of ``s`` with the run's options ``opts`` (this method's own taken from them)."""
         opts = opts if opts is not None else Options()
+        assert self.reconstruct is not None
         return self.reconstruct(s, self.options_from(opts), Context(opts.scene, progress, opts))
 
 

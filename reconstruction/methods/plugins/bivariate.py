@@ -46,5 +46,5 @@ def reconstruct(s: Slice, opts: BivariateOptions, ctx: Context) -> Reconstructio
     return with_samples_used(reconstruct_bivariate(s, fill=opts.fill, cos_power=opts.cos_power), s, None, "bivariate")
 
 
-METHOD = Method("bivariate", "f(theta_h, theta_d) interpolated between the measured lines", reconstruct,
-                BivariateOptions, modules=("reconstruction.methods.bivariate",))
+METHOD = Method("bivariate", "f(theta_h, theta_d) interpolated between the measured lines",
+                reconstruct=reconstruct, options=BivariateOptions, modules=("reconstruction.methods.bivariate",))

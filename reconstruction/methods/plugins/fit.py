@@ -36,4 +36,4 @@ def reconstruct(s: Slice, opts: FitOptions, ctx: Context) -> Reconstruction:
 
 
 METHOD = Method("fit", "analytic lobes (lambert, ggx/beckmann with Fresnel, retro) chosen by BIC, energy-constrained",
-                reconstruct, FitOptions, modules=("reconstruction.methods.fit",))
+                reconstruct=reconstruct, options=FitOptions, modules=("reconstruction.methods.fit",))

@@ -21,4 +21,4 @@ def reconstruct(s: Slice, opts: NoOptions, ctx: Context) -> Reconstruction:
 
 
 METHOD = Method("microfacet", "non-parametric microfacet: tabulated NDF, Smith G from it, physical Fresnel",
-                reconstruct, modules=("reconstruction.methods.microfacet",))
+                reconstruct=reconstruct, modules=("reconstruction.methods.microfacet",))

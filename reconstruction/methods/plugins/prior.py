@@ -68,4 +68,5 @@ def reconstruct(s: Slice, opts: PriorOptions, ctx: Context) -> Reconstruction:
 
 
 METHOD = Method("prior", "completed from a basis of measured materials (--prior DIR), fitted to the slices",
-                reconstruct, PriorOptions, available=_available, modules=("reconstruction.methods.prior",))
+                reconstruct=reconstruct, options=PriorOptions, available=_available,
+                modules=("reconstruction.methods.prior",))

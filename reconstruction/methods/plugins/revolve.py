@@ -43,5 +43,5 @@ def reconstruct(s: Slice, opts: RevolveOptions, ctx: Context) -> Reconstruction:
     return with_samples_used(reconstruct_revolve(s, **kw), s, None, "revolve")
 
 
-METHOD = Method("revolve", "the thesis's solids of revolution, extended to every incidence", reconstruct,
-                RevolveOptions, modules=("reconstruction.methods.revolve",))
+METHOD = Method("revolve", "the thesis's solids of revolution, extended to every incidence",
+                reconstruct=reconstruct, options=RevolveOptions, modules=("reconstruction.methods.revolve",))
