@@ -4,8 +4,8 @@ A method is a :class:`Method`: a name, a one-line summary, a ``reconstruct(slice
 and its ``options``, one :mod:`msgspec` struct whose fields carry their types, defaults, bounds (``Meta(ge=...,
 le=...)``) and descriptions. Everything else is made from that declaration (:class:`OptionSpec`):
 
-* the common :class:`Options` a run carries (one attribute per option, ``<method>_<field>`` unless the field
-  names another: ``revolve_axis``, ``prior_anchor``, ...; its default the field's);
+* the common :class:`Options` a run carries (one attribute per option, ``<method>_<field>`` such as
+  ``prior_anchor``, unless the field names another such as ``revolve_axis``; its default the field's);
 * ``gonio-reconstruct``'s flag (``--<method>-<field>`` unless it names another, or none: ``flag=None``), its
   ``--help`` text (the description), its choices and the one-line error of a value out of bounds
   (:mod:`reconstruction.methods.flags`);
