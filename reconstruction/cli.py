@@ -99,18 +99,16 @@ def _number(cast: Callable[[str], Any], ok: Callable[[Any], bool], what: str) ->
 
 _positive_int = _number(int, lambda v: v >= 1, "a positive integer")
 _nonneg_float = _number(float, lambda v: v >= 0, "a number >= 0")
-_unit_float = _number(float, lambda v: 0 <= v <= 1, "a number from 0 to 1")
 
 
 def build_parser() -> argparse.ArgumentParser:
     from reconstruction.cliutil import OneLineParser
     from reconstruction.methods import REGISTRY
-    from reconstruction.pipeline import METHODS
 
     ap = OneLineParser(prog=PROG, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("inputs", nargs="*", metavar="INPUT",
                     help="slice files or generic CSV tables, or one Zemax tabular BSDF file (.bsdf)")
-    ap.add_argument("--method", choices=METHODS, default="auto",
+    ap.add_argument("--method", choices=("auto", *REGISTRY), default="auto",
                     help="reconstruction method (default: auto, the one that best predicts held-out samples): "
                          + "; ".join(f"{m.name}: {m.summary}" for m in REGISTRY.values()))
     ap.add_argument("--out", metavar="MATERIAL.binary",
@@ -146,27 +144,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--scene", metavar="SCENE.toml",
                     help="scene file (configs/scenes/*.toml): ranges, angular resolution and error budget that "
                          "restrict the fit's candidate models")
-    ap.add_argument("--lobes", metavar="KIND,...",
-                    help="lobe kinds the fit may use: lambert, ggx, beckmann, retro, fresnel (default: all)")
-    ap.add_argument("--fill", choices=("interpolate", "zero"), default="interpolate",
-                    help="holes (blind spot, missing samples): interpolate (default) or leave zero "
-                         "(bivariate, revolve; a fitted model covers holes itself)")
-    ap.add_argument("--axis", default="auto", choices=("auto", "vertical", "pca"),
-                    help="revolve: axis of each sub-curve, vertical through its highest point or its first principal "
-                         "component (auto: chosen per sub-curve)")
-    ap.add_argument("--smoothing", type=_nonneg_float, default=None, help="revolve: smoothing (passed through)")
-    ap.add_argument("--prior", metavar="DIR", default=None, action="append",
-                    help="folder of measured materials (NBRDF npy sets, MERL .binary tables, material TOML files, RGL "
-                         "or Zemax .bsdf files): "
-                         "--method prior completes the slices from their structure; auto also tries it. Repeat it, "
-                         f"or join folders with '{os.pathsep}', for a prior of several folders")
-    ap.add_argument("--prior-anchor", type=_unit_float, default=0.0, metavar="A",
-                    help="method prior: blend its completion with the samples' bivariate interpolation, f = "
-                         "f_prior^(1-A) f_bivariate^A (0: the prior alone, the default; auto scores 0, 0.25 and "
-                         "0.5 by cross-validation and reports the one it chose)")
-    ap.add_argument("--prior-near", type=int, default=0, metavar="N",
-                    help="method prior: a local prior, the basis of the N prior materials nearest to the samples "
-                         "(0: of every material, the default; benchmarks/bench_prior_candidates.py measures it)")
+    from reconstruction.methods.flags import add_arguments as add_method_arguments
+
+    add_method_arguments(ap)  # every method's options that declare a flag (--lobes, --fill, --axis, --prior, ...)
     u = ap.add_argument_group("how sure the table is, and which slice to measure next")
     u.add_argument("--uncertainty", metavar="SIGMA.npy", default=None,
                    help="write the standard deviation of ln f_r per cell, float32 (C, 90, 90, 180) in the MERL "
@@ -213,25 +193,33 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def job_from_args(args: argparse.Namespace, **overrides: Any) -> Job:
-    """The :class:`~reconstruction.pipeline.Job` of a parsed command line (``overrides``: fields to replace)."""
-    lobes = tuple(x.strip() for x in args.lobes.split(",") if x.strip()) if args.lobes else None
+    """The :class:`~reconstruction.pipeline.Job` of a parsed command line (``overrides``: fields to replace). A
+    method's flag goes to the Job's field of its name (``fill``, ``axis``, ``prior_anchor``, ...) or, for a method
+    without one, to :attr:`Job.options`."""
+    from reconstruction.methods.flags import values as method_values
+
     fields: dict[str, Any] = dict(
         inputs=tuple(str(x) for x in (args.inputs or ())), out=str(args.out) if args.out else "",
         method=args.method, preview=args.preview, report=args.report, supersample=args.supersample,
         quantity=args.quantity, columns=args.columns, blind_spot_deg=args.blind_spot_deg, illuminant=args.illuminant,
-        angles_in=getattr(args, "angles_in", None) or "degrees",
-        scene=args.scene, lobes=lobes, fill=args.fill, axis=args.axis, smoothing=args.smoothing,
+        angles_in=getattr(args, "angles_in", None) or "degrees", scene=args.scene,
         allow_implausible=bool(getattr(args, "allow_implausible", False)),
         conservative=bool(getattr(args, "conservative", True)),
         html=args.html if isinstance(getattr(args, "html", None), str) else None,
         **{k: getattr(args, k, None) for k in ("rgl", "zemax", "zemax_incidences", "zemax_azimuths", "zemax_radials",
                                               "export_mitsuba", "export_json", "principled", "materialx", "gltf",
                                               "blender")},
-        preview_renderer=getattr(args, "preview_renderer", None) or "builtin", prior=getattr(args, "prior", None),
-        prior_anchor=float(getattr(args, "prior_anchor", 0.0) or 0.0),
-        prior_near=max(0, int(getattr(args, "prior_near", 0) or 0)),
+        preview_renderer=getattr(args, "preview_renderer", None) or "builtin",
         uncertainty=getattr(args, "uncertainty", None), advise=bool(getattr(args, "advise", False)),
         bench=getattr(args, "bench", None), budget_s=getattr(args, "budget_s", None))
+    own = set(Job.__dataclass_fields__)
+    options: dict[str, Any] = {}
+    for spec, value in method_values(args):
+        if spec.dest in own:
+            fields[spec.dest] = value or None if spec.kind == "list" else value
+        else:
+            options[spec.attr] = value
+    fields["options"] = options
     fields.update(overrides)
     return Job(**fields)
 
@@ -398,8 +386,6 @@ def main(argv: list[str] | None = None) -> int:
     keep_freed_memory()
     ap = build_parser()
     args = ap.parse_args(argv)
-    if isinstance(args.prior, list):  # --prior repeated: one os.pathsep-joined list of folders
-        args.prior = os.pathsep.join(args.prior)
     from reconstruction.cliutil import plain_warnings
 
     try:

@@ -5,7 +5,8 @@ its outputs before any work, and its failure when a table is implausible. :mod:`
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -27,7 +28,11 @@ class Job:
     ``inputs``: slice files or generic tables (merged); ``out``: the MERL table (``.binary``); ``preview``: an
     ``.exr`` (and the PNG beside it); ``report``: the JSON report. The other fields are the command's flags of the
     same names (angles in degrees): ``columns`` as ``"theta_i=NAME,theta_o=NAME"``, ``lobes`` as kinds,
-    ``axis`` / ``smoothing`` for revolve, ``supersample`` as (nh, nd, np) or ``"adaptive"``.
+    ``axis`` / ``smoothing`` for revolve, ``supersample`` as (nh, nd, np) or ``"adaptive"``. The methods' options
+    (declared by each method, :mod:`reconstruction.methods.registry`): the fields named after their flags
+    (``lobes``, ``fill``, ``axis``, ``smoothing``, ``prior``, ``prior_anchor``, ``prior_near``; None: the method's
+    declared default), and ``options`` for any other, by :class:`~reconstruction.methods.Options` attribute
+    (``{"toy_gain": 1.5}``).
     """
 
     inputs: tuple[str, ...]
@@ -43,8 +48,8 @@ class Job:
     illuminant: str = "D65"
     scene: str | None = None
     lobes: tuple[str, ...] | None = None
-    fill: str = "interpolate"
-    axis: str = "auto"
+    fill: str | None = None  # --fill (None: the declared default, interpolate)
+    axis: str | None = None  # --axis (None: the declared default, auto)
     smoothing: float | None = None
     allow_implausible: bool = False
     conservative: bool = True  # auto: bounded where no sample rests (reconstruction.assess.guard); --no-conservative
@@ -59,8 +64,8 @@ class Job:
     export_json: str | None = None
     preview_renderer: str = "builtin"
     prior: str | None = None  # --prior DIR: the folder of prior materials (method prior; auto tries it when given)
-    prior_anchor: float = 0.0  # --prior-anchor A: method prior's blend with the bivariate interpolation (0..1)
-    prior_near: int = 0  # --prior-near N: method prior's local basis of the N nearest prior materials (0: all)
+    prior_anchor: float | None = None  # --prior-anchor A: method prior's blend with bivariate (0..1; None: 0)
+    prior_near: int | None = None  # --prior-near N: method prior's local basis of the N nearest materials (None: 0)
     uncertainty: str | None = None  # --uncertainty SIGMA.npy: sigma of ln f per cell (reconstruction.assess)
     advise: bool = False  # --advise: rank the incidences to measure next
     bench: str | None = None  # --bench CONFIG.toml: the bench whose limits and timing --advise uses
@@ -70,6 +75,20 @@ class Job:
     materialx: str | None = None
     gltf: str | None = None
     blender: str | None = None
+    options: Mapping[str, Any] = field(default_factory=dict)  # other methods' options, by Options attribute
+
+    def method_options(self) -> dict[str, Any]:
+        """The methods' options this job sets, by :class:`~reconstruction.methods.Options` attribute: its fields
+        named after a declared option's flag (when not None), then :attr:`options`."""
+        from reconstruction.methods import option_specs
+
+        out: dict[str, Any] = {}
+        for spec in option_specs():
+            value = getattr(self, spec.dest, None) if spec.dest in self.__dataclass_fields__ else None
+            if value is not None:
+                out[spec.attr] = value
+        out.update(self.options)
+        return out
 
     @property
     def steps(self) -> list[str]:

@@ -245,8 +245,7 @@ def _reconstruct_step(job: Job, steps: _Steps, working: Slice, scene: Any, helpe
         if unknown:
             raise ReconstructionError(f"--lobes: unknown kind(s) {unknown}; expected {', '.join(LOBE_KINDS)}")
     t0 = steps.begin("reconstructing")
-    opts = Options(scene=scene, fill=job.fill, lobes=lobes, revolve_axis=job.axis, revolve_smoothing=job.smoothing,
-                   prior=job.prior, prior_anchor=job.prior_anchor, prior_near=job.prior_near)
+    opts = Options(scene=scene, **{**job.method_options(), "lobes": lobes})
     early = None
     # auto cross-validates the methods that do not wait for fit beside it (in its forked child, or a thread of its
     # own): the posterior below waits until that is done (a third busy worker on two cores would slow fit, the

@@ -84,6 +84,9 @@ class Conservative:
     bound: Array
     free: NDArray[np.bool_]
     info: dict[str, Any] = field(default_factory=dict)
+    #: the bounded ``eval`` is no longer the method's closed form: no ``analytic_lobes`` to export
+    #: (:func:`reconstruction.base.offers`); its fitted parameters stay the method's
+    analytic_lobes = None
 
     @property
     def method(self) -> str:

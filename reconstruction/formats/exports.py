@@ -54,7 +54,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from reconstruction.atomic import atomic_open
-from reconstruction.base import Reconstruction, ReconstructionError
+from reconstruction.base import Reconstruction, ReconstructionError, offers
 
 Array = NDArray[np.float64]
 
@@ -239,42 +239,10 @@ def _relative(target: str, beside: str) -> str:
 
 
 def _lobes(rec: Reconstruction) -> list[dict[str, Any]] | None:
-    """The model's lobes in the JSON schema's form, or None for a data-driven method."""
-    from reconstruction.core.models import Lambert, Microfacet, Retro
-    from reconstruction.methods.fit import FitReconstruction
-    from reconstruction.methods.microfacet import MicrofacetReconstruction
-
-    if isinstance(rec, FitReconstruction):
-        out: list[dict[str, Any]] = []
-        for lb in rec.material.lobes:
-            col = lb.colour.values.tolist()
-            if isinstance(lb, Lambert):
-                out.append({"type": "lambert", "albedo": col})
-            elif isinstance(lb, Microfacet):
-                d: dict[str, Any] = {"type": lb.distribution, "alpha": lb.alpha, "specular": col}
-                if lb.f0 is None:
-                    d["fresnel"] = {"kind": "none"}
-                else:
-                    from reconstruction.methods.fit import ior_of_f0
-
-                    d["fresnel"] = {"kind": "schlick", "f0": lb.f0, "ior": ior_of_f0(lb.f0)}
-                out.append(d)
-            elif isinstance(lb, Retro):
-                out.append({"type": "retro", "exponent": lb.exponent, "amount": col})
-            else:
-                return None
-        return out
-    if isinstance(rec, MicrofacetReconstruction):
-        use = rec.weights > 0
-        fres: dict[str, Any] = {"kind": rec.fresnel_kind}
-        if rec.fresnel_kind != "none":
-            fres["eta"] = rec.eta
-            fres["kappa"] = rec.kappa if rec.fresnel_kind == "conductor" else 0.0
-        return [{"type": "lambert", "albedo": rec.rho.tolist()},
-                {"type": "ggx_mixture", "terms": [{"alpha": float(a), "weight": float(w)}
-                                                  for a, w in zip(rec.alphas[use], rec.weights[use], strict=True)],
-                 "specular": rec.ks.tolist(), "fresnel": fres}]
-    return None
+    """The model's lobes in the JSON schema's form, or None for a data-driven method (one that does not offer
+    ``analytic_lobes``, :class:`reconstruction.base.AnalyticLobes`)."""
+    lobes = offers(rec, "analytic_lobes")
+    return lobes() if lobes is not None else None
 
 
 def parameters(rec: Reconstruction) -> dict[str, Any]:
@@ -292,8 +260,9 @@ def parameters(rec: Reconstruction) -> dict[str, Any]:
                                f"{k}: {FORMULAS[k]}" for k in dict.fromkeys(lb["type"] for lb in lobes or []))
                            if lobes else "data-driven: no closed form; use the MERL or RGL file",
                            "mitsuba": {"maps": maps, "plugins": plugins, "reason": why}}
-    if rep.get("parameters") and rec.method == "fit":
-        out["uncertainties"] = rep["parameters"]  # per lobe, with <key>_std
+    fitted = offers(rec, "fitted_parameters")
+    if fitted is not None and fitted():
+        out["uncertainties"] = fitted()  # per lobe, with <key>_std
     return _json_safe(out)
 
 

@@ -34,7 +34,6 @@ The report's ``cross_validation`` section holds the scheme, every method's held-
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import warnings
 from collections.abc import Callable, Iterator
@@ -311,7 +310,7 @@ def _score_methods(s: Slice, full: Slice, opts: Options, masks: list[Any], insid
                     builders.append((name, f"BIC choice {model_name(fit_rec.bic_specs)}", lambda tr: reconstruct_fit(
                         everywhere(tr), scene=opts.scene, lobes=opts.lobes, specs=fit_rec.bic_specs)))
             elif name == "prior":  # its anchored variants are scored from its and bivariate's held-out predictions
-                builders.append((name, None, lambda tr, m=m: m.build(tr, dataclasses.replace(opts, prior_anchor=0.0),
+                builders.append((name, None, lambda tr, m=m: m.build(tr, opts.replace(prior_anchor=0.0),
                                                                      None)))
             elif name in pending:
                 builders.append((name, None, lambda tr: None))  # cross-validated beside fit (above)
@@ -522,4 +521,4 @@ def _anchored_scores(s: Slice, scores: list[CVScore], masks: list[NDArray[np.boo
 def _options_of(sc: CVScore, opts: Options) -> Options:
     """The options that build the method of ``sc``: a prior variant with its anchor (the prior alone when none was
     scored), as cross-validated; ``--prior-anchor`` is for ``--method prior``."""
-    return dataclasses.replace(opts, prior_anchor=sc.anchor or 0.0) if sc.method == "prior" else opts
+    return opts.replace(prior_anchor=sc.anchor or 0.0) if sc.method == "prior" else opts

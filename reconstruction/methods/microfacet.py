@@ -211,6 +211,19 @@ class MicrofacetReconstruction:
         e = _specular_albedo(ti, self.alphas, self.weights, self.fresnel_kind, self.eta, self.kappa)
         return self.rho[None, :] + e[:, None] * self.ks[None, :]
 
+    def analytic_lobes(self) -> list[dict[str, Any]]:
+        """The model in the parameters schema's form (:class:`reconstruction.base.AnalyticLobes`): a lambert lobe
+        and a ``ggx_mixture`` (the NDF's GGX terms and weights, the specular colour, the fitted Fresnel)."""
+        use = self.weights > 0
+        fres: dict[str, Any] = {"kind": self.fresnel_kind}
+        if self.fresnel_kind != "none":
+            fres["eta"] = self.eta
+            fres["kappa"] = self.kappa if self.fresnel_kind == "conductor" else 0.0
+        return [{"type": "lambert", "albedo": self.rho.tolist()},
+                {"type": "ggx_mixture", "terms": [{"alpha": float(a), "weight": float(w)}
+                                                  for a, w in zip(self.alphas[use], self.weights[use], strict=True)],
+                 "specular": self.ks.tolist(), "fresnel": fres}]
+
     def report(self) -> dict[str, Any]:
         th = np.radians(np.array([0.0, 0.5, 1, 2, 5, 10, 20, 30, 45, 60, 75, 89]))
         used = self.weights > 1e-4

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from reconstruction.atomic import atomic_open
-from reconstruction.base import Reconstruction, ReconstructionError
+from reconstruction.base import Reconstruction, ReconstructionError, offers
 
 __all__ = ["FLAGS", "add_arguments", "check_arguments", "wants", "write_outputs"]
 
@@ -73,9 +73,9 @@ def write_outputs(args: Any, rec: Reconstruction, name: str) -> tuple[dict[str, 
     from reconstruction.principled.gltf import write_gltf
     from reconstruction.principled.materialx import write_materialx
 
-    # fit's analytic lobes (a dielectric's lambert + GGX): a start the principled fit refines
-    fit = fit_principled(rec.eval, start=analytic_start(rec.report().get("parameters")) if rec.method == "fit"
-                         else None)
+    # fitted analytic lobes (fit's lambert + GGX of a dielectric): a start the principled fit refines
+    fitted = offers(rec, "fitted_parameters")
+    fit = fit_principled(rec.eval, start=analytic_start(fitted()) if fitted is not None else None)
     entry = fit.to_dict()
     entry["fitted_to"] = f"the {rec.method} reconstruction"
     files: dict[str, Any] = {}

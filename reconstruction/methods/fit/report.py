@@ -111,6 +111,34 @@ class FitReconstruction:
         return {"method": self.method, "model": self.result.name, "material": self.material.to_dict(),
                 "parameters": self.result.parameters(), **self.info}
 
+    def fitted_parameters(self) -> list[dict[str, Any]]:
+        """Per lobe, the fitted parameters with their standard deviations (``<key>_std``): the report's
+        ``parameters`` (:class:`reconstruction.base.FittedParameters`)."""
+        return list(self.result.parameters())
+
+    def analytic_lobes(self) -> list[dict[str, Any]] | None:
+        """The fitted lobes in the parameters schema's form (:class:`reconstruction.base.AnalyticLobes`): lambert
+        (albedo), ggx / beckmann (alpha, specular colour, Fresnel none or Schlick's f0 and its index), retro
+        (exponent, amount); None when a lobe has none of these forms."""
+        from reconstruction.core.models import Lambert, Retro
+        from reconstruction.methods.fit.model import ior_of_f0
+
+        out: list[dict[str, Any]] = []
+        for lb in self.material.lobes:  # a handful
+            col = lb.colour.values.tolist()
+            if isinstance(lb, Lambert):
+                out.append({"type": "lambert", "albedo": col})
+            elif isinstance(lb, Microfacet):
+                d: dict[str, Any] = {"type": lb.distribution, "alpha": lb.alpha, "specular": col}
+                d["fresnel"] = ({"kind": "none"} if lb.f0 is None
+                                else {"kind": "schlick", "f0": lb.f0, "ior": ior_of_f0(lb.f0)})
+                out.append(d)
+            elif isinstance(lb, Retro):
+                out.append({"type": "retro", "exponent": lb.exponent, "amount": col})
+            else:
+                return None
+        return out
+
 
 def fit_info(slices: Slice, full: _Problem, chosen: FitResult, material: Material, ranked: list[FitResult],
              reason: str, skipped: list[str], fit_mask: NDArray[np.bool_] | None, gaps: dict[str, float],
