@@ -201,7 +201,7 @@ LAYERS = [
     ("base", ("core", "formats", "bench", "schema", "base", "atomic", "cache", "cliutil", "synthetic", "executor")),
     ("methods", ("methods",)),
     ("assess and report", ("assess", "report", "principled", "formats.exports")),
-    ("pipeline and cli", ("pipeline", "job", "cli")),
+    ("pipeline and cli", ("pipeline", "job", "workers", "cli")),
 ]
 
 
