@@ -25,11 +25,13 @@ from tqdm import tqdm
 
 from reconstruction.atomic import is_no_space
 from reconstruction.base import ReconstructionError
+from reconstruction.core.merltable import MerlError
 from reconstruction.core.models import MaterialError
-from reconstruction.formats.merl import FILE_SIZE, MerlError
-from reconstruction.formats.slicefile import QUANTITIES, SliceError, shorten
-from reconstruction.pipeline import ImplausibleError, Job, implausible_message
+from reconstruction.core.slicedata import SliceError, shorten
+from reconstruction.formats.merl import FILE_SIZE
+from reconstruction.job import ImplausibleError, Job, implausible_message
 from reconstruction.pipeline import run as pipeline_run
+from reconstruction.schema.slice_meta import QUANTITIES
 
 __all__ = ["main", "build_parser", "run", "run_batch", "batch_files", "job_from_args", "ImplausibleError",
            "implausible_message", "EXIT_IMPLAUSIBLE"]
@@ -213,7 +215,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def job_from_args(args: argparse.Namespace, **overrides: Any) -> Job:
-    """The :class:`~reconstruction.pipeline.Job` of a parsed command line (``overrides``: fields to replace)."""
+    """The :class:`~reconstruction.job.Job` of a parsed command line (``overrides``: fields to replace)."""
     lobes = tuple(x.strip() for x in args.lobes.split(",") if x.strip()) if args.lobes else None
     fields: dict[str, Any] = dict(
         inputs=tuple(str(x) for x in (args.inputs or ())), out=str(args.out) if args.out else "",

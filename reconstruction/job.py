@@ -1,6 +1,5 @@
 """What one reconstruction is asked to do (:class:`Job`: one ``gonio-reconstruct`` command line), the checks of
-its outputs before any work, and its failure when a table is implausible. :mod:`reconstruction.pipeline` runs it
-(and re-exports these names)."""
+its outputs before any work, and its failure when a table is implausible. :mod:`reconstruction.pipeline` runs it."""
 
 from __future__ import annotations
 

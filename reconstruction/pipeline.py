@@ -21,16 +21,16 @@ from numpy.typing import NDArray
 from reconstruction.assess import advice, guard, uncertainty
 from reconstruction.atomic import atomic_path
 from reconstruction.base import Reconstruction, ReconstructionError
-from reconstruction.core import colour, sharprows
-from reconstruction.core.scene import LOBE_KINDS, load_scene
+from reconstruction.core import colour, merlgrid, merltable, sharprows
+from reconstruction.core.checks import plausibility
+from reconstruction.core.scene import load_scene
+from reconstruction.core.slicedata import Slice
 from reconstruction.formats import brdffile, exports, inputs, merl, zemax
 from reconstruction.formats.inputs import check_slice
-from reconstruction.formats.slicefile import Slice
-from reconstruction.job import (  # noqa: F401  (the job's names, re-exported: pipeline.Job)
+from reconstruction.job import (
     ImplausibleError,
     Job,
     Progress,
-    check_output,
     check_outputs,
     implausible_message,
 )
@@ -42,12 +42,12 @@ from reconstruction.report import html as htmlreport
 from reconstruction.report import preview, summary
 from reconstruction.report.spheres import sphere_images
 from reconstruction.schema.files import UserFileError, check_user_file
+from reconstruction.schema.scene import LOBE_KINDS
 from reconstruction.workers import Workers
 
 Array = NDArray[np.float64]
 
-__all__ = ["METHODS", "Options", "reconstruct", "tabulate", "Job", "Progress", "run", "ImplausibleError",
-           "check_output", "implausible_message"]
+__all__ = ["METHODS", "reconstruct", "tabulate", "run", "Made", "bound_where_unmeasured", "material_of"]
 
 METHODS = ("auto", *REGISTRY)
 def reconstruct(s: Slice, method: str = "auto", opts: Options | None = None,
@@ -67,9 +67,9 @@ def reconstruct(s: Slice, method: str = "auto", opts: Options | None = None,
 def tabulate(rec: Reconstruction, supersample: tuple[int, int, int] | str | None = None,
              info: dict[str, Any] | None = None) -> Array:
     """The MERL table (3, 90, 90, 180) of ``rec``: bin-centre values, or cell averages with ``supersample``
-    ((nh, nd, np) or "adaptive", see :func:`reconstruction.formats.merl.tabulate`).
+    ((nh, nd, np) or "adaptive", see :func:`reconstruction.core.merltable.tabulate`).
 
-    Uses the method's own fast ``table()`` for bin centres when it has one; otherwise ``merl.tabulate``. Where the
+    Uses the method's own fast ``table()`` for bin centres when it has one; otherwise ``merltable.tabulate``. Where the
     method names a lobe narrower than the cells (``sharp_theta_h_rad``), the rows holding it are cell averages over
     theta_h, each theta_d row scaled to the lobe's energy as table readers see it
     (:func:`reconstruction.core.sharprows.renormalise`; its figures go into ``info`` when given).
@@ -80,14 +80,14 @@ def tabulate(rec: Reconstruction, supersample: tuple[int, int, int] | str | None
     if supersample is None and callable(fast):
         t = fast()  # the method's own table (its own theta_h cell averages where a lobe is sharper than the cells)
     else:
-        t = merl.tabulate(rec.eval, supersample=supersample)
+        t = merltable.tabulate(rec.eval, supersample=supersample)
         if supersample is None and sharp:
-            t, _ = merl.average_theta_h_cells(rec.eval, t, sharp, n=8)
+            t, _ = merltable.average_theta_h_cells(rec.eval, t, sharp, n=8)
     if supersample is None and sharp:  # those rows keep the lobe's energy as table readers see it
         t, figures = sharprows.renormalise(rec.eval, t, sharp)
         if info is not None:
             info.update(figures)
-    valid = merl.valid_mask()[None]
+    valid = merlgrid.valid_mask()[None]
     bad = valid & ~np.isfinite(t)
     if bad.any():
         raise ReconstructionError(f"method {rec.method}: {int(bad.sum())} table cell(s) above the horizon have no "
@@ -257,7 +257,7 @@ def _check(steps: _Steps, made: Made) -> Made:
     table = tabulate(rec, job.supersample, energy)
     steps.done("tabulate", t0)
     t0 = steps.begin("plausibility checks")
-    checked = replace(made, table=table, checks=summary.plausibility(rec, table), energy=energy)
+    checked = replace(made, table=table, checks=plausibility(rec, table), energy=energy)
     fallbacks = made.choice.pop("fallbacks", None)
     if not checked.checks["all_pass"] and not job.allow_implausible and fallbacks is not None:
         checked = _fall_back(steps, checked, fallbacks)
@@ -271,7 +271,7 @@ def _check(steps: _Steps, made: Made) -> Made:
             *(made.early() if made.early is not None else ()))
         checked = replace(checked, rec=bounded_rec, table=bounded_table, bounded=bounded, ref=ref)
         if bounded["applied"]:  # of the table written (only lowered: still passing)
-            checked = replace(checked, checks=summary.plausibility(bounded_rec, bounded_table))
+            checked = replace(checked, checks=plausibility(bounded_rec, bounded_table))
         steps.done("conservative", t0)
     if job.html:  # the page's sphere renders (numpy) in a thread of their own, from now to the page's drawing
         checked = _start_page(steps, checked, drawn_for=rec)
@@ -290,7 +290,7 @@ def _fall_back(steps: _Steps, made: Made, fallbacks: Callable[[], Any]) -> Made:
             steps.progress.begin(f"falling back to {label}")
         energy: dict[str, Any] = {}
         table = tabulate(alt, steps.job.supersample, energy)
-        c = summary.plausibility(alt, table)
+        c = plausibility(alt, table)
         if c["all_pass"]:
             choice["used"] = alt.method
             choice["reason"] += f"; not written: {failed}; written instead: {label}, the next in auto's order"
@@ -388,7 +388,7 @@ def _report_body(steps: _Steps, made: Made) -> dict[str, Any]:
                 **({"scene_ranges_deg": {"theta_i": scene.theta_i_deg, "theta_o": scene.theta_o_deg},
                     **({"scene_view": scene.view} if scene.view else {})} if scene is not None else {})},
         colour=made.colour,
-        table_info={"cells": 3 * merl.N_CELLS,
+        table_info={"cells": 3 * merltable.N_CELLS,
                     "values": "cell averages" if job.supersample else getattr(made.rec, "table_values", "bin centres")
                     + ("; " + sharprows.DESCRIPTION if made.energy else ""),
                     **({"sharp_rows": made.energy} if made.energy else {}),

@@ -49,9 +49,11 @@ def test_a_byte_order_mark_is_not_text_and_a_peek_reads_only_what_it_asks(tmp_pa
 def _readers():
     from acquisition.errors import ConfigError
     from acquisition.plans.plan import load_scene
+    from reconstruction.core import merltable
+    from reconstruction.core.slicedata import SliceError
     from reconstruction.formats import merl
     from reconstruction.formats.inputs import InputError, read_input
-    from reconstruction.formats.slicefile import SliceError, read_slice
+    from reconstruction.formats.slicefile import read_slice
     from reconstruction.schema.core import SchemaError
     from reconstruction.schema.files import open_text
     from simulator.config import ConfigError as SimConfigError
@@ -60,7 +62,7 @@ def _readers():
     return [("bench file (schema)", lambda p: open_text(p, "a TOML bench file"), SchemaError, "a TOML bench file"),
             ("slice file", read_slice, SliceError, "a slice file"),
             ("input table", read_input, InputError, "a slice file or a CSV table"),
-            ("MERL table", merl.read, merl.MerlError, "a .binary file"),
+            ("MERL table", merl.read, merltable.MerlError, "a .binary file"),
             ("simulator bench file", sim_load_config, SimConfigError, "a TOML bench file"),
             ("scene file", load_scene, ConfigError, None)]
 

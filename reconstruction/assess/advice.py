@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 from reconstruction.assess.uncertainty import expected_errors, expected_scene_errors
 from reconstruction.base import ReconstructionError
 from reconstruction.core.scene import RECONSTRUCTION_DEFAULT_RANGE_DEG, scene_pairs
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 from reconstruction.methods import prior as P
 
 if sys.version_info >= (3, 11):

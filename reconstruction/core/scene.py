@@ -58,8 +58,8 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-__all__ = ["Scene", "SceneError", "LOBE_KINDS", "view_ranges", "RECONSTRUCTION_DEFAULT_RANGE_DEG",
-           "CAPTURE_DEFAULT_RANGE_DEG", "load_scene", "scene_from_dict", "ScenePairs", "scene_pairs"]
+__all__ = ["Scene", "SceneError", "view_ranges", "RECONSTRUCTION_DEFAULT_RANGE_DEG", "CAPTURE_DEFAULT_RANGE_DEG",
+           "load_scene", "scene_from_dict", "ScenePairs", "scene_pairs"]
 
 #: The keys of [scene] and [scene.error_budget]: the scene file's schema (reconstruction.schema.scene).
 _SCENE_KEYS = keys(SceneTable)

@@ -44,6 +44,7 @@ from numpy.typing import NDArray
 
 from reconstruction.base import ReconstructionError
 from reconstruction.core.samples import thin_samples
+from reconstruction.core.slicedata import Slice, SliceError, channel_kind, shorten
 from reconstruction.formats.angleunits import to_degrees
 from reconstruction.formats.directions import (
     RowsWithDirections,
@@ -54,19 +55,9 @@ from reconstruction.formats.directions import (
     with_directions,
 )
 from reconstruction.formats.merl import MAX_CELL_VALUE
-from reconstruction.formats.slicefile import (
-    MAGIC,
-    MAX_REPEATS,
-    QUANTITIES,
-    Slice,
-    SliceError,
-    channel_kind,
-    parse_rows,
-    read_input_text,
-    read_slice,
-    shorten,
-)
+from reconstruction.formats.slicefile import MAGIC, MAX_REPEATS, parse_rows, read_input_text, read_slice
 from reconstruction.schema.files import UserFileError, read_user_bytes
+from reconstruction.schema.slice_meta import QUANTITIES
 
 Array = NDArray[np.float64]
 

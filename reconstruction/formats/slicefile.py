@@ -30,15 +30,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from reconstruction.atomic import atomic_open
-from reconstruction.core.slicedata import (  # noqa: F401  (the slice's names, re-exported)
-    SHOW_CHARS,
+from reconstruction.core.slicedata import (
     Slice,
     SliceError,
     _show_list,
     channel_kind,
     shorten,
-    to_brdf,
-    wavelengths_of,
 )
 from reconstruction.schema.files import UserFileError, read_user_text
 from reconstruction.schema.slice_meta import FORMAT_VERSION, QUANTITIES, check_instrument  # the metadata's schema
@@ -53,21 +50,7 @@ MAX_INPUT_BYTES = 256 * 1024 * 1024
 #: Largest ``repeats`` a row may give (far above any detector's; beyond it the count is not one).
 MAX_REPEATS = 10**9
 
-__all__ = [
-    "FORMAT_VERSION",
-    "QUANTITIES",
-    "Slice",
-    "SliceError",
-    "SliceWriter",
-    "read_slice",
-    "write_slice",
-    "channel_kind",
-    "wavelengths_of",
-    "to_brdf",
-    "MAX_INPUT_BYTES",
-    "shorten",
-    "read_input_text",
-]
+__all__ = ["SliceWriter", "read_slice", "write_slice", "MAX_INPUT_BYTES", "read_input_text"]
 
 
 

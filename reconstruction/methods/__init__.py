@@ -19,7 +19,7 @@ from msgspec import Meta
 
 from reconstruction.base import Reconstruction, ReconstructionError
 from reconstruction.core.scene import Scene
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 
 __all__ = ["Method", "Options", "REGISTRY", "register", "get", "names", "NoOptions", "FitOptions", "RevolveOptions",
            "BivariateOptions", "PriorOptions", "options_schema"]

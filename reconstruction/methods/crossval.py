@@ -48,7 +48,7 @@ from numpy.typing import ArrayLike, NDArray
 from reconstruction.base import Reconstruction, ReconstructionError
 from reconstruction.core.metrics import IMAGE_GAMMA, tone_map
 from reconstruction.core.samples import DirectionalSlice, out_of_plane, sample_directions
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 
 Array = NDArray[np.float64]
 
