@@ -40,7 +40,7 @@ PROG = "gonio-reconstruct"
 DESCRIPTION = """\
 Reconstruct a full isotropic BRDF from in-plane slices and write it as a MERL table (.binary, 34,992,012 bytes).
 
-Inputs are gonio-brdf slice files (docs/slice-format.md) or generic CSV tables from other instruments' software
+Inputs are gonio-brdf slice files (docs/formats.md) or generic CSV tables from other instruments' software
 (an incidence column, a measured-angle column, one column per wavelength such as 450nm or per channel: value, or
 R,G,B); generic tables need --quantity. Several inputs (e.g. one per incidence) are merged. All-zero rows in
 the retro blind spot are missing data and are interpolated, not taken as zero.

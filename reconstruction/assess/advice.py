@@ -113,7 +113,7 @@ def _footprint(beam: Any, sample: Any) -> dict[str, Any]:
 
 
 def capture_limits(meta: dict[str, Any], where: str) -> BenchLimits | None:
-    """The :class:`BenchLimits` of the bench recorded in a slice file's metadata (``meta``, docs/slice-format.md:
+    """The :class:`BenchLimits` of the bench recorded in a slice file's metadata (``meta``, docs/formats.md:
     ``config_settings`` and ``config_fingerprint`` hold the bench file's keys, ``instrument`` the beam and sample
     diameters), or None when it records none (a generic table, a file of another program). ``where``: the file,
     for the report."""

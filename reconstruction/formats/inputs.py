@@ -2,7 +2,7 @@
 
 Two kinds of file are accepted (told apart by the first line):
 
-* slice files (``# gonio-brdf slice``, docs/slice-format.md), read with
+* slice files (``# gonio-brdf slice``, docs/formats.md), read with
 :func:`reconstruction.formats.slicefile.read_slice`;
   their metadata says which quantity they hold, and row order is free (captures may be scheduled);
 * generic tables: optional ``#`` comment lines, a header line, then one row per sample, separated by commas,
@@ -541,7 +541,7 @@ def load_inputs(paths: Sequence[str | Path], *, quantity: str | None = None,
         with np.errstate(all="ignore"):
             f, sd = s.brdf()
         _check_bounds(s, f, sd)
-        inst = s.meta.get("instrument")  # how the samples were taken (docs/slice-format.md): kept for the methods
+        inst = s.meta.get("instrument")  # how the samples were taken (docs/formats.md): kept for the methods
         one = same_rows(s, Slice(s.theta_i_deg, s.theta_o_deg, f, list(s.channels), sd, s.repeats, s.unix_time_s,
                                  meta={"quantity": "brdf", **({"instrument": inst} if inst is not None else {})},
                                  source=s.source))

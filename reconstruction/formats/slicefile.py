@@ -1,7 +1,7 @@
 """Slice files: the versioned CSV format in which captured in-plane slices travel.
 
 The contract between acquisition (which writes them, one durable row per sample) and reconstruction (which
-reads them). Format version 1 (documented in docs/slice-format.md)::
+reads them). Format version 1 (documented in docs/formats.md, "Slice files")::
 
     # gonio-brdf slice
     # meta: {"format_version": 1, "quantity": "brdf", "material": "blue-plastic", ...}
