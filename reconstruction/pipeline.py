@@ -50,6 +50,8 @@ Array = NDArray[np.float64]
 __all__ = ["METHODS", "reconstruct", "tabulate", "run", "Made", "bound_where_unmeasured", "material_of"]
 
 METHODS = ("auto", *REGISTRY)
+
+
 def reconstruct(s: Slice, method: str = "auto", opts: Options | None = None,
                 progress: Callable[[str], None] | None = None) -> tuple[Reconstruction, dict[str, Any]]:
     """Reconstruct ``s`` (f_r, grey or RGB) with ``method`` (``auto`` or a registered name); returns
