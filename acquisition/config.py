@@ -375,6 +375,7 @@ def _check_material(src: str, mat: Any, raw: Mapping[str, Any]) -> None:
     :data:`MAX_MATERIAL_BRDF` over the in-plane geometries a capture can measure."""
     import numpy as np
 
+    from reconstruction.core import merltable
     from reconstruction.core.geometry import inplane_to_dirs
     from reconstruction.formats import merl
 
@@ -392,7 +393,7 @@ def _check_material(src: str, mat: Any, raw: Mapping[str, Any]) -> None:
                 warnings.simplefilter("always")
                 try:
                     lobe.table = merl.read(lobe.path)
-                except merl.MerlError as e:
+                except merltable.MerlError as e:
                     raise ConfigError(f"{where}.path: {e}") from None
             for w in caught:
                 log.warning("%s.path: %s", where, w.message)

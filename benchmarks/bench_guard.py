@@ -31,8 +31,9 @@ import bench_real_materials as B  # noqa: E402
 
 from reconstruction import pipeline  # noqa: E402
 from reconstruction.assess import guard, uncertainty  # noqa: E402
+from reconstruction.core import merltable  # noqa: E402
 from reconstruction.core.models import Material  # noqa: E402
-from reconstruction.formats import merl  # noqa: E402
+from reconstruction.methods import Options  # noqa: E402
 from reconstruction.report import compare as cmp  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "realdata"
@@ -55,11 +56,11 @@ def one(job: tuple[str, str, bool]) -> dict[str, Any]:
     folder = next(f for f in FOLDERS if (f / f"{name}_fc1.npy").is_file())
     with threadpool_limits(1), np.errstate(all="ignore"):
         mat = Material.from_dict({"name": name, "lobes": [{"type": "nbrdf", "path": str(folder / name)}]})
-        truth = B._as_read(merl.tabulate(mat.eval))
-        ref_img = cmp.reference(cmp.Brdf(name, "merl", merl.brdf_of(truth), truth), SIZE)
+        truth = B._as_read(merltable.tabulate(mat.eval))
+        ref_img = cmp.reference(cmp.Brdf(name, "merl", merltable.brdf_of(truth), truth), SIZE)
         s = B.slices_of(mat, B.incidences_of(mode)).sorted()
         prior = "" if no_prior else ":".join(str(f) for f in FOLDERS)
-        opts = pipeline.Options(prior=prior or None, prior_exclude=(name,))
+        opts = Options(prior=prior or None, prior_exclude=(name,))
         rec, choice = pipeline.reconstruct(s, "auto", opts)
         table = pipeline.tabulate(rec)
         ref = uncertainty.reference_for(rec, s, prior or None, (name,))
@@ -69,7 +70,7 @@ def one(job: tuple[str, str, bool]) -> dict[str, Any]:
                                "used": choice["used"], "expected_linear": section["expected_linear_image_error"]}
 
         def judge(t: np.ndarray, key: str) -> None:
-            a = cmp.Brdf(key, "merl", merl.brdf_of(B._as_read(t)), B._as_read(t))
+            a = cmp.Brdf(key, "merl", merltable.brdf_of(B._as_read(t)), B._as_read(t))
             r = cmp.judge(a, ref_img, with_rmse80=False)
             out[key] = (r["image"]["relative_rmse"], r["image"]["psnr_db"], r["cosl2"])
 

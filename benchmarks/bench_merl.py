@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from reconstruction.core import merltable
 from reconstruction.formats import merl
 
 
@@ -20,7 +21,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeats", type=int, default=5)
     args = ap.parse_args()
-    f = np.random.default_rng(0).uniform(0, 10, merl.SHAPE)
+    f = np.random.default_rng(0).uniform(0, 10, merltable.SHAPE)
     f[:, :, 85:, :] = np.nan
     mb = merl.FILE_SIZE / 1e6
     tw, tr = [], []

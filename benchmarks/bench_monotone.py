@@ -46,7 +46,7 @@ import bench_real_materials as BR  # noqa: E402
 
 from reconstruction.core.geometry import tilted_to_dirs  # noqa: E402
 from reconstruction.core.samples import SliceWithPoints, directional_slice  # noqa: E402
-from reconstruction.formats.slicefile import Slice  # noqa: E402
+from reconstruction.core.slicedata import Slice  # noqa: E402
 
 #: the captures, each reconstructed once per material and mode
 CAPTURES = ("40", "40/70", "20/40/60", "20/40/70", "20/40/60/70", "40+40t30", "40/70+40t35", "40/70+40t35+70t35",
@@ -107,14 +107,14 @@ def run_material(job: dict[str, Any]) -> list[dict[str, Any]]:
     warnings.simplefilter("ignore")
     from threadpoolctl import threadpool_limits
 
-    from reconstruction.formats import merl
+    from reconstruction.core import merltable
     from reconstruction.report import compare as cmp
 
     name, folder, size = job["name"], job["folder"], job["size"]
     out = []
     with threadpool_limits(1), np.errstate(all="ignore"):
         mat, truth = BR.material_truth(name, folder, job["cache"])
-        ref_images = cmp.render_images(cmp.Brdf(name, "merl", merl.brdf_of(truth), truth), size)
+        ref_images = cmp.render_images(cmp.Brdf(name, "merl", merltable.brdf_of(truth), truth), size)
         for spec in job["captures"]:
             s = capture_slice(mat, spec)
             for mode in job["modes"]:
@@ -125,7 +125,7 @@ def run_material(job: dict[str, Any]) -> list[dict[str, Any]]:
                     method = "auto+prior" if mode == "prior" else "auto"
                     table, facts = BR._reconstruct(method, s, job["prior"], name)
                     rec.update(seconds=round(time.perf_counter() - t0, 2), used=facts.get("chosen_label"))
-                    a = cmp.Brdf(spec, "merl", merl.brdf_of(BR._as_read(table)), BR._as_read(table))
+                    a = cmp.Brdf(spec, "merl", merltable.brdf_of(BR._as_read(table)), BR._as_read(table))
                     rec["psnr_db"] = cmp.image_metrics(cmp.render_images(a, size), ref_images, size)["psnr_db"]
                 except Exception as e:  # a benchmark reports a failure and goes on
                     rec.update(error=f"{type(e).__name__}: {e}", seconds=time.perf_counter() - t0)

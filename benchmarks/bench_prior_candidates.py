@@ -61,11 +61,11 @@ STATE: dict[str, Any] = {}  # the prior and its factors, set before the workers 
 
 
 def _psnr(rec: P.PriorReconstruction, ref: Any) -> float:
-    from reconstruction.formats import merl
+    from reconstruction.core import merltable
     from reconstruction.report import compare as cmp
 
     t = BR._as_read(rec.table())
-    imgs = cmp.render_images(cmp.Brdf("rec", "merl", merl.brdf_of(t), t), ref.size)
+    imgs = cmp.render_images(cmp.Brdf("rec", "merl", merltable.brdf_of(t), t), ref.size)
     return float(cmp.image_metrics(imgs, ref.images, ref.size)["psnr_db"])
 
 
@@ -143,7 +143,7 @@ def floors(name: str, incs: tuple[float, ...], small: Any, full: Any) -> dict[st
 
 
 def _positions(incs: tuple[float, ...]) -> Any:
-    from reconstruction.formats.slicefile import Slice
+    from reconstruction.core.slicedata import Slice
 
     to = np.arange(-BR.MAX_DEG, BR.MAX_DEG + 1e-9, BR.STEP_DEG)
     a = np.concatenate([np.full(int(np.sum(np.abs(to + t) >= BR.BLIND_DEG)), t) for t in incs])
@@ -179,8 +179,8 @@ def run_material(job: dict[str, Any]) -> dict[str, Any]:
     """Worker: one material's floors and reconstructions per case."""
     from threadpoolctl import threadpool_limits
 
+    from reconstruction.core import merltable
     from reconstruction.core.models import Material
-    from reconstruction.formats import merl
     from reconstruction.report import compare as cmp
 
     warnings.simplefilter("ignore")
@@ -193,11 +193,11 @@ def run_material(job: dict[str, Any]) -> dict[str, Any]:
         if cached.is_file():
             truth = np.load(cached).astype(np.float64)
         else:
-            truth = merl.tabulate(mat.eval)
+            truth = merltable.tabulate(mat.eval)
             cached.parent.mkdir(parents=True, exist_ok=True)
             np.save(cached, truth.astype(np.float32))
         truth = BR._as_read(truth)
-        tb = cmp.Brdf(name, "merl", merl.brdf_of(truth), truth)
+        tb = cmp.Brdf(name, "merl", merltable.brdf_of(truth), truth)
         small, full = cmp.reference(tb, 64, n_pairs=1000), cmp.reference(tb, 128, n_pairs=1000)
         rec: dict[str, Any] = {"material": name, "database": BR.database_of(folder, name)}
         m = ps.names.index(name)
@@ -227,8 +227,8 @@ def write_sheet(path: Path, names: list[str], folders: list[Path], mode: str = "
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from reconstruction.core import merltable
     from reconstruction.core.models import Material
-    from reconstruction.formats import merl
     from reconstruction.report import compare as cmp
 
     ps: P.PriorSet = STATE["ps"]
@@ -237,13 +237,13 @@ def write_sheet(path: Path, names: list[str], folders: list[Path], mode: str = "
                              squeeze=False)
     for row, name in zip(axes, names, strict=True):
         mat = Material.from_dict({"name": name, "lobes": [{"type": "nbrdf", "path": str(where[name] / name)}]})
-        truth = BR._as_read(merl.tabulate(mat.eval))
-        ref = cmp.reference(cmp.Brdf(name, "merl", merl.brdf_of(truth), truth), 128, n_pairs=1000)
+        truth = BR._as_read(merltable.tabulate(mat.eval))
+        ref = cmp.reference(cmp.Brdf(name, "merl", merltable.brdf_of(truth), truth), 128, n_pairs=1000)
         s = BR.slices_of(mat, BR.incidences_of(mode))
         shown = {"truth": (BR._display(ref.images, ref.images)["key"], name[:26])}
         for c, fn in DEFAULT_RECS(s, ps, name).items():
             t = BR._as_read(fn().table())
-            imgs = cmp.render_images(cmp.Brdf(c, "merl", merl.brdf_of(t), t), 128)
+            imgs = cmp.render_images(cmp.Brdf(c, "merl", merltable.brdf_of(t), t), 128)
             psnr = cmp.image_metrics(imgs, ref.images, 128)["psnr_db"]
             shown[c] = (BR._display(imgs, ref.images)["key"], f"{c}: {psnr:.1f} dB")
         for ax, (img, label) in zip(row, shown.values(), strict=True):

@@ -42,7 +42,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from reconstruction.formats.slicefile import Slice  # noqa: E402
+from reconstruction.core.slicedata import Slice  # noqa: E402
 from reconstruction.methods import prior as P  # noqa: E402
 
 K_GRID = (3, 5, 10, 20, 30)
@@ -134,8 +134,8 @@ def _image_floor(job: tuple[str, str, str | None, int]) -> dict[str, object]:
 
     from threadpoolctl import threadpool_limits
 
+    from reconstruction.core import merlgrid, merltable
     from reconstruction.core.models import Material
-    from reconstruction.formats import merl
     from reconstruction.report import compare as cmp
 
     warnings.simplefilter("ignore")
@@ -148,15 +148,15 @@ def _image_floor(job: tuple[str, str, str | None, int]) -> dict[str, object]:
         else:
             folder = next(f for f in folders.split(",") if (Path(f) / f"{name}_fc1.npy").is_file())
             mat = Material.from_dict({"name": name, "lobes": [{"type": "nbrdf", "path": str(Path(folder) / name)}]})
-            truth = merl.tabulate(mat.eval)
-        valid = merl.valid_mask()[None]
+            truth = merltable.tabulate(mat.eval)
+        valid = merlgrid.valid_mask()[None]
         truth = np.where(valid, truth, np.nan)
-        tb = cmp.Brdf(name, "merl", merl.brdf_of(truth), truth)
+        tb = cmp.Brdf(name, "merl", merltable.brdf_of(truth), truth)
         small, full = cmp.reference(tb, max(size // 2, 8), n_pairs=1000), cmp.reference(tb, size, n_pairs=1000)
 
         def psnr(f: np.ndarray, ref: cmp.Reference) -> float:
             t = np.where(valid, P.PriorReconstruction(["R", "G", "B"], f, {}).table(), np.nan)
-            return float(cmp.image_metrics(cmp.render_images(cmp.Brdf("floor", "merl", merl.brdf_of(t), t),
+            return float(cmp.image_metrics(cmp.render_images(cmp.Brdf("floor", "merl", merltable.brdf_of(t), t),
                                                              ref.size), ref.images, ref.size)["psnr_db"])
 
         out: dict[str, object] = {"material": name}

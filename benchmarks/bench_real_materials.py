@@ -45,13 +45,14 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from reconstruction import pipeline  # noqa: E402
+from reconstruction.core import merlgrid, merltable  # noqa: E402
 from reconstruction.core.checks import plausibility  # noqa: E402
 from reconstruction.core.geometry import inplane_to_dirs  # noqa: E402
 from reconstruction.core.metrics import IMAGE_MAX_VIEW_DEG, image_exposure, tone_map  # noqa: E402
 from reconstruction.core.models import NBRDF_SUFFIXES, Material  # noqa: E402
 from reconstruction.core.render import view_angle_mask  # noqa: E402
-from reconstruction.formats import merl  # noqa: E402
-from reconstruction.formats.slicefile import Slice  # noqa: E402
+from reconstruction.core.slicedata import Slice  # noqa: E402
+from reconstruction.methods import Options  # noqa: E402
 from reconstruction.report import compare as cmp  # noqa: E402
 
 MODES = {"1": (40.0,), "2": (40.0, 70.0), "3": (20.0, 40.0, 60.0)}
@@ -113,7 +114,7 @@ def slices_of(mat: Material, incidences: tuple[float, ...]) -> Slice:
 
 def _as_read(table: np.ndarray) -> np.ndarray:
     """A table as the truth's is read: NaN (a file's invalid marker) in the cells below the horizon."""
-    return np.where(merl.valid_mask()[None], table, np.nan)
+    return np.where(merlgrid.valid_mask()[None], table, np.nan)
 
 
 def material_truth(name: str, folder: str | Path, cache: str | Path | None) -> tuple[Any, np.ndarray]:
@@ -124,7 +125,7 @@ def material_truth(name: str, folder: str | Path, cache: str | Path | None) -> t
     if cached is not None and cached.is_file():
         truth = np.load(cached).astype(np.float64)
     else:
-        truth = merl.tabulate(mat.eval)
+        truth = merltable.tabulate(mat.eval)
         if cached is not None:
             cached.parent.mkdir(parents=True, exist_ok=True)
             np.save(cached, truth.astype(np.float32))
@@ -139,9 +140,9 @@ def _reconstruct(method: str, s: Slice, prior: str | None, name: str, shared: di
     if method == "constant":
         c = np.median(s.values.reshape(len(s), -1), axis=0)
         c = np.repeat(c, 3) if c.size == 1 else c
-        return np.broadcast_to(c[:, None, None, None], merl.SHAPE).copy(), {"used": "constant"}
+        return np.broadcast_to(c[:, None, None, None], merltable.SHAPE).copy(), {"used": "constant"}
     with_prior = method in ("prior", "auto+prior", "auto+prior-unbounded", "prior-local", "auto+prior-local")
-    opts = pipeline.Options(prior=prior if with_prior else None, prior_exclude=(name,) if with_prior else (),
+    opts = Options(prior=prior if with_prior else None, prior_exclude=(name,) if with_prior else (),
                             prior_near=LOCAL_NEAR if method.endswith("-local") else 0)
     base = method.removesuffix("-unbounded")
     facts: dict[str, Any] = {}
@@ -204,7 +205,7 @@ def run_material(job: dict[str, Any]) -> dict[str, Any]:
     with threadpool_limits(1), np.errstate(all="ignore"):
         cache = Path(job["cache"]) if job["cache"] else None
         mat, truth = material_truth(name, folder, cache)
-        tb = cmp.Brdf(name, "merl", merl.brdf_of(truth), truth)
+        tb = cmp.Brdf(name, "merl", merltable.brdf_of(truth), truth)
         ref = cmp.reference(tb, size)
         floor_file = cache / f"{name}.floor-{size}.json" if cache else None
         if floor_file is not None and floor_file.is_file():
@@ -227,7 +228,7 @@ def run_material(job: dict[str, Any]) -> dict[str, Any]:
                     table, facts = _reconstruct(m, s, job["prior"], name, shared)
                     rec["seconds"] = facts.pop("seconds", time.perf_counter() - t0)
                     rec.update(facts)
-                    a = cmp.Brdf(m, "merl", merl.brdf_of(_as_read(table)), _as_read(table))
+                    a = cmp.Brdf(m, "merl", merltable.brdf_of(_as_read(table)), _as_read(table))
                     imgs = cmp.render_images(a, size)
                     rec.update(_figures(cmp.judge(a, ref, images=imgs)))
                     if job["sheet"] and mode in SHEET_MODES and m == job["sheet_method"]:

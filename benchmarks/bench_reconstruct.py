@@ -23,9 +23,9 @@ from pathlib import Path
 import numpy as np
 
 from reconstruction import pipeline
+from reconstruction.core import merltable
 from reconstruction.core.metrics import relative_rmse_cos
 from reconstruction.core.models import Material
-from reconstruction.formats import merl
 from reconstruction.synthetic import synthetic_slice
 
 REPO = Path(__file__).resolve().parents[1]
@@ -38,7 +38,7 @@ def main() -> None:
     ap.add_argument("--material", default=str(REPO / "configs" / "simulated.toml"))
     args = ap.parse_args()
     mat = Material.from_toml(args.material)
-    truth = merl.tabulate(mat.eval)
+    truth = merltable.tabulate(mat.eval)
     methods = ["fit", "microfacet", "bivariate", "revolve", "auto"]
     load = " / ".join(f"{x:.1f}" for x in os.getloadavg())
     print(f"material {mat.name} ({args.material}); median of {args.repeats} repeats; {os.cpu_count()} CPUs, "

@@ -20,9 +20,9 @@ import time
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from reconstruction.core import merltable
 from reconstruction.core.models import Material
 from reconstruction.core.render import Lighting, Quadrature, SkyGround, render_sphere, view_angle_deg
-from reconstruction.formats import merl
 
 MATERIAL = {"name": "blue-plastic", "lobes": [{"type": "lambert", "albedo": [0.05, 0.1, 0.4]},
                                               {"type": "ggx", "alpha": 0.15, "specular": 0.9, "f0": 0.04}]}
@@ -46,7 +46,7 @@ def main() -> None:
     ap.add_argument("--accuracy-size", type=int, default=64, help="image size of the accuracy check (dense: slow)")
     args = ap.parse_args()
     mat = Material.from_dict(MATERIAL)
-    table_f = merl.brdf_of(merl.tabulate(mat.eval))
+    table_f = merltable.brdf_of(merltable.tabulate(mat.eval))
     print(f"default quadrature: {Quadrature().n_directions} directions per pixel")
     with threadpool_limits(limits=1):
         for preset in ("key", "rim"):

@@ -2,7 +2,7 @@
 
 Run: .venv/bin/python benchmarks/bench_revolve.py [--repeats N]
 
-Times ``revolve.revolve_table`` (reconstruct_revolve + merl.tabulate at bin centres, 1,458,000 direction
+Times ``revolve.revolve_table`` (reconstruct_revolve + merltable.tabulate at bin centres, 1,458,000 direction
 pairs) on a one-incidence slice of the default plan (theta_i 30 deg, theta_o -80..80 every 2 deg, the blind
 spot +-6 deg dropped) of the bench's blue plastic (Lambert + GGX, RGB), then its parts, a four-incidence
 slice, the thesis's hemisphere map, and the O(n log n) merge of 10^6 points. Target: < 1 s per table.
@@ -19,10 +19,10 @@ from typing import Any
 
 import numpy as np
 
+from reconstruction.core import merlgrid, merltable
 from reconstruction.core.geometry import inplane_to_dirs, sph_to_vec
 from reconstruction.core.models import Material
-from reconstruction.formats import merl
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 from reconstruction.methods import revolve as rv
 
 BLUE = Material.from_dict({"name": "blue-plastic", "lobes": [
@@ -53,14 +53,15 @@ def main() -> None:
     r = args.repeats
     load = " / ".join(f"{x:.1f}" for x in os.getloadavg())
     one, four = plan_slice([30.0]), plan_slice([10.0, 30.0, 50.0, 70.0])
-    merl.tabulate(lambda wi, wo: np.zeros((wi.shape[0], 1)))  # warm tabulate's cached cell directions
+    merltable.tabulate(lambda wi, wo: np.zeros((wi.shape[0], 1)))  # warm tabulate's cached cell directions
     rv.revolve_table(one)  # warm-up
     t_table = timed(lambda: rv.revolve_table(one), r)
     t_build = timed(lambda: rv.reconstruct_revolve(one), r)
     rec = rv.reconstruct_revolve(one)
-    # the bin-centre pairs merl.tabulate evaluates, from the public cell_to_dirs
-    cells = np.meshgrid(np.arange(merl.SHAPE[1]), np.arange(merl.SHAPE[2]), np.arange(merl.SHAPE[3]), indexing="ij")
-    wi, wo = (a.reshape(-1, 3) for a in merl.cell_to_dirs(*cells))
+    # the bin-centre pairs merltable.tabulate evaluates, from the public cell_to_dirs
+    cells = np.meshgrid(np.arange(merltable.SHAPE[1]), np.arange(merltable.SHAPE[2]), np.arange(merltable.SHAPE[3]),
+                        indexing="ij")
+    wi, wo = (a.reshape(-1, 3) for a in merlgrid.cell_to_dirs(*cells))
     t_eval = timed(lambda: rec.eval(wi, wo), r)
     t_four = timed(lambda: rv.revolve_table(four), r)
     t_hemi = timed(lambda: rv.thesis_hemisphere(one), r)

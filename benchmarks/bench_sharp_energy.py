@@ -18,17 +18,16 @@ import time
 
 import numpy as np
 
-from reconstruction.core import sharprows
+from reconstruction.core import merltable, sharprows
 from reconstruction.core.metrics import halfvector_albedo
 from reconstruction.core.models import Material
-from reconstruction.formats import merl
 
 CASES = [(0.0, 1e-4, 1.0), (0.02, 1e-3, 0.95), (0.0, 1e-3, 1.0), (0.1, 5e-3, 0.9), (0.05, 1e-2, 0.95)]
 THETA_I_DEG = np.array([0.0, 60.0, 80.0, 85.0])
 
 
 def _read(table: np.ndarray, interpolate: bool) -> np.ndarray:
-    look = lambda wi, wo: np.nan_to_num(merl.lookup(table, wi, wo, interpolate=interpolate))  # noqa: E731
+    look = lambda wi, wo: np.nan_to_num(merltable.lookup(table, wi, wo, interpolate=interpolate))  # noqa: E731
     return halfvector_albedo(look, np.radians(THETA_I_DEG))[:, 0]
 
 
@@ -40,7 +39,7 @@ def main() -> None:
         mat = Material.from_dict({"name": "m", "lobes": [{"type": "lambert", "albedo": lam},
                                                          {"type": "ggx", "alpha": alpha, "specular": ks}]})
         sharp = 5.0 * alpha  # the rows fit and microfacet average for such a lobe
-        table, _ = merl.average_theta_h_cells(mat.eval, merl.tabulate(mat.eval), sharp, n=8)
+        table, _ = merltable.average_theta_h_cells(mat.eval, merltable.tabulate(mat.eval), sharp, n=8)
         t0 = time.perf_counter()
         sharprows._readers(sharprows.sharp_rows(sharp))  # built once per machine, then read from the cache
         build = time.perf_counter() - t0

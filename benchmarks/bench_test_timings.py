@@ -38,7 +38,7 @@ sys.path.insert(0, str(ROOT))
 
 from reconstruction.bench.instrument import Instrument, instrument_average  # noqa: E402
 from reconstruction.core.models import Colour, Lambert, Material, Microfacet  # noqa: E402
-from reconstruction.formats.slicefile import Slice  # noqa: E402
+from reconstruction.core.slicedata import Slice  # noqa: E402
 from reconstruction.methods.fit import reconstruct_fit  # noqa: E402
 
 

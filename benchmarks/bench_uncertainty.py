@@ -32,7 +32,7 @@ sys.path.insert(0, str(ROOT))
 
 from reconstruction.core.geometry import inplane_to_dirs  # noqa: E402
 from reconstruction.core.models import Material  # noqa: E402
-from reconstruction.formats.slicefile import Slice  # noqa: E402
+from reconstruction.core.slicedata import Slice  # noqa: E402
 from reconstruction.methods import prior as P  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "realdata"

@@ -35,6 +35,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from reconstruction import pipeline  # noqa: E402
+from reconstruction.core import merltable  # noqa: E402
 from reconstruction.core.models import Colour, Lambert, Material, Microfacet  # noqa: E402
 from reconstruction.core.samples import PointFolds, out_of_plane  # noqa: E402
 from reconstruction.formats import merl, zemax  # noqa: E402
@@ -87,7 +88,7 @@ def real_file() -> None:
     rec, choice = pipeline.reconstruct(s, "auto", Options())
     table = pipeline.tabulate(rec)
     t_rec = time.perf_counter() - t0
-    pooled, per = against_points(merl.brdf_of(table), z)
+    pooled, per = against_points(merltable.brdf_of(table), z)
     print(f"  auto from all points: {rec.method} (held-out: {choice['cross_validation']['scheme']}), read + "
           f"reconstruct + tabulate {t_read + t_rec:.2f} s; the table against every point: {pooled:.1%} (per "
           f"incidence {', '.join(f'{x:g}: {e:.1%}' for x, e in zip(z.incidence_deg, per, strict=True))})")
@@ -98,7 +99,7 @@ def real_file() -> None:
               f"{time.perf_counter() - t0:.2f} s (target < 3 s)")
     for method in ("bivariate", "fit", "microfacet", "revolve"):
         r, _ = pipeline.reconstruct(s, method, Options())
-        pooled, per = against_points(merl.brdf_of(pipeline.tabulate(r)), z)
+        pooled, per = against_points(merltable.brdf_of(pipeline.tabulate(r)), z)
         print(f"  {method:10s} from all points, its table against every point: {pooled:.1%} "
               f"({', '.join(f'{e:.1%}' for e in per)})")
     from reconstruction.methods import scattered  # the reciprocity bound: the same grid, phi_d over 0-180 deg
@@ -155,7 +156,7 @@ def imaging_sphere_speed() -> None:
         subprocess.run([CLI, f"{tmp}/sphere.bsdf", "--method", "auto", "--out", f"{tmp}/t.binary", "--quiet"],
                        check=True)
         t_cli = time.perf_counter() - t0
-    pooled, _ = against_points(merl.brdf_of(table), z)
+    pooled, _ = against_points(merltable.brdf_of(table), z)
     print(f"An imaging-sphere-shaped file ({inc.size} incidences x {az.size} azimuths x {rad.size} radial angles, "
           f"{len(s.points):,} points; synthetic Oren-Nayar + ggx): auto ({rec.method}) read + reconstruct + "
           f"tabulate {t_in:.2f} s in-process, gonio-reconstruct end to end {t_cli:.2f} s (target < 3 s); the table "
@@ -175,7 +176,7 @@ def round_trips() -> None:
         subprocess.run([CLI, f"{tmp}/s.csv", "--method", "fit", "--out", f"{tmp}/a.binary", "--zemax", f"{tmp}/z.bsdf",
                         "--rgl", f"{tmp}/r.bsdf", "--quiet"], check=True)
         subprocess.run([CLI, f"{tmp}/z.bsdf", "--method", "fit", "--out", f"{tmp}/b.binary", "--quiet"], check=True)
-        a, b = merl.brdf_of(merl.read(f"{tmp}/a.binary")), merl.brdf_of(merl.read(f"{tmp}/b.binary"))
+        a, b = merltable.brdf_of(merl.read(f"{tmp}/a.binary")), merltable.brdf_of(merl.read(f"{tmp}/b.binary"))
         va, vb = a(wi, wo), b(wi, wo)
         print(f"Zemax round trip (fit of 3 synthetic demo slices -> --zemax, default grid "
               f"{Path(f'{tmp}/z.bsdf').stat().st_size / 1e6:.2f} MB -> gonio-reconstruct z.bsdf --method fit): "

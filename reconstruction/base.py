@@ -2,7 +2,7 @@
 
 A method takes in-plane slices (already converted to f_r in 1/sr and to 1 grey or 3 linear-RGB channels) and
 returns a :class:`Reconstruction`: a vectorised BRDF ``eval(wi, wo) -> (N, C)`` for any direction pairs, plus a
-JSON-serialisable ``report()``. ``reconstruction.formats.merl.tabulate(rec.eval, ...)`` turns it into a MERL table.
+JSON-serialisable ``report()``. ``reconstruction.core.merltable.tabulate(rec.eval, ...)`` turns it into a MERL table.
 
 What else a reconstruction can give, its outputs ask it (:func:`offers`), never its class: ``analytic_lobes()``
 (:class:`AnalyticLobes`: ``eval`` is this sum of lobes in closed form, which the parameters JSON and the Mitsuba

@@ -25,20 +25,21 @@ from tqdm import tqdm
 
 from reconstruction.atomic import is_no_space
 from reconstruction.base import ReconstructionError
+from reconstruction.core.merltable import MerlError
 from reconstruction.core.models import MaterialError
-from reconstruction.formats.merl import FILE_SIZE, MerlError
-from reconstruction.formats.slicefile import QUANTITIES, SliceError, shorten
-from reconstruction.pipeline import ImplausibleError, Job, implausible_message
+from reconstruction.core.slicedata import SliceError, shorten
+from reconstruction.formats.merl import FILE_SIZE
+from reconstruction.job import ImplausibleError, Job
 from reconstruction.pipeline import run as pipeline_run
+from reconstruction.schema.slice_meta import QUANTITIES
 
-__all__ = ["main", "build_parser", "run", "run_batch", "batch_files", "job_from_args", "ImplausibleError",
-           "implausible_message", "EXIT_IMPLAUSIBLE"]
+__all__ = ["main", "build_parser", "run", "run_batch", "batch_files", "job_from_args", "EXIT_IMPLAUSIBLE"]
 
 PROG = "gonio-reconstruct"
 DESCRIPTION = """\
 Reconstruct a full isotropic BRDF from in-plane slices and write it as a MERL table (.binary, 34,992,012 bytes).
 
-Inputs are gonio-brdf slice files (docs/slice-format.md) or generic CSV tables from other instruments' software
+Inputs are gonio-brdf slice files (docs/formats.md) or generic CSV tables from other instruments' software
 (an incidence column, a measured-angle column, one column per wavelength such as 450nm or per channel: value, or
 R,G,B); generic tables need --quantity. Several inputs (e.g. one per incidence) are merged. All-zero rows in
 the retro blind spot are missing data and are interpolated, not taken as zero.
@@ -193,7 +194,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def job_from_args(args: argparse.Namespace, **overrides: Any) -> Job:
-    """The :class:`~reconstruction.pipeline.Job` of a parsed command line (``overrides``: fields to replace). A
+    """The :class:`~reconstruction.job.Job` of a parsed command line (``overrides``: fields to replace). A
     method's flag goes to the Job's field of its name (``fill``, ``axis``, ``prior_anchor``, ...) or, for a method
     without one, to :attr:`Job.options`."""
     from reconstruction.methods.flags import values as method_values

@@ -20,6 +20,8 @@ from concurrent.futures import Executor, Future, ThreadPoolExecutor, as_complete
 from contextlib import contextmanager
 from typing import Any, TypeVar
 
+from threadpoolctl import threadpool_limits
+
 T = TypeVar("T")
 
 __all__ = ["make_executor", "run_all", "Background", "SpareCore", "release_spare_core", "Forked", "forked", "can_fork",
@@ -65,8 +67,6 @@ def make_executor(scheduler: str | None = None, workers: int | None = None,
 
 def _one_blas_thread() -> None:
     """Worker initializer: one BLAS thread per process, so N workers do not oversubscribe the N cores."""
-    from threadpoolctl import threadpool_limits
-
     threadpool_limits(1, user_api="blas")
 
 
@@ -349,8 +349,6 @@ def _forked_child(inbox: int, outbox: int) -> None:
     without cleanup (``os._exit``) at the end of its input."""
     code = 1
     try:
-        from threadpoolctl import threadpool_limits
-
         # the parent's other descriptors closed: a pipe to another child (the HTML page's drawer) held open here
         # would keep that child from seeing the end of its input
         for name in os.listdir("/proc/self/fd"):  # Linux (can_fork); a few dozen

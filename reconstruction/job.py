@@ -1,6 +1,5 @@
 """What one reconstruction is asked to do (:class:`Job`: one ``gonio-reconstruct`` command line), the checks of
-its outputs before any work, and its failure when a table is implausible. :mod:`reconstruction.pipeline` runs it
-(and re-exports these names)."""
+its outputs before any work, and its failure when a table is implausible. :mod:`reconstruction.pipeline` runs it."""
 
 from __future__ import annotations
 
@@ -13,6 +12,8 @@ from typing import Any, Protocol
 import numpy as np
 
 from reconstruction.base import ReconstructionError
+from reconstruction.formats import exports
+from reconstruction.principled.outputs import wants
 
 __all__ = ["ImplausibleError", "Job", "Progress", "check_output", "implausible_message", "check_outputs"]
 
@@ -93,8 +94,6 @@ class Job:
     @property
     def steps(self) -> list[str]:
         """The steps ``pipeline.run`` reports to its ``progress`` (for a progress bar's total)."""
-        from reconstruction.principled.outputs import wants
-
         return (["read", "colour", "reconstruct", "tabulate", "checks"]
                 + (["conservative"] if self.bounds else [])
                 + ["write"] + (["preview"] if self.preview else [])
@@ -164,8 +163,6 @@ def implausible_message(method: str, checks: dict[str, Any]) -> str:
 
 def check_outputs(job: Job) -> None:
     """Every output path of ``job`` checked (and the exports' arguments) before any work."""
-    from reconstruction.formats import exports
-
     if job.out:
         check_output(Path(job.out), ".binary", "--out")
     elif not exports.asks_output(job):

@@ -7,37 +7,51 @@ result, and :func:`run`, the whole way from input files to a table, a preview an
 
 from __future__ import annotations
 
+import json
 import time
+import warnings
 from collections.abc import Callable
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from reconstruction.assess import advice, guard, uncertainty
+from reconstruction.atomic import atomic_path
 from reconstruction.base import Reconstruction, ReconstructionError
-from reconstruction.core import sharprows
-from reconstruction.formats import merl
+from reconstruction.core import colour, merlgrid, merltable, sharprows
+from reconstruction.core.checks import plausibility
+from reconstruction.core.scene import load_scene
+from reconstruction.core.slicedata import Slice
+from reconstruction.formats import brdffile, exports, inputs, merl, zemax
 from reconstruction.formats.inputs import check_slice
-from reconstruction.formats.slicefile import Slice
-from reconstruction.job import (  # noqa: F401  (the job's names, re-exported: pipeline.Job)
+from reconstruction.job import (
     ImplausibleError,
     Job,
     Progress,
-    check_output,
     check_outputs,
     implausible_message,
 )
 from reconstruction.methods import REGISTRY, Options, get
-from reconstruction.methods.auto import KEEP_BUILDS, import_methods, reconstruct_auto, start_child
+from reconstruction.methods.auto import reconstruct_auto
+from reconstruction.principled.outputs import wants as wants_principled
+from reconstruction.principled.outputs import write_outputs as write_principled
+from reconstruction.report import html as htmlreport
+from reconstruction.report import preview, summary
+from reconstruction.report.spheres import sphere_images
+from reconstruction.schema.files import UserFileError, check_user_file
+from reconstruction.schema.scene import LOBE_KINDS
+from reconstruction.workers import Workers
 
 Array = NDArray[np.float64]
 
-__all__ = ["METHODS", "Options", "reconstruct", "tabulate", "Job", "Progress", "run", "ImplausibleError",
-           "check_output", "implausible_message"]
+__all__ = ["METHODS", "reconstruct", "tabulate", "run", "Made", "bound_where_unmeasured", "material_of"]
 
 METHODS = ("auto", *REGISTRY)
+
+
 def reconstruct(s: Slice, method: str = "auto", opts: Options | None = None,
                 progress: Callable[[str], None] | None = None) -> tuple[Reconstruction, dict[str, Any]]:
     """Reconstruct ``s`` (f_r, grey or RGB) with ``method`` (``auto`` or a registered name); returns
@@ -55,9 +69,9 @@ def reconstruct(s: Slice, method: str = "auto", opts: Options | None = None,
 def tabulate(rec: Reconstruction, supersample: tuple[int, int, int] | str | None = None,
              info: dict[str, Any] | None = None) -> Array:
     """The MERL table (3, 90, 90, 180) of ``rec``: bin-centre values, or cell averages with ``supersample``
-    ((nh, nd, np) or "adaptive", see :func:`reconstruction.formats.merl.tabulate`).
+    ((nh, nd, np) or "adaptive", see :func:`reconstruction.core.merltable.tabulate`).
 
-    Uses the method's own fast ``table()`` for bin centres when it has one; otherwise ``merl.tabulate``. Where the
+    Uses the method's own fast ``table()`` for bin centres when it has one; otherwise ``merltable.tabulate``. Where the
     method names a lobe narrower than the cells (``sharp_theta_h_rad``), the rows holding it are cell averages over
     theta_h, each theta_d row scaled to the lobe's energy as table readers see it
     (:func:`reconstruction.core.sharprows.renormalise`; its figures go into ``info`` when given).
@@ -68,14 +82,14 @@ def tabulate(rec: Reconstruction, supersample: tuple[int, int, int] | str | None
     if supersample is None and callable(fast):
         t = fast()  # the method's own table (its own theta_h cell averages where a lobe is sharper than the cells)
     else:
-        t = merl.tabulate(rec.eval, supersample=supersample)
+        t = merltable.tabulate(rec.eval, supersample=supersample)
         if supersample is None and sharp:
-            t, _ = merl.average_theta_h_cells(rec.eval, t, sharp, n=8)
+            t, _ = merltable.average_theta_h_cells(rec.eval, t, sharp, n=8)
     if supersample is None and sharp:  # those rows keep the lobe's energy as table readers see it
         t, figures = sharprows.renormalise(rec.eval, t, sharp)
         if info is not None:
             info.update(figures)
-    valid = merl.valid_mask()[None]
+    valid = merlgrid.valid_mask()[None]
     bad = valid & ~np.isfinite(t)
     if bad.any():
         raise ReconstructionError(f"method {rec.method}: {int(bad.sum())} table cell(s) above the horizon have no "
@@ -98,44 +112,65 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
     naming the file, checked output paths before any work. The job's fits (auto's folds, the HTML report's other
     methods) share their cone integrals (:func:`reconstruction.bench.instrument.shared_cone_averages`). With the
     uncertainty or the HTML page asked and a second core, what they need that does not wait for the main thread
-    runs beside it in a helper thread (:class:`reconstruction.executor.Background`): the built-in family's
-    posterior (the samples' alone) while the samples are reconstructed, matplotlib's imports while the table is
-    tabulated, checked and written; in another, the page's sphere renders from the tabulation on (again if a
-    fallback or the conservative bound changes the table); the page's other figures are drawn in forked
-    children (:func:`reconstruction.report.figures.beside`)."""
-    from contextlib import nullcontext
+    runs beside it (:class:`reconstruction.workers.Workers`): the built-in family's posterior (the samples' alone)
+    while the samples are reconstructed, matplotlib's imports while the table is tabulated, checked and written;
+    in another thread, the page's sphere renders from the tabulation on (again if a fallback or the conservative
+    bound changes the table); the page's other figures are drawn in forked children
+    (:class:`reconstruction.report.figures.Drawer`)."""
+    check_outputs(job)
+    with Workers.start(job) as workers:
+        steps = _Steps(job, progress, workers)
+        made = _load(steps)
+        made = _reconstruct(steps, made)
+        made = _check(steps, made)
+        made = _write(steps, made)
+        return _report(steps, made)
 
-    from threadpoolctl import threadpool_limits
 
-    from reconstruction.bench.instrument import seed_shared_cone_averages, shared_cone_averages
-    from reconstruction.executor import Background, Forked
+@dataclass(frozen=True)
+class Made:
+    """What the run's steps have made so far: each step is given it and returns a copy with its own part.
 
-    # the built-in family's posterior beside the reconstruction: one BLAS thread for the whole run, so that the
-    # limits fit sets and lifts around its own solves (process-wide) never change the posterior's threads midway
-    from reconstruction.report.figures import Drawer
+    ``_load``: ``loaded`` (:class:`reconstruction.formats.inputs.Loaded`: the slice, files, quantities, notes),
+    ``scene`` (or None), ``working`` (the samples in the working channels, grey or linear RGB) and ``colour``
+    (what the colour conversion did). ``_reconstruct``: ``rec``, ``choice`` (auto's), ``opts``, ``early`` (the
+    built-in family's posterior under way, or None) and ``others`` (the page's other methods). ``_check``:
+    ``table`` (3, 90, 90, 180), ``checks``, ``energy`` (the sharp rows' figures), ``bounded`` (the conservative
+    section, or None), ``ref`` (the posterior reference, or None) and ``spheres`` (the page's sphere renders under
+    way, or None). ``_write``: ``outputs`` and ``principled`` (its report section, or None)."""
 
-    blas = threadpool_limits(1, user_api="blas") if job.posterior_early else nullcontext()
-    # the page's drawer and auto's child for the cross-validation of the methods that do not wait for fit first:
-    # they are forked before any thread of the run starts and before scipy is imported (half a second): the drawer
-    # imports matplotlib meanwhile, auto's child computes fit's cone tables of the samples and imports the methods
-    with Drawer(enabled=bool(job.html)) as drawer:
-        child = Forked(enabled=job.method == "auto")
-        seed = (start_child(child, job.inputs, job.quantity, job.columns, job.blind_spot_deg, job.angles_in)
-                if child.alive else None)
-        if job.method == "auto":
-            import_methods()
-        with child, blas, shared_cone_averages(), Background(enabled=job.assesses or job.bounds) as helper, \
-                Background(enabled=bool(job.html)) as renders:
-            if seed is not None:
-                seed_shared_cone_averages(seed())
-            return _run(job, progress, helper, renders, drawer)
+    loaded: Any
+    scene: Any
+    working: Slice
+    colour: dict[str, Any]
+    rec: Reconstruction | None = None
+    choice: dict[str, Any] = field(default_factory=dict)
+    opts: Options = field(default_factory=Options)
+    early: Callable[[], Any] | None = None
+    others: dict[str, Reconstruction] = field(default_factory=dict)
+    table: Array | None = None
+    checks: dict[str, Any] = field(default_factory=dict)
+    energy: dict[str, Any] = field(default_factory=dict)
+    bounded: dict[str, Any] | None = None
+    ref: Any = None
+    spheres: Callable[[], Any] | None = None
+    outputs: dict[str, Any] = field(default_factory=dict)
+    principled: dict[str, Any] | None = None
+
+    @property
+    def reference(self) -> Any:
+        """The posterior reference: the one computed already, else the early one (waited for), else None."""
+        return self.ref if self.ref is not None or self.early is None else self.early()[0]
 
 
 class _Steps:
-    """The run's named steps: each begun (shown on the progress bar) and done (its time in ``timings``, s)."""
+    """The run's job, its workers and its named steps: each begun (shown on the progress bar) and done (its time in
+    ``timings``, s)."""
 
-    def __init__(self, progress: Progress | None) -> None:
+    def __init__(self, job: Job, progress: Progress | None, workers: Workers) -> None:
+        self.job = job
         self.progress = progress
+        self.workers = workers
         self.timings: dict[str, float] = {}
 
     def begin(self, label: str) -> float:
@@ -149,73 +184,16 @@ class _Steps:
             self.progress.done(step)
 
 
-def _run(job: Job, progress: Progress | None, helper: Any, renders: Any, drawer: Any) -> dict[str, Any]:
-    """Read, reconstruct, tabulate, check, bound, write and report: the run's steps in order."""
-    check_outputs(job)
-    steps = _Steps(progress)
-    loaded, scene = _read_inputs(job, steps)
-    working, colour_info = _to_working(job, loaded, steps, drawer)
-    rec, choice, opts, early, others = _reconstruct_step(job, steps, working, scene, helper, drawer)
-    drawn_for = rec  # the reconstruction the sample figures were sent for
-    rec, table, checks, energy, bounded, ref = _table_step(job, steps, rec, choice, working, opts, early)
-    spheres = None
-    if job.html:  # the page's sphere renders (numpy) in a thread of their own, from now to the page's drawing
-        from reconstruction.report.html import draw_table_figures
-        from reconstruction.report.spheres import sphere_images
-
-        spheres = renders.submit(sphere_images, np.asarray(table, dtype=np.float64), checks["albedo"])
-        if rec is not drawn_for:  # a fallback or the bounded reconstruction: its figures sent again
-            others = _send_sample_figures(job, drawer, working, rec, choice, opts, others)
-        draw_table_figures(drawer, working.sorted(), table, checks)  # the final table's
-    outputs, principled, ref = _write_step(job, steps, rec, table, working, early, ref)
-    rep = _report(job, steps, loaded, scene, rec, choice, working, table, checks, colour_info, energy, outputs)
-    if principled is not None:
-        rep["principled"] = principled
-    _warn(rep, loaded.files)
-    if bounded is not None:
-        rep["conservative"] = bounded
-    sigma_table = None
-    if job.assesses:
-        t0 = steps.begin("uncertainty")
-        sigma_table = _assess(job, rep, working, rec, opts, steps.begin, steps.done,
-                              ref if ref is not None or early is None else early()[0],
-                              getattr(loaded, "capture", None) or {})
-        steps.done("uncertainty", t0)
-    _finish(job, steps, rep, outputs, checks, working, rec, table, others, choice, sigma_table, spheres, drawer)
-    return rep
-
-
-def _read_inputs(job: Job, steps: _Steps) -> tuple[Any, Any]:
-    """The inputs (``inputs.Loaded``: the slice, files, quantities, notes) and the scene (or None)."""
-    from reconstruction.core.scene import load_scene
-    from reconstruction.formats import brdffile, inputs, zemax
-    from reconstruction.schema.files import UserFileError, check_user_file
-
+def _load(steps: _Steps) -> Made:
+    """The inputs and the scene read, the samples in the working channels (grey or linear RGB)."""
+    job = steps.job
     t0 = steps.begin("reading inputs")
     loaded = zemax.load_inputs(list(job.inputs), job.quantity, job.columns) or brdffile.load_inputs(
         list(job.inputs), job.quantity, job.columns) or inputs.load_inputs(
         list(job.inputs), quantity=job.quantity, columns=inputs.parse_columns(job.columns),
         blind_spot_deg=job.blind_spot_deg, angles_in=job.angles_in)
-    scene = None
-    if job.scene:
-        sp = Path(job.scene)
-        try:
-            check_user_file(sp, "a scene file (TOML)")
-        except UserFileError as e:
-            if e.kind in ("directory", "special"):  # a device or a pipe would block the read
-                raise ReconstructionError(f"--scene {sp}: not a regular file, expected a scene file (TOML)") from None
-        try:
-            scene = load_scene(sp)
-        except RecursionError:
-            raise ReconstructionError(f"--scene {sp}: invalid TOML: nested too deeply") from None
+    scene = _read_scene(Path(job.scene)) if job.scene else None
     steps.done("read", t0)
-    return loaded, scene
-
-
-def _to_working(job: Job, loaded: Any, steps: _Steps, drawer: Any) -> tuple[Slice, dict[str, Any]]:
-    """The samples in the working channels (grey or linear RGB) and what the colour conversion did."""
-    from reconstruction.core import colour
-
     t0 = steps.begin("colour")
     try:
         working, colour_info = colour.to_working_channels(loaded.slice, job.illuminant)
@@ -226,87 +204,120 @@ def _to_working(job: Job, loaded: Any, steps: _Steps, drawer: Any) -> tuple[Slic
     if name and "material" not in working.meta:  # the merged inputs keep no metadata: the name is the files'
         working = replace(working, meta={**working.meta, "material": name})
     if job.html:  # the page's figure of the samples alone, drawn by its child while they are reconstructed
-        from reconstruction.report.html import draw_polar_figure
-
-        draw_polar_figure(drawer, working)
-    return working, colour_info
+        htmlreport.draw_polar_figure(steps.workers.drawer, working)
+    return Made(loaded=loaded, scene=scene, working=working, colour=colour_info)
 
 
-def _reconstruct_step(job: Job, steps: _Steps, working: Slice, scene: Any, helper: Any, drawer: Any
-                      ) -> tuple[Reconstruction, dict[str, Any], Options, Any, dict[str, Any]]:
-    """The chosen method's reconstruction, auto's choice, the options, the early posterior's future (or None) and
-    the page's other methods."""
-    from reconstruction.core.scene import LOBE_KINDS
-    from reconstruction.executor import SpareCore
+def _read_scene(sp: Path) -> Any:
+    """The scene file of ``--scene`` (:func:`reconstruction.core.scene.load_scene`), its errors worded for the
+    flag."""
+    try:
+        check_user_file(sp, "a scene file (TOML)")
+    except UserFileError as e:
+        if e.kind in ("directory", "special"):  # a device or a pipe would block the read
+            raise ReconstructionError(f"--scene {sp}: not a regular file, expected a scene file (TOML)") from None
+    try:
+        return load_scene(sp)
+    except RecursionError:
+        raise ReconstructionError(f"--scene {sp}: invalid TOML: nested too deeply") from None
 
+
+def _reconstruct(steps: _Steps, made: Made) -> Made:
+    """The chosen method's reconstruction (auto's choice), the early posterior under way, the page's other
+    methods."""
+    job = steps.job
     lobes = list(job.lobes) if job.lobes else None
     if lobes:
         unknown = [x for x in lobes if x not in LOBE_KINDS]
         if unknown:
             raise ReconstructionError(f"--lobes: unknown kind(s) {unknown}; expected {', '.join(LOBE_KINDS)}")
     t0 = steps.begin("reconstructing")
-    opts = Options(scene=scene, **{**job.method_options(), "lobes": lobes})
-    early = None
-    # auto cross-validates the methods that do not wait for fit beside it (in its forked child, or a thread of its
-    # own): the posterior below waits until that is done (a third busy worker on two cores would slow fit, the
-    # critical path)
-    spare = SpareCore(hold=job.method == "auto")
-    if job.posterior_early:  # the built-in family's posterior (and auto's bound from it) depend on the samples alone
-        early = helper.submit(spare.later(_early_reference), working.sorted(), job.bounds)
-    keep = KEEP_BUILDS.set(bool(job.html))  # the page draws every method: auto's child builds its own
+    opts = Options(scene=made.scene, **{**job.method_options(), "lobes": lobes})
     progress = steps.progress
-    try:
-        with spare:
-            rec, choice = reconstruct(working, job.method, opts,
-                                      progress=(lambda name: progress.begin(f"fitting {name}")) if progress else None)
-    finally:
-        KEEP_BUILDS.reset(keep)
+    with steps.workers.reconstructing(_early_reference, made.working.sorted(), job.bounds) as early:
+        rec, choice = reconstruct(made.working, job.method, opts,
+                                  progress=(lambda name: progress.begin(f"fitting {name}")) if progress else None)
     steps.done("reconstruct", t0)
     built = choice.pop("built", None)  # auto's forked child's builds of its methods (with the page)
-    others: dict[str, Any] = {}
+    made = replace(made, rec=rec, choice=choice, opts=opts, early=early)
     if job.html:  # the page's figures of the samples and methods, drawn by its child while the run goes on
-        others = _send_sample_figures(job, drawer, working, rec, choice, opts, built=built() if built else None)
-    return rec, choice, opts, early, others
+        made = replace(made, others=_send_sample_figures(job, steps.workers.drawer, made.working, rec, choice, opts,
+                                                         built=built() if built else None))
+    return made
 
 
-def _table_step(job: Job, steps: _Steps, rec: Reconstruction, choice: dict[str, Any], working: Slice, opts: Options,
-                early: Any) -> tuple[Reconstruction, Array, dict[str, Any], dict[str, Any], Any, Any]:
-    """Tabulate, check (falling back when auto has fallbacks), bound where no sample rests: (rec, table, checks,
-    energy, the conservative section or None, the posterior reference or None)."""
-    from reconstruction.report import summary as report
-
+def _check(steps: _Steps, made: Made) -> Made:
+    """Tabulate, check (falling back when auto has fallbacks), bound where no sample rests; the page's sphere
+    renders and table figures started."""
+    job = steps.job
+    rec = made.rec
+    assert rec is not None
     t0 = steps.begin("tabulating" + (f" (supersample {job.supersample})" if job.supersample else ""))
     energy: dict[str, Any] = {}
     table = tabulate(rec, job.supersample, energy)
     steps.done("tabulate", t0)
     t0 = steps.begin("plausibility checks")
-    checks = report.plausibility(rec, table)
-    fallbacks = choice.pop("fallbacks", None)
-    if not checks["all_pass"] and not job.allow_implausible and fallbacks is not None:
-        rec, table, checks, energy = _fall_back(job, (rec, table, checks, energy), choice, fallbacks, steps.progress)
+    checked = replace(made, table=table, checks=plausibility(rec, table), energy=energy)
+    fallbacks = made.choice.pop("fallbacks", None)
+    if not checked.checks["all_pass"] and not job.allow_implausible and fallbacks is not None:
+        checked = _fall_back(steps, checked, fallbacks)
     steps.done("checks", t0)
-    if not checks["all_pass"] and not job.allow_implausible:
-        raise ImplausibleError(implausible_message(rec.method, checks))
-    ref, bounded = None, None
+    if not checked.checks["all_pass"] and not job.allow_implausible:
+        raise ImplausibleError(implausible_message(checked.rec.method, checked.checks))
     if job.bounds:
         t0 = steps.begin("conservative bound")
-        rec, table, bounded, ref = bound_where_unmeasured(
-            rec, table, working, opts, *(early() if early is not None else ()))
-        if bounded["applied"]:
-            checks = report.plausibility(rec, table)  # of the table written (only lowered: still passing)
+        bounded_rec, bounded_table, bounded, ref = bound_where_unmeasured(
+            checked.rec, checked.table, made.working, made.opts,
+            *(made.early() if made.early is not None else ()))
+        checked = replace(checked, rec=bounded_rec, table=bounded_table, bounded=bounded, ref=ref)
+        if bounded["applied"]:  # of the table written (only lowered: still passing)
+            checked = replace(checked, checks=plausibility(bounded_rec, bounded_table))
         steps.done("conservative", t0)
-    return rec, table, checks, energy, bounded, ref
+    if job.html:  # the page's sphere renders (numpy) in a thread of their own, from now to the page's drawing
+        checked = _start_page(steps, checked, drawn_for=rec)
+    return checked
 
 
-def _write_step(job: Job, steps: _Steps, rec: Reconstruction, table: Array, working: Slice, early: Any, ref: Any
-                ) -> tuple[dict[str, Any], Any, Any]:
-    """Write the table, the exports, the preview and the principled material: (outputs, principled section or
-    None, the posterior reference)."""
-    from reconstruction.formats import exports, merl
-    from reconstruction.principled.outputs import wants as wants_principled
-    from reconstruction.principled.outputs import write_outputs as write_principled
-    from reconstruction.report import preview
+def _fall_back(steps: _Steps, made: Made, fallbacks: Callable[[], Any]) -> Made:
+    """auto's chosen method wrote an implausible table (``made``: its reconstruction, table, checks and the
+    tabulation's notes): the next methods in auto's order, the first whose table passes every check (its
+    ``choice`` says so); ``made`` when none does (then refused as before)."""
+    rec, choice = made.rec, made.choice
+    assert rec is not None
+    failed = implausible_message(rec.method, made.checks)
+    for label, alt in fallbacks():
+        if steps.progress is not None:
+            steps.progress.begin(f"falling back to {label}")
+        energy: dict[str, Any] = {}
+        table = tabulate(alt, steps.job.supersample, energy)
+        c = plausibility(alt, table)
+        if c["all_pass"]:
+            choice["used"] = alt.method
+            choice["reason"] += f"; not written: {failed}; written instead: {label}, the next in auto's order"
+            cv = choice.get("cross_validation", {})
+            cv.update({"chosen": alt.method, "chosen_label": label, "fell_back_from": rec.method})
+            return replace(made, rec=alt, table=table, checks=c, energy=energy)
+    return made
 
+
+def _start_page(steps: _Steps, made: Made, drawn_for: Reconstruction) -> Made:
+    """The page's sphere renders started in their thread, the sample figures sent again if the reconstruction is
+    no longer ``drawn_for`` (a fallback or the bounded reconstruction), the final table's figures sent."""
+    drawer, rec = steps.workers.drawer, made.rec
+    assert rec is not None
+    spheres = steps.workers.renders.submit(sphere_images, np.asarray(made.table, dtype=np.float64),
+                                           made.checks["albedo"])
+    others = made.others
+    if rec is not drawn_for:  # a fallback or the bounded reconstruction: its figures sent again
+        others = _send_sample_figures(steps.job, drawer, made.working, rec, made.choice, made.opts, others)
+    htmlreport.draw_table_figures(drawer, made.working.sorted(), made.table, made.checks)  # the final table's
+    return replace(made, spheres=spheres, others=others)
+
+
+def _write(steps: _Steps, made: Made) -> Made:
+    """Write the table, the exports, the preview and the principled material."""
+    job, rec, table = steps.job, made.rec, made.table
+    assert rec is not None and table is not None
     out = Path(job.out) if job.out else None
     t0 = steps.begin("writing table")
     outputs: dict[str, Any] = {}
@@ -320,113 +331,90 @@ def _write_step(job: Job, steps: _Steps, rec: Reconstruction, table: Array, work
         outputs["preview"] = (exports.mitsuba_preview(job, rec, outputs) if job.preview_renderer == "mitsuba"
                               else preview.write_preview(job.preview, table))
         steps.done("preview", t0)
-    principled = None
+    principled, ref = None, made.ref
     if wants_principled(job):
-        if early is not None:  # its fit sets the process's BLAS threads, as the posterior does: one at a time
-            ref = early()[0]
+        if made.early is not None:  # its fit sets the process's BLAS threads, as the posterior does: one at a time
+            ref = made.early()[0]
         t0 = steps.begin("principled material")
-        files, principled = write_principled(job, rec, _name(job, working))
+        files, principled = write_principled(job, rec, _name(job, made.working))
         outputs.update(files)
         steps.done("principled", t0)
-    return outputs, principled, ref
+    return replace(made, outputs=outputs, principled=principled, ref=ref)
 
 
-def _report(job: Job, steps: _Steps, loaded: Any, scene: Any, rec: Reconstruction, choice: dict[str, Any],
-            working: Slice, table: Array, checks: dict[str, Any], colour_info: dict[str, Any],
-            energy: dict[str, Any], outputs: dict[str, Any]) -> dict[str, Any]:
+def _report(steps: _Steps, made: Made) -> dict[str, Any]:
+    """The JSON report (docs/formats.md), the uncertainty and the advice assessed, the report and the HTML page
+    written: returns the report."""
+    job, rec = steps.job, made.rec
+    assert rec is not None
+    rep = _report_body(steps, made)
+    if made.principled is not None:
+        rep["principled"] = made.principled
+    _warn(rep, made.loaded.files)
+    if made.bounded is not None:
+        rep["conservative"] = made.bounded
+    sigma_table = None
+    if job.assesses:
+        t0 = steps.begin("uncertainty")
+        sigma_table = _assess(job, rep, made.working, rec, made.opts, steps.begin, steps.done, made.reference,
+                              getattr(made.loaded, "capture", None) or {})
+        steps.done("uncertainty", t0)
+    if not made.checks["all_pass"]:
+        rep["implausible_table_written"] = "written with --allow-implausible: " + implausible_message(rec.method,
+                                                                                                      made.checks)
+    if job.html:
+        made.outputs["html"] = str(job.html)
+        rep["outputs"]["html"] = str(job.html)
+    if job.report:
+        made.outputs["report"] = str(job.report)
+        rep["outputs"]["report"] = str(job.report)
+        summary.write_json(job.report, rep)
+    if job.html:
+        t0 = steps.begin("html report")
+        _write_html(job, rep, made.working, rec, made.table, made.others, made.choice, sigma_table, made.spheres,
+                    steps.workers.drawer)
+        rep["timings_s"]["html"] = round(time.perf_counter() - t0, 4)
+        steps.done("html", t0)
+    return rep
+
+
+def _report_body(steps: _Steps, made: Made) -> dict[str, Any]:
     """The JSON report's body (docs/formats.md)."""
-    from reconstruction.formats import merl
-    from reconstruction.report import summary as report
-
-    return report.build_report(
-        rec=rec, choice=choice, working=working, table=table, checks=checks,
+    job, loaded, scene = steps.job, made.loaded, made.scene
+    return summary.build_report(
+        rec=made.rec, choice=made.choice, working=made.working, table=made.table, checks=made.checks,
         inputs={"files": loaded.files, "quantities": loaded.quantities, "notes": loaded.notes,
                 "columns": job.columns, "scene": job.scene,
                 **({"scene_ranges_deg": {"theta_i": scene.theta_i_deg, "theta_o": scene.theta_o_deg},
                     **({"scene_view": scene.view} if scene.view else {})} if scene is not None else {})},
-        colour=colour_info,
-        table_info={"cells": 3 * merl.N_CELLS,
-                    "values": "cell averages" if job.supersample else getattr(rec, "table_values", "bin centres")
-                    + ("; " + sharprows.DESCRIPTION if energy else ""),
-                    **({"sharp_rows": energy} if energy else {}),
+        colour=made.colour,
+        table_info={"cells": 3 * merltable.N_CELLS,
+                    "values": "cell averages" if job.supersample else getattr(made.rec, "table_values", "bin centres")
+                    + ("; " + sharprows.DESCRIPTION if made.energy else ""),
+                    **({"sharp_rows": made.energy} if made.energy else {}),
                     "supersample": (list(job.supersample) if isinstance(job.supersample, tuple)
                                     else job.supersample),
                     "bin_centres": "theta_h = ((i + 0.5) / 90)^2 * 90 deg, theta_d = j + 0.5 deg, "
                                    "phi_d = k + 0.5 deg"},
-        outputs=outputs, timings=steps.timings, dropped_blind_spot=loaded.dropped_blind_spot)
+        outputs=made.outputs, timings=steps.timings, dropped_blind_spot=loaded.dropped_blind_spot)
 
 
 def _warn(rep: dict[str, Any], files: list[str]) -> None:
     """Say what the samples cannot support (:func:`reconstruction.report.summary.guard_warnings`): as warnings
     (one line each on the console) and in the report's ``warnings``."""
-    import warnings
-
-    from reconstruction.report.summary import guard_warnings
-
-    said = guard_warnings(rep["coverage"], rep.get("cross_validation"), ", ".join(files), rep.get("method"),
-                          rep.get("parameters"))
+    said = summary.guard_warnings(rep["coverage"], rep.get("cross_validation"), ", ".join(files), rep.get("method"),
+                                  rep.get("parameters"))
     for msg in said:
         warnings.warn(msg, UserWarning, stacklevel=2)
     if said:
         rep["warnings"] = said
 
 
-def _finish(job: Job, steps: _Steps, rep: dict[str, Any], outputs: dict[str, Any], checks: dict[str, Any],
-            working: Slice, rec: Reconstruction, table: Array, others: dict[str, Any], choice: dict[str, Any],
-            sigma_table: Any, spheres: Any, drawer: Any) -> None:
-    """The report's last words, the JSON report and the HTML page written."""
-    from reconstruction.report import summary as report
-
-    if not checks["all_pass"]:
-        rep["implausible_table_written"] = "written with --allow-implausible: " + implausible_message(rec.method,
-                                                                                                      checks)
-    if job.html:
-        outputs["html"] = str(job.html)
-        rep["outputs"]["html"] = str(job.html)
-    if job.report:
-        outputs["report"] = str(job.report)
-        rep["outputs"]["report"] = str(job.report)
-        report.write_json(job.report, rep)
-    if job.html:
-        t0 = steps.begin("html report")
-        _write_html(job, rep, working, rec, table, others, choice, sigma_table, spheres, drawer)
-        rep["timings_s"]["html"] = round(time.perf_counter() - t0, 4)
-        steps.done("html", t0)
-
-
-def _fall_back(job: Job, first: tuple[Reconstruction, Array, dict[str, Any], dict[str, Any]], choice: dict[str, Any],
-               fallbacks: Callable[[], Any], progress: Progress | None
-               ) -> tuple[Reconstruction, Array, dict[str, Any], dict[str, Any]]:
-    """auto's chosen method wrote an implausible table (``first``: its reconstruction, table, checks and the
-    tabulation's notes): the next methods in auto's order, the first whose table passes every check (``choice``
-    says so); ``first`` when none does (then refused as before)."""
-    from reconstruction.report import summary as report
-
-    rec, checks = first[0], first[2]
-    failed = implausible_message(rec.method, checks)
-    for label, alt in fallbacks():
-        if progress is not None:
-            progress.begin(f"falling back to {label}")
-        energy: dict[str, Any] = {}
-        table = tabulate(alt, job.supersample, energy)
-        c = report.plausibility(alt, table)
-        if c["all_pass"]:
-            choice["used"] = alt.method
-            choice["reason"] += f"; not written: {failed}; written instead: {label}, the next in auto's order"
-            cv = choice.get("cross_validation", {})
-            cv.update({"chosen": alt.method, "chosen_label": label, "fell_back_from": rec.method})
-            return alt, table, c, energy
-    return first
-
-
 def _early_reference(s: Slice, bounds: bool) -> tuple[Any, Array | None]:
     """(the built-in analytic family's posterior of the samples ``s`` (sorted), with ``bounds`` its upper bound
     table for auto's table (:func:`reconstruction.assess.guard.upper_bound_table`) else None): what the run's
     helper thread computes beside the reconstruction."""
-    from reconstruction.assess import guard
-    from reconstruction.assess.uncertainty import reference_posterior
-
-    ref = reference_posterior(s)
+    ref = uncertainty.reference_posterior(s)
     return ref, (guard.upper_bound_table(ref, guard.GUARD_SIGMAS_ANALYTIC) if bounds else None)
 
 
@@ -438,8 +426,6 @@ def bound_where_unmeasured(rec: Reconstruction, table: Array, working: Slice, op
     table, the report's ``conservative`` section, the reference posterior); ``ref``: the analytic family's
     posterior of the samples when computed already, ``bound`` its upper bound table if computed too. The
     benchmarks call this as the pipeline does."""
-    from reconstruction.assess import guard, uncertainty
-
     s = working.sorted()
     if ref is None or opts.prior or uncertainty._own_posterior(rec) is not None:
         ref, bound = uncertainty.reference_for(rec, s, opts.prior, tuple(opts.prior_exclude)), None
@@ -459,9 +445,6 @@ def _assess(job: Job, rep: dict[str, Any], working: Slice, rec: Reconstruction, 
     """The report's ``uncertainty`` (and the ``--uncertainty`` array) and, with ``--advise``, its ``advice`` (the
     bench of ``--bench``, else the one the slice file records: ``capture``, ``inputs.LoadedInput.capture``);
     returns sigma of ln f per cell (3, 90, 90, 180)."""
-    from reconstruction.assess import advice, uncertainty
-    from reconstruction.atomic import atomic_path
-
     s = working.sorted()
     sigma, section, ref, sg, f_grid = uncertainty.assess_table(rec, s, opts.prior, tuple(opts.prior_exclude), ref,
                                                                scene=opts.scene)
@@ -489,8 +472,6 @@ def _assess(job: Job, rep: dict[str, Any], working: Slice, rec: Reconstruction, 
 def material_of(files: list[str]) -> str | None:
     """The material the input slice files name in their metadata (``# meta: {"material": ...}``), when they all
     name the same one; else None."""
-    import json
-
     names = set()
     for f in files:
         try:
@@ -536,11 +517,9 @@ def _send_sample_figures(job: Job, drawer: Any, working: Slice, rec: Reconstruct
     draw_sample_figures`); returns the other methods built for them (``others``, those built for an earlier
     reconstruction of the same method, reused: the bound changes the reconstruction, not the method; ``built``,
     those auto's forked child built)."""
-    from reconstruction.report.html import draw_sample_figures
-
     if others is None or rec.method in others:  # the first time, or a fallback to one of them
         others = _other_methods(working, rec, opts, built)
-    draw_sample_figures(drawer, working.sorted(), rec, others,
+    htmlreport.draw_sample_figures(drawer, working.sorted(), rec, others,
                         choice.get("held_out_predictions", {}).get(rec.method), job.blind_spot_deg or 4.0)
     return others
 
@@ -551,8 +530,6 @@ def _write_html(job: Job, rep: dict[str, Any], working: Slice, rec: Reconstructi
     """The HTML report of ``job``: ``others``, every other registered method built on the same samples;
     ``spheres``: the sphere renders under way (:func:`reconstruction.report.spheres.sphere_images`); ``drawer``:
     the run's :class:`~reconstruction.report.figures.Drawer`, the sample figures sent."""
-    from reconstruction.report import html as htmlreport
-
     htmlreport.write_html(job.html, report=rep, working=working.sorted(), rec=rec, table=table, alternatives=others,
                           held_out=choice.get("held_out_predictions", {}).get(rec.method), title=_name(job, working),
                           sigma=sigma, spheres=spheres, drawer=drawer)

@@ -3,15 +3,15 @@
 For checking a reconstruction against ground truth (which method suits a material, how much noise or how few
 incidences it tolerates), as the tests and ``benchmarks/bench_reconstruct.py`` do::
 
-    from reconstruction.formats import merl
     from reconstruction import pipeline
+    from reconstruction.core import merltable
     from reconstruction.core.metrics import relative_rmse_cos
     from reconstruction.core.models import Material
     from reconstruction.synthetic import synthetic_slice
 
     mat = Material.from_toml("configs/simulated.toml")
     rec, _ = pipeline.reconstruct(synthetic_slice(mat, (30.0, 60.0), noise=0.01), "auto")
-    print(relative_rmse_cos(pipeline.tabulate(rec), merl.tabulate(mat.eval)))
+    print(relative_rmse_cos(pipeline.tabulate(rec), merltable.tabulate(mat.eval)))
 
 Geometry as on the bench (README conventions): light at theta_i, detector at the signed theta_o; samples in the
 retro blind spot, where the source arm shadows the detector (|theta_i + theta_o| <= ``blind_spot_deg``), are left
@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike
 
 from reconstruction.core.geometry import inplane_to_dirs
 from reconstruction.core.models import Material
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 
 __all__ = ["synthetic_slice"]
 

@@ -27,7 +27,7 @@ sys.path.insert(0, str(REPO))
 from reconstruction.bench.instrument import Instrument, instrument_average  # noqa: E402
 from reconstruction.core.geometry import inplane_to_dirs  # noqa: E402
 from reconstruction.core.models import Colour, Lambert, Material, Microfacet  # noqa: E402
-from reconstruction.formats.slicefile import Slice  # noqa: E402
+from reconstruction.core.slicedata import Slice  # noqa: E402
 from reconstruction.methods.fit import reconstruct_fit  # noqa: E402
 
 THETA_I = 30.0

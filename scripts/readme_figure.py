@@ -9,7 +9,7 @@ It reads what the README's first command writes (the capture, then ``gonio-recon
     .venv/bin/python scripts/readme_figure.py [--demo out/demo] [--out FILE.png]   # out/demo/demo.png
     .venv/bin/python scripts/readme_figure.py --update-docs                        # docs/demo.png, the README's
 
-The prediction is read from the written MERL table (trilinear between bin centres, as ``merl.lookup`` does), so
+The prediction is read from the written MERL table (trilinear between bin centres, as ``merltable.lookup`` does), so
 the figure shows the file a renderer gets, not the method's internal model; the sphere is
 ``reconstruction.report.preview.render_preview`` of that table (a point light and a dim uniform environment), exposed as
 ``gonio-reconstruct --preview`` exposes its PNG. Bad or missing input: exit 2 and one line.
@@ -27,9 +27,11 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from reconstruction.core import merltable  # noqa: E402
 from reconstruction.core.geometry import inplane_to_dirs  # noqa: E402
+from reconstruction.core.slicedata import SliceError  # noqa: E402
 from reconstruction.formats import merl  # noqa: E402
-from reconstruction.formats.slicefile import SliceError, read_slice  # noqa: E402
+from reconstruction.formats.slicefile import read_slice  # noqa: E402
 from reconstruction.report.preview import PREVIEW_RADIUS, render_preview, srgb_encode  # noqa: E402
 
 COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown")
@@ -76,7 +78,7 @@ def draw(demo: Path, out: Path) -> None:
         colour = COLOURS[k % len(COLOURS)]
         m = s.theta_i_deg == t
         wi, wo = inplane_to_dirs(np.radians(np.full(dense.size, t)), np.radians(dense))
-        pred = _channel_mean(merl.lookup(table, wi, wo, interpolate=True))
+        pred = _channel_mean(merltable.lookup(table, wi, wo, interpolate=True))
         ax.plot(dense, pred, color=colour, lw=1.6, zorder=2)
         ax.errorbar(s.theta_o_deg[m], lum[m], yerr=lstd[m], fmt="o", ms=3.2, mfc="white", mew=1.0, color=colour,
                     ecolor=colour, elinewidth=1.0, capsize=1.5, zorder=3,
@@ -93,7 +95,7 @@ def draw(demo: Path, out: Path) -> None:
     ax.set_title(f"captured slices and the reconstruction: {_title(report)}", fontsize=9.5)
 
     sx = fig.add_subplot(grid[1])
-    img = render_preview(merl.brdf_of(table), 320).astype(np.float64)
+    img = render_preview(merltable.brdf_of(table), 320).astype(np.float64)
     size = img.shape[0]
     c = ((np.arange(size) + 0.5) / size * 2.0 - 1.0) / PREVIEW_RADIUS
     x, y = np.meshgrid(c, -c)
@@ -127,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
             return 2
     try:
         draw(args.demo, args.out)
-    except (SliceError, merl.MerlError, OSError, ValueError) as exc:
+    except (SliceError, merltable.MerlError, OSError, ValueError) as exc:
         print(f"readme_figure: {exc}", file=sys.stderr)
         return 2
     print(f"readme_figure: wrote {args.out}")

@@ -30,10 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
-from reconstruction.core import metrics
+from reconstruction.core import merlgrid, merltable, metrics
 from reconstruction.core.geometry import inplane_to_dirs, thesis_points_from_slice
 from reconstruction.core.models import Material
-from reconstruction.formats import merl
 from reconstruction.methods import revolve as rv
 from reconstruction.synthetic import synthetic_slice
 
@@ -80,17 +79,17 @@ def plan_slice(m: Material, n: int):
 
 
 def table_of(rec: rv.RevolveReconstruction) -> np.ndarray:
-    return merl.tabulate(rec.eval)
+    return merltable.tabulate(rec.eval)
 
 
 def err_by_theta_d(table: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """theta_d (deg) of every table cell and its share of the squared error of f cos cos (flattened)."""
     i, j, k = np.meshgrid(np.arange(90), np.arange(90), np.arange(180), indexing="ij")
-    wi, wo = merl.cell_to_dirs(i, j, k)
+    wi, wo = merlgrid.cell_to_dirs(i, j, k)
     c = np.clip(wi[..., 2], 0.0, None) * np.clip(wo[..., 2], 0.0, None)
-    ok = merl.valid_mask()[None] & np.isfinite(table) & np.isfinite(truth)
+    ok = merlgrid.valid_mask()[None] & np.isfinite(table) & np.isfinite(truth)
     sq = np.sum(np.where(ok, (table - truth) * c[None], 0.0) ** 2, axis=0)
-    _, td, _ = merl.cell_angles()
+    _, td, _ = merlgrid.cell_angles()
     return np.degrees(np.broadcast_to(td, sq.shape)).ravel(), (sq / sq.sum()).ravel()
 
 
@@ -100,7 +99,7 @@ def accuracy() -> None:
     blue7: tuple[np.ndarray, np.ndarray] | None = None
     noisy: dict[str, list[float]] = {}
     for m in TABLE_MATERIALS:
-        truth = merl.tabulate(m.eval)
+        truth = merltable.tabulate(m.eval)
         for n in INCIDENCES:
             s = plan_slice(m, n)
             for opt, kw in (("default", {}), ("plain", PLAIN), ("measured", MEASURED)):

@@ -37,7 +37,7 @@ def schemas() -> dict[str, dict[str, Any]]:
                                      "A material ([material] of a simulated bench, or a material file): a sum of "
                                      "lobes."),
         "slice-meta.json": json_schema(SliceMeta, "gonio-brdf slice metadata",
-                                       "The '# meta:' JSON line of a slice file (docs/slice-format.md)."),
+                                       "The '# meta:' JSON line of a slice file (docs/formats.md)."),
         "method-options.json": methods.options_schema(),
     }
 

@@ -220,10 +220,10 @@ def case_config(base: dict[str, Any], case: Case, material: dict[str, Any] | Non
 
 @lru_cache(maxsize=8)
 def _truth(material_json: str) -> Any:
+    from reconstruction.core import merltable
     from reconstruction.core.models import Material
-    from reconstruction.formats import merl
 
-    return merl.tabulate(Material.from_dict(json.loads(material_json)).eval, supersample="adaptive")
+    return merltable.tabulate(Material.from_dict(json.loads(material_json)).eval, supersample="adaptive")
 
 
 def truth_table(material: str | dict[str, Any]) -> Any:

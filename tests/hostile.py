@@ -261,7 +261,8 @@ def run_all(cases: list[Case], workers: int | None = None, real_every: int = 1) 
 
 def _good_slice(path: Path) -> Path:
     from reconstruction.core.models import Material
-    from reconstruction.formats.slicefile import Slice, write_slice
+    from reconstruction.core.slicedata import Slice
+    from reconstruction.formats.slicefile import write_slice
     from reconstruction.synthetic import synthetic_slice
 
     mat = Material.from_dict({"name": "grey", "lobes": [{"type": "lambert", "albedo": 0.5},
@@ -376,9 +377,10 @@ def reconstruct_cases(work: Path) -> list[Case]:
     add("many-columns.csv", "theta_i,theta_o," + ",".join(f"{400 + k}nm" for k in range(20000)) + "\n"
         + "30,0," + ",".join("0.1" for _ in range(20000)) + "\n", q, ok=False)
     # a MERL table as a CSV
+    from reconstruction.core import merltable
     from reconstruction.formats import merl
 
-    merl.write(work / "merl-as.csv", np.full(merl.SHAPE, 0.1))
+    merl.write(work / "merl-as.csv", np.full(merltable.SHAPE, 0.1))
     files["merl-as.csv"] = (None, q, False, [])
 
     cases: list[Case] = []

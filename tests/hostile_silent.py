@@ -110,7 +110,8 @@ def capture_cases(work: Path) -> list[Case]:
 def reconstruct_cases(work: Path) -> list[Case]:
     """Reconstructions from samples that cannot support a table, and values impossible for their std."""
     from reconstruction.core.models import Material
-    from reconstruction.formats.slicefile import Slice, write_slice
+    from reconstruction.core.slicedata import Slice
+    from reconstruction.formats.slicefile import write_slice
     from reconstruction.synthetic import synthetic_slice
 
     work.mkdir(parents=True, exist_ok=True)

@@ -15,7 +15,8 @@ import numpy as np
 import tomli_w
 
 from reconstruction.core.models import Material
-from reconstruction.formats.slicefile import Slice, read_slice
+from reconstruction.core.slicedata import Slice
+from reconstruction.formats.slicefile import read_slice
 from tests.helpers import deep_merge
 
 if sys.version_info >= (3, 11):

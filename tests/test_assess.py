@@ -12,6 +12,7 @@ from reconstruction import pipeline
 from reconstruction.assess import advice, uncertainty
 from reconstruction.core.models import Material
 from reconstruction.formats.slicefile import write_slice
+from reconstruction.job import Job
 from reconstruction.methods import auto, prior
 from reconstruction.synthetic import synthetic_slice
 
@@ -45,9 +46,9 @@ def test_sigma_is_larger_where_the_table_is_extrapolated(one_slice):
     assert section["cells"]["measured"] > 0 and section["cells"]["extrapolated"] > section["cells"]["measured"]
     # cell by cell: the measured cells' sigma is below the extrapolated cells' in the same theta_d band
     classes = uncertainty.cell_classes(s)
-    from reconstruction.formats import merl
+    from reconstruction.core import merlgrid
 
-    valid = merl.valid_mask()
+    valid = merlgrid.valid_mask()
     meas = np.median(sigma[0][valid & (classes == 0)])
     grazing = np.median(sigma[0][:, 70:85][valid[:, 70:85] & (classes[:, 70:85] == 2)])
     assert grazing > 2 * meas, (grazing, meas)
@@ -230,7 +231,7 @@ def test_auto_falls_back_when_the_chosen_table_fails_a_check(monkeypatch, tmp_pa
     real_draw = htmlreport.draw_sample_figures
     monkeypatch.setattr(htmlreport, "draw_sample_figures",
                         lambda d, w, r, *a, **k: (sent.append(r.method), real_draw(d, w, r, *a, **k))[1])
-    rep = pipeline.run(pipeline.Job(inputs=(str(path),), out=str(tmp_path / "m.binary"), method="auto",
+    rep = pipeline.run(Job(inputs=(str(path),), out=str(tmp_path / "m.binary"), method="auto",
                                     html=str(tmp_path / "m.html")))
     assert rep["checks"]["all_pass"] and rep["method"] != "bivariate"
     assert rep["cross_validation"]["fell_back_from"] == "bivariate"
@@ -247,7 +248,7 @@ def test_the_conservative_bound_lowers_only_unmeasured_cells(one_slice):
     under the reference's median x e^sigma where no sample rests; measured cells stay the method's; the bounded
     BRDF evaluates as its table at bin centres, stays reciprocal and only loses energy."""
     from reconstruction.assess import guard
-    from reconstruction.formats import merl
+    from reconstruction.core import merlgrid, merltable
 
     s, rec, (_, _, ref, _, _) = one_slice
     bright = Material.from_dict({"name": "bright", "lobes": [
@@ -260,12 +261,12 @@ def test_the_conservative_bound_lowers_only_unmeasured_cells(one_slice):
         def report(self):
             return {"method": "wrong"}
 
-    table = merl.tabulate(bright.eval)
+    table = merltable.tabulate(bright.eval)
     bounded, out, info = guard.conservative(Wrong(), table, s, ref)
     free = uncertainty.cell_classes(s) > 0
-    valid = merl.valid_mask()
+    valid = merlgrid.valid_mask()
     assert info["applied"] and 1000 < info["cells_lowered"] <= info["cells"] and 0.0 < info["energy_removed"] < 1.0
-    assert info["cells_lowered"] == int(np.sum(merl.valid_mask() & np.any(out < table, axis=0)))
+    assert info["cells_lowered"] == int(np.sum(merlgrid.valid_mask() & np.any(out < table, axis=0)))
     np.testing.assert_array_equal(out[:, valid & ~free], table[:, valid & ~free])  # measured: untouched
     bound = guard.upper_bound_table(ref)
     assert np.all(out[:, valid & free] <= np.maximum(table, bound)[:, valid & free])
@@ -274,7 +275,7 @@ def test_the_conservative_bound_lowers_only_unmeasured_cells(one_slice):
     assert np.all(np.isclose(out[0][lowered], bound[0][lowered]))
     # eval at bin centres of lowered cells = the table there; reciprocal
     ih, idd, ip = (a[:50] for a in np.nonzero(lowered))
-    wi, wo = merl.cell_to_dirs(ih, idd, ip)
+    wi, wo = merlgrid.cell_to_dirs(ih, idd, ip)
     np.testing.assert_allclose(bounded.eval(wi, wo)[:, 0], out[0][ih, idd, ip], rtol=1e-6)
     np.testing.assert_allclose(bounded.eval(wi, wo), bounded.eval(wo, wi), rtol=1e-9)
     assert bounded.method == "wrong" and bounded.report() == {"method": "wrong"}
@@ -289,10 +290,10 @@ def test_the_conservative_bound_lowers_only_unmeasured_cells(one_slice):
     low = 0.3 * guard.upper_bound_table(ref, 0.0)  # a band far under what was measured: 70 % of its light above
     assert 0.6 < guard.samples_above(low, s) < 0.8
     # points anywhere are judged at their own directions, not at the in-plane pair their polar angles name
+    from reconstruction.core import merlgrid, merltable
     from reconstruction.core.samples import DirectionalSlice
-    from reconstruction.formats import merl
 
-    band = np.zeros(merl.SHAPE)
+    band = np.zeros(merltable.SHAPE)
     band[:, :, 15:, :] = 1.0  # a bound of 1 from theta_d = 15 deg on, 0 below
     v = np.full((1, 3), 0.5)
     # polar angles 28.6 / -28.6 deg: in the plane that is the retro direction (theta_d 0, under a bound of 0); the
@@ -415,7 +416,7 @@ def test_the_advice_uses_the_bench_the_slice_file_records_and_never_advises_past
     """Issue 41: --advise assumed 0-80 deg and default timings whatever the capture's bench, and recommended 80 deg
     on the demo, past where its beam overfills the sample (75.5 deg), without a word. The bench recorded in the
     slice file's metadata is used; incidences beyond the footprint limit are excluded, and the advice says why."""
-    from reconstruction.formats.slicefile import Slice
+    from reconstruction.core.slicedata import Slice
 
     s = synthetic_slice(PLASTIC, (20.0,))
     meta = {"quantity": "brdf", "bench_name": "narrow bench",
@@ -431,7 +432,7 @@ def test_the_advice_uses_the_bench_the_slice_file_records_and_never_advises_past
     assert "narrow bench" in lim.source and advice.capture_limits({"quantity": "brdf"}, "t.csv") is None
     p = tmp_path / "s.csv"
     write_slice(p, Slice(s.theta_i_deg, s.theta_o_deg, s.values, list(s.channels), s.std, meta=meta))
-    rep = pipeline.run(pipeline.Job(inputs=(str(p),), out="", method="bivariate", advise=True,
+    rep = pipeline.run(Job(inputs=(str(p),), out="", method="bivariate", advise=True,
                                     report=str(tmp_path / "r.json")))
     a = rep["advice"]
     thetas = [c["theta_i_deg"] for c in a["candidates"]]

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from reconstruction import cli
+from reconstruction.core import merltable
 from reconstruction.core.metrics import relative_rmse_cos
 from reconstruction.formats import merl
 from tests.test_cli_reconstruct import BLUE_PLASTIC, slice_file
@@ -22,7 +23,7 @@ def test_batch_reconstructs_every_slice_and_reports_failures(tmp_path, capsys):
     assert cli.main(["--batch", str(src), "--out-dir", str(out), "--workers", "2", "--quiet"]) == 1
     err = capsys.readouterr().err
     assert "broken: error:" in err and "2 of 3 reconstructed" in err
-    truth = merl.tabulate(BLUE_PLASTIC.eval)
+    truth = merltable.tabulate(BLUE_PLASTIC.eval)
     for name in ("run1", "loose"):
         assert relative_rmse_cos(merl.read(out / f"{name}.binary"), truth) < 0.02
         assert json.loads((out / f"{name}.json").read_text())["method"] == "fit"

@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 
 from reconstruction.base import Reconstruction, ReconstructionError
+from reconstruction.core import merlgrid, merltable
 from reconstruction.core.geometry import half_diff_from_dirs, inplane_to_dirs
 from reconstruction.core.metrics import relative_rmse_cos
 from reconstruction.core.models import Material
-from reconstruction.formats import merl
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 from reconstruction.methods.bivariate import inplane_half_diff, reconstruct_bivariate
 from reconstruction.synthetic import synthetic_slice
 
@@ -23,7 +23,7 @@ PLASTIC = material({"type": "lambert", "albedo": [0.05, 0.10, 0.40]},
 
 @pytest.fixture(scope="module")
 def truth_table():
-    return merl.tabulate(PLASTIC.eval)
+    return merltable.tabulate(PLASTIC.eval)
 
 
 def test_inplane_half_diff_matches_geometry():
@@ -40,7 +40,7 @@ def test_lambertian_is_exact_from_one_slice():
     rec = reconstruct_bivariate(synthetic_slice(mat))
     assert isinstance(rec, Reconstruction)
     t = rec.table()
-    v = merl.valid_mask()
+    v = merlgrid.valid_mask()
     np.testing.assert_allclose(t[:, v], np.broadcast_to(np.array([0.2, 0.5, 0.7])[:, None] / np.pi, t[:, v].shape),
                                rtol=1e-12)
     assert np.all(np.isnan(t[:, ~v]))
@@ -62,7 +62,7 @@ def test_samples_are_reproduced_and_table_matches_eval(truth_table):
     wi, wo = inplane_to_dirs(np.radians(s.theta_i_deg), np.radians(s.theta_o_deg))
     np.testing.assert_allclose(rec.eval(wi, wo), s.values, rtol=1e-9, atol=1e-12)
     # the fast bin-centre table is the generic tabulation of eval
-    np.testing.assert_allclose(rec.table(), merl.tabulate(rec.eval), rtol=1e-9, equal_nan=True)
+    np.testing.assert_allclose(rec.table(), merltable.tabulate(rec.eval), rtol=1e-9, equal_nan=True)
 
 
 def test_blind_spot_is_interpolated_unless_zero_is_asked():
@@ -86,7 +86,7 @@ def test_non_negative_and_finite_with_noisy_negative_samples():
     rng = np.random.default_rng(1)
     s.values = s.values + rng.normal(0, 0.02, s.values.shape)  # dark-subtracted noise goes below zero
     t = reconstruct_bivariate(s).table()
-    v = merl.valid_mask()
+    v = merlgrid.valid_mask()
     assert np.all(np.isfinite(t[:, v])) and np.all(t[:, v] >= 0)
 
 

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from reconstruction import cli
+from reconstruction.core import merltable
 from reconstruction.core.colour import spectra_to_rgb
 from reconstruction.core.metrics import uniform_pairs
 from reconstruction.core.models import Colour, Lambert, Material, Microfacet, Nbrdf
@@ -107,10 +108,10 @@ def test_zemax_merl_nbrdf_and_material_files_load_as_brdfs(tmp_path):
     np.testing.assert_allclose(b(zi, zo), grey.eval(zi, zo), rtol=1e-5)  # at grid nodes: the file's values
 
     t = tmp_path / "m.binary"
-    merl.write(t, merl.tabulate(MAT.eval))
+    merl.write(t, merltable.tabulate(MAT.eval))
     m = load_brdf(t)
     assert m.kind == "merl"
-    np.testing.assert_allclose(m(wi, wo), merl.lookup(merl.read(t), wi, wo, interpolate=True), rtol=1e-12)
+    np.testing.assert_allclose(m(wi, wo), merltable.lookup(merl.read(t), wi, wo, interpolate=True), rtol=1e-12)
 
     rng = np.random.default_rng(0)
     shapes = {"fc1": (6, 21), "b1": (21,), "fc2": (21, 21), "b2": (21,), "fc3": (21, 3), "b3": (3,)}

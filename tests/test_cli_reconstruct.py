@@ -10,11 +10,13 @@ import pytest
 
 from reconstruction import cli, pipeline
 from reconstruction.base import ReconstructionError
+from reconstruction.core import merlgrid, merltable
 from reconstruction.core.metrics import relative_rmse_cos
 from reconstruction.core.models import Material
+from reconstruction.core.slicedata import Slice
 from reconstruction.formats import merl
-from reconstruction.formats.slicefile import Slice, write_slice
-from reconstruction.methods import auto
+from reconstruction.formats.slicefile import write_slice
+from reconstruction.methods import Options, auto
 from reconstruction.synthetic import synthetic_slice
 
 BLUE_PLASTIC = Material.from_dict({"name": "blue-plastic", "lobes": [
@@ -43,8 +45,8 @@ def test_end_to_end_on_a_slice_file(tmp_path):
     assert "Traceback" not in r.stderr
     assert out.stat().st_size == merl.FILE_SIZE == 34_992_012
     table = merl.read(out)
-    assert np.all(np.isfinite(table[:, merl.valid_mask()])) and np.nanmin(table) >= 0
-    assert relative_rmse_cos(table, merl.tabulate(BLUE_PLASTIC.eval)) < 0.02
+    assert np.all(np.isfinite(table[:, merlgrid.valid_mask()])) and np.nanmin(table) >= 0
+    assert relative_rmse_cos(table, merltable.tabulate(BLUE_PLASTIC.eval)) < 0.02
     with OpenEXR.File(str(tmp_path / "material.exr")) as f:
         px = f.channels()["RGB"].pixels
     assert px.shape == (256, 256, 3) and px.dtype == np.float32 and px.max() > 0
@@ -99,7 +101,7 @@ def test_generic_spectral_table_bivariate_supersampled(tmp_path):
     assert cli.build_parser().parse_args([str(src), "--out", "x.binary", "--supersample"]).supersample == "adaptive"
     assert cli.build_parser().parse_args([str(src), "--out", "x.binary", "--supersample", "4"]).supersample == (4, 4, 4)
     t = merl.read(out)
-    v = merl.valid_mask()
+    v = merlgrid.valid_mask()
     assert np.all(np.isfinite(t[:, v]))
     # a flat (grey) spectrum gives a grey table, at the right level: the diffuse part near normal is 0.5/pi + ggx
     np.testing.assert_allclose(t[0, v], t[1, v], rtol=2e-3)
@@ -173,7 +175,7 @@ def test_auto_chooses_by_held_out_prediction_on_a_material_outside_every_family(
     assert rec.method == choice["used"] == cv["chosen"] == best["method"]
     assert "lowest held-out error" in choice["reason"]
     # and the choice is good for the table, not only for the samples: within 25 % of the best method's error
-    truth = merl.tabulate(PHONG.eval)
+    truth = merltable.tabulate(PHONG.eval)
     errs = {m: relative_rmse_cos(pipeline.tabulate(pipeline.reconstruct(s, m)[0]), truth)
             for m in pipeline.METHODS if m not in ("auto", "prior")}
     assert errs[rec.method] <= 1.25 * min(errs.values()), (rec.method, errs)
@@ -224,13 +226,13 @@ def test_options_reach_the_method_and_samples_arrive_sorted(monkeypatch):
     monkeypatch.setattr("reconstruction.methods.revolve.reconstruct_revolve", fake_revolve)
     s = synthetic_slice(PHONG, (30.0,))
     order = np.random.default_rng(0).permutation(len(s))
-    rec, choice = pipeline.reconstruct(s.take(order), "revolve", pipeline.Options(fill="zero", revolve_axis="pca"))
+    rec, choice = pipeline.reconstruct(s.take(order), "revolve", Options(fill="zero", revolve_axis="pca"))
     assert rec.method == "revolve" and choice["reason"] == "requested with --method revolve"
     (got, kw), = calls
     assert kw == {"axis": "pca", "fill": "zero", "reciprocal": True}
     assert np.all(np.diff(got.theta_o_deg) > 0)  # handed over sorted
     t = pipeline.tabulate(rec)
-    assert np.allclose(t[:, merl.valid_mask()], 0.1)
+    assert np.allclose(t[:, merlgrid.valid_mask()], 0.1)
 
 
 @pytest.mark.slow
@@ -281,13 +283,13 @@ def test_tabulate_refuses_negative_or_missing_cells():
 def test_the_non_negative_check_reads_the_valid_cells_of_either_precision():
     """min, max and missing cells over the cells above the horizon, as a reader sees them, for float64 and float32
     tables (reduced in place, without table-sized copies)."""
+    from reconstruction.core import merlgrid, merltable
     from reconstruction.core.checks import plausibility
-    from reconstruction.formats import merl
 
-    valid = merl.valid_mask()[None]
+    valid = merlgrid.valid_mask()[None]
     rng = np.random.default_rng(1)
-    base = np.broadcast_to(rng.random((3, 90, 90, 1)) + 0.5, merl.SHAPE).copy()
-    base[:, ~merl.valid_mask()] = -7.0  # below the horizon: never read
+    base = np.broadcast_to(rng.random((3, 90, 90, 1)) + 0.5, merltable.SHAPE).copy()
+    base[:, ~merlgrid.valid_mask()] = -7.0  # below the horizon: never read
     bad = base.copy()
     bad[0, 5, 5, 5], bad[1, 6, 6, 6], bad[2, 0, 0, 0] = -0.25, np.nan, np.inf
 

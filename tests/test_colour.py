@@ -7,7 +7,7 @@ import pytest
 
 from reconstruction.base import ReconstructionError
 from reconstruction.core.colour import resampling_interval, spectra_to_rgb, spectral_to_rgb_matrix, to_working_channels
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 
 
 @pytest.mark.parametrize("illuminant", ["D65", "A", "D50"])

@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 
+from reconstruction.core import merltable
 from reconstruction.core.metrics import cosl2, log_error, uniform_pairs
 from reconstruction.core.models import Material
 from reconstruction.formats import merl
@@ -29,7 +30,7 @@ f0 = 0.04
 
 @pytest.fixture(scope="module")
 def table() -> np.ndarray:
-    return merl.tabulate(Material.from_dict(MATERIAL).eval)
+    return merltable.tabulate(Material.from_dict(MATERIAL).eval)
 
 
 @pytest.fixture(scope="module")

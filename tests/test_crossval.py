@@ -8,7 +8,7 @@ import pytest
 from reconstruction.base import ReconstructionError
 from reconstruction.core.models import Material
 from reconstruction.core.scene import scene_from_dict
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 from reconstruction.methods import auto
 from reconstruction.methods.crossval import cross_validate, folds, scene_mask
 from reconstruction.synthetic import synthetic_slice

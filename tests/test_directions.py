@@ -10,8 +10,10 @@ from reconstruction import pipeline
 from reconstruction.core.geometry import half_diff_from_dirs, tilted_to_dirs
 from reconstruction.core.models import Material
 from reconstruction.core.samples import SliceWithPoints, everywhere, points_anywhere
+from reconstruction.core.slicedata import SliceError
 from reconstruction.formats import inputs
-from reconstruction.formats.slicefile import SliceError, read_slice
+from reconstruction.formats.slicefile import read_slice
+from reconstruction.methods import Options
 
 MAT = Material.from_dict({"name": "plastic", "lobes": [{"type": "lambert", "albedo": [0.2, 0.3, 0.5]},
                                                        {"type": "ggx", "specular": 0.04, "alpha": 0.2}]})
@@ -89,9 +91,9 @@ def test_a_generic_table_with_azimuths_and_one_with_a_tilt_give_the_same_points(
 def test_every_method_reads_the_tilted_points(tmp_path):
     s = inputs.load_inputs([_slice_file(tmp_path / "s.csv", (0.0, 30.0))]).slice
     assert len(everywhere(s)) == 2 * len(s)  # fit, microfacet and prior fit every point
-    rec, _ = pipeline.reconstruct(s, "fit", pipeline.Options())
+    rec, _ = pipeline.reconstruct(s, "fit", Options())
     assert rec.samples_left_out["left_out"] == 0 and rec.samples_left_out["used"] == 2 * len(s)
-    rec, _ = pipeline.reconstruct(s, "revolve", pipeline.Options())
+    rec, _ = pipeline.reconstruct(s, "revolve", Options())
     assert rec.samples_left_out["left_out"] == len(s)  # in-plane only: says it left the tilted sweep out
 
 

@@ -9,10 +9,10 @@ import pytest
 
 from reconstruction import pipeline
 from reconstruction.base import ReconstructionError
+from reconstruction.core import merlgrid, merltable
 from reconstruction.core.geometry import half_diff_from_dirs, inplane_to_dirs
 from reconstruction.core.models import Material
-from reconstruction.formats import merl
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 
 METHODS = ["fit", "bivariate", "revolve", "auto"]
 SHARP = Material.from_dict({"name": "sharp", "lobes": [{"type": "lambert", "albedo": 1e-8},
@@ -35,7 +35,7 @@ def inplane_slice(mat, incidences, theta_o, dtype=np.float64, noise=0.0, seed=0)
 
 def check_table(rec):
     table = pipeline.tabulate(rec)  # raises if a cell above the horizon is not finite or negative
-    above = table[:, merl.valid_mask()]
+    above = table[:, merlgrid.valid_mask()]
     assert np.all(np.isfinite(above)) and np.all(above >= 0)
     if rec.method == "fit":
         for lobe in rec.report()["parameters"]:
@@ -125,12 +125,12 @@ def test_tabulate_without_a_table_averages_a_sharp_lobe_over_its_cells():
     """pipeline.tabulate's fallback for a method without table(): bin-centre values, and where the method names a
     lobe sharper than the cells (sharp_theta_h_rad), theta_h cell averages there, each theta_d row scaled to the
     lobe's energy (reconstruction.core.sharprows); negative values refused."""
-    point = merl.tabulate(SHARP.eval)
+    point = merltable.tabulate(SHARP.eval)
     plain = pipeline.tabulate(_EvalOnly(SHARP, None))
     np.testing.assert_array_equal(plain, point)
     avg = pipeline.tabulate(_EvalOnly(SHARP, 0.01))
-    ref, rows = merl.average_theta_h_cells(SHARP.eval, point, 0.01, n=8)
-    valid = merl.valid_mask()
+    ref, rows = merltable.average_theta_h_cells(SHARP.eval, point, 0.01, n=8)
+    valid = merlgrid.valid_mask()
     # the cell averages' shape in theta_h and phi_d is kept: one positive factor per channel and theta_d row
     ratio = np.where(valid[None, :rows], avg[:, :rows] / np.where(ref[:, :rows] > 0, ref[:, :rows], np.nan), np.nan)
     per_row = np.nanmedian(ratio, axis=(1, 3))

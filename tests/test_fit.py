@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 
 from reconstruction.base import Reconstruction, ReconstructionError
+from reconstruction.core import merltable
 from reconstruction.core.metrics import relative_rmse_cos
 from reconstruction.core.models import Material
 from reconstruction.core.scene import load_scene
-from reconstruction.formats import merl
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 from reconstruction.methods.fit import reconstruct_fit
 from reconstruction.synthetic import synthetic_slice
 
@@ -29,8 +29,8 @@ def lambert_ggx_fit():
 def test_single_noise_free_slice_recovers_the_full_table(lambert_ggx_fit):
     rec = lambert_ggx_fit
     assert isinstance(rec, Reconstruction)
-    table = merl.tabulate(rec.eval)
-    truth = merl.tabulate(LAMBERT_GGX.eval)
+    table = merltable.tabulate(rec.eval)
+    truth = merltable.tabulate(LAMBERT_GGX.eval)
     err = relative_rmse_cos(table, truth)
     assert err < 0.02
     assert rec.result.name == "lambert+ggx"  # no lobe the data do not need
@@ -61,7 +61,7 @@ def test_fresnel_is_found_when_the_data_show_it():
     p = rec.report()["parameters"][1]
     assert p["f0"] == pytest.approx(0.04, rel=1e-3)
     assert p["alpha"] == pytest.approx(0.2, rel=1e-4)
-    err = relative_rmse_cos(merl.tabulate(rec.eval), merl.tabulate(truth.eval))
+    err = relative_rmse_cos(merltable.tabulate(rec.eval), merltable.tabulate(truth.eval))
     assert err < 0.01
 
 
@@ -247,11 +247,10 @@ def test_a_mirror_direction_in_a_gap_bounds_the_lobe_width():
 @pytest.mark.parametrize("n_channels", [1, 3])
 def test_fit_table_is_the_tabulated_eval_with_theta_h_averages(n_channels):
     # FitReconstruction.table averages its sharp microfacet lobes in the half-diff angles: the same table as
-    # tabulating eval and averaging every lobe over theta_h (merl.average_theta_h_cells)
+    # tabulating eval and averaging every lobe over theta_h (merltable.average_theta_h_cells)
     from reconstruction import pipeline
-    from reconstruction.core import sharprows
+    from reconstruction.core import merltable, sharprows
     from reconstruction.core.models import Colour, Lambert, Material, Microfacet, Retro
-    from reconstruction.formats import merl
     from reconstruction.methods.fit.report import FitReconstruction
 
     def col(*v: float) -> Colour:
@@ -262,7 +261,7 @@ def test_fit_table_is_the_tabulated_eval_with_theta_h_averages(n_channels):
                          Retro(col(0.05, 0.04, 0.03), exponent=20.0)])
     rec = FitReconstruction(mat, ["R", "G", "B"][:n_channels] if n_channels == 3 else ["value"], result=None)
     assert rec.sharp_theta_h_rad == pytest.approx(0.01)
-    slow, rows = merl.average_theta_h_cells(rec.eval, merl.tabulate(rec.eval), rec.sharp_theta_h_rad, n=8)
+    slow, rows = merltable.average_theta_h_cells(rec.eval, merltable.tabulate(rec.eval), rec.sharp_theta_h_rad, n=8)
     fast = rec.table()
     # what gonio-reconstruct writes: those rows then renormalised to the lobe's energy (reconstruction.core.sharprows)
     written, _ = sharprows.renormalise(rec.eval, fast, rec.sharp_theta_h_rad)
@@ -270,16 +269,16 @@ def test_fit_table_is_the_tabulated_eval_with_theta_h_averages(n_channels):
     assert np.array_equal(np.isnan(fast), np.isnan(slow))
     ok = np.isfinite(slow)
     assert np.max(np.abs(fast[ok] - slow[ok]) / np.maximum(slow[ok], 1e-12)) < 1e-6
-    centre = merl.tabulate(rec.eval)  # the averages matter here: the test would not pass on bin centres
+    centre = merltable.tabulate(rec.eval)  # the averages matter here: the test would not pass on bin centres
     assert np.nanmax(np.abs(centre[:, :rows] - slow[:, :rows]) / slow[:, :rows].clip(1e-12)) > 0.05
 
 
 def test_fit_table_in_half_diff_angles_equals_the_table_of_its_material():
     """fit's bin-centre table is computed from the half-diff angles when every lobe has that form (lambert, ggx,
-    beckmann, retro): the values of merl.tabulate(material.eval) to rounding, NaN in the same cells; a lobe
+    beckmann, retro): the values of merltable.tabulate(material.eval) to rounding, NaN in the same cells; a lobe
     without it (Oren-Nayar) takes the general path."""
+    from reconstruction.core import merltable
     from reconstruction.core.models import Colour, Lambert, Material, Microfacet, OrenNayar, Retro
-    from reconstruction.formats import merl
     from reconstruction.methods.fit.report import FitReconstruction
 
     mats = [Material("rgb", [Lambert(Colour(np.array([0.2, 0.3, 0.4]))),
@@ -290,7 +289,7 @@ def test_fit_table_in_half_diff_angles_equals_the_table_of_its_material():
     for m in mats:
         rec = object.__new__(FitReconstruction)
         rec.__dict__["material"] = m  # only the material is read
-        got, want = rec._centre_table(), merl.tabulate(m.eval)
-        assert got.shape == merl.SHAPE
+        got, want = rec._centre_table(), merltable.tabulate(m.eval)
+        assert got.shape == merltable.SHAPE
         np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
         np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-15, equal_nan=True)

@@ -6,7 +6,7 @@ import pytest
 from reconstruction.bench.instrument import Instrument, instrument_average
 from reconstruction.core.energy import microfacet_albedo
 from reconstruction.core.models import Colour, Lambert, Material, Microfacet
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 from reconstruction.methods.fit import reconstruct_fit
 
 

@@ -5,8 +5,9 @@ import numpy as np
 import pytest
 
 from reconstruction import cli
+from reconstruction.core.slicedata import Slice
 from reconstruction.formats.inputs import InputError, load_inputs
-from reconstruction.formats.slicefile import Slice, write_slice
+from reconstruction.formats.slicefile import write_slice
 from reconstruction.report.summary import LARGE_HELD_OUT, guard_warnings
 
 

@@ -131,12 +131,12 @@ def test_the_environment_sphere_is_the_integral_of_the_environment_at_the_rim_to
 def test_the_coverage_legend_marker_shows_on_its_frame():
     from matplotlib.colors import to_rgb
 
-    from reconstruction.formats import merl
-    from reconstruction.formats.slicefile import Slice
+    from reconstruction.core import merltable
+    from reconstruction.core.slicedata import Slice
     from reconstruction.report.html import _coverage_plot
 
     s = Slice(np.array([30.0, 30.0]), np.array([-20.0, 40.0]), np.array([[0.1], [0.3]]), ["value"])
-    table = np.full(merl.SHAPE, 0.1)
+    table = np.full(merltable.SHAPE, 0.1)
     fig = _coverage_plot(table, s)
     leg = fig.axes[0].get_legend()
     frame = np.array(to_rgb(leg.get_frame().get_facecolor()))
@@ -194,7 +194,7 @@ def test_the_help_of_out_names_every_other_output():
 def test_a_hemispherical_file_draws_at_most_eight_incidences_spread_over_its_range():
     """Per-incidence figures of a file with dozens of incidences (a Zemax file's 26) draw MAX_PANELS of them, the
     first and the last included, 4 a row, and the page's note says which; a few slices are all drawn."""
-    from reconstruction.formats.slicefile import Slice
+    from reconstruction.core.slicedata import Slice
     from reconstruction.report import html
 
     inc = np.concatenate([np.arange(0.0, 50.0, 5.0), np.arange(50.0, 88.0, 2.5)])  # 26 incidences
@@ -285,13 +285,13 @@ def test_a_log_axis_over_decades_draws_its_minor_grid_as_one_collection():
 
 
 def test_the_sigma_map_is_the_median_over_phi_d_of_the_cells_above_the_horizon():
-    from reconstruction.formats import merl
+    from reconstruction.core import merlgrid, merltable
     from reconstruction.report.html import sigma_values
 
     rng = np.random.default_rng(2)
-    sigma = rng.uniform(0.01, 2.0, merl.SHAPE).astype(np.float32)
+    sigma = rng.uniform(0.01, 2.0, merltable.SHAPE).astype(np.float32)
     sigma[0, 10, 20, :7] = np.nan  # a few cells without a value: left out as below the horizon
-    sg = np.where(merl.valid_mask(), sigma.astype(np.float64).mean(axis=0), np.nan)
+    sg = np.where(merlgrid.valid_mask(), sigma.astype(np.float64).mean(axis=0), np.nan)
     with np.errstate(all="ignore"), __import__("warnings").catch_warnings():
         __import__("warnings").simplefilter("ignore", RuntimeWarning)
         expected = np.nanmedian(sg, axis=2)
@@ -315,7 +315,8 @@ def test_the_page_reuses_the_other_methods_when_only_the_bound_changed_the_recon
     from types import SimpleNamespace
 
     from reconstruction import pipeline
-    from reconstruction.formats.slicefile import Slice
+    from reconstruction.core.slicedata import Slice
+    from reconstruction.job import Job
     from reconstruction.report import html as htmlreport
 
     built = []
@@ -323,7 +324,7 @@ def test_the_page_reuses_the_other_methods_when_only_the_bound_changed_the_recon
                         lambda w, r, o, b=None: built.append(r.method) or {"x": r, "y": r})
     monkeypatch.setattr(htmlreport, "draw_sample_figures", lambda *a, **k: None)
     s = Slice(np.array([30.0, 30.0]), np.array([-20.0, 40.0]), np.array([[0.1], [0.3]]), ["value"])
-    job = pipeline.Job(inputs=("s.csv",), out=None, html="m.html")
+    job = Job(inputs=("s.csv",), out=None, html="m.html")
     others = pipeline._send_sample_figures(job, None, s, SimpleNamespace(method="fit"), {}, None)
     assert built == ["fit"]
     bounded = SimpleNamespace(method="fit")  # the bound: the same method, another reconstruction

@@ -17,10 +17,12 @@ import numpy as np
 import pytest
 
 from reconstruction import cli
+from reconstruction.core import merltable
 from reconstruction.core.models import Material
+from reconstruction.core.slicedata import Slice, SliceError
 from reconstruction.formats import merl
 from reconstruction.formats.inputs import InputError, load_inputs, read_table
-from reconstruction.formats.slicefile import MAX_INPUT_BYTES, Slice, SliceError, SliceWriter, read_slice, write_slice
+from reconstruction.formats.slicefile import MAX_INPUT_BYTES, SliceWriter, read_slice, write_slice
 from reconstruction.report import preview
 from reconstruction.synthetic import synthetic_slice
 
@@ -194,18 +196,18 @@ def _garbage_merl(path: Path, values: np.ndarray) -> None:
 def test_merl_read_refuses_cells_beyond_a_physical_bound_unless_asked(tmp_path):
     rng = np.random.default_rng(0)
     p = tmp_path / "garbage.binary"
-    _garbage_merl(p, np.abs(rng.normal(size=3 * merl.N_CELLS)) * 1e300)
+    _garbage_merl(p, np.abs(rng.normal(size=3 * merltable.N_CELLS)) * 1e300)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        with pytest.raises(merl.MerlError, match=r"garbage\.binary: .* above 1e\+08 1/sr"):
+        with pytest.raises(merltable.MerlError, match=r"garbage\.binary: .* above 1e\+08 1/sr"):
             merl.read(p)
-    ok = np.full(3 * merl.N_CELLS, 5e8)
+    ok = np.full(3 * merltable.N_CELLS, 5e8)
     _garbage_merl(p, ok)
-    assert np.all(merl.read(p, max_value=None) > 1e8 * merl.SCALES.min())
+    assert np.all(merl.read(p, max_value=None) > 1e8 * merltable.SCALES.min())
 
 
 def test_merl_read_says_how_many_negative_cells_it_took_as_invalid(tmp_path):
-    v = np.full(3 * merl.N_CELLS, 100.0)
+    v = np.full(3 * merltable.N_CELLS, 100.0)
     v[:10] = -1.0      # the invalid marker: silent
     v[10:17] = -0.5    # other negative cells: NaN, and counted
     p = tmp_path / "neg.binary"
@@ -217,7 +219,7 @@ def test_merl_read_says_how_many_negative_cells_it_took_as_invalid(tmp_path):
 
 def test_an_unreadable_merl_file_is_a_merl_error(tmp_path, monkeypatch):
     p = tmp_path / "locked.binary"
-    merl.write(p, np.ones(merl.SHAPE))
+    merl.write(p, np.ones(merltable.SHAPE))
     real_open = open
 
     def no_permission(file, *a, **k):  # what the OS answers for a file without read permission
@@ -226,7 +228,7 @@ def test_an_unreadable_merl_file_is_a_merl_error(tmp_path, monkeypatch):
         return real_open(file, *a, **k)
 
     monkeypatch.setattr("builtins.open", no_permission)
-    with pytest.raises(merl.MerlError, match=r"locked\.binary: cannot read \(Permission denied\)"):
+    with pytest.raises(merltable.MerlError, match=r"locked\.binary: cannot read \(Permission denied\)"):
         merl.read(p)
 
 
@@ -242,7 +244,7 @@ def test_a_failed_preview_write_leaves_nothing_under_the_real_names(tmp_path, mo
 
     monkeypatch.setattr(OpenEXR, "File", HalfWrittenFile)
     with pytest.raises(OSError, match=r"m\.exr.*No space left on device") as e:
-        preview.write_preview(target, np.full(merl.SHAPE, 0.1))
+        preview.write_preview(target, np.full(merltable.SHAPE, 0.1))
     assert ".tmp" not in str(e.value)  # the message names the real file, not a temporary one
     assert list(tmp_path.iterdir()) == []  # no half EXR, no PNG, no temporary file
 

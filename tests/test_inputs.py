@@ -5,8 +5,9 @@ import math
 import numpy as np
 import pytest
 
+from reconstruction.core.slicedata import Slice
 from reconstruction.formats.inputs import InputError, drop_blind_spot_zeros, load_inputs, parse_columns, read_table
-from reconstruction.formats.slicefile import Slice, write_slice
+from reconstruction.formats.slicefile import write_slice
 
 
 def write(tmp_path, name, text):
@@ -163,8 +164,9 @@ def test_decreasing_blocks_and_tabs_are_accepted(tmp_path):
 
 
 def test_all_zero_and_empty_inputs_say_so(tmp_path):
+    from reconstruction.core.slicedata import Slice
     from reconstruction.formats.inputs import InputError, load_inputs
-    from reconstruction.formats.slicefile import Slice, write_slice
+    from reconstruction.formats.slicefile import write_slice
 
     p = tmp_path / "zero.csv"
     write_slice(p, Slice(np.full(20, 30.0), np.linspace(-80, 80, 20), np.zeros((20, 1)), ["value"]))

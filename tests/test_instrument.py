@@ -128,7 +128,8 @@ def test_meta_round_trip_and_clear_errors():
 
 
 def test_slice_files_carry_the_instrument_and_refuse_a_malformed_one(tmp_path):
-    from reconstruction.formats.slicefile import Slice, SliceError, read_slice, write_slice
+    from reconstruction.core.slicedata import Slice, SliceError
+    from reconstruction.formats.slicefile import read_slice, write_slice
 
     inst = Instrument(1e-3, band="silicon x halogen-3000K")
     p = tmp_path / "s.csv"
@@ -236,7 +237,7 @@ def test_fit_tables_prefetched_in_another_process_seed_the_shared_cone_averages(
     a shared_cone_averages block (as auto's forked child's answer is), fit's tables are then looked up, not
     computed, with the same values. A point instrument has none to prefetch."""
     from reconstruction.bench import instrument as ins
-    from reconstruction.formats.slicefile import Slice
+    from reconstruction.core.slicedata import Slice
     from reconstruction.methods.fit.aperture import Blur, prefetch_tables
 
     ti = np.repeat([20.0, 45.0], 9)

@@ -20,8 +20,9 @@ import pytest
 from reconstruction import cli
 from reconstruction.core.models import Material
 from reconstruction.core.samples import PEAK_SAMPLES, thin_samples
+from reconstruction.core.slicedata import SliceError
 from reconstruction.formats import slicefile
-from reconstruction.formats.slicefile import SliceError, read_slice, write_slice
+from reconstruction.formats.slicefile import read_slice, write_slice
 from reconstruction.synthetic import synthetic_slice
 
 REPO = Path(__file__).resolve().parents[1]

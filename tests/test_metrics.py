@@ -3,9 +3,8 @@
 import numpy as np
 import pytest
 
-from reconstruction.core import metrics
+from reconstruction.core import merlgrid, merltable, metrics
 from reconstruction.core.models import Material
-from reconstruction.formats import merl
 
 MAT = Material.from_dict({"name": "m", "lobes": [{"type": "lambert", "albedo": [0.2, 0.4, 0.6]},
                                                  {"type": "ggx", "alpha": 0.2, "specular": 0.5}]})
@@ -13,7 +12,7 @@ MAT = Material.from_dict({"name": "m", "lobes": [{"type": "lambert", "albedo": [
 
 @pytest.fixture(scope="module")
 def truth():
-    return merl.tabulate(MAT.eval)
+    return merltable.tabulate(MAT.eval)
 
 
 def test_a_table_equals_itself(truth):
@@ -34,13 +33,13 @@ def test_a_uniform_scale_gives_the_expected_errors(truth):
 
 def test_truth_albedo_of_a_lambert_table_is_its_albedo():
     lam = Material.from_dict({"name": "l", "lobes": [{"type": "lambert", "albedo": 0.5}]})
-    t = merl.tabulate(lam.eval)
+    t = merltable.tabulate(lam.eval)
     a = metrics.albedo_error(t, t, theta_i_deg=[0.0, 40.0])
     np.testing.assert_allclose(a["truth_albedo"], 0.5, rtol=2e-3)
 
 
 def test_log_rmse_weighs_the_floor_where_relative_rmse_sees_the_peak(truth):
-    wi, wo = merl.cell_to_dirs(*np.meshgrid(np.arange(90), np.arange(90), np.arange(180), indexing="ij"))
+    wi, wo = merlgrid.cell_to_dirs(*np.meshgrid(np.arange(90), np.arange(90), np.arange(180), indexing="ij"))
     c = np.clip(wi[..., 2], 0, None) * np.clip(wo[..., 2], 0, None)
     weighted = np.nan_to_num(truth) * c
     dim = truth.copy()

@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 
 from reconstruction.base import Reconstruction, ReconstructionError
+from reconstruction.core import merltable
 from reconstruction.core.geometry import sph_to_vec
 from reconstruction.core.metrics import directional_albedo, reciprocity_error, relative_rmse_cos
 from reconstruction.core.models import Colour, Lambert, Material, Microfacet, ggx_d
-from reconstruction.formats import merl
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 from reconstruction.methods.microfacet import fresnel, reconstruct_microfacet
 from reconstruction.synthetic import synthetic_slice
 
@@ -53,7 +53,7 @@ def test_recovers_a_two_population_ndf_and_the_index(incidences):
     assert rec.ndf(tail) == pytest.approx(true_ndf(tail), rel=0.3)
     assert ggx_d(np.cos(tail), 0.05) < true_ndf(tail) / 10
     # the table is close to the truth everywhere, not only in the measured plane
-    err = relative_rmse_cos(merl.tabulate(rec.eval), merl.tabulate(mat.eval))
+    err = relative_rmse_cos(merltable.tabulate(rec.eval), merltable.tabulate(mat.eval))
     assert err < 0.1
 
 
@@ -119,11 +119,11 @@ def test_table_is_the_tabulated_eval(alphas, kind, channels):
     rec = MicrofacetReconstruction(a, np.full(a.size, 1.0 / a.size), kind, 1.6, 2.5 if kind == "conductor" else 0.0,
                                    np.linspace(0.2, 0.4, channels), np.linspace(0.3, 0.5, channels),
                                    ["R", "G", "B"][:channels] if channels == 3 else ["value"])
-    slow = merl.tabulate(rec.eval)
+    slow = merltable.tabulate(rec.eval)
     sharp = rec.sharp_theta_h_rad
     assert (sharp is not None) == (min(alphas) < 0.01)
     if sharp:
-        slow, rows = merl.average_theta_h_cells(rec.eval, slow, sharp, n=8)
+        slow, rows = merltable.average_theta_h_cells(rec.eval, slow, sharp, n=8)
         assert rows >= 2
     fast = rec.table()
     assert np.array_equal(np.isnan(fast), np.isnan(slow))

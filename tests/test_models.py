@@ -178,10 +178,11 @@ f0 = 0.04
 
 
 def test_tabulated_lobe_reads_a_merl_table(tmp_path):
+    from reconstruction.core import merltable
     from reconstruction.formats import merl
 
     src = mat({"type": "lambert", "albedo": [0.2, 0.4, 0.6]}, {"type": "ggx", "alpha": 0.3, "specular": 0.5})
-    merl.write(tmp_path / "t.binary", merl.tabulate(src.eval))
+    merl.write(tmp_path / "t.binary", merltable.tabulate(src.eval))
     t = mat({"type": "tabulated", "path": str(tmp_path / "t.binary")})
     wi, wo = inplane([20, 40, 60], [-30, 40, 10])
     np.testing.assert_allclose(t.eval(wi, wo), src.eval(wi, wo), rtol=0.05)
@@ -193,21 +194,21 @@ def test_the_albedo_check_halves_its_lookups_only_on_a_mirror_symmetric_table():
     a few percent off) it integrates the whole hemisphere, so its figure is the table's as a renderer reads it."""
     from types import SimpleNamespace
 
+    from reconstruction.core import merlgrid, merltable
     from reconstruction.core.checks import ALBEDO_INCIDENCES_DEG, mirror_symmetric, plausibility
-    from reconstruction.formats import merl
 
-    th, td, pd = merl.cell_angles()
+    th, td, pd = merlgrid.cell_angles()
     sym = np.broadcast_to(0.05 + 0.4 * np.cos(th) ** 8 * np.cos(td), (3, 90, 90, 180)).copy()
     asym = sym * (1.0 + 0.5 * np.cos(pd))[None]  # cos(pi - phi_d) = -cos(phi_d): not the same on both sides
-    sym[:, ~merl.valid_mask()] = asym[:, ~merl.valid_mask()] = np.nan
+    sym[:, ~merlgrid.valid_mask()] = asym[:, ~merlgrid.valid_mask()] = np.nan
     assert mirror_symmetric(sym) and not mirror_symmetric(asym)
     ti = np.radians(ALBEDO_INCIDENCES_DEG)
     for t in (sym, asym):
-        look = merl.brdf_of(t)
+        look = merltable.brdf_of(t)
         rec = SimpleNamespace(method="table", eval=look)
         full = directional_albedo(lambda a, b, look=look: np.nan_to_num(look(a, b), nan=0.0), ti, 64, 128)
         got = np.asarray(plausibility(rec, t)["albedo"]["albedo"])
         np.testing.assert_allclose(got, np.round(full, 5), atol=1.5e-5)
-    half = directional_albedo(lambda a, b: np.nan_to_num(merl.brdf_of(asym)(a, b), nan=0.0), ti, 64, 128,
+    half = directional_albedo(lambda a, b: np.nan_to_num(merltable.brdf_of(asym)(a, b), nan=0.0), ti, 64, 128,
                               mirror=True)
     assert np.max(np.abs(half - full)) > 1e-3  # what the check would have said of the other table

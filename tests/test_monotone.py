@@ -7,12 +7,11 @@ import numpy as np
 import pytest
 
 from reconstruction import pipeline
-from reconstruction.core import samples
+from reconstruction.core import merltable, samples
 from reconstruction.core.geometry import inplane_to_dirs, tilted_to_dirs
 from reconstruction.core.models import Material
 from reconstruction.core.samples import SliceWithPoints, directional_slice
-from reconstruction.formats import merl
-from reconstruction.methods import auto
+from reconstruction.methods import Options, auto
 from reconstruction.report import compare as cmp
 from reconstruction.synthetic import synthetic_slice
 
@@ -37,14 +36,14 @@ def with_tilted_sweep(mat: Material, inplane: tuple[float, ...], arm_i: float, t
 
 @pytest.fixture(scope="module")
 def truth():
-    table = merl.tabulate(PHONG.eval)
-    return cmp.render_images(cmp.Brdf("truth", "merl", merl.brdf_of(table), table), SIZE)
+    table = merltable.tabulate(PHONG.eval)
+    return cmp.render_images(cmp.Brdf("truth", "merl", merltable.brdf_of(table), table), SIZE)
 
 
 def psnr(s, truth, **kw) -> tuple[float, str]:
-    rec, choice = pipeline.reconstruct(s, "auto", pipeline.Options(), **kw)
+    rec, choice = pipeline.reconstruct(s, "auto", Options(), **kw)
     table = pipeline.tabulate(rec)
-    return (cmp.image_metrics(cmp.render_images(cmp.Brdf("a", "merl", merl.brdf_of(table), table), SIZE), truth,
+    return (cmp.image_metrics(cmp.render_images(cmp.Brdf("a", "merl", merltable.brdf_of(table), table), SIZE), truth,
                               SIZE)["psnr_db"], choice["cross_validation"]["chosen_label"])
 
 

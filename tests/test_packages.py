@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from reconstruction.formats import merl
+from reconstruction.core import merlgrid, merltable
 from reconstruction.methods import fit, revolve
 from reconstruction.synthetic import synthetic_slice
 from tests.test_cli_reconstruct import BLUE_PLASTIC
@@ -20,8 +20,8 @@ def test_public_names_of_the_revolve_and_fit_packages_resolve():
 
 def test_revolve_table_tabulates_a_slice():
     t = revolve.revolve_table(synthetic_slice(BLUE_PLASTIC, (30.0,)))
-    valid = merl.valid_mask()
-    assert t.shape == merl.SHAPE and np.all(np.isfinite(t[:, valid])) and np.all(t[:, valid] >= 0)
+    valid = merlgrid.valid_mask()
+    assert t.shape == merltable.SHAPE and np.all(np.isfinite(t[:, valid])) and np.all(t[:, valid] >= 0)
 
 
 def _dotted_names() -> list[tuple[str, str]]:

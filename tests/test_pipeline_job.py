@@ -9,6 +9,8 @@ import pytest
 from reconstruction import methods, pipeline
 from reconstruction.base import ReconstructionError
 from reconstruction.formats import merl
+from reconstruction.job import Job
+from reconstruction.methods import Options
 from tests.test_cli_reconstruct import BLUE_PLASTIC, slice_file
 
 
@@ -23,14 +25,14 @@ def test_a_job_runs_the_whole_pipeline_without_a_command_line(tmp_path):
         def done(self, step):
             steps.append(step)
 
-    job = pipeline.Job(inputs=(str(src),), out=str(tmp_path / "m.binary"), method="bivariate",
+    job = Job(inputs=(str(src),), out=str(tmp_path / "m.binary"), method="bivariate",
                        report=str(tmp_path / "m.json"))
     rep = pipeline.run(job, progress=Steps())
     assert sorted(steps) == sorted(job.steps) == ["checks", "colour", "read", "reconstruct", "tabulate", "write"]
     assert rep["method"] == "bivariate" and (tmp_path / "m.binary").stat().st_size == merl.FILE_SIZE
     assert json.loads((tmp_path / "m.json").read_text())["method"] == "bivariate"
     with pytest.raises(ReconstructionError, match="--out .*expected a file name ending in .binary"):
-        pipeline.run(pipeline.Job(inputs=(str(src),), out=str(tmp_path / "m.bin")))
+        pipeline.run(Job(inputs=(str(src),), out=str(tmp_path / "m.bin")))
 
 
 def test_every_method_declares_its_options_schema():
@@ -38,7 +40,7 @@ def test_every_method_declares_its_options_schema():
     assert set(schema["properties"]) == set(methods.names())
     assert schema["$defs"]["RevolveOptions"]["properties"]["axis"]["enum"] == ["auto", "pca", "vertical"]
     rev = methods.get("revolve")
-    assert rev.options_from(pipeline.Options(fill="zero", revolve_axis="pca")) == methods.RevolveOptions(
+    assert rev.options_from(Options(fill="zero", revolve_axis="pca")) == methods.RevolveOptions(
         axis="pca", fill="zero")
     with pytest.raises(ReconstructionError, match=r"method fit: options: .*\$\.lobes\[0\]"):
         methods.get("fit").parse_options({"lobes": ["gx"]})
@@ -96,7 +98,7 @@ def test_auto_starts_the_bound_posterior_after_its_background_cross_validation(t
     monkeypatch.setattr(auto, "cross_validate", cv)
     monkeypatch.setattr(uncertainty, "reference_posterior", post)
     src = slice_file(tmp_path / "slice.csv", BLUE_PLASTIC, incidences=(20.0, 50.0), step=4.0)
-    rep = pipeline.run(pipeline.Job(inputs=(str(src),), out=str(tmp_path / "m.binary"), method="auto"))
+    rep = pipeline.run(Job(inputs=(str(src),), out=str(tmp_path / "m.binary"), method="auto"))
     assert rep["conservative"] is not None
     assert {"cv microfacet", "cv revolve", "cv bivariate", "posterior"} <= set(events)
     assert events.index("posterior") > max(events.index(f"cv {m}") for m in ("microfacet", "revolve", "bivariate"))
@@ -172,7 +174,7 @@ def test_auto_cross_validates_in_the_forked_child_with_the_same_result(tmp_path,
         monkeypatch.setenv("GONIO_FORK", fork)
         here.clear()
         out, page = tmp_path / f"m{fork}.binary", tmp_path / f"m{fork}.html"
-        reps[fork] = pipeline.run(pipeline.Job(inputs=(str(src),), out=str(out), method="auto", html=str(page)))
+        reps[fork] = pipeline.run(Job(inputs=(str(src),), out=str(out), method="auto", html=str(page)))
         assert ("microfacet" in here) == ("microfacet built" in here) == (fork == "0") and "fit" in here
         pages[fork] = re.findall(r"data:image/png;base64,[^\"']+", page.read_text())
     assert len(pages["1"]) == 12 and pages["1"] == pages["0"]
@@ -259,7 +261,7 @@ def test_autos_bound_table_is_made_beside_the_run_once_with_the_same_result(tmp_
         monkeypatch.setattr(executor.os, "sched_getaffinity", lambda pid, c=cores: c, raising=False)
         made.clear()
         out = tmp_path / f"m{len(cores)}.binary"
-        rep = pipeline.run(pipeline.Job(inputs=(str(src),), out=str(out), method="auto"))
+        rep = pipeline.run(Job(inputs=(str(src),), out=str(out), method="auto"))
         assert made == [len(cores) == 1], made
         outs[len(cores)] = (out.read_bytes(), rep["conservative"])
     assert outs[2] == outs[1]

@@ -7,17 +7,11 @@ import numpy as np
 import OpenEXR
 import pytest
 
+from reconstruction.core import merltable
 from reconstruction.core.models import Material
-from reconstruction.formats import merl
-from reconstruction.report.preview import (
-    AMBIENT,
-    LIGHT_POSITION,
-    PREVIEW_RADIUS,
-    render_preview,
-    render_sphere,
-    srgb_encode,
-    write_preview,
-)
+from reconstruction.core.render import PREVIEW_LIGHT_POSITION as LIGHT_POSITION
+from reconstruction.core.render import render_point_light as render_sphere
+from reconstruction.report.preview import AMBIENT, PREVIEW_RADIUS, render_preview, srgb_encode, write_preview
 
 
 def material(*lobes):
@@ -59,7 +53,7 @@ def test_highlight_sits_at_the_mirror_direction():
 def test_table_render_matches_analytic_render():
     mat = material({"type": "lambert", "albedo": [0.05, 0.1, 0.4]}, {"type": "ggx", "alpha": 0.3, "specular": 0.5})
     a = render_sphere(mat.eval, 48)
-    b = render_sphere(merl.brdf_of(merl.tabulate(mat.eval)), 48)
+    b = render_sphere(merltable.brdf_of(merltable.tabulate(mat.eval)), 48)
     assert np.abs(a - b).sum() / a.sum() < 0.01
 
 
@@ -83,11 +77,11 @@ def read_png(path):
 
 def test_write_preview_exr_and_png(tmp_path):
     mat = material({"type": "lambert", "albedo": [0.1, 0.3, 0.6]}, {"type": "ggx", "alpha": 0.2, "specular": 0.3})
-    table = merl.tabulate(mat.eval)
+    table = merltable.tabulate(mat.eval)
     info = write_preview(tmp_path / "m.exr", table, size=40)
     with OpenEXR.File(str(tmp_path / "m.exr")) as f:
         px = f.channels()["RGB"].pixels
-    ref = render_preview(merl.brdf_of(table), 40)
+    ref = render_preview(merltable.brdf_of(table), 40)
     assert px.dtype == np.float32 and px.shape == (40, 40, 3)
     np.testing.assert_array_equal(px, ref)
     png = read_png(tmp_path / "m.png")

@@ -13,7 +13,8 @@ from reconstruction import cli
 from reconstruction.core.geometry import sph_to_vec
 from reconstruction.core.metrics import directional_albedo, halfvector_albedo
 from reconstruction.core.models import Material
-from reconstruction.formats.slicefile import Slice, write_slice
+from reconstruction.core.slicedata import Slice
+from reconstruction.formats.slicefile import write_slice
 from reconstruction.principled import albedo as alb
 from reconstruction.principled.fit import cosl2, fit_principled, params_from_vector
 from reconstruction.principled.model import RANGES, ParameterError, PrincipledParams

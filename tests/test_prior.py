@@ -11,11 +11,12 @@ import pytest
 
 from reconstruction import pipeline
 from reconstruction.base import ReconstructionError
+from reconstruction.core import merlgrid, merltable
 from reconstruction.core.metrics import relative_rmse_cos
 from reconstruction.core.models import Material
-from reconstruction.formats import merl
-from reconstruction.formats.slicefile import Slice, write_slice
-from reconstruction.methods import auto, prior
+from reconstruction.core.slicedata import Slice
+from reconstruction.formats.slicefile import write_slice
+from reconstruction.methods import Options, auto, prior
 from reconstruction.synthetic import synthetic_slice
 
 TARGET = Material.from_dict({"name": "target", "lobes": [
@@ -46,7 +47,7 @@ def family(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def truth():
-    return merl.tabulate(TARGET.eval)
+    return merltable.tabulate(TARGET.eval)
 
 
 def test_a_material_of_the_family_comes_back_from_one_and_from_three_slices(family, truth):
@@ -68,7 +69,7 @@ def test_a_material_of_the_family_comes_back_from_one_and_from_three_slices(fami
     wo = np.array([[0.5, 0.0, np.sqrt(0.75)], [0.2, 0.3, 0.93], [0.0, 0.0, 1.0]])
     v = rec.eval(wi, wo)
     assert v.shape == (3, 3) and np.all(v[:2] > 0) and np.all(v[2] == 0)
-    np.testing.assert_allclose(v[:2], merl.lookup(rec.table(), wi[:2], wo[:2], interpolate=True), rtol=0.1)
+    np.testing.assert_allclose(v[:2], merltable.lookup(rec.table(), wi[:2], wo[:2], interpolate=True), rtol=0.1)
 
 
 def test_a_grey_slice_gives_a_grey_table(family):
@@ -76,7 +77,7 @@ def test_a_grey_slice_gives_a_grey_table(family):
     g = Slice(s.theta_i_deg, s.theta_o_deg, s.values.mean(axis=1, keepdims=True), ["value"])
     rec = prior.reconstruct_prior(g, family[0])
     t = rec.table()
-    assert rec.channels == ["value"] and t.shape == merl.SHAPE
+    assert rec.channels == ["value"] and t.shape == merltable.SHAPE
     np.testing.assert_array_equal(t[0], t[2])
 
 
@@ -199,7 +200,7 @@ def test_the_noise_level_is_what_the_samples_std_amounts_to():
 @pytest.mark.slow
 def test_auto_with_a_prior_keeps_an_exact_model_of_a_noisy_slice(family, truth):
     s = synthetic_slice(TARGET, (40.0,), noise=0.01, seed=1)
-    rec, choice = pipeline.reconstruct(s, "auto", pipeline.Options(prior=str(family[0])))
+    rec, choice = pipeline.reconstruct(s, "auto", Options(prior=str(family[0])))
     pref = choice["cross_validation"]["preference"]
     assert pref["methods"] == ["prior"] and pref["applied"] is False and 0.009 < pref["noise_level"] < 0.011
     assert choice["used"] == "fit" and "samples' own noise" in choice["reason"]
@@ -209,12 +210,12 @@ def test_auto_with_a_prior_keeps_an_exact_model_of_a_noisy_slice(family, truth):
 @pytest.mark.slow
 def test_an_anchored_prior_is_the_weighted_geometric_mean_of_prior_and_bivariate(family):
     from reconstruction import methods
+    from reconstruction.core.checks import checked_albedo
     from reconstruction.core.geometry import inplane_to_dirs
-    from reconstruction.report import summary as report
 
     folder, _ = family
     s = synthetic_slice(TARGET, (40.0,))
-    opts = lambda a: pipeline.Options(prior=str(folder), prior_anchor=a)  # noqa: E731
+    opts = lambda a: Options(prior=str(folder), prior_anchor=a)  # noqa: E731
     p, b = methods.get("prior").build(s, opts(0.0), None), methods.get("bivariate").build(s, opts(0.0), None)
     rec = methods.get("prior").build(s, opts(0.5), None)
     assert isinstance(rec, prior.AnchoredPrior) and rec.method == "prior" and rec.channels == ["R", "G", "B"]
@@ -223,12 +224,12 @@ def test_an_anchored_prior_is_the_weighted_geometric_mean_of_prior_and_bivariate
     wo = wo @ np.array([[np.cos(0.7), -np.sin(0.7), 0], [np.sin(0.7), np.cos(0.7), 0], [0, 0, 1]])  # off-plane
     np.testing.assert_allclose(rec.eval(wi, wo), np.sqrt(p.eval(wi, wo) * b.eval(wi, wo)), rtol=1e-12)
     np.testing.assert_allclose(rec.eval(wi, wo), rec.eval(wo, wi), rtol=1e-9)  # reciprocal as both are
-    valid = merl.valid_mask()[None] & np.ones((3, 1, 1, 1), dtype=bool)
+    valid = merlgrid.valid_mask()[None] & np.ones((3, 1, 1, 1), dtype=bool)
     t = rec.table()
     np.testing.assert_allclose(t[valid], np.sqrt(p.table() * np.nan_to_num(b.table()))[valid], rtol=1e-12)
     assert np.all(t[~valid] == 0)
     # directional albedo at most that of the brighter of the two (AM-GM, cell by cell)
-    alb = [report.checked_albedo(r.eval, 32, 64)[0].max() for r in (rec, p, b)]
+    alb = [checked_albedo(r.eval, 32, 64)[0].max() for r in (rec, p, b)]
     assert alb[0] <= max(alb[1:]) + 1e-9, alb
     rep = rec.report()
     assert rep["anchor"]["weight"] == 0.5 and rep["anchor"]["to"] == "bivariate" and rep["prior"]["materials"] == 24
@@ -273,7 +274,7 @@ def test_auto_anchors_the_prior_on_a_material_outside_its_family(family):
 
     folder, _ = family
     s = synthetic_slice(PHONG, (40.0,))
-    rec, choice = pipeline.reconstruct(s, "auto", pipeline.Options(prior=str(folder)))
+    rec, choice = pipeline.reconstruct(s, "auto", Options(prior=str(folder)))
     cv = choice["cross_validation"]
     variants = {c["label"]: c for c in cv["scores"] if c["method"] == "prior"}
     assert set(variants) == {"prior"} | {f"prior (anchor {a:g})" for a in auto.PRIOR_ANCHORS}
@@ -282,7 +283,7 @@ def test_auto_anchors_the_prior_on_a_material_outside_its_family(family):
     assert cv["prior_anchor"] == best["prior_anchor"] > 0 and best["label"] in choice["reason"]
     assert rec.report()["anchor"]["weight"] == best["prior_anchor"]
     # --prior-anchor is for --method prior: auto scores and builds its own anchors whatever it says
-    rec1, choice1 = pipeline.reconstruct(s, "auto", pipeline.Options(prior=str(folder), prior_anchor=1.0))
+    rec1, choice1 = pipeline.reconstruct(s, "auto", Options(prior=str(folder), prior_anchor=1.0))
     got = {c["label"]: c["held_out_relative_rmse_cos"] for c in choice1["cross_validation"]["scores"]}
     assert got == pytest.approx({c["label"]: c["held_out_relative_rmse_cos"] for c in cv["scores"]}, rel=1e-6)
     assert rec1.report()["anchor"]["weight"] == best["prior_anchor"]
@@ -292,7 +293,7 @@ def test_auto_anchors_the_prior_on_a_material_outside_its_family(family):
 
     ss = s.sorted()
     _, masks = folds(ss)
-    cvs = {m: cross_validate(ss, m, lambda tr, m=m: methods.get(m).build(tr, pipeline.Options(prior=str(folder)),
+    cvs = {m: cross_validate(ss, m, lambda tr, m=m: methods.get(m).build(tr, Options(prior=str(folder)),
                                                                           None), masks) for m in ("prior", "bivariate")}
     for a in auto.PRIOR_ANCHORS:
         blend = score_predictions(ss, "prior", anchored(cvs["prior"].predictions, cvs["bivariate"].predictions, a),
@@ -300,8 +301,8 @@ def test_auto_anchors_the_prior_on_a_material_outside_its_family(family):
         assert blend.error == pytest.approx(variants[f"prior (anchor {a:g})"]["held_out_relative_rmse_cos"], rel=1e-9)
     np.testing.assert_allclose(choice["held_out_predictions"]["prior"],  # the chosen variant's predictions
                                anchored(cvs["prior"].predictions, cvs["bivariate"].predictions, best["prior_anchor"]))
-    truth = merl.tabulate(PHONG.eval)
-    plain = pipeline.reconstruct(s, "prior", pipeline.Options(prior=str(folder)))[0]
+    truth = merltable.tabulate(PHONG.eval)
+    plain = pipeline.reconstruct(s, "prior", Options(prior=str(folder)))[0]
     err, err_plain = (relative_rmse_cos(pipeline.tabulate(r), truth, 80) for r in (rec, plain))
     assert err < 0.5 * err_plain, (err, err_plain)  # 0.58 against 1.65
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from reconstruction.core.geometry import inplane_to_dirs
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 from reconstruction.methods import prior as P
 from reconstruction.methods import prior_local as L
 from reconstruction.methods import prior_structured as S
@@ -120,6 +120,7 @@ def test_structured_prior_recovers_the_factors_of_a_microfacet_material_from_one
 def test_method_prior_takes_the_local_basis_as_an_option(tmp_path, monkeypatch):
     """``--method prior --prior-near N`` (pipeline option ``prior_near``) completes from the N nearest materials."""
     from reconstruction import pipeline
+    from reconstruction.methods import Options
 
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     folder = tmp_path / "prior"
@@ -130,7 +131,7 @@ def test_method_prior_takes_the_local_basis_as_an_option(tmp_path, monkeypatch):
             f'[material]\nname = "{fam}{k}"\n[[material.lobes]]\ntype = "lambert"\nalbedo = {alb}\n'
             f'[[material.lobes]]\ntype = "ggx"\nalpha = {al}\nspecular = 0.9\nf0 = 0.04\n', encoding="utf-8")
     s = _slice(lambda wi, wo: _ggx(wi, wo, np.array([0.07, 0.07, 0.07]), 1.0, 0.1))
-    rec, _ = pipeline.reconstruct(s, "prior", pipeline.Options(prior=str(folder), prior_near=3))
+    rec, _ = pipeline.reconstruct(s, "prior", Options(prior=str(folder), prior_near=3))
     assert sorted(rec.info["prior"]["local"]["nearest"]) == ["glossy0", "glossy1", "glossy2"]
-    rec, _ = pipeline.reconstruct(s, "prior", pipeline.Options(prior=str(folder)))
+    rec, _ = pipeline.reconstruct(s, "prior", Options(prior=str(folder)))
     assert "local" not in rec.info["prior"] and rec.info["prior"]["materials"] == 6

@@ -14,7 +14,8 @@ import pytest
 
 from reconstruction.base import ReconstructionError
 from reconstruction.core.models import Material
-from reconstruction.formats.slicefile import Slice, write_slice
+from reconstruction.core.slicedata import Slice
+from reconstruction.formats.slicefile import write_slice
 from reconstruction.methods import prior
 from reconstruction.synthetic import synthetic_slice
 

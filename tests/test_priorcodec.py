@@ -118,7 +118,7 @@ def test_the_basis_of_a_coded_prior_is_the_float32_one(cells):
 
 
 def _slice():
-    from reconstruction.formats.slicefile import Slice
+    from reconstruction.core.slicedata import Slice
 
     to = np.arange(-80.0, 81.0, 2.0)
     to = to[np.abs(to + 40.0) >= 4.0]

@@ -10,11 +10,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from reconstruction.base import Reconstruction, ReconstructionError
-from reconstruction.core import metrics
+from reconstruction.core import merlgrid, merltable, metrics
 from reconstruction.core.geometry import inplane_to_dirs, sph_to_vec, thesis_points_from_slice
 from reconstruction.core.models import Material
-from reconstruction.formats import merl
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 from reconstruction.methods import revolve as rv
 
 RNG = np.random.default_rng(11)
@@ -387,7 +386,7 @@ def test_lobes_follow_their_axes_at_other_incidences():
 
 @pytest.fixture(scope="module")
 def truth_tables():
-    return {name: merl.tabulate(m.eval) for name, m in (("ggx", GGX), ("lam_ggx3", LAM_GGX3), ("full", FULL))}
+    return {name: merltable.tabulate(m.eval) for name, m in (("ggx", GGX), ("lam_ggx3", LAM_GGX3), ("full", FULL))}
 
 
 @pytest.mark.parametrize("name, m, tis, bound", [
@@ -401,14 +400,14 @@ def truth_tables():
 def test_full_table_accuracy_against_ground_truth(truth_tables, name, m, tis, bound):
     """Relative RMSE of f cos(theta_i) cos(theta_o) over the whole MERL table, blind spot +-6 deg."""
     rec = rv.reconstruct_revolve(make_slice(m, tis, blind=6.0))
-    table = merl.tabulate(rec.eval)
-    assert np.all(np.isfinite(table[:, merl.valid_mask()])) and np.nanmin(table) >= 0
+    table = merltable.tabulate(rec.eval)
+    assert np.all(np.isfinite(table[:, merlgrid.valid_mask()])) and np.nanmin(table) >= 0
     assert metrics.relative_rmse_cos(table, truth_tables[name]) < bound
 
 
 def test_excess_cosine_weighting_beats_plain_revolution(truth_tables):
     s = make_slice(GGX, [30], blind=6.0)
-    err = {ex: metrics.relative_rmse_cos(merl.tabulate(rv.reconstruct_revolve(s, excess=ex).eval),
+    err = {ex: metrics.relative_rmse_cos(merltable.tabulate(rv.reconstruct_revolve(s, excess=ex).eval),
                                          truth_tables["ggx"]) for ex in (True, False)}
     assert err[True] < 0.5 * err[False]  # measured 0.162 against 0.455
 
@@ -419,7 +418,7 @@ def test_reciprocal_option(truth_tables):
     assert metrics.reciprocity_error(plain.eval) > 0.05  # the lobes are defined from the light's side
     assert metrics.reciprocity_error(sym.eval) < 1e-12
     # as accurate over the table (measured 0.264 both)
-    err = [metrics.relative_rmse_cos(merl.tabulate(r.eval), truth_tables["full"]) for r in (plain, sym)]
+    err = [metrics.relative_rmse_cos(merltable.tabulate(r.eval), truth_tables["full"]) for r in (plain, sym)]
     assert err[1] < err[0] + 0.01
 
 
@@ -481,12 +480,12 @@ def test_rgb_uses_one_geometry_from_the_channel_sum():
 @pytest.mark.parametrize("m", [LAM_GGX3, FULL], ids=["lam+ggx", "full"])
 def test_noisy_slice_reconstructs_close_to_the_clean_one(m):
     clean = rv.reconstruct_revolve(make_slice(m, [30], blind=6.0))
-    ref = merl.tabulate(clean.eval)
+    ref = merltable.tabulate(clean.eval)
     for seed in (1, 2):  # 2 % noise: measured 1-3 % apart over the table
         noisy = rv.reconstruct_revolve(make_slice(m, [30], blind=6.0, noise=0.02, seed=seed))
         # (a broad lobe may or may not split a diffuse arc off with noise; the BRDF hardly changes)
         assert "forward" in [lb["interpretation"] for lb in noisy.report()["incidences"][0]["lobes"]]
-        assert metrics.relative_rmse_cos(merl.tabulate(noisy.eval), ref) < 0.05
+        assert metrics.relative_rmse_cos(merltable.tabulate(noisy.eval), ref) < 0.05
 
 
 # --- numerical robustness --------------------------------------------------------------------------------
@@ -628,7 +627,7 @@ def test_the_revolve_table_is_its_reciprocal_eval_at_every_cell_from_one_evaluat
         wo = sph_to_vec(np.radians([60.0, 20.0]), np.radians([140.0, 250.0]))
         np.testing.assert_allclose(rec.eval(wi, wo), rec.eval(wo, wi), rtol=1e-6)  # reciprocal
         assert not np.allclose(rec.eval(wi, wo, False), rec.eval(wo, wi, False), rtol=1e-3)  # the one-way model
-        fast, slow = rec.table(), merl.tabulate(rec.eval)
-        v = merl.valid_mask()
+        fast, slow = rec.table(), merltable.tabulate(rec.eval)
+        v = merlgrid.valid_mask()
         np.testing.assert_allclose(fast[:, v], slow[:, v], rtol=1e-5)
         assert np.isnan(fast[:, ~v]).all()

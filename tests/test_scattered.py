@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 
 from reconstruction import cli, pipeline
+from reconstruction.core import merltable
 from reconstruction.core.models import Colour, Lambert, Material, Microfacet, OrenNayar
 from reconstruction.core.samples import PointFolds, SliceWithPoints, out_of_plane
-from reconstruction.formats import merl, zemax
+from reconstruction.formats import zemax
 from reconstruction.methods import Options
 from reconstruction.methods.bivariate import reconstruct_bivariate
 from reconstruction.methods.scattered import ScatteredReconstruction
@@ -63,7 +64,7 @@ def test_bivariate_places_every_point_by_its_half_diff_angles(rough):
                                     "why": "every point used"}
     assert error_at_points(rec.eval, z) < 0.01
     # the table holds it too (bin centres, read back with interpolation)
-    assert error_at_points(merl.brdf_of(pipeline.tabulate(rec)), z) < 0.02
+    assert error_at_points(merltable.brdf_of(pipeline.tabulate(rec)), z) < 0.02
     # from the in-plane rows alone (what bivariate did before) the out-of-plane points are far off
     assert error_at_points(reconstruct_bivariate(SliceWithPoints.take(s, np.arange(len(s)))).eval, z) > 0.05
 
@@ -115,7 +116,7 @@ def test_auto_cross_validates_on_points_and_reproduces_the_hemisphere(rough):
     cv = choice["cross_validation"]
     assert cv["scheme"].startswith("leave-one-incidence-out over points anywhere") and cv["folds"] == len(INC)
     assert rec.method == "bivariate" and "points anywhere on the hemisphere" in choice["reason"]
-    assert error_at_points(merl.brdf_of(pipeline.tabulate(rec)), z) < 0.02  # target 8 %; fit alone: about 7 %
+    assert error_at_points(merltable.brdf_of(pipeline.tabulate(rec)), z) < 0.02  # target 8 %; fit alone: about 7 %
     folds = PointFolds.of(s.points)
     for k in (1, 2):  # 22.5 and 45 deg held out, predicted from the other incidences
         held = np.isclose(folds.theta_i_deg, INC[k])

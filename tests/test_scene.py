@@ -5,7 +5,8 @@ import math
 import pytest
 
 from reconstruction.base import ReconstructionError
-from reconstruction.core.scene import LOBE_KINDS, Scene, SceneError, load_scene, scene_from_dict
+from reconstruction.core.scene import Scene, SceneError, load_scene, scene_from_dict
+from reconstruction.schema.scene import LOBE_KINDS
 
 
 def test_repository_scene_file(repo_root):

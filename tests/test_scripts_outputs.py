@@ -18,9 +18,11 @@ def _script(name: str):
 
 
 def test_readme_figure_writes_beside_the_demo_and_leaves_docs_demo_png_alone(tmp_path, monkeypatch):
+    from reconstruction.core import merltable
     from reconstruction.core.models import Material
+    from reconstruction.core.slicedata import Slice
     from reconstruction.formats import merl
-    from reconstruction.formats.slicefile import Slice, write_slice
+    from reconstruction.formats.slicefile import write_slice
     from reconstruction.synthetic import synthetic_slice
 
     demo = tmp_path / "demo"
@@ -29,7 +31,7 @@ def test_readme_figure_writes_beside_the_demo_and_leaves_docs_demo_png_alone(tmp
                         (20.0, 60.0), step_deg=10.0)
     write_slice(demo / "slice.csv", Slice(s.theta_i_deg, s.theta_o_deg, s.values, s.channels, 0.01 * s.values,
                                           np.full(len(s), 4), np.zeros(len(s))))
-    merl.write(demo / "material.binary", np.full(merl.SHAPE, 0.5 / np.pi))
+    merl.write(demo / "material.binary", np.full(merltable.SHAPE, 0.5 / np.pi))
     docs_png = REPO / "docs" / "demo.png"
     before = docs_png.stat().st_mtime_ns
     mod = _script("readme_figure")

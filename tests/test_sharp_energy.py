@@ -16,12 +16,14 @@ import pytest
 
 from reconstruction import pipeline
 from reconstruction.bench.instrument import Instrument, instrument_average
+from reconstruction.core import merlgrid, merltable
+from reconstruction.core.checks import ALBEDO_TOLERANCE, plausibility
 from reconstruction.core.energy import microfacet_albedo
 from reconstruction.core.metrics import halfvector_albedo
 from reconstruction.core.models import Colour, Lambert, Material, Microfacet
+from reconstruction.core.slicedata import Slice
 from reconstruction.formats import merl
-from reconstruction.formats.slicefile import Slice, write_slice
-from reconstruction.report import summary as report
+from reconstruction.formats.slicefile import write_slice
 
 THETA_I_DEG = np.array([0.0, 30.0, 60.0, 70.0, 80.0])
 CONE = Instrument.from_half_angle(1.025)  # the simulated bench's detector: 1e-3 sr
@@ -50,7 +52,7 @@ def _albedo(f) -> np.ndarray:
 
 
 def _table_albedo(table: np.ndarray, interpolate: bool) -> np.ndarray:
-    return _albedo(lambda wi, wo: np.nan_to_num(merl.lookup(table, wi, wo, interpolate=interpolate)))
+    return _albedo(lambda wi, wo: np.nan_to_num(merltable.lookup(table, wi, wo, interpolate=interpolate)))
 
 
 class _Analytic:
@@ -78,12 +80,12 @@ def test_a_sub_cell_lobe_near_the_energy_limit_tabulates_plausibly_for_both_read
     np.testing.assert_allclose(_albedo(mat.eval), exact, rtol=2e-3)
     info: dict = {}
     table = pipeline.tabulate(rec, None, info)
-    assert info["rows"] == merl.theta_h_index(5.0 * alpha) + 1 and info["interpolating_excess_before"] > 0.01
+    assert info["rows"] == merlgrid.theta_h_index(5.0 * alpha) + 1 and info["interpolating_excess_before"] > 0.01
     interp, snap = _table_albedo(table, True), _table_albedo(table, False)
     np.testing.assert_allclose(interp, exact, rtol=0.05)
     np.testing.assert_allclose(snap, exact, rtol=0.05)
-    assert np.all(interp <= 1.0 + report.ALBEDO_TOLERANCE)
-    assert report.plausibility(rec, table)["albedo"]["pass"]
+    assert np.all(interp <= 1.0 + ALBEDO_TOLERANCE)
+    assert plausibility(rec, table)["albedo"]["pass"]
 
 
 @pytest.mark.slow
@@ -93,7 +95,7 @@ def test_an_implausible_sub_cell_lobe_stays_implausible():
     table = pipeline.tabulate(_Analytic(mat, 5e-3))
     interp = _table_albedo(table, True)
     assert np.all(interp >= 0.99 * _albedo(mat.eval)) and interp.min() > 1.4
-    checks = report.plausibility(_Analytic(mat, 5e-3), table)
+    checks = plausibility(_Analytic(mat, 5e-3), table)
     assert not checks["albedo"]["pass"] and checks["albedo"]["max"] > 1.4
 
 

@@ -5,7 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from reconstruction.formats.slicefile import Slice, SliceError, SliceWriter, read_slice, to_brdf, write_slice
+from reconstruction.core.slicedata import Slice, SliceError, to_brdf
+from reconstruction.formats.slicefile import SliceWriter, read_slice, write_slice
 
 META = {"quantity": "brdf", "material": "test", "bench": "configs/simulated.toml", "software_version": "0.1.0"}
 

@@ -11,8 +11,8 @@ import pytest
 
 from reconstruction import cli
 from reconstruction.core.models import Material
-from reconstruction.core.slicedata import below_zero
-from reconstruction.formats.slicefile import Slice, write_slice
+from reconstruction.core.slicedata import Slice, below_zero
+from reconstruction.formats.slicefile import write_slice
 from reconstruction.report.summary import parameters_at_bounds
 from reconstruction.synthetic import synthetic_slice
 

@@ -4,11 +4,12 @@ import numpy as np
 import pytest
 
 from reconstruction.bench.instrument import Instrument, instrument_average
+from reconstruction.core import merltable
 from reconstruction.core.energy import microfacet_albedo
 from reconstruction.core.metrics import halfvector_albedo
 from reconstruction.core.models import Colour, Lambert, Material, Microfacet
+from reconstruction.core.slicedata import Slice
 from reconstruction.formats import merl
-from reconstruction.formats.slicefile import Slice
 from reconstruction.methods.bivariate import reconstruct_bivariate
 
 THETA_I = np.radians([0.0, 30.0, 60.0, 80.0])
@@ -24,7 +25,7 @@ def _capture(mat: Material, inst: Instrument, meta: bool = True) -> Slice:
 
 
 def _table_albedo(table: np.ndarray) -> np.ndarray:
-    return halfvector_albedo(lambda wi, wo: merl.lookup(table, wi, wo), THETA_I)[:, 0]
+    return halfvector_albedo(lambda wi, wo: merltable.lookup(table, wi, wo), THETA_I)[:, 0]
 
 
 @pytest.fixture(scope="module")

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
+from reconstruction.core import merltable
 from reconstruction.core.geometry import inplane_to_dirs, sph_to_vec
 from reconstruction.core.models import Material
-from reconstruction.formats import merl
 
 SHARP = Material.from_dict({"name": "sharp", "lobes": [{"type": "ggx", "alpha": 1e-3, "specular": 1.0}]})
 INCIDENCES_DEG = [0.0, 30.0, 60.0, 80.0]
@@ -32,12 +32,12 @@ def albedo_by_half_vectors(f, theta_i, n_theta=3000, n_phi=48):
 
 
 def as_renderer_reads(table):
-    return lambda wi, wo: np.nan_to_num(merl.lookup(table, wi, wo, interpolate=False))
+    return lambda wi, wo: np.nan_to_num(merltable.lookup(table, wi, wo, interpolate=False))
 
 
 @pytest.fixture(scope="module")
 def tables():
-    return merl.tabulate(SHARP.eval), merl.tabulate(SHARP.eval, supersample="adaptive")
+    return merltable.tabulate(SHARP.eval), merltable.tabulate(SHARP.eval, supersample="adaptive")
 
 
 @pytest.mark.parametrize("theta_i_deg", INCIDENCES_DEG)
@@ -59,7 +59,7 @@ def test_point_samples_at_bin_centres_do_not(tables):
 
 def test_adaptive_equals_centre_values_where_f_is_linear_across_cells():
     lam = Material.from_dict({"name": "d", "lobes": [{"type": "lambert", "albedo": [0.2, 0.5, 0.9]}]})
-    a = merl.tabulate(lam.eval, supersample="adaptive")
-    c = merl.tabulate(lam.eval)
+    a = merltable.tabulate(lam.eval, supersample="adaptive")
+    c = merltable.tabulate(lam.eval)
     np.testing.assert_array_equal(np.isnan(a), np.isnan(c))
     np.testing.assert_allclose(a[np.isfinite(a)], c[np.isfinite(c)], rtol=1e-12)

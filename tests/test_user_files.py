@@ -49,9 +49,11 @@ def test_a_byte_order_mark_is_not_text_and_a_peek_reads_only_what_it_asks(tmp_pa
 def _readers():
     from acquisition.errors import ConfigError
     from acquisition.plans.plan import load_scene
+    from reconstruction.core import merltable
+    from reconstruction.core.slicedata import SliceError
     from reconstruction.formats import merl
     from reconstruction.formats.inputs import InputError, read_input
-    from reconstruction.formats.slicefile import SliceError, read_slice
+    from reconstruction.formats.slicefile import read_slice
     from reconstruction.schema.core import SchemaError
     from reconstruction.schema.files import open_text
     from simulator.config import ConfigError as SimConfigError
@@ -60,7 +62,7 @@ def _readers():
     return [("bench file (schema)", lambda p: open_text(p, "a TOML bench file"), SchemaError, "a TOML bench file"),
             ("slice file", read_slice, SliceError, "a slice file"),
             ("input table", read_input, InputError, "a slice file or a CSV table"),
-            ("MERL table", merl.read, merl.MerlError, "a .binary file"),
+            ("MERL table", merl.read, merltable.MerlError, "a .binary file"),
             ("simulator bench file", sim_load_config, SimConfigError, "a TOML bench file"),
             ("scene file", load_scene, ConfigError, None)]
 
@@ -91,3 +93,51 @@ def test_no_reader_checks_a_files_type_by_itself():
     found = sorted(str(p.relative_to(REPO)) for pkg in ("acquisition", "reconstruction", "simulator")
                    for p in (REPO / pkg).rglob("*.py") if re.search(r"S_ISREG|S_ISDIR", p.read_text(encoding="utf-8")))
     assert found == ["acquisition/live/server.py", "reconstruction/schema/files.py"]
+
+
+#: The CSV parsers of the three packages: the one reader (reconstruction/schema/files.py: open_user_csv, which slice
+#: files, generic tables and spectra read through), and the study's own results file, a table of text records
+#: (material names, methods, statuses) that simulator/study.py writes and reads back, not a user's numeric table.
+CSV_PARSERS = ["reconstruction/schema/files.py", "simulator/study.py"]
+
+
+def test_no_reader_parses_csv_by_itself():
+    """The CSV parsing (csv.reader / DictReader, numpy's loadtxt / genfromtxt) lives in the one reader: a new
+    format that reads a CSV goes through open_user_csv instead of writing a fourth parser."""
+    pattern = re.compile(r"csv\.(reader|DictReader)|\b(loadtxt|genfromtxt)\(")
+    found = sorted(str(p.relative_to(REPO)) for pkg in ("acquisition", "reconstruction", "simulator")
+                   for p in (REPO / pkg).rglob("*.py") if pattern.search(p.read_text(encoding="utf-8")))
+    assert found == CSV_PARSERS
+
+
+def test_the_three_csv_formats_read_through_the_one_reader_and_word_a_bad_cell_alike(tmp_path):
+    """A slice file, a generic table and a reference spectrum: comment lines skipped, the header read, a bad cell
+    named by file, line and column in the same words, whatever each reader's error type."""
+    from reconstruction.core.slicedata import SliceError
+    from reconstruction.formats.inputs import InputError, read_table
+    from reconstruction.formats.slicefile import read_slice
+    from reconstruction.schema.core import SchemaError
+    from reconstruction.schema.files import open_user_csv, read_spectrum_csv
+
+    slice_head = '# gonio-brdf slice\n# meta: {"format_version": 1, "quantity": "brdf"}\n# a comment\n' \
+                 "theta_i_deg,theta_o_deg,value,value_std,repeats,unix_time_s\n"
+    cases = [
+        (slice_head + "30,0,0.1,0.01,4,1\n30,5,x,0.01,4,1\n", read_slice, SliceError, 6, "value"),
+        ("# exported\n\ntheta_i,theta_o,value\n30,0,0.1\n# a note\n30,5,x\n",
+         lambda p: read_table(p, quantity="brdf"), InputError, 6, "value"),
+        ("# panel\nwavelength_nm,reflectance\n400,0.9\n500,x\n", lambda p: read_spectrum_csv(p, "[calibration]"),
+         SchemaError, 4, "reflectance"),
+    ]
+    for k, (text, read, error, line, column) in enumerate(cases):
+        path = tmp_path / f"f{k}.csv"
+        path.write_text(text)
+        with pytest.raises(error) as e:
+            read(path)
+        assert f"{path}:{line}, column {column}: expected a number, got 'x'" in str(e.value), str(e.value)
+        path.write_text(text.replace(",x", ",0.2"))
+        got = read(path)
+        assert len(got[0] if k == 2 else got) == 2  # the comments and the header are not rows
+    table = open_user_csv(tmp_path / "f1.csv", "a CSV file", delimiters=(",", ";"), quoted=True)
+    data, line_of = table.rows()
+    assert table.head == ["# exported", ""] and table.header == ["theta_i", "theta_o", "value"]
+    assert table.header_line == 3 and line_of.tolist() == [4, 6] and data.tolist() == [[30, 0, 0.1], [30, 5, 0.2]]

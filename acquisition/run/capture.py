@@ -81,7 +81,7 @@ from acquisition.run.record import (
 )
 from acquisition.run.sliceout import SliceOutput
 from reconstruction.atomic import is_no_space
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 
 log = logging.getLogger("acquisition.engine")
 

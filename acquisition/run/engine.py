@@ -239,7 +239,7 @@ class Engine:
             self.update_range_counts()
 
     def seed_ranger(self, calibration: Calibration, s: Any) -> None:
-        """A resumed capture: the samples of slice ``s`` (:class:`reconstruction.formats.slicefile.Slice`) turned back
+        """A resumed capture: the samples of slice ``s`` (:class:`reconstruction.core.slicedata.Slice`) turned back
         into readings at the reference setting with their ``calibration``, and their settings from the run record,
         so that auto-ranging predicts the new points' settings from the old neighbours too."""
         if self.ranger is None or len(s) == 0:

@@ -21,7 +21,8 @@ from acquisition.plans.plan import Plan
 from acquisition.run.fingerprint import describe_differences, differences
 from acquisition.run.record import RunRecord
 from acquisition.run.rowcheck import SET_ASIDE_NAME, RowProblem, describe_problems, row_problems, set_aside
-from reconstruction.formats.slicefile import Slice, SliceError, read_slice
+from reconstruction.core.slicedata import Slice, SliceError
+from reconstruction.formats.slicefile import read_slice
 
 log = logging.getLogger("acquisition.outdir")
 

@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 from reconstruction.assess.uncertainty import expected_errors, expected_scene_errors
 from reconstruction.base import ReconstructionError
 from reconstruction.core.scene import RECONSTRUCTION_DEFAULT_RANGE_DEG, scene_pairs
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 from reconstruction.methods import prior as P
 
 if sys.version_info >= (3, 11):
@@ -113,7 +113,7 @@ def _footprint(beam: Any, sample: Any) -> dict[str, Any]:
 
 
 def capture_limits(meta: dict[str, Any], where: str) -> BenchLimits | None:
-    """The :class:`BenchLimits` of the bench recorded in a slice file's metadata (``meta``, docs/slice-format.md:
+    """The :class:`BenchLimits` of the bench recorded in a slice file's metadata (``meta``, docs/formats.md:
     ``config_settings`` and ``config_fingerprint`` hold the bench file's keys, ``instrument`` the beam and sample
     diameters), or None when it records none (a generic table, a file of another program). ``where``: the file,
     for the report."""

@@ -31,9 +31,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from reconstruction.formats import merl
-from reconstruction.formats.slicefile import Slice
-from reconstruction.methods import Reconstruction
+from reconstruction.base import Reconstruction
+from reconstruction.core import merlgrid, merltable
+from reconstruction.core.slicedata import Slice
 from reconstruction.methods import prior as P
 
 Array = NDArray[np.float64]
@@ -106,8 +106,8 @@ class Conservative:
         up = (wi[:, 2] > 0) & (wo[:, 2] > 0)
         if not up.any():
             return v
-        b = np.nan_to_num(merl.lookup(self.bound, wi[up], wo[up], interpolate=True), nan=np.inf)
-        idx, _ = merl.lookup_cells(wi[up], wo[up], interpolate=False)
+        b = np.nan_to_num(merltable.lookup(self.bound, wi[up], wo[up], interpolate=True), nan=np.inf)
+        idx, _ = merltable.lookup_cells(wi[up], wo[up], interpolate=False)
         free = self.free.ravel()[idx[:, 0]]
         b = b[:, : v.shape[1]] if b.shape[1] >= v.shape[1] else np.broadcast_to(b[:, :1], (b.shape[0], v.shape[1]))
         out = v.copy()
@@ -135,7 +135,7 @@ def samples_above(bound: Array, s: Slice) -> float:
 
     wi, wo = sample_directions(s)
     f = np.asarray(s.values, dtype=np.float64).reshape(len(s), -1)
-    b = np.nan_to_num(merl.lookup(bound, wi, wo, interpolate=True), nan=np.inf)[:, : f.shape[1]]
+    b = np.nan_to_num(merltable.lookup(bound, wi, wo, interpolate=True), nan=np.inf)[:, : f.shape[1]]
     w = (np.clip(wi[:, 2], 0, None) * np.clip(wo[:, 2], 0, None))[:, None]
     total = float(np.sum(np.clip(f, 0, None) * w))
     return float(np.sum(np.clip(f - b, 0, None) * w)) / total if total > 0 else 0.0
@@ -160,7 +160,7 @@ def conservative(rec: Reconstruction, table: Array, s: Slice, ref: P.PriorRecons
             "rule": f"where no sample rests on a cell, f_r is at most the reference posterior's median times "
                     f"exp({k:g} sigma) (its own sigma of ln f); measured cells are the method's",
             "reference": ref.info.get("prior", {}).get("folder") or ANALYTIC_NAME, "k": k,
-            "cells_lowered": int(lowered.sum()), "cells": int(np.sum(merl.valid_mask() & free)),
+            "cells_lowered": int(lowered.sum()), "cells": int(np.sum(merlgrid.valid_mask() & free)),
             "energy_removed": removed / before if before > 0 else 0.0}
     above = samples_above(bound, s) if max_above is not None and info["applied"] else 0.0
     if max_above is not None:
@@ -188,7 +188,7 @@ _ROWS = 10
 def _lowering(table: Array, bound: Array, free: NDArray[np.bool_]) -> tuple[NDArray[np.bool_], float, float]:
     """(the cells the bound lowers (90, 90, 180), the table's cosine-weighted light, the light the bound takes),
     over the cells above the horizon, ``table`` (3, 90, 90, 180) against ``bound`` where ``free``."""
-    valid = merl.valid_mask()
+    valid = merlgrid.valid_mask()
     fc = _cos_weights()
     lowered = np.zeros(free.shape, dtype=bool)
     before = removed = 0.0
@@ -206,5 +206,5 @@ def _lowering(table: Array, bound: Array, free: NDArray[np.bool_]) -> tuple[NDAr
 def _cos_weights() -> Array:
     """(90, 90, 180) cos theta_i cos theta_o at the bin centres (the weight of a cell's light in a render), from
     the table's cached bin-centre cosines."""
-    ci, co = merl.cell_cosines()
+    ci, co = merlgrid.cell_cosines()
     return np.clip(ci, 0, None) * np.clip(co, 0, None)

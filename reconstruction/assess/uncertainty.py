@@ -31,10 +31,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from reconstruction.cache import cached_decoded
+from reconstruction.core import merlgrid
 from reconstruction.core.metrics import IMAGE_MAX_VIEW_DEG, image_exposure, tone_map
 from reconstruction.core.render import Quadrature, render_sphere, view_angle_mask
-from reconstruction.formats import merl
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 from reconstruction.methods import prior as P
 from reconstruction.methods import priorcodec
 
@@ -152,7 +152,7 @@ def cell_classes(s: Slice) -> NDArray[np.int8]:
 
     wi, wo = sample_directions(everywhere(s))
     th, _, td, pd = half_diff_from_dirs(wi, wo)
-    ih = merl.theta_h_index(th)
+    ih = merlgrid.theta_h_index(th)
     idd = np.clip((np.degrees(td)).astype(int), 0, 89)
     ip = np.clip((np.degrees(np.mod(pd, np.pi))).astype(int), 0, 179)
     meas = np.zeros((90, 90, 180), dtype=bool)
@@ -268,7 +268,7 @@ def assess_table(rec: Any, s: Slice, prior: Any = None, exclude: tuple[str, ...]
     ref = ref if ref is not None else reference_for(rec, s, prior, exclude)
     sg = sigma_grid(rec, ref)
     table_sigma = P.grid_to_merl(sg).astype(np.float32)
-    valid = merl.valid_mask()
+    valid = merlgrid.valid_mask()
     classes = cell_classes(s)
     sig = table_sigma.mean(axis=0)
     med = {name: (float(np.median(sig[valid & (classes == k)])) if np.any(valid & (classes == k)) else None)

@@ -28,14 +28,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from reconstruction.core.geometry import inplane_to_dirs, normalize
 from reconstruction.core.models import Colour, Material, Microfacet
-from reconstruction.schema.slice_meta import INSTRUMENT_KEYS, check_instrument
+from reconstruction.schema.slice_meta import check_instrument
 
 Array = NDArray[np.float64]
 BrdfFn = Callable[[Array, Array], Array]
 
-__all__ = ["Instrument", "InstrumentError", "instrument_average", "instrument_average_dirs", "INSTRUMENT_KEYS",
-           "unit_lobe_averages", "unit_lobe_tables", "shared_cone_averages", "shared_cone_entries",
-           "seed_shared_cone_averages"]
+__all__ = ["Instrument", "InstrumentError", "instrument_average", "instrument_average_dirs", "unit_lobe_averages",
+           "unit_lobe_tables", "shared_cone_averages", "shared_cone_entries", "seed_shared_cone_averages"]
 
 
 # Quadrature sizes: the smooth polar rule (radial Gauss in r^2 x uniform azimuth), the lobe rule (rays x radial

@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from reconstruction.base import Reconstruction
-from reconstruction.core import merltable as merl
+from reconstruction.core import merlgrid, merltable
 from reconstruction.core.metrics import directional_albedo, halfvector_albedo, reciprocity_error
 
 Array = NDArray[np.float64]
@@ -56,7 +56,7 @@ def plausibility(rec: Reconstruction, table: ArrayLike) -> dict[str, Any]:
     """The three checks of the module docstring on ``table`` (3, 90, 90, 180) and ``rec.eval``."""
     t = np.asarray(table)
     t = t if t.dtype in (np.float32, np.float64) else t.astype(np.float64)
-    valid = merl.valid_mask()[None]
+    valid = merlgrid.valid_mask()[None]
     # reductions over the valid finite cells in place (no table-sized copies: fresh memory is dear)
     missing = int(np.sum(valid & ~np.isfinite(t)))
     read = valid & ~np.isnan(t)  # what a reader of the table sees (an infinite cell is missing and is read)
@@ -64,7 +64,7 @@ def plausibility(rec: Reconstruction, table: ArrayLike) -> dict[str, Any]:
     vmax = float(np.max(t, where=read, initial=0.0))  # 0: the cells below the horizon
     non_neg = {"pass": bool(missing == 0 and vmin >= 0.0), "min_1_per_sr": vmin, "missing_cells": missing,
                "max_1_per_sr": vmax}
-    look = lambda wi, wo: np.nan_to_num(merl.lookup(t, wi, wo, interpolate=True), nan=0.0)  # noqa: E731
+    look = lambda wi, wo: np.nan_to_num(merltable.lookup(t, wi, wo, interpolate=True), nan=0.0)  # noqa: E731
     alb, quadrature = checked_albedo(look, 64, 128, mirror=mirror_symmetric(t))
     albedo = {"pass": bool(np.all(alb <= 1.0 + ALBEDO_TOLERANCE)), "max": float(alb.max()),
               "theta_i_deg": ALBEDO_INCIDENCES_DEG.tolist(), "albedo": np.round(alb, 5).tolist(),

@@ -2,8 +2,8 @@
 
 A lobe such as a microfacet term is a function of theta_h, theta_d, cos theta_i and cos theta_o; on the table's
 grid those cosines have a closed form (phi_h = 0, as :func:`reconstruction.core.geometry.dirs_from_half_diff`), so its
-table rows and their theta_h cell averages (:func:`reconstruction.formats.merl.average_theta_h_cells`) are computed at a
-fraction of the cost of evaluating direction pairs.
+table rows and their theta_h cell averages (:func:`~reconstruction.core.merltable.average_theta_h_cells`) are computed
+at a fraction of the cost of evaluating direction pairs.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import NDArray
 
-from reconstruction.core.merltable import N_PD, N_TD, N_TH, cell_angles, theta_h_index
+from reconstruction.core.merlgrid import N_PD, N_TD, N_TH, cell_angles, theta_h_index
 from reconstruction.core.models import Lambert, Lobe, Microfacet, Retro
 
 Array = NDArray[np.float64]
@@ -23,9 +23,9 @@ __all__ = ["average_theta_h_half_diff", "lobe_half_diff"]
 
 def average_theta_h_half_diff(f_hd: Callable[[Array, Array, Array, Array], Array], theta_h_max: float, n: int = 8,
                               block_rows: int = 2) -> tuple[int, Array, NDArray[np.bool_]]:
-    """:func:`reconstruction.formats.merl.average_theta_h_cells` for a function of the half-diff angles: ``f_hd(theta_h,
-    theta_d, cos theta_i, cos theta_o)`` (radians; broadcast shapes, 0 below the horizon) -> one value per point,
-    e.g. a lobe's shape.
+    """:func:`reconstruction.core.merltable.average_theta_h_cells` for a function of the half-diff angles:
+    ``f_hd(theta_h, theta_d, cos theta_i, cos theta_o)`` (radians; broadcast shapes, 0 below the horizon) -> one value
+    per point, e.g. a lobe's shape.
 
     The same ``n`` sub-samples and weights per cell, with cos theta_i and cos theta_o in closed form (phi_h = 0, as
     :func:`reconstruction.core.geometry.dirs_from_half_diff`), computed ``block_rows`` theta_h rows at a time (small
@@ -54,7 +54,7 @@ def average_theta_h_half_diff(f_hd: Callable[[Array, Array, Array, Array], Array
 
 def lobe_half_diff(lobe: Lobe, theta_h: Array, theta_d: Array, cos_i: Array, cos_o: Array) -> Array | None:
     """A lobe's shape (before its colour) from the half-diff angles (radians) and cos theta_i, cos theta_o
-    (broadcast against each other; :func:`reconstruction.formats.merl.cell_cosines` on the table's grid) for
+    (broadcast against each other; :func:`reconstruction.core.merlgrid.cell_cosines` on the table's grid) for
     lambert, the microfacet lobes (ggx, beckmann) and retro (wi . wo = cos 2 theta_d); None for any other lobe."""
     if isinstance(lobe, Microfacet):
         return lobe.shape_half_diff(theta_h, theta_d, cos_i, cos_o)

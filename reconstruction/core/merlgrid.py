@@ -2,7 +2,8 @@
 
 A cell ``[i_theta_h, j_theta_d, k_phi_d]`` of a (90, 90, 180) table stands for its bin centre:
 theta_h = ((i + 0.5) / 90)^2 * 90 deg, theta_d = (j + 0.5) deg, phi_d = (k + 0.5) deg, with phi_h = 0.
-:mod:`reconstruction.formats.merl` (the file format, lookups and tabulation) re-exports every name here.
+The table in memory (layout, lookup, tabulation) is :mod:`reconstruction.core.merltable`; its file,
+:mod:`reconstruction.formats.merl`.
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ all blue as little-endian float64, each divided by its channel scale; invalid ce
 
 A cell stands for its bin centre: theta_h = ((i + 0.5) / 90)^2 * 90 deg, theta_d = (j + 0.5) deg,
 phi_d = (k + 0.5) deg, with phi_h = 0. The grid's indices, angles, directions and cosines are in
-:mod:`reconstruction.core.merlgrid` and re-exported here.
+:mod:`reconstruction.core.merlgrid`.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from reconstruction.core.geometry import dirs_from_half_diff, half_diff_from_dirs
-from reconstruction.core.merlgrid import (  # noqa: F401  (the grid's names, re-exported)
+from reconstruction.core.merlgrid import (
     N_PD,
     N_TD,
     N_TH,
@@ -27,9 +27,6 @@ from reconstruction.core.merlgrid import (  # noqa: F401  (the grid's names, re-
     _continuous_index,
     _grid_dirs,
     cell_angles,
-    cell_cosines,
-    cell_to_dirs,
-    dirs_to_cell,
     phi_d_index,
     theta_d_index,
     theta_h_index,
@@ -43,9 +40,7 @@ SHAPE = (3, N_TH, N_TD, N_PD)
 N_CELLS = N_TH * N_TD * N_PD  # 1,458,000
 SCALES = np.array([1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0])  # stored * scale = f_r
 
-__all__ = ["SHAPE", "N_CELLS", "SCALES", "MerlError", "theta_h_index", "theta_d_index", "phi_d_index", "cell_angles",
-           "cell_to_dirs", "dirs_to_cell", "valid_mask", "cell_cosines", "lookup", "brdf_of", "lookup_cells",
-           "tabulate"]
+__all__ = ["SHAPE", "N_CELLS", "SCALES", "MerlError", "lookup", "brdf_of", "lookup_cells", "tabulate"]
 
 
 class MerlError(ValueError):

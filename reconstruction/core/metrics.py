@@ -100,7 +100,7 @@ def reciprocity_error(f: BRDF, n: int = 4096, seed: int = 0) -> float:
 
 def _table_cosines() -> Array:
     """cos(theta_i) cos(theta_o) at every MERL cell's bin-centre directions, (90, 90, 180); 0 below the horizon."""
-    from reconstruction.core.merltable import _cell_dirs  # cached bin-centre directions (the table's own convention)
+    from reconstruction.core.merlgrid import _cell_dirs
 
     wi, wo = _cell_dirs()
     return np.clip(wi[..., 2], 0.0, None) * np.clip(wo[..., 2], 0.0, None)
@@ -109,7 +109,7 @@ def _table_cosines() -> Array:
 def within_angle_mask(max_theta_deg: float | None = None) -> NDArray[np.bool_]:
     """(90, 90, 180) bool: MERL cells above the horizon whose bin-centre theta_i and theta_o are both
     <= ``max_theta_deg`` (all cells above the horizon when None)."""
-    from reconstruction.core.merltable import _cell_dirs, valid_mask
+    from reconstruction.core.merlgrid import _cell_dirs, valid_mask
 
     m = valid_mask()
     if max_theta_deg is None:
@@ -189,7 +189,7 @@ def log_rmse(table: ArrayLike, truth_table: ArrayLike, eps: float = 1e-3) -> flo
     ``eps`` (1/sr) keeps the logarithm finite where a BRDF is 0; the metric weighs a lobe's shape and the dim
     floor alike, unlike :func:`relative_rmse_cos`, which the peak dominates. Pooled over the 3 channels.
     """
-    from reconstruction.core.merltable import valid_mask
+    from reconstruction.core.merlgrid import valid_mask
 
     f = np.asarray(table, dtype=np.float64)
     g = np.asarray(truth_table, dtype=np.float64)

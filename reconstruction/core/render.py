@@ -399,7 +399,7 @@ def _table_operator(key: tuple[Any, ...], cells: Callable[[Array, Array], tuple[
 def _render_table(f: BRDF, light: Lighting, n: Array, t: Array, b: Array, q: Quadrature,
                   geometry: tuple[Any, ...]) -> Array | None:
     """Radiance (P, C) of a BRDF that is a lookup in a table (``f.table_cells``, ``f.table``: see
-    :func:`reconstruction.formats.merl.brdf_of`) as sparse products with cached operators, or None when the table's
+    :func:`reconstruction.core.merltable.brdf_of`) as sparse products with cached operators, or None when the table's
     channels have different finite cells (then the generic path renders it)."""
     cells = f.table_cells  # type: ignore[attr-defined]
     table = np.asarray(f.table, dtype=np.float64)  # type: ignore[attr-defined]
@@ -434,7 +434,7 @@ def render_sphere(f: BRDF, size: int = 128, lighting: str | Lighting = "key", ra
     of one core for 128 x 128 pixels of an analytic BRDF with the default :class:`Quadrature`
     (benchmarks/bench_render.py).
 
-    A table's BRDF (``f.table`` and ``f.table_cells``, as :func:`reconstruction.formats.merl.brdf_of` gives) is
+    A table's BRDF (``f.table`` and ``f.table_cells``, as :func:`reconstruction.core.merltable.brdf_of` gives) is
     rendered as one sparse product: each pixel's pairs, their table cells and weights (renormalised over the
     table's finite cells, as the lookup does) are gathered once per image size, radius, lighting part, lookup and
     set of finite cells into a matrix (cached per process), so a table renders in a small fraction of the generic

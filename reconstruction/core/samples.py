@@ -1,6 +1,6 @@
 """Samples at any direction pair, for the methods that can use them (``fit``, ``microfacet``).
 
-A bench measures in the plane of incidence, so :class:`~reconstruction.formats.slicefile.Slice` holds (theta_i, signed
+A bench measures in the plane of incidence, so :class:`~reconstruction.core.slicedata.Slice` holds (theta_i, signed
 theta_o) pairs. Other instruments' files (a Zemax tabular BSDF, :mod:`reconstruction.formats.zemax`) hold the whole
 hemisphere. Such an input is handed to the methods as an ordinary in-plane :class:`Slice` (every method reads
 it) that also carries every point as a :class:`DirectionalSlice` (:func:`everywhere`), which ``fit`` and

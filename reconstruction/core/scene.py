@@ -51,6 +51,7 @@ from pathlib import Path
 from typing import Any
 
 from reconstruction.base import ReconstructionError
+from reconstruction.schema.files import MAX_TEXT_BYTES, UserFileError, read_user_text
 from reconstruction.schema.scene import GEOMETRIES, LOBE_KINDS, ErrorBudget, SceneTable, View, keys
 
 if sys.version_info >= (3, 11):
@@ -58,8 +59,8 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-__all__ = ["Scene", "SceneError", "LOBE_KINDS", "view_ranges", "RECONSTRUCTION_DEFAULT_RANGE_DEG",
-           "CAPTURE_DEFAULT_RANGE_DEG", "load_scene", "scene_from_dict", "ScenePairs", "scene_pairs"]
+__all__ = ["Scene", "SceneError", "view_ranges", "RECONSTRUCTION_DEFAULT_RANGE_DEG", "CAPTURE_DEFAULT_RANGE_DEG",
+           "load_scene", "scene_from_dict", "ScenePairs", "scene_pairs"]
 
 #: The keys of [scene] and [scene.error_budget]: the scene file's schema (reconstruction.schema.scene).
 _SCENE_KEYS = keys(SceneTable)
@@ -333,9 +334,15 @@ def load_scene(path: str | Path) -> Scene:
     """Read and validate the scene file at ``path`` (keys in the module docstring)."""
     p = Path(path)
     try:
-        d = tomllib.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise SceneError(f"{p}: no such scene file") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        text = read_user_text(p, "a scene file (TOML)", MAX_TEXT_BYTES)  # the one check: type, size, UTF-8
+    except UserFileError as e:
+        if e.kind == "missing":
+            raise SceneError(f"{p}: no such scene file") from None
+        if e.kind in ("directory", "special"):  # a device or a pipe would block the read
+            raise SceneError(f"{p}: not a regular file, expected a scene file (TOML)") from None
+        raise SceneError(f"{p}: invalid TOML: {e.why} at byte {e.byte}" if e.kind == "not_utf8" else str(e)) from None
+    try:
+        d = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
         raise SceneError(f"{p}: invalid TOML: {e}") from None
     return scene_from_dict(d, str(p))

@@ -2,12 +2,12 @@
 by theta_d row, to the BRDF's own directional albedo as the two kinds of table readers see them.
 
 A lobe such as ggx alpha 1e-3 lies inside the first few theta_h cells (the cell at theta_h = 0 spans 0.011 deg), so
-the table holds it as cell averages (:func:`reconstruction.formats.merl.average_theta_h_cells`). Two readers see
+the table holds it as cell averages (:func:`reconstruction.core.merltable.average_theta_h_cells`). Two readers see
 different
 energies in them:
 
-* a reader that snaps to cells (the MERL reference code, renderers; ``merl.lookup(interpolate=False)``) sees the cell
-  averages' energy, the lobe's own, up to the sub-sampling of the averages;
+* a reader that snaps to cells (the MERL reference code, renderers; ``merltable.lookup(interpolate=False)``) sees the
+  cell averages' energy, the lobe's own, up to the sub-sampling of the averages;
 * a reader that interpolates between bin centres (``interpolate=True``: the plausibility check, the previews, the HTML
   report) sees more: theta_h is binned quadratically, so the measure sin(theta_h) d theta_h grows as u^3 across a cell
   (u = sqrt(theta_h / 90 deg)) and its hat functions weigh the first cells more than their own measure (the first,
@@ -46,17 +46,17 @@ from numpy.typing import ArrayLike, NDArray
 
 from reconstruction.cache import cached_arrays
 from reconstruction.core.geometry import half_diff_from_dirs, inplane_to_dirs
-from reconstruction.core.merltable import (
+from reconstruction.core.merlgrid import (
     N_PD,
     N_TD,
     N_TH,
-    SHAPE,
     _continuous_index,
     phi_d_index,
     theta_d_index,
     theta_h_index,
     valid_mask,
 )
+from reconstruction.core.merltable import SHAPE
 from reconstruction.core.metrics import halfvector_albedo
 
 Array = NDArray[np.float64]
@@ -90,7 +90,7 @@ _TOTAL_QUADRATURE = (24, 4, 32)  # the BRDF's albedo over the whole hemisphere: 
 
 def sharp_rows(theta_h_max: float) -> int:
     """The number of theta_h rows that :func:`renormalise` scales for a lobe averaged below ``theta_h_max`` (radians):
-    those :func:`reconstruction.formats.merl.average_theta_h_cells` averages (at most 89)."""
+    those :func:`reconstruction.core.merltable.average_theta_h_cells` averages (at most 89)."""
     return int(min(N_TH - 1, theta_h_index(theta_h_max) + 1))
 
 
@@ -137,7 +137,7 @@ def _readers(rows: int) -> tuple[Any, Any]:
     ``cell`` (theta_h row < rows, theta_d row j) in the albedo that reader gives at incidence m, so that
     ``K @ t[c, :rows].ravel()`` is the rows' reading per (incidence, theta_d row). Geometry only (the cells below
     the
-    horizon are NaN in every table, and left out as :func:`reconstruction.formats.merl.lookup` leaves them out); kept
+    horizon are NaN in every table, and left out as :func:`reconstruction.core.merltable.lookup` leaves them out); kept
     in the
     disk cache (:mod:`reconstruction.cache`)."""
     from scipy import sparse
@@ -170,7 +170,7 @@ def _build_readers(rows: int) -> tuple[Array, ...]:
         op.sum_duplicates()
         out.extend([op.data, op.indices.astype(np.int64), op.indptr.astype(np.int64)])
 
-    xh, xd, xp = _continuous_index(thn, td, pd)  # as merl.lookup(interpolate=True)
+    xh, xd, xp = _continuous_index(thn, td, pd)  # as merltable.lookup(interpolate=True)
     xh, xd = np.clip(xh, 0.0, N_TH - 1.0), np.clip(xd, 0.0, N_TD - 1.0)
     ih = np.minimum(np.floor(xh).astype(np.intp), N_TH - 2)
     idd = np.minimum(np.floor(xd).astype(np.intp), N_TD - 2)
@@ -182,7 +182,7 @@ def _build_readers(rows: int) -> tuple[Array, ...]:
     wsum = wc.sum(axis=0)
     wc *= np.divide(w, wsum, out=np.zeros_like(w), where=wsum > 1e-12)[None]
     csr(np.broadcast_to(m[None], i.shape).ravel(), i.ravel(), j.ravel(), k.ravel(), wc.ravel())
-    i, j, k = theta_h_index(thn), theta_d_index(td), phi_d_index(pd)  # as merl.lookup(interpolate=False)
+    i, j, k = theta_h_index(thn), theta_d_index(td), phi_d_index(pd)  # as merltable.lookup(interpolate=False)
     csr(m, i, j, k, w * valid[i, j, k])
     return tuple(out)
 
@@ -213,8 +213,8 @@ def _own_albedo(f: Callable[[Array, Array], ArrayLike], rows: int) -> tuple[Arra
 def renormalise(f: Callable[[Array, Array], ArrayLike], table: ArrayLike, theta_h_max: float
                 ) -> tuple[Array, dict[str, Any]]:
     """``table`` (3, 90, 90, 180) with its rows below ``theta_h_max`` (radians; the rows
-    :func:`reconstruction.formats.merl.average_theta_h_cells` averages) scaled per theta_d row and channel as the module
-    docstring says. Returns (table, info): ``rows``, the scales' range and each reader's largest excess over the
+    :func:`reconstruction.core.merltable.average_theta_h_cells` averages) scaled per theta_d row and channel as the
+    module docstring says. Returns (table, info): ``rows``, the scales' range and each reader's largest excess over the
     BRDF's albedo before (``interpolating_excess_before``, ``snapping_excess_before``: reading / BRDF - 1 over
     those rows' half vectors, at incidences up to :data:`CHECKED_MAX_DEG`)."""
     t = np.array(table, dtype=np.float64, copy=True)

@@ -1,7 +1,8 @@
 """An in-plane slice in memory: N samples (theta_i, theta_o) with C value channels (files: formats/slicefile.py).
 
 :class:`Slice` is the data structure every method reads; ``reconstruction.formats.slicefile`` reads and writes it
-as our CSV slice files and re-exports these names (``from reconstruction.formats.slicefile import Slice``).
+as our CSV slice files; every module imports these names from here (``from reconstruction.core.slicedata import
+Slice``).
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@
 * a Zemax tabular BSDF text file: its grid interpolated (trilinear in incidence, azimuth and radial angle about
   the specular direction, the incidence clamped to the file's range; :func:`zemax_brdf`);
 * a MERL table (``.binary``, or any file of the format's size): trilinear interpolation between bin centres
-  (:func:`reconstruction.formats.merl.brdf_of`; the table itself is :attr:`LoadedBRDF.table`);
+  (:func:`reconstruction.core.merltable.brdf_of`; the table itself is :attr:`LoadedBRDF.table`);
 * a neural BRDF (the published layout of asztr/Neural-BRDF: ``NAME_fc1.npy`` ... ``NAME_b3.npy``, the prefix
   ``NAME``, or a folder holding one such set): :class:`~reconstruction.core.models.Nbrdf`;
 * a material file (``.toml``, :meth:`~reconstruction.core.models.Material.from_toml`).
@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from reconstruction.base import ReconstructionError
+from reconstruction.core import merltable
 from reconstruction.core.geometry import inplane_to_dirs
 from reconstruction.core.samples import SliceWithPoints, directional_slice
 from reconstruction.formats import merl, rgl, zemax
@@ -215,9 +216,9 @@ def _load_file(p: Path, rgb: bool) -> LoadedBRDF:
     if p.suffix.lower() == ".binary" or p.stat().st_size == merl.FILE_SIZE:
         try:
             table = merl.read(p)
-        except merl.MerlError as e:
+        except merltable.MerlError as e:
             raise BRDFFileError(str(e) if str(p) in str(e) else f"{p}: {e}") from None
-        return LoadedBRDF(merl.brdf_of(table, interpolate=True), ["R", "G", "B"], str(p), "merl", p.name, table)
+        return LoadedBRDF(merltable.brdf_of(table, interpolate=True), ["R", "G", "B"], str(p), "merl", p.name, table)
     raise BRDFFileError(f"{p}: unknown kind of file; {EXPECTED}")
 
 

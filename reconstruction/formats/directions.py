@@ -1,7 +1,7 @@
 """Rows out of the plane of incidence in CSV inputs: a tilt column, or each sample's azimuths.
 
 An in-plane bench gives (theta_i, signed theta_o) pairs. Two optional columns place a row anywhere on the
-hemisphere, in a generic table and (the tilt) in a slice file (docs/slice-format.md):
+hemisphere, in a generic table and (the tilt) in a slice file (docs/formats.md):
 
 * ``tilt_deg`` (or ``tilt``): the sample tilted by t about the axis in the arms' plane; theta_i and theta_o are then
   the arm angles a (the light, on the -x side) and b (the detector, signed + on the specular side), and in the

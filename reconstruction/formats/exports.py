@@ -132,7 +132,7 @@ def _check_file(path: str, suffix: str, flag: str) -> None:
 
 def wants_outputs(args: Any) -> bool:
     """True if any format field (``rgl``, ``zemax``, ``export_mitsuba``, ``export_json`` of a
-    :class:`~reconstruction.pipeline.Job` or parsed command line, or a principled material's) asks for a file."""
+    :class:`~reconstruction.job.Job` or parsed command line, or a principled material's) asks for a file."""
     from reconstruction.principled.outputs import wants
 
     return any(getattr(args, k, None) for k in ("rgl", "zemax", "export_mitsuba", "export_json")) or wants(args)
@@ -144,7 +144,7 @@ OTHER_OUTPUTS = ("preview", "html", "report", "rgl", "zemax", "export_mitsuba", 
 
 
 def asks_output(args: Any) -> bool:
-    """True if a :class:`~reconstruction.pipeline.Job` or parsed command line asks for any file besides the MERL
+    """True if a :class:`~reconstruction.job.Job` or parsed command line asks for any file besides the MERL
     table (:data:`OTHER_OUTPUTS`, each a file name: a bare ``--html`` is the batch's): then ``--out`` is
     optional, the table being computed for them either way."""
     return any(isinstance(getattr(args, k, None), str) and getattr(args, k) for k in OTHER_OUTPUTS)

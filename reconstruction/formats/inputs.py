@@ -2,7 +2,7 @@
 
 Two kinds of file are accepted (told apart by the first line):
 
-* slice files (``# gonio-brdf slice``, docs/slice-format.md), read with
+* slice files (``# gonio-brdf slice``, docs/formats.md), read with
 :func:`reconstruction.formats.slicefile.read_slice`;
   their metadata says which quantity they hold, and row order is free (captures may be scheduled);
 * generic tables: optional ``#`` comment lines, a header line, then one row per sample, separated by commas,
@@ -31,7 +31,6 @@ Errors are :class:`InputError` with ``file:line, column NAME: what was expected`
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import math
 import re
@@ -44,6 +43,7 @@ from numpy.typing import NDArray
 
 from reconstruction.base import ReconstructionError
 from reconstruction.core.samples import thin_samples
+from reconstruction.core.slicedata import Slice, SliceError, channel_kind, shorten
 from reconstruction.formats.angleunits import to_degrees
 from reconstruction.formats.directions import (
     RowsWithDirections,
@@ -54,19 +54,9 @@ from reconstruction.formats.directions import (
     with_directions,
 )
 from reconstruction.formats.merl import MAX_CELL_VALUE
-from reconstruction.formats.slicefile import (
-    MAGIC,
-    MAX_REPEATS,
-    QUANTITIES,
-    Slice,
-    SliceError,
-    channel_kind,
-    parse_rows,
-    read_input_text,
-    read_slice,
-    shorten,
-)
-from reconstruction.schema.files import UserFileError, read_user_bytes
+from reconstruction.formats.slicefile import MAGIC, MAX_REPEATS, read_input_text, read_slice
+from reconstruction.schema.files import UserFileError, open_user_csv, read_user_bytes
+from reconstruction.schema.slice_meta import QUANTITIES
 
 Array = NDArray[np.float64]
 
@@ -138,19 +128,6 @@ def parse_columns(spec: str | None) -> dict[str, str]:
 # --- generic tables --------------------------------------------------------------------------------------
 
 
-def _find_header(lines: list[str], path: Path) -> int:
-    for k, line in enumerate(lines):
-        s = line.strip()
-        if s and not s.startswith("#"):
-            return k
-    raise InputError(f"{path}: no header line (only comments or blank lines)")
-
-
-def _delimiter(header: str) -> str:
-    counts = {d: header.count(d) for d in (",", ";", "\t")}
-    return max(counts, key=lambda d: counts[d]) if max(counts.values()) > 0 else ","
-
-
 def _canonical_value_name(name: str) -> str | None:
     """``value``, ``R``/``G``/``B`` or ``<wavelength>nm`` for a value column name (any letter case), else None."""
     low = name.strip().lower()
@@ -170,71 +147,32 @@ def _column_list(names: Sequence[str], limit: int = 12) -> str:
     return shown + (f", ... ({len(names)} columns)" if len(names) > limit else "")
 
 
-def _cells(path: Path, line: str, lineno: int, delim: str) -> list[str]:
-    try:
-        return next(csv.reader([line], delimiter=delim))
-    except csv.Error as e:
-        raise InputError(f"{path}:{lineno}: {e}") from None
-    except StopIteration:  # pragma: no cover - blank lines were skipped
-        return []
-
-
-def _parse_slowly(path: Path, rows: Sequence[str], line_of: Sequence[int], header: Sequence[str], delim: str
-                  ) -> Array:
-    """Rows one by one (csv rules: quoted fields), for the message when the fast parse failed: the first line with
-    the wrong number of fields, else the first non-numeric cell (column by column). Memory: the result only."""
-    n = len(header)
-    data = np.full((len(rows), n), np.nan)
-    first_bad: tuple[int, int] | None = None  # (column, row) of the first non-numeric cell, column-major
-    reader = csv.reader(rows, delimiter=delim)
-    r = 0
-    while True:
-        try:
-            cells = next(reader)
-        except StopIteration:
-            break
-        except csv.Error as e:
-            raise InputError(f"{path}:{line_of[r]}: {e}") from None
-        if len(cells) != n:
-            raise InputError(f"{path}:{line_of[r]}: {len(cells)} fields, expected {n} "
-                             f"({shorten(delim.join(header), 200)})")
-        for k, cell in enumerate(cells):
-            try:
-                data[r, k] = float(cell.strip())
-            except ValueError:
-                if first_bad is None or (k, r) < first_bad:
-                    first_bad = (k, r)
-        r += 1
-    if first_bad is not None:
-        k, r = first_bad
-        cell = _cells(path, rows[r], line_of[r], delim)[k].strip()
-        raise InputError(f"{path}:{line_of[r]}, column {shorten(header[k])}: expected a number, got "
-                         f"{shorten(cell)!r}")
-    return data
-
-
 def read_table(path: str | Path, *, quantity: str | None, columns: Mapping[str, str] | None = None,
                angles_in: str = "degrees") -> Slice:
     """Read a generic in-plane CSV table (see the module docstring) into a :class:`Slice` of ``quantity``, its
     angles in ``angles_in`` (:mod:`reconstruction.formats.angleunits`: radians read as degrees are refused)."""
     path = Path(path)
     columns = dict(columns or {})
-    text = read_input_text(path, InputError, "a CSV file")
-    if not text.strip():
+    table = open_user_csv(path, "a CSV file", error=InputError, delimiters=(",", ";", "\t"), quoted=True,
+                          read_text=lambda p: read_input_text(p, InputError, "a CSV file"))
+    if not table.text.strip():
         raise InputError(f"{path}: empty file")
     if quantity is None:
         raise InputError(f"{path}: a generic table does not say what its values are; pass --quantity "
                          f"{'|'.join(QUANTITIES)}")
     if quantity not in QUANTITIES:
         raise InputError(f"--quantity: unknown quantity {quantity!r}; expected one of {', '.join(QUANTITIES)}")
-    lines = text.splitlines()
-    h, delim, header, role = _header_roles(path, lines, columns)
-    hline = h + 1
+    if not table.header_line:
+        raise InputError(f"{path}: no header line (only comments or blank lines)")
+    header, hline = table.header, table.header_line
+    role = _header_roles(path, hline, header, columns)
     value_cols, channels, std_cols = _value_channels(path, hline, header, role)
     names_by_role = {r: header[k] for k, r in role.items()}
-    del text
-    data, line_of = _read_rows(path, lines, h, header, delim)
-    lines_arr = np.asarray(line_of)
+    data, line_of = table.rows(nan_hint=" (leave missing samples out)")
+    del table
+    if not len(data):
+        raise InputError(f"{path}: no samples (the table has a header but no rows)")
+    lines_arr = line_of
     ti = data[:, [k for k, r in role.items() if r == "theta_i"][0]]
     to = data[:, [k for k, r in role.items() if r == "theta_o"][0]]
     ti, to = to_degrees(path, ti, to, shorten(names_by_role["theta_i"]), shorten(names_by_role["theta_o"]),
@@ -272,17 +210,9 @@ def read_table(path: str | Path, *, quantity: str | None, columns: Mapping[str, 
         raise InputError(str(e)) from None
 
 
-def _header_roles(path: Path, lines: list[str], columns: dict[str, str]
-                  ) -> tuple[int, str, list[str], dict[int, str]]:
-    """The header line's index, the delimiter, the column names and each column's role ("theta_i", "theta_o", a
-    value channel, "<channel>_std", "repeats", "unix_time_s"), from the names and ``--columns``."""
-    h = _find_header(lines, path)
-    hline = h + 1
-    delim = _delimiter(lines[h])
-    try:
-        header = [c.strip() for c in next(csv.reader([lines[h]], delimiter=delim))]
-    except csv.Error as e:
-        raise InputError(f"{path}:{hline}: cannot read the header line: {e}") from None
+def _header_roles(path: Path, hline: int, header: list[str], columns: dict[str, str]) -> dict[int, str]:
+    """Each column's role ("theta_i", "theta_o", a value channel, "<channel>_std", "repeats", "unix_time_s"), from
+    the header's names (line ``hline``) and ``--columns``."""
     if len(set(header)) != len(header):
         dup = next(c for c in header if header.count(c) > 1)
         raise InputError(f"{path}:{hline}, column {shorten(dup)}: the column name appears twice")
@@ -330,7 +260,7 @@ def _header_roles(path: Path, lines: list[str], columns: dict[str, str]
                              f"columns, value, R,G,B or wavelength columns such as 450nm (with optional _std "
                              f"columns), repeats, unix_time_s; map other names with --columns theta_i=NAME,"
                              f"theta_o=NAME")
-    return h, delim, header, role
+    return role
 
 
 def _value_channels(path: Path, hline: int, header: list[str], role: dict[int, str]
@@ -360,26 +290,6 @@ def _value_channels(path: Path, hline: int, header: list[str], role: dict[int, s
             raise InputError(f"{path}:{hline}, column {shorten(header[std_cols[c]])}: a _std column without its "
                              f"value column")
     return value_cols, channels, std_cols
-
-
-def _read_rows(path: Path, lines: list[str], h: int, header: list[str], delim: str
-               ) -> tuple[NDArray[np.float64], list[int]]:
-    """The table's rows below the header (h) as floats (rows, columns), each with its 1-based line number."""
-    # rows: parsed in one vectorised pass; only a table that fails is read again line by line, for the message
-    line_of = [k + 1 for k in range(h + 1, len(lines)) if (t := lines[k].strip()) and not t.startswith("#")]
-    rows = [lines[k - 1] for k in line_of]
-    if not rows:
-        raise InputError(f"{path}: no samples (the table has a header but no rows)")
-    data = parse_rows(rows, len(header), delimiter=delim, quotechar='"')
-    if data is None or not np.all(np.isfinite(data)):
-        data = _parse_slowly(path, rows, line_of, header, delim)
-    bad = ~np.isfinite(data)
-    if bad.any():
-        r, k = (int(x) for x in np.argwhere(bad)[0])
-        cell = _cells(path, rows[r], line_of[r], delim)[k].strip()
-        raise InputError(f"{path}:{line_of[r]}, column {shorten(header[k])}: value is {shorten(cell)!r}; NaN and "
-                         f"infinity are not allowed (leave missing samples out)")
-    return data, line_of
 
 
 def _check_duplicates(path: Path, ti: Array, to: Array, line_of: NDArray[np.int_], to_name: str, *more: Array
@@ -550,7 +460,7 @@ def load_inputs(paths: Sequence[str | Path], *, quantity: str | None = None,
         with np.errstate(all="ignore"):
             f, sd = s.brdf()
         _check_bounds(s, f, sd)
-        inst = s.meta.get("instrument")  # how the samples were taken (docs/slice-format.md): kept for the methods
+        inst = s.meta.get("instrument")  # how the samples were taken (docs/formats.md): kept for the methods
         one = same_rows(s, Slice(s.theta_i_deg, s.theta_o_deg, f, list(s.channels), sd, s.repeats, s.unix_time_s,
                                  meta={"quantity": "brdf", **({"instrument": inst} if inst is not None else {})},
                                  source=s.source))

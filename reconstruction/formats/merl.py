@@ -1,9 +1,9 @@
 """MERL binary BRDF files (Matusik et al. 2003): read and write (the table in memory: ``core.merltable``).
 
 On disk (see ../shared/reference/merl-format.md): an int32 header ``90 90 180``, then all red, all green, all blue
-as little-endian float64, each divided by its channel scale; invalid cells are stored as -1. This module (the
-README's ``merl``) also re-exports the table's layout, lookup and tabulation (``merl.tabulate``, ``merl.lookup``,
-...) and its grid's names.
+as little-endian float64, each divided by its channel scale; invalid cells are stored as -1. The table's layout,
+lookup and tabulation are :mod:`reconstruction.core.merltable` (``merltable.tabulate``, ``merltable.lookup``), its
+grid :mod:`reconstruction.core.merlgrid`.
 """
 
 from __future__ import annotations
@@ -15,37 +15,17 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from reconstruction.atomic import atomic_open
-from reconstruction.core.merlgrid import (  # noqa: F401  (the grid's names, re-exported)
+from reconstruction.core.merlgrid import (
     N_PD,
     N_TD,
     N_TH,
-    _cell_dirs,
-    _continuous_index,
-    _grid_dirs,
-    cell_angles,
-    cell_cosines,
-    cell_to_dirs,
-    dirs_to_cell,
-    phi_d_index,
-    theta_d_index,
-    theta_h_index,
     valid_mask,
 )
-from reconstruction.core.merltable import (  # noqa: F401  (the table's names, re-exported)
+from reconstruction.core.merltable import (
     N_CELLS,
     SCALES,
     SHAPE,
     MerlError,
-    _cell_average,
-    _edge_curvature,
-    _eval,
-    _threads,
-    average_theta_h_cells,
-    brdf_of,
-    lookup,
-    lookup_cells,
-    tabulate,
-    tabulate_reciprocal,
 )
 from reconstruction.schema.files import UserFileError, read_user_bytes
 
@@ -54,9 +34,7 @@ Array = NDArray[np.float64]
 FILE_SIZE = 12 + 3 * N_CELLS * 8  # 34,992,012 bytes
 _HEADER = np.array([N_TH, N_TD, N_PD], dtype="<i4").tobytes()
 
-__all__ = ["SHAPE", "N_CELLS", "FILE_SIZE", "SCALES", "MerlError", "MerlWarning", "MAX_CELL_VALUE", "read", "write",
-           "theta_h_index", "theta_d_index", "phi_d_index", "cell_angles", "cell_to_dirs", "dirs_to_cell",
-           "valid_mask", "cell_cosines", "lookup", "brdf_of", "lookup_cells", "tabulate"]
+__all__ = ["FILE_SIZE", "MerlWarning", "MAX_CELL_VALUE", "read", "write"]
 
 
 

@@ -1,7 +1,7 @@
 """Slice files: the versioned CSV format in which captured in-plane slices travel.
 
 The contract between acquisition (which writes them, one durable row per sample) and reconstruction (which
-reads them). Format version 1 (documented in docs/slice-format.md)::
+reads them). Format version 1 (documented in docs/formats.md, "Slice files")::
 
     # gonio-brdf slice
     # meta: {"format_version": 1, "quantity": "brdf", "material": "blue-plastic", ...}
@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import io
 import json
-import math
 import os
 import warnings
 from collections.abc import Mapping, Sequence
@@ -30,17 +29,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from reconstruction.atomic import atomic_open
-from reconstruction.core.slicedata import (  # noqa: F401  (the slice's names, re-exported)
-    SHOW_CHARS,
+from reconstruction.core.slicedata import (
     Slice,
     SliceError,
     _show_list,
     channel_kind,
     shorten,
-    to_brdf,
-    wavelengths_of,
 )
-from reconstruction.schema.files import UserFileError, read_user_text
+from reconstruction.schema.files import UserFileError, open_user_csv, read_user_text
 from reconstruction.schema.slice_meta import FORMAT_VERSION, QUANTITIES, check_instrument  # the metadata's schema
 
 Array = NDArray[np.float64]
@@ -53,21 +49,7 @@ MAX_INPUT_BYTES = 256 * 1024 * 1024
 #: Largest ``repeats`` a row may give (far above any detector's; beyond it the count is not one).
 MAX_REPEATS = 10**9
 
-__all__ = [
-    "FORMAT_VERSION",
-    "QUANTITIES",
-    "Slice",
-    "SliceError",
-    "SliceWriter",
-    "read_slice",
-    "write_slice",
-    "channel_kind",
-    "wavelengths_of",
-    "to_brdf",
-    "MAX_INPUT_BYTES",
-    "shorten",
-    "read_input_text",
-]
+__all__ = ["SliceWriter", "read_slice", "write_slice", "MAX_INPUT_BYTES", "read_input_text"]
 
 
 
@@ -98,32 +80,6 @@ def _normalise_newlines(text: str) -> str:
     if "\r" not in text:
         return text
     return text.replace("\r\n", "\n").replace("\r", "\n")
-
-
-def parse_rows(lines: Sequence[str], n_cols: int, delimiter: str = ",", quotechar: str | None = None
-               ) -> NDArray[np.float64] | None:
-    """Fast, vectorised parse of data lines into an (N, n_cols) float array; None if any line does not hold
-    exactly ``n_cols`` numbers (the caller then finds the culprit line by line, for the message)."""
-    if not lines:
-        return np.empty((0, n_cols))
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            a = np.loadtxt(lines, delimiter=delimiter, dtype=np.float64, ndmin=2, comments=None,
-                           quotechar=quotechar)
-    except (ValueError, TypeError, OverflowError):
-        return None
-    if a.shape != (len(lines), n_cols):
-        return None
-    return a
-
-
-
-
-
-
-
-
 
 
 # --- writing ---------------------------------------------------------------------------------------------
@@ -265,19 +221,8 @@ class SliceWriter:
 # --- reading ---------------------------------------------------------------------------------------------
 
 
-def _parse_float(text: str, where: str, column: str) -> float:
-    try:
-        x = float(text)
-    except ValueError:
-        raise SliceError(f"{where}, column {shorten(column)}: expected a number, got {shorten(text)!r}") from None
-    if not math.isfinite(x):
-        raise SliceError(f"{where}, column {shorten(column)}: value is {shorten(text)!r}; NaN and infinity are "
-                         "not allowed")
-    return x
-
-
-def _check_row(data: NDArray[np.float64], r: int, cells: list[str], header: list[str], col: dict[str, int],
-               std_cols: list[int], where: str) -> None:
+def _check_row(data: NDArray[np.float64], r: int, cells: Sequence[str], where: str, header: list[str],
+               col: dict[str, int], std_cols: list[int]) -> None:
     """The per-row checks of a slice file (angles, repeats, standard deviations), raising the first failure."""
     for name in ("theta_i_deg", "theta_o_deg"):
         x = data[r, col[name]]
@@ -294,9 +239,7 @@ def _check_row(data: NDArray[np.float64], r: int, cells: list[str], header: list
 
 
 def _rows_ok(data: NDArray[np.float64], col: dict[str, int], std_cols: list[int]) -> bool:
-    """True if every row passes :func:`_check_row` and every value is finite (vectorised)."""
-    if not np.all(np.isfinite(data)):
-        return False
+    """True if every row passes :func:`_check_row` (vectorised; the values are finite)."""
     ang = data[:, [col["theta_i_deg"], col["theta_o_deg"]]]
     rep = data[:, col["repeats"]]
     rep_ok = (rep >= 1) & (rep <= MAX_REPEATS) & (rep == np.floor(rep))
@@ -307,40 +250,6 @@ def _rows_ok(data: NDArray[np.float64], col: dict[str, int], std_cols: list[int]
 #: Characters of data lines parsed at a time by :func:`read_slice`: its temporaries (the lines as strings, a few
 #: times the text) stay a few tens of MB whatever the file's size; the rows go straight into one array.
 CHUNK_CHARS = 4 * 1024 * 1024
-
-
-def _head_lines(text: str, limit: int = 1 << 16) -> tuple[list[str], int]:
-    """The lines up to and including the column header (the magic line, ``#`` lines, the header), at most
-    ``limit`` of them, and the offset in ``text`` where the data lines begin."""
-    lines: list[str] = []
-    pos = 0
-    while pos < len(text) and len(lines) < limit:
-        end = text.find("\n", pos)
-        end = len(text) if end < 0 else end
-        lines.append(text[pos:end])
-        pos = end + 1
-        if len(lines) > 1 and not lines[-1].startswith("#"):
-            break
-    return lines, min(pos, len(text))
-
-
-def _parse_chunk(rows: list[str], first_line: int, path: Path, header: list[str], col: dict[str, int],
-                 std_cols: list[int]) -> NDArray[np.float64]:
-    """The rows of one chunk as an array (vectorised); the first bad line, at its number in the file, raised."""
-    data = parse_rows(rows, len(header))
-    if data is not None and _rows_ok(data, col, std_cols):
-        return data
-    data = np.empty((len(rows), len(header)))  # the slow path: finds the first bad line for the message
-    for r, line in enumerate(rows):
-        where = f"{path}:{first_line + r}"
-        cells = line.split(",")
-        if len(cells) != len(header):
-            raise SliceError(f"{where}: {len(cells)} fields, expected {len(header)} "
-                             f"({shorten(','.join(header), 200)})")
-        for k, (name, cell) in enumerate(zip(header, cells, strict=True)):
-            data[r, k] = _parse_float(cell.strip(), where, name)
-        _check_row(data, r, cells, header, col, std_cols, where)
-    return data  # pragma: no cover - parse_rows or _rows_ok failed on some line, found above
 
 
 def _first_duplicate(key: NDArray[np.float64]) -> tuple[int, int] | None:
@@ -375,9 +284,9 @@ def read_slice(path: str | Path) -> Slice:
     expected``).
     """
     path = Path(path)
-    text = _normalise_newlines(read_input_text(path, SliceError, "a slice file"))
-    torn = not text.endswith("\n") and bool(text)
-    lines, body = _head_lines(text)
+    table = open_user_csv(path, "a slice file", error=SliceError, first_in_head=1, skip_blank=False, torn=True,
+                          read_text=lambda p: read_input_text(p, SliceError, "a slice file"))
+    lines = table.head
     if not lines or lines[0].strip() != MAGIC:
         raise SliceError(f"{path}:1: expected the first line {MAGIC!r}, got "
                          f"{lines[0][:60]!r}" if lines else f"{path}: empty file")
@@ -407,10 +316,9 @@ def read_slice(path: str | Path) -> Slice:
             check_instrument(meta["instrument"], "instrument")
         except ValueError as e:
             raise SliceError(f"{path}: metadata {shorten(str(e), 300)}") from None
-    if lineno >= len(lines):
+    if not table.header_line:
         raise SliceError(f"{path}: no column header line")
-    header = [c.strip() for c in lines[lineno].split(",")]
-    header_line = lineno + 1
+    header, header_line = table.header, table.header_line
     for required in ("theta_i_deg", "theta_o_deg", "repeats", "unix_time_s"):
         if required not in header:
             raise SliceError(f"{path}:{header_line}: missing column {required!r}")
@@ -427,28 +335,17 @@ def read_slice(path: str | Path) -> Slice:
         raise SliceError(f"{path}:{header_line}: repeated column names")
     col = {c: k for k, c in enumerate(header)}
     std_cols = [col[f"{c}_std"] for c in channels]
-    del lines
-    end = max(text.rfind("\n") + 1 if torn else len(text), body)  # the end of the last complete line
-    n_rows = text.count("\n", body, end)
-    if torn and end < len(text):
-        warnings.warn(f"{path}:{lineno + 2 + n_rows}: torn last line (interrupted write) dropped: "
-                      f"{text[end:end + 60]!r}", stacklevel=2)
-    data = np.empty((n_rows, len(header)))
-    pos, r = body, 0
-    while pos < end:  # a chunk of whole lines at a time
-        stop = text.find("\n", min(pos + CHUNK_CHARS, end - 1), end)
-        rows = text[pos:stop].split("\n")
-        data[r:r + len(rows)] = _parse_chunk(rows, lineno + 2 + r, path, header, col, std_cols)
-        r += len(rows)
-        pos = stop + 1
-    del text
+    data, line_of = table.rows(lambda d: _rows_ok(d, col, std_cols),
+                               lambda d, r, cells, where: _check_row(d, r, cells, where, header, col, std_cols),
+                               chunk_chars=CHUNK_CHARS)
+    del table
     key = data[:, [col[c] for c in ("theta_i_deg", "theta_o_deg", "tilt_deg") if c in col]]
     dup = _first_duplicate(key)
     if dup is not None:
-        raise SliceError(f"{path}:{lineno + 2 + dup[0]}: duplicate sample theta_i_deg = {key[dup[0], 0]}, "
+        raise SliceError(f"{path}:{line_of[dup[0]]}: duplicate sample theta_i_deg = {key[dup[0], 0]}, "
                          f"theta_o_deg = {key[dup[0], 1]}" + (f", tilt_deg = {key[dup[0], 2]}" if key.shape[1] > 2
                                                               else "")
-                         + f" (first at line {lineno + 2 + dup[1]})")
+                         + f" (first at line {line_of[dup[1]]})")
     del key
     from reconstruction.formats.directions import with_directions  # the optional tilt column: rows out of the plane
 
@@ -462,4 +359,4 @@ def read_slice(path: str | Path) -> Slice:
         unix_time_s=data[:, col["unix_time_s"]],
         meta=meta,
         source=str(path),
-    ), {"tilt": data[:, col["tilt_deg"]]} if "tilt_deg" in col else {}, str(path), lineno + 2 + np.arange(n_rows))
+    ), {"tilt": data[:, col["tilt_deg"]]} if "tilt_deg" in col else {}, str(path), line_of)

@@ -11,7 +11,6 @@ bundled as a :class:`Method` (:mod:`reconstruction.methods.registry`). Registeri
 
 from __future__ import annotations
 
-from reconstruction.base import Reconstruction
 from reconstruction.methods.plugins import bivariate as _bivariate
 from reconstruction.methods.plugins import fit as _fit
 from reconstruction.methods.plugins import microfacet as _microfacet
@@ -38,7 +37,7 @@ from reconstruction.methods.registry import (
 
 __all__ = ["Method", "Context", "Options", "OptionSpec", "REGISTRY", "register", "get", "names", "option",
            "option_specs", "NoOptions", "FitOptions", "RevolveOptions", "BivariateOptions", "PriorOptions",
-           "options_schema", "Reconstruction"]
+           "options_schema"]
 
 register(_fit.METHOD)
 register(_microfacet.METHOD)

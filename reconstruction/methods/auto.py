@@ -46,9 +46,9 @@ from numpy.typing import NDArray
 from reconstruction.base import Reconstruction, ReconstructionError
 from reconstruction.core.checks import ALBEDO_INCIDENCES_DEG, ALBEDO_TOLERANCE, checked_albedo
 from reconstruction.core.samples import PointFolds, everywhere, points_anywhere, scans_hemisphere
+from reconstruction.core.slicedata import Slice
 from reconstruction.executor import Background as _Background
 from reconstruction.executor import forked, release_spare_core
-from reconstruction.formats.slicefile import Slice
 from reconstruction.methods import REGISTRY, Options, get
 from reconstruction.methods.crossval import (
     CVScore,
@@ -125,7 +125,7 @@ BACKGROUND_METHODS = ("microfacet", "revolve", "bivariate")
 def max_albedo(rec: Reconstruction) -> tuple[float, float]:
     """(largest directional albedo over channels and theta_i = 0-85 deg, the theta_i in degrees where it is).
 
-    Integrated as the written table's check integrates (:func:`reconstruction.report.summary.checked_albedo`), on a
+    Integrated as the written table's check integrates (:func:`reconstruction.core.checks.checked_albedo`), on a
     coarser 48 x 96 hemisphere grid: the half vector where the grid exceeds 1 + tolerance (a mirror-like lobe
     aliases on it)."""
     alb, _ = checked_albedo(rec.eval, 48, 96)

@@ -27,7 +27,7 @@ direction) on theta_d = |theta_i - theta_h|. The reconstruction assumes f depend
 4. f = max(0, floor + q / cos^P(theta_d)).
 
 The table is this function at every cell's (theta_h, theta_d), the same for all phi_d (bin centres), or the cell
-average with ``merl.tabulate(rec.eval, supersample=...)``.
+average with ``merltable.tabulate(rec.eval, supersample=...)``.
 """
 
 from __future__ import annotations
@@ -41,9 +41,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from reconstruction.base import ReconstructionError
 from reconstruction.bench.instrument import Instrument, InstrumentError
+from reconstruction.core import merlgrid, merltable
 from reconstruction.core.geometry import half_diff_from_dirs, inplane_to_dirs
-from reconstruction.formats import merl
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 
 Array = NDArray[np.float64]
 
@@ -153,25 +153,25 @@ class BivariateReconstruction:
 
         With ``cell_average_th`` (a plateau from the instrument, see :func:`reconstruct_bivariate`) each cell holds
         the average over its theta_h extent instead (:data:`CELL_SUBSAMPLES` sub-samples uniform in the index
-        sqrt(theta_h), weighted by sin(theta_h) d theta_h as ``merl.tabulate``'s cell averages), so the plateau's
+        sqrt(theta_h), weighted by sin(theta_h) d theta_h as ``merltable.tabulate``'s cell averages), so the plateau's
         edge keeps its energy whichever cell it falls in."""
-        th, td, _ = merl.cell_angles()
+        th, td, _ = merlgrid.cell_angles()
         if self.cell_average_th:
             o = (np.arange(CELL_SUBSAMPLES) + 0.5) / CELL_SUBSAMPLES
-            u = (np.arange(merl.N_TH)[:, None] + o[None, :]) / merl.N_TH  # (90, n)
+            u = (np.arange(merlgrid.N_TH)[:, None] + o[None, :]) / merlgrid.N_TH  # (90, n)
             ths = u * u * (np.pi / 2)
             w = np.sin(ths) * u
             w = w / w.sum(axis=1, keepdims=True)
-            a = np.broadcast_to(ths[:, None, :], (merl.N_TH, merl.N_TD, CELL_SUBSAMPLES))
+            a = np.broadcast_to(ths[:, None, :], (merlgrid.N_TH, merlgrid.N_TD, CELL_SUBSAMPLES))
             b = np.broadcast_to(td[0, :, 0][None, :, None], a.shape)
-            g = self.f_hd(a.ravel(), b.ravel()).reshape(merl.N_TH, merl.N_TD, CELL_SUBSAMPLES, -1)
+            g = self.f_hd(a.ravel(), b.ravel()).reshape(merlgrid.N_TH, merlgrid.N_TD, CELL_SUBSAMPLES, -1)
             g = np.einsum("hdsc,hs->hdc", g, w)
         else:
             a, b = np.broadcast_arrays(th[:, :, 0], td[:, :, 0])  # (90, 90)
-            g = self.f_hd(a.ravel(), b.ravel()).reshape(merl.N_TH, merl.N_TD, -1)
-        g = np.broadcast_to(g, (merl.N_TH, merl.N_TD, g.shape[-1] if g.shape[-1] == 3 else 3))
-        out = np.broadcast_to(np.moveaxis(g, -1, 0)[..., None], merl.SHAPE).copy()
-        out[:, ~merl.valid_mask()] = np.nan
+            g = self.f_hd(a.ravel(), b.ravel()).reshape(merlgrid.N_TH, merlgrid.N_TD, -1)
+        g = np.broadcast_to(g, (merlgrid.N_TH, merlgrid.N_TD, g.shape[-1] if g.shape[-1] == 3 else 3))
+        out = np.broadcast_to(np.moveaxis(g, -1, 0)[..., None], merltable.SHAPE).copy()
+        out[:, ~merlgrid.valid_mask()] = np.nan
         return out
 
     @property
@@ -182,7 +182,7 @@ class BivariateReconstruction:
 
     def coverage(self) -> dict[str, float]:
         """Fractions of the table's (theta_h, theta_d) bins interpolated between two lines vs extrapolated."""
-        th, td, _ = merl.cell_angles()
+        th, td, _ = merlgrid.cell_angles()
         a, b = np.broadcast_arrays(th[:, :, 0], td[:, :, 0])
         a, b = a.ravel(), b.ravel()
         pos = np.stack([ln.position(np.clip(a, ln.th[0], ln.th[-1])) for ln in self.lines], axis=1)

@@ -46,14 +46,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from reconstruction.base import Reconstruction, ReconstructionError
-from reconstruction.core.metrics import IMAGE_GAMMA, tone_map
+from reconstruction.core.metrics import tone_map
 from reconstruction.core.samples import DirectionalSlice, out_of_plane, sample_directions
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 
 Array = NDArray[np.float64]
 
 __all__ = ["folds", "sweep_folds", "cross_validate", "score_predictions", "CVScore", "N_BLOCKS", "budget_check",
-           "SceneBudgetWarning", "IMAGE_EXPOSURE_QUANTILE", "IMAGE_GAMMA", "image_values"]
+           "SceneBudgetWarning", "IMAGE_EXPOSURE_QUANTILE", "image_values"]
 
 N_BLOCKS = 8
 #: The held-out image error's exposure: this quantile of the samples' radiance f cos(theta_i) (pooled over channels)

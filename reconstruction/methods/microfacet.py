@@ -42,7 +42,7 @@ from reconstruction.bench.instrument import Instrument, InstrumentError, unit_lo
 from reconstruction.core.geometry import normalize
 from reconstruction.core.models import ggx_d, ggx_g1_over_cos
 from reconstruction.core.samples import sample_directions
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 
 Array = NDArray[np.float64]
 
@@ -162,14 +162,13 @@ class MicrofacetReconstruction:
     def table(self) -> Array:
         """The MERL table (3, 90, 90, 180): bin-centre values, and below :attr:`sharp_theta_h_rad` the cell averages
         over theta_h (:func:`reconstruction.core.halfdiff.average_theta_h_half_diff`, 8 per cell): the values of
-        ``merl.tabulate(eval)`` and ``merl.average_theta_h_cells``, computed in the half-diff angles. NaN below the
-        horizon."""
-        from reconstruction.core import halfdiff
-        from reconstruction.formats import merl
+        ``merltable.tabulate(eval)`` and ``merltable.average_theta_h_cells``, computed in the half-diff angles. NaN
+        below the horizon."""
+        from reconstruction.core import halfdiff, merlgrid
 
-        th, td, _ = merl.cell_angles()
-        ci, co = merl.cell_cosines()
-        valid = (ci > 0) & (co > 0)  # merl.valid_mask()
+        th, td, _ = merlgrid.cell_angles()
+        ci, co = merlgrid.cell_cosines()
+        valid = (ci > 0) & (co > 0)  # merlgrid.valid_mask()
         rgb = self.rho if self.rho.size == 3 else np.repeat(self.rho[:1], 3)
         ks = self.ks if self.ks.size == 3 else np.repeat(self.ks[:1], 3)
         shape = self._shape_hd(th, td, ci, co)

@@ -49,8 +49,8 @@ from reconstruction.base import ReconstructionError
 from reconstruction.cache import cached_decoded, report_build
 from reconstruction.core.geometry import dirs_from_half_diff, half_diff_from_dirs
 from reconstruction.core.samples import at_samples, everywhere, sample_directions
+from reconstruction.core.slicedata import Slice
 from reconstruction.executor import usable_cores
-from reconstruction.formats.slicefile import Slice
 from reconstruction.methods import priorcodec
 
 Array = NDArray[np.float64]
@@ -421,9 +421,9 @@ class PriorReconstruction:
 
     def table(self) -> Array:
         """The MERL table (3, 90, 90, 180): the grid interpolated to the MERL bin centres (:func:`grid_to_merl`)."""
-        from reconstruction.formats import merl
+        from reconstruction.core import merlgrid
 
-        return np.where(merl.valid_mask()[None], np.maximum(grid_to_merl(self.values), 0.0), 0.0)
+        return np.where(merlgrid.valid_mask()[None], np.maximum(grid_to_merl(self.values), 0.0), 0.0)
 
     def uncertainty_table(self) -> NDArray[np.float32]:
         """sigma of ln f_r (3, 90, 90, 180) float32 in the MERL table's cells, interpolated as :meth:`table`."""
@@ -584,10 +584,10 @@ class AnchoredPrior:
     def table(self) -> Array:
         """The MERL table (3, 90, 90, 180): the two methods' own tables blended cell by cell (0 below the
         horizon)."""
-        from reconstruction.formats import merl
+        from reconstruction.core import merlgrid
 
         b = np.nan_to_num(self.anchor_rec.table(), nan=0.0)
-        return np.where(merl.valid_mask()[None], anchored(self.prior.table(), b, self.anchor), 0.0)
+        return np.where(merlgrid.valid_mask()[None], anchored(self.prior.table(), b, self.anchor), 0.0)
 
     def report(self) -> dict[str, Any]:
         rep = self.prior.report()

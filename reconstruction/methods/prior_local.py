@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from reconstruction.core.samples import everywhere
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 from reconstruction.methods import prior as P
 
 Array = NDArray[np.float64]

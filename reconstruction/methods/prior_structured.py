@@ -31,7 +31,7 @@ from scipy.optimize import least_squares
 
 from reconstruction.core.geometry import half_diff_from_dirs
 from reconstruction.core.samples import sample_directions
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 from reconstruction.methods import prior as P
 
 Array = NDArray[np.float64]

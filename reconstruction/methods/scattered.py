@@ -32,10 +32,10 @@ from scipy.ndimage import map_coordinates
 from scipy.sparse.linalg import cg, splu
 
 from reconstruction.base import ReconstructionError
+from reconstruction.core import merlgrid
 from reconstruction.core.geometry import half_diff_from_dirs
 from reconstruction.core.samples import sample_directions
-from reconstruction.formats import merl
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 
 Array = NDArray[np.float64]
 
@@ -116,12 +116,12 @@ class ScatteredReconstruction:
 
     def table(self) -> Array:
         """MERL table (3, 90, 90, 180) at bin centres; NaN below the horizon."""
-        th, td, pd = merl.cell_angles()
-        g = self._at(*np.broadcast_arrays(th, td, pd)).reshape(merl.N_TH, merl.N_TD, merl.N_PD, -1)
+        th, td, pd = merlgrid.cell_angles()
+        g = self._at(*np.broadcast_arrays(th, td, pd)).reshape(merlgrid.N_TH, merlgrid.N_TD, merlgrid.N_PD, -1)
         if g.shape[-1] != 3:
             g = np.broadcast_to(g[..., :1], g.shape[:-1] + (3,))
         out = np.moveaxis(g, -1, 0).copy()
-        out[:, ~merl.valid_mask()] = np.nan
+        out[:, ~merlgrid.valid_mask()] = np.nan
         return out
 
     table_values = "bin centres"

@@ -47,6 +47,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from reconstruction.base import ReconstructionError
+from reconstruction.core import merltable
 from reconstruction.core.metrics import (
     IMAGE_MAX_VIEW_DEG,
     cosl2,
@@ -59,7 +60,6 @@ from reconstruction.core.metrics import (
     uniform_pairs,
 )
 from reconstruction.core.render import render_sphere, view_angle_mask
-from reconstruction.formats import merl
 
 Array = NDArray[np.float64]
 BRDF = Callable[[Array, Array], Any]
@@ -98,7 +98,7 @@ class Brdf:
 
     def f(self) -> BRDF:
         """The BRDF as the renderer and the metrics read it: a table's interpolated lookup, else ``eval``."""
-        return merl.brdf_of(self.table) if self.table is not None else self.eval
+        return merltable.brdf_of(self.table) if self.table is not None else self.eval
 
     def values(self, wi: Array, wo: Array) -> Array:
         """f_r (N, 3) at pairs (N, 3): non-finite values (a table's empty cells) as 0."""
@@ -109,7 +109,7 @@ class Brdf:
         if self.table is not None:
             return self.table
         if self._tabulated is None:
-            self._tabulated = merl.tabulate(self.eval)
+            self._tabulated = merltable.tabulate(self.eval)
         return self._tabulated
 
 
@@ -123,7 +123,7 @@ def load_brdf(path: str | Path) -> Brdf:
     except ReconstructionError as e:
         raise CompareError(str(e)) from None
     if b.table is not None:
-        return Brdf(b.name, b.kind, merl.brdf_of(b.table), b.table)
+        return Brdf(b.name, b.kind, merltable.brdf_of(b.table), b.table)
     return Brdf(b.name, b.kind, b.eval)
 
 
@@ -170,7 +170,7 @@ def band_matched(a: Brdf, b: Brdf, band: tuple[str, str] | None) -> tuple[Brdf, 
     if src.table is not None:
         g = np.tensordot(w, np.asarray(src.table, dtype=np.float64), axes=1)
         table = np.broadcast_to(g[None], src.table.shape).copy()
-    conv = Brdf(f"{src.name} in {name}", src.kind, merl.brdf_of(table) if table is not None else banded, table)
+    conv = Brdf(f"{src.name} in {name}", src.kind, merltable.brdf_of(table) if table is not None else banded, table)
     note = {"grey": grey, "colour": colour, "applied": True, "band": name,
             "rgb_weights": [round(float(x), 4) for x in w],
             "note": f"{grey} is grey (one channel, as a photodiode measures) and {colour} colour: {colour} read in the "

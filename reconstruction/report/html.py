@@ -29,9 +29,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from reconstruction.atomic import atomic_open
 from reconstruction.base import Reconstruction
+from reconstruction.core import merlgrid, merltable
 from reconstruction.core.geometry import inplane_to_dirs, thesis_points_from_slice
-from reconstruction.formats import merl
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 from reconstruction.report.figures import Drawer
 from reconstruction.report.figures import figure as _figure
 from reconstruction.report.figures import log_grid as _log_grid
@@ -204,7 +204,7 @@ def _polar_figure(s: Slice) -> str:
 def coverage_values(table: Array) -> Array:
     """The coverage map's values: log10 f cos_i cos_o on the table's in-plane sheet (phi_d ~ 0), (theta_h,
     theta_d) = (90, 90)."""
-    th, td, _ = merl.cell_angles()
+    th, td, _ = merlgrid.cell_angles()
     cc = np.cos(td[0, :, 0])[None, :] ** 2 - np.sin(th[:, 0, 0])[:, None] ** 2  # in-plane cos_i cos_o
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # cells without a value in any channel: NaN, drawn blank
@@ -249,7 +249,7 @@ def sigma_values(sigma: ArrayLike) -> Array:
     """The sigma map's values: sigma of ln f over (theta_h, theta_d), the median over phi_d of the channels'
     mean, (90, 90); NaN where no cell of a row lies above the horizon."""
     sg = np.asarray(sigma).mean(axis=0, dtype=np.float32)  # (90, 90, 180); single precision: a map to look at
-    valid = merl.valid_mask() & np.isfinite(sg)
+    valid = merlgrid.valid_mask() & np.isfinite(sg)
     srt = np.sort(np.where(valid, sg, np.inf), axis=2)  # the cells below the horizon sorted last
     n = valid.sum(axis=2)
     lo = np.take_along_axis(srt, np.maximum((n - 1) // 2, 0)[..., None], axis=2)[..., 0]
@@ -290,8 +290,8 @@ def cut_lines(table: Array, s: Slice, sigma: Array | None = None) -> list[tuple[
     out: list[tuple[float, Array, Array | None, bool]] = []
     for t in sorted(cuts):
         wi, wo = inplane_to_dirs(np.radians(np.full(to.size, t)), np.radians(to))
-        v = _lum(np.nan_to_num(merl.lookup(table, wi, wo, interpolate=True)))
-        sg = (_lum(np.nan_to_num(merl.lookup(sigma, wi, wo, interpolate=True)))
+        v = _lum(np.nan_to_num(merltable.lookup(table, wi, wo, interpolate=True)))
+        sg = (_lum(np.nan_to_num(merltable.lookup(sigma, wi, wo, interpolate=True)))
               if sigma is not None and t not in measured else None)
         out.append((t, v, sg, t in measured))
     return out

@@ -30,14 +30,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from reconstruction.atomic import atomic_open, atomic_path
+from reconstruction.core import merltable
 from reconstruction.core.render import PREVIEW_LIGHT_POSITION as LIGHT_POSITION
 from reconstruction.core.render import render_point_light as render_sphere
-from reconstruction.formats import merl
 
 Array = NDArray[np.float64]
 
-__all__ = ["LIGHT_POSITION", "AMBIENT", "PREVIEW_RADIUS", "render_sphere", "render_preview", "albedo_at_view",
-           "write_exr", "write_png", "png_bytes", "srgb_encode", "write_preview"]
+__all__ = ["AMBIENT", "PREVIEW_RADIUS", "render_preview", "albedo_at_view", "write_exr", "write_png", "png_bytes",
+           "srgb_encode", "write_preview"]
 
 AMBIENT = 0.05
 PREVIEW_RADIUS = 0.8
@@ -141,7 +141,7 @@ def write_preview(exr_path: str | Path, table: ArrayLike, size: int = 256) -> di
     """Render the MERL ``table`` (3, 90, 90, 180) with :func:`render_preview`; write ``exr_path`` and the PNG
     beside it."""
     exr_path = Path(exr_path)
-    img = render_preview(merl.brdf_of(table), size)
+    img = render_preview(merltable.brdf_of(table), size)
     write_exr(exr_path, img)
     png = exr_path.with_suffix(".png")
     exposure = write_png(png, img, _sphere_exposure(img, PREVIEW_RADIUS))

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from reconstruction.formats import merl
+from reconstruction.core import merltable
 
 Array = NDArray[np.float64]
 
@@ -74,7 +74,7 @@ def sphere_images(table: Array, albedo: Mapping[str, Any] | None = None
     )
     from reconstruction.report.preview import AMBIENT, PREVIEW_RADIUS, albedo_at_view
 
-    lookup = merl.brdf_of(table)
+    lookup = merltable.brdf_of(table)
 
     def brdf(wi: Array, wo: Array) -> Array:  # the table's lookup without its sparse operators (render_sphere):
         return lookup(wi, wo)  # one render each, evaluated directly (the environment once per view angle)

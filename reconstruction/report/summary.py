@@ -31,23 +31,15 @@ from numpy.typing import ArrayLike, NDArray
 
 from reconstruction.atomic import atomic_open
 from reconstruction.base import Reconstruction
-from reconstruction.core.checks import (
-    ALBEDO_TOLERANCE,
-    RECIPROCITY_TOLERANCE,
-    checked_albedo,
-    plausibility,
-)
+from reconstruction.core import merlgrid, merltable
 from reconstruction.core.geometry import inplane_to_dirs
 from reconstruction.core.metrics import relative_rmse_cos_dirs
-from reconstruction.core.slicedata import describe_below_zero
-from reconstruction.formats import merl
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice, describe_below_zero
 
 Array = NDArray[np.float64]
 
-__all__ = ["ALBEDO_TOLERANCE", "RECIPROCITY_TOLERANCE", "sample_residuals", "checked_albedo", "plausibility",
-           "coverage", "build_report", "write_json", "guard_warnings", "NARROW_SPAN_DEG", "LARGE_HELD_OUT",
-           "FEW_SAMPLES", "AT_BOUND", "parameters_at_bounds"]
+__all__ = ["sample_residuals", "coverage", "build_report", "write_json", "guard_warnings", "NARROW_SPAN_DEG",
+           "LARGE_HELD_OUT", "FEW_SAMPLES", "AT_BOUND", "parameters_at_bounds"]
 
 #: samples whose widest outgoing range at any incidence is narrower than this (deg) leave almost the whole table
 #: to extrapolation: said (a bench's one slice spans 160 deg; radians read as degrees span about 3)
@@ -94,7 +86,7 @@ def sample_residuals(rec: Reconstruction, s: Slice, table: ArrayLike | None = No
         "relative_rmse_cos": relative_rmse_cos_dirs(model, f, wi, wo),
     }
     if table is not None:
-        tv = merl.lookup(table, wi, wo, interpolate=True)
+        tv = merltable.lookup(table, wi, wo, interpolate=True)
         tv = tv[:, :1] if f.shape[1] == 1 else tv
         out["table_relative_rmse_cos"] = relative_rmse_cos_dirs(tv, f, wi, wo)
     return out
@@ -110,10 +102,10 @@ def coverage(s: Slice, dropped_blind_spot: int = 0) -> dict[str, Any]:
                                   "largest_gap_deg": float(np.max(np.diff(to))) if to.size > 1 else None})
     th = np.radians(np.abs(s.theta_o_deg - s.theta_i_deg) / 2)
     td = np.radians(np.abs(s.theta_o_deg + s.theta_i_deg) / 2)
-    hit = np.zeros((merl.N_TH, merl.N_TD), dtype=bool)
-    hit[merl.theta_h_index(th), merl.theta_d_index(td)] = True
+    hit = np.zeros((merlgrid.N_TH, merlgrid.N_TD), dtype=bool)
+    hit[merlgrid.theta_h_index(th), merlgrid.theta_d_index(td)] = True
     out["half_diff_bins_with_samples"] = int(hit.sum())
-    out["half_diff_bins_total"] = merl.N_TH * merl.N_TD
+    out["half_diff_bins_total"] = merlgrid.N_TH * merlgrid.N_TD
     low = describe_below_zero(s)
     if low is not None:  # values impossibly far below zero for their uncertainty (NEGATIVE_SIGMAS): named
         out["below_zero"] = low

@@ -1,4 +1,4 @@
-"""The metadata line of a slice file (``# meta: {...}``, docs/slice-format.md), declared once. Readers require
+"""The metadata line of a slice file (``# meta: {...}``, docs/formats.md), declared once. Readers require
 ``format_version`` and ``quantity``; a capture writes the rest (and may add more)."""
 
 import math

@@ -101,6 +101,7 @@ def load_material(cfg: BenchConfig) -> BRDF:
     """The ground-truth material of the config's ``[material]`` table; the tables of ``tabulated`` lobes are read
     now (a simulator that cannot load its material refuses the config before serving, rather than answering
     ``error:1`` to a reading later). Raises ValueError naming the lobe."""
+    from reconstruction.core import merltable
     from reconstruction.core.models import Material
     from reconstruction.formats import merl
 
@@ -109,7 +110,7 @@ def load_material(cfg: BenchConfig) -> BRDF:
         if getattr(lobe, "type_name", "") == "tabulated":
             try:
                 lobe.table = merl.read(lobe.path)  # type: ignore[attr-defined]
-            except merl.MerlError as e:
+            except merltable.MerlError as e:
                 raise ValueError(f"[material].lobes[{i}].path: {e}") from None
     return mat
 

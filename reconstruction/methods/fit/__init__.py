@@ -47,8 +47,8 @@ from numpy.typing import NDArray
 from threadpoolctl import threadpool_limits
 
 from reconstruction.base import ReconstructionError
-from reconstruction.core.scene import LOBE_KINDS, Scene
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.scene import Scene
+from reconstruction.core.slicedata import Slice
 from reconstruction.methods.fit.budget import (
     SCENE_DEFAULT_RANGE_DEG,
     apply_budget,
@@ -71,9 +71,10 @@ from reconstruction.methods.fit.model import (
 from reconstruction.methods.fit.report import FitReconstruction, fit_info
 from reconstruction.methods.fit.resolution import instrument_info
 from reconstruction.methods.fit.selection import select_model
+from reconstruction.schema.scene import LOBE_KINDS
 
 __all__ = ["LobeSpec", "FitResult", "FitReconstruction", "fit_model", "reconstruct_fit", "scene_alpha_min",
-           "scene_directions", "LOBE_KINDS", "SCENE_DEFAULT_RANGE_DEG", "gap_bounds", "f0_of_ior", "ior_of_f0",
+           "scene_directions", "SCENE_DEFAULT_RANGE_DEG", "gap_bounds", "f0_of_ior", "ior_of_f0",
            "model_name"]
 
 

@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 
 from reconstruction.bench.instrument import Instrument, instrument_average_dirs, unit_lobe_tables
 from reconstruction.core.models import Material, schlick
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 
 Array = NDArray[np.float64]
 

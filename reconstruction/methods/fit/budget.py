@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 from reconstruction.core.geometry import sph_to_vec
 from reconstruction.core.metrics import relative_rmse_cos_dirs
 from reconstruction.core.scene import RECONSTRUCTION_DEFAULT_RANGE_DEG, Scene
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 from reconstruction.methods.fit.model import ALPHA_MIN, Array, FitResult, _Problem, fit_model
 
 __all__ = ["SCENE_DEFAULT_RANGE_DEG", "scene_alpha_min", "scene_directions", "scene_inside", "Budget", "apply_budget"]

@@ -22,7 +22,7 @@ from reconstruction.core.energy import microfacet_albedo, retro_albedo
 from reconstruction.core.geometry import normalize
 from reconstruction.core.models import Colour, Lambert, Lobe, Material, Microfacet, Retro
 from reconstruction.core.samples import sample_directions
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 from reconstruction.methods.fit.aperture import ALPHA_FLOOR, Blur
 
 Array = NDArray[np.float64]

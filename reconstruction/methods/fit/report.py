@@ -11,7 +11,7 @@ from numpy.typing import NDArray
 
 from reconstruction.core.metrics import relative_rmse_cos_dirs
 from reconstruction.core.models import Material, Microfacet
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 from reconstruction.methods.fit.model import FLOOR, IOR_MAX, IOR_MIN, Array, FitResult, LobeSpec, _Problem
 
 #: a fitted microfacet alpha below this makes the table hold theta_h cell averages near the mirror direction
@@ -46,19 +46,18 @@ class FitReconstruction:
         lobes' cell averages over theta_h (:func:`reconstruction.core.halfdiff.average_theta_h_half_diff`, 8 per
         cell) in the
         half-diff angles; the other lobes (Lambert, retro: constant in theta_h at fixed theta_d) keep their values,
-        so this is ``merl.average_theta_h_cells`` of :meth:`eval` at a fraction of the cost. NaN below the
+        so this is ``merltable.average_theta_h_cells`` of :meth:`eval` at a fraction of the cost. NaN below the
         horizon."""
-        from reconstruction.core import halfdiff
-        from reconstruction.formats import merl
+        from reconstruction.core import halfdiff, merlgrid
 
         t = self._centre_table()
         sharp = self.sharp_theta_h_rad
         if sharp is None:
             return t
-        th, td, _ = merl.cell_angles()
+        th, td, _ = merlgrid.cell_angles()
         m = self.material
-        rows = int(min(merl.N_TH, merl.theta_h_index(sharp) + 1))
-        cic, coc = (c[:rows] for c in merl.cell_cosines())
+        rows = int(min(merlgrid.N_TH, merlgrid.theta_h_index(sharp) + 1))
+        cic, coc = (c[:rows] for c in merlgrid.cell_cosines())
         valid = (cic > 0) & (coc > 0)
         covered = np.ones_like(valid)
         for lb in m.lobes:
@@ -71,24 +70,23 @@ class FitReconstruction:
         return t
 
     def _centre_table(self) -> Array:
-        """The bin-centre table (3, 90, 90, 180), NaN below the horizon: ``merl.tabulate(self.material.eval)``, in the
-        half-diff angles when every lobe has a half-diff form (lambert, ggx, beckmann, retro: a tenth of the cost of
+        """The bin-centre table (3, 90, 90, 180), NaN below the horizon: ``merltable.tabulate(self.material.eval)``, in
+        the half-diff angles when every lobe has a half-diff form (lambert, ggx, beckmann, retro: a tenth of the cost of
         evaluating 1.46 million direction pairs; the same values to rounding, tests/test_fit.py)."""
-        from reconstruction.core import halfdiff
-        from reconstruction.formats import merl
+        from reconstruction.core import halfdiff, merlgrid, merltable
 
         m = self.material
-        th, td, _ = merl.cell_angles()
-        ci, co = merl.cell_cosines()
+        th, td, _ = merlgrid.cell_angles()
+        ci, co = merlgrid.cell_cosines()
         shapes = [halfdiff.lobe_half_diff(lb, th, td, ci, co) for lb in m.lobes] if m.n_channels in (1, 3) else [None]
         if any(x is None for x in shapes):
-            return merl.tabulate(m.eval)
+            return merltable.tabulate(m.eval)
         out = np.zeros((3,) + ci.shape)
         for lb, shape in zip(m.lobes, shapes, strict=True):  # a handful
             col = np.broadcast_to(lb.colour.on(m.n_channels, m.wavelengths_nm), (3,))
             for c in range(3):
                 out[c] += shape * col[c]
-        out[:, ~merl.valid_mask()] = np.nan
+        out[:, ~merlgrid.valid_mask()] = np.nan
         return out
 
     @property

@@ -18,7 +18,7 @@ import numpy as np
 
 from reconstruction.base import ReconstructionError
 from reconstruction.bench.instrument import Instrument, InstrumentError
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 
 __all__ = ["hold_peaks_over_cone", "PLATEAU_RATIO"]
 

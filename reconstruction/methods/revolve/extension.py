@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from reconstruction.base import ReconstructionError
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 
 from . import grazing, incidence
 from .aperture import hold_peaks_over_cone
@@ -399,13 +399,15 @@ class RevolveReconstruction:
 
     def table(self) -> Array:
         """The MERL table (3, 90, 90, 180): the reciprocal average from one evaluation per cell
-        (:func:`~reconstruction.formats.merl.tabulate_reciprocal`: every lobe is symmetric about the plane of
+        (:func:`~reconstruction.core.merltable.tabulate_reciprocal`: every lobe is symmetric about the plane of
         incidence)."""
-        from reconstruction.formats import merl
+        from reconstruction.core import merltable
 
         recip = self._params.get("reciprocal", False)
-        t = merl.tabulate_reciprocal(lambda i, o: self.eval(i, o, False)) if recip else merl.tabulate(self.eval)
-        return merl.average_theta_h_cells(self.eval, t, self.sharp_theta_h_rad, n=8)[0] if self.sharp_theta_h_rad else t
+        t = (merltable.tabulate_reciprocal(lambda i, o: self.eval(i, o, False)) if recip
+             else merltable.tabulate(self.eval))
+        return (merltable.average_theta_h_cells(self.eval, t, self.sharp_theta_h_rad, n=8)[0] if self.sharp_theta_h_rad
+                else t)
 
     def eval(self, wi: ArrayLike, wo: ArrayLike, reciprocal: bool | None = None) -> Array:
         """f_r (..., C) in 1/sr at direction pairs (..., 3) (z = normal); 0 where either is below the horizon.
@@ -591,6 +593,6 @@ def reconstruct_revolve(slices: Slice, *, axis: str = "auto", smoothing: float =
 
 def revolve_table(slices: Slice, **kwargs: Any) -> Array:
     """Slice -> :func:`reconstruct_revolve` -> MERL table (3, 90, 90, 180) at the bin centres (benchmarks)."""
-    from reconstruction.formats import merl
+    from reconstruction.core import merltable
 
-    return merl.tabulate(reconstruct_revolve(slices, **kwargs).eval)
+    return merltable.tabulate(reconstruct_revolve(slices, **kwargs).eval)

@@ -18,8 +18,8 @@ from numpy.typing import NDArray
 
 from reconstruction.base import ReconstructionError
 from reconstruction.core.geometry import thesis_points_from_slice
+from reconstruction.core.slicedata import Slice, channel_kind
 from reconstruction.formats.inputs import DEFAULT_BLIND_SPOT_DEG, blind_spot_missing
-from reconstruction.formats.slicefile import Slice, channel_kind
 from reconstruction.methods.revolve.thesis import (
     _AXIS_KINDS,
     _FLAT_RATIO,
@@ -160,7 +160,7 @@ def _prepare(slices: Slice, sort: bool, blind_spot_deg: float | None, bridge: bo
     ``bridge``: fill holes (blind spot, missing samples) with interpolated samples (:func:`_bridge_holes`).
     """
     if not isinstance(slices, Slice):
-        raise ReconstructionError(f"expected a reconstruction.formats.slicefile.Slice, got {type(slices).__name__}")
+        raise ReconstructionError(f"expected a reconstruction.core.slicedata.Slice, got {type(slices).__name__}")
     src = slices.source
     if len(slices) == 0:
         raise ReconstructionError(f"{src}: empty slice, no samples to revolve")
