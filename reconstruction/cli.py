@@ -44,17 +44,25 @@ Inputs are gonio-brdf slice files (docs/formats.md) or generic CSV tables from o
 R,G,B); generic tables need --quantity. Several inputs (e.g. one per incidence) are merged. All-zero rows in
 the retro blind spot are missing data and are interpolated, not taken as zero.
 
-Methods: fit (analytic lobes chosen by BIC, energy-constrained), microfacet (a tabulated normal distribution
-with Smith shadowing and a physical Fresnel), bivariate (f tabulated over theta_h, theta_d), revolve (the
-thesis's solids of revolution), auto (the method that best predicts held-out samples: leave-one-incidence-out,
-or held-out blocks of theta_o with one slice; the report says which and why). Spectral data are converted to
-linear sRGB (CIE 1931 2 degree observer, --illuminant); grey data give a grey table.
+Methods (each declared by its module in reconstruction/methods/plugins/):
+{methods}
+  auto: the method that best predicts held-out samples (leave-one-incidence-out, or held-out blocks of theta_o
+        with one slice; the report says which and why).
+Spectral data are converted to linear sRGB (CIE 1931 2 degree observer, --illuminant); grey data give a grey table.
 
 A table that fails a plausibility check (negative or missing cells, directional albedo above 1, a
 non-reciprocal BRDF) is not written: the command exits with status 3 and says which check failed, unless
 --allow-implausible is given."""
 
 EXIT_IMPLAUSIBLE = 3
+
+
+def _description() -> str:
+    """The command's description, its list of methods from the registry (a new method's summary appears here)."""
+    from reconstruction.methods import REGISTRY
+
+    width = max(len(n) for n in REGISTRY)
+    return DESCRIPTION.format(methods="\n".join(f"  {n + ':':<{width + 1}} {m.summary}" for n, m in REGISTRY.items()))
 
 
 def _supersample(text: str) -> tuple[int, int, int] | str:
@@ -106,7 +114,7 @@ def build_parser() -> argparse.ArgumentParser:
     from reconstruction.cliutil import OneLineParser
     from reconstruction.methods import REGISTRY
 
-    ap = OneLineParser(prog=PROG, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = OneLineParser(prog=PROG, description=_description(), formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("inputs", nargs="*", metavar="INPUT",
                     help="slice files or generic CSV tables, or one Zemax tabular BSDF file (.bsdf)")
     ap.add_argument("--method", choices=("auto", *REGISTRY), default="auto",

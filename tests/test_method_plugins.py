@@ -74,6 +74,8 @@ def test_a_registered_toy_method_has_its_flag_and_help_from_its_declaration(toy)
     assert "--toy-gain TOY_GAIN" in text and "toy: the factor its diffuse level is multiplied by" in " ".join(
         text.split())
     assert "toy: a lambert level times a gain" in " ".join(text.split())  # --method's list of summaries
+    methods_paragraph = text.split("Methods (")[1].split("auto:")[0]  # the description's list, from the registry
+    assert "toy: a lambert level times a gain" in " ".join(methods_paragraph.split())
     args = cli.build_parser().parse_args(["s.csv", "--method", "toy", "--toy-gain", "1.5", "--out", "m.binary"])
     job = cli.job_from_args(args)
     assert job.method == "toy" and job.options == {"toy_gain": 1.5}
