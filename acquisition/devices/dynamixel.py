@@ -28,8 +28,8 @@ from dynamixel_sdk import (
     PortHandler,
 )
 
-from acquisition.config import DXL_MODELS, AxisConfig, MotionConfig
 from acquisition.errors import PORT_ERRORS, CommError, DeviceError, HardwareError, PortError, port_reason
+from reconstruction.schema.bench import DXL_MODELS, Axis, MotionTable
 
 log = logging.getLogger("acquisition.dynamixel")
 
@@ -72,7 +72,7 @@ def _s32(b: bytes | list[int]) -> int:
 class DynamixelAxes:
     """The arms on one Dynamixel bus; angles in degrees, positions in servo units (0.088 deg)."""
 
-    def __init__(self, port: str, baudrate: int, axes: dict[str, AxisConfig], motion: MotionConfig,
+    def __init__(self, port: str, baudrate: int, axes: dict[str, Axis], motion: MotionTable,
                  latency_ms: float | None = None) -> None:
         self.port_name = port
         #: the adapter's latency (ms) in the SDK's reply deadline, 2 x latency + 2 ms + the bytes' time; None: the

@@ -48,9 +48,8 @@ from acquisition.grbl_settings import (
     expected_settings,
     machine_deg,
 )
-from acquisition.sections import AxisConfig, MotionConfig
 from reconstruction.bench.timing import line_durations
-from reconstruction.schema.bench import GrblTable
+from reconstruction.schema.bench import Axis, GrblTable, MotionTable
 
 log = logging.getLogger("acquisition.grbl")
 
@@ -116,7 +115,7 @@ def parse_status(line: str) -> GrblStatus | None:
 class GrblAxes:
     """The light (X) and detector (Y) arms on GRBL; angles in degrees, times in seconds."""
 
-    def __init__(self, port: str, axes: Mapping[str, AxisConfig], motion: MotionConfig,
+    def __init__(self, port: str, axes: Mapping[str, Axis], motion: MotionTable,
                  serial_factory: Callable[..., serial.Serial] = serial.Serial) -> None:
         self.port = port
         self.axes = {n: axes[n] for n in AXIS_LETTER}

@@ -22,9 +22,9 @@ import numpy as np
 import serial
 
 from acquisition.calibration import Reading, pool
-from acquisition.config import AxisConfig
 from acquisition.devices.lines import next_line
 from acquisition.errors import PORT_ERRORS, CommError, DeviceError, HardwareError, PortError, port_reason
+from reconstruction.schema.bench import Axis
 
 log = logging.getLogger("acquisition.serial")
 
@@ -464,7 +464,7 @@ def _check_detector(reply: Reply) -> None:
 class SerialAxes:
     """Light and detector arms (and an optional stage) on the stepper controller; angles in degrees."""
 
-    def __init__(self, link: SerialLink, axes: dict[str, AxisConfig], tolerance_deg: float, timeout_s: float,
+    def __init__(self, link: SerialLink, axes: dict[str, Axis], tolerance_deg: float, timeout_s: float,
                  retries: int, poll_interval_s: float = 0.01) -> None:
         self.link = link
         self.axes = axes
