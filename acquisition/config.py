@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from acquisition import grbl_settings
+from acquisition.devices import grbl_settings
 from acquisition.errors import ConfigError
 from acquisition.plans.planconfig import (
     MAX_PLAN_POINTS,

@@ -531,7 +531,7 @@ def test_conformance_homing_the_hex_a_lab_flashes_leaves_z_out(tmp_path):
 def test_conformance_error_and_alarm_sentences_cover_grbls_own_code_tables():
     import csv
 
-    from acquisition import grbl_settings
+    from acquisition.devices import grbl_settings
 
     tables = (("error_codes_en_US.csv", grbl_settings.ERRORS), ("alarm_codes_en_US.csv", grbl_settings.ALARMS))
     for name, table in tables:
