@@ -19,7 +19,6 @@ import difflib
 import logging
 import math
 import sys
-import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -425,15 +424,11 @@ def _check_material(src: str, mat: Any, raw: Mapping[str, Any]) -> None:
     for i, lobe in enumerate(mat.lobes):
         keys = [k for k in lobes_raw[i] if k != "type"] if isinstance(lobes_raw[i], Mapping) else []
         where = f"{src}: [material].lobes[{i}]"
-        if getattr(lobe, "type_name", "") == "tabulated":
-            with warnings.catch_warnings(record=True) as caught:
-                warnings.simplefilter("always")
-                try:
-                    lobe.table = merl.read(lobe.path)
-                except merl.MerlError as e:
-                    raise ConfigError(f"{where}.path: {e}") from None
-            for w in caught:
-                log.warning("%s.path: %s", where, w.message)
+        try:
+            for note in merl.read_lobe_table(lobe, where):
+                log.warning("%s", note)
+        except merl.MerlError as e:
+            raise ConfigError(str(e)) from None
         with np.errstate(all="ignore"):
             f = np.asarray(lobe.eval(wi, wo, mat.n_channels, mat.wavelengths_nm), dtype=float)
         peak = float(np.max(np.abs(f))) if f.size and np.all(np.isfinite(f)) else math.inf

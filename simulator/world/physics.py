@@ -106,11 +106,10 @@ def load_material(cfg: BenchConfig) -> BRDF:
 
     mat = Material.from_dict(cfg.material, cfg.base_dir)
     for i, lobe in enumerate(mat.lobes):
-        if getattr(lobe, "type_name", "") == "tabulated":
-            try:
-                lobe.table = merl.read(lobe.path)  # type: ignore[attr-defined]
-            except merl.MerlError as e:
-                raise ValueError(f"[material].lobes[{i}].path: {e}") from None
+        try:
+            merl.read_lobe_table(lobe, f"[material].lobes[{i}]", record=False)
+        except merl.MerlError as e:
+            raise ValueError(str(e)) from None
     return mat
 
 
