@@ -20,7 +20,7 @@ from acquisition.devices import registry
 from acquisition.devices.driver import Driver, Opening, Port
 from acquisition.errors import ConfigError
 from acquisition.ports import configured_ports
-from reconstruction.schema.bench import BenchTable, DetectorTable, MotionTable
+from reconstruction.schema.bench import BenchTable, DetectorTable, GrblTable, MotionTable
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -173,7 +173,21 @@ def test_every_type_of_the_bench_file_has_its_driver():
     detector = {t for r, t in registry.REGISTRY if r == "detector"}
     assert motion == choices(BenchTable, "motion") == choices(MotionTable, "type") == {"dynamixel", "serial", "grbl"}
     assert detector == choices(DetectorTable, "type") == {"photodiode", "spectrometer", "seabreeze", "pm100"}
+    tables = {BenchTable, MotionTable, GrblTable, DetectorTable}
     for (role, type_), drv in registry.REGISTRY.items():
-        assert (drv.role, drv.type) == (role, type_) and drv.ports, drv
+        assert (drv.role, drv.type) == (role, type_) and drv.ports and drv.section in tables, drv
     with pytest.raises(ValueError, match="registered already"):
         registry.register(Driver("grbl", "motion", MotionTable, (), lambda o: None))
+
+
+def test_the_old_module_paths_are_retired():
+    """GRBL's settings live with its driver and autorange with the detectors (acquisition.devices); acquisition's
+    copy of the bench file's tables is gone: the old names import nothing (no re-exports)."""
+    import importlib
+
+    for old in ("acquisition.grbl_settings", "acquisition.autorange", "acquisition.sections"):
+        with pytest.raises(ModuleNotFoundError):
+            importlib.import_module(old)
+    from acquisition.devices import autorange, grbl_settings
+
+    assert grbl_settings.alarm_text(1).startswith("ALARM:1: hard limit") and autorange.AutoRanger
