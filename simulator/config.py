@@ -25,7 +25,7 @@ else:  # pragma: no cover - exercised on 3.10 only
 
 from reconstruction.schema import SchemaError, Table
 from reconstruction.schema import describe as _describe
-from reconstruction.schema.bench import AXIS_LETTERS, Axis, AxisTable, BenchTable, Detector, DetectorTable
+from reconstruction.schema.bench import AXIS_LETTERS, Axis, AxisTable, BenchTable, Detector, DetectorTable, GrblTable
 from reconstruction.schema.files import UserFileError, read_user_text
 from reconstruction.schema.simulator import FaultsSection, MisalignmentSection, SimulatorSection, SpectrometerSection
 
@@ -38,13 +38,16 @@ class BenchConfig:
     """Everything the virtual bench needs, as the schema's structs (:mod:`reconstruction.schema.bench`): ``bench``
     (``[bench]``, its ``motion`` resolved with ``[motion].type``), ``axes`` (:class:`~reconstruction.schema.bench.Axis`
     by name), ``detector`` (:class:`~reconstruction.schema.bench.Detector`: ``saturation``, ``solid_angle_sr`` and
-    ``gains`` resolved as the simulator reads them; ``kind`` is what it measures), ``sim`` (``[simulator]``), the
-    ``[material]`` table, the raw TOML dict (``raw``) and its directory (``base_dir``)."""
+    ``gains`` resolved as the simulator reads them; ``kind`` is what it measures), ``sim`` (``[simulator]``),
+    ``grbl`` (``[motion.grbl]``), the ``[material]`` table, the raw TOML dict (``raw``) and its directory
+    (``base_dir``)."""
 
     bench: BenchTable
     axes: dict[str, Axis]
     detector: Detector
     sim: SimulatorSection = field(default_factory=SimulatorSection)
+    #: ``[motion.grbl]`` (a GRBL bench's controller; ``homing`` defaults to ``[simulator].homing_required``)
+    grbl: GrblTable = field(default_factory=GrblTable)
     material: dict[str, Any] = field(default_factory=dict)
     raw: dict[str, Any] = field(default_factory=dict)
     base_dir: Path = field(default_factory=Path.cwd)
@@ -163,6 +166,8 @@ def config_from_dict(raw: dict[str, Any], base_dir: Path | None = None, source: 
     _table(src, "calibration", raw.get("calibration"))
     motion_raw = raw.get("motion")
     motion_type = motion_raw.get("type") if isinstance(motion_raw, dict) else None
+    grbl_raw = motion_raw.get("grbl") if isinstance(motion_raw, dict) else None
+    grbl = _read(src, "motion.grbl", grbl_raw if isinstance(grbl_raw, dict) else {}, GrblTable)
     cfg = BenchConfig(
         bench=bench.build(motion=motion_type if motion_type in ("dynamixel", "serial", "grbl") else bench["motion"]),
         axes=axes,
@@ -170,6 +175,7 @@ def config_from_dict(raw: dict[str, Any], base_dir: Path | None = None, source: 
                              "gains": tuple(sorted(det["gains"])) if det["gains"] and device == "photodiode" else None,
                              "band_weights": weights}),
         sim=sim,
+        grbl=grbl.build(homing=grbl["homing"] if grbl.given("homing") else sim.homing_required),
         material=dict(_table(src, "material", raw.get("material"))),
         raw=raw,
         base_dir=base,
