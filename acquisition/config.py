@@ -413,7 +413,8 @@ def _check_material(src: str, mat: Any, raw: Mapping[str, Any]) -> None:
     import numpy as np
 
     from reconstruction.core.geometry import inplane_to_dirs
-    from reconstruction.formats import merl
+    from reconstruction.core.merltable import MerlError
+    from reconstruction.core.models import read_lobe_table
 
     lobes_raw = raw.get("lobes", [])
     if mat.n_channels > MAX_MATERIAL_CHANNELS:
@@ -425,9 +426,9 @@ def _check_material(src: str, mat: Any, raw: Mapping[str, Any]) -> None:
         keys = [k for k in lobes_raw[i] if k != "type"] if isinstance(lobes_raw[i], Mapping) else []
         where = f"{src}: [material].lobes[{i}]"
         try:
-            for note in merl.read_lobe_table(lobe, where):
+            for note in read_lobe_table(lobe, where):
                 log.warning("%s", note)
-        except merl.MerlError as e:
+        except MerlError as e:
             raise ConfigError(str(e)) from None
         with np.errstate(all="ignore"):
             f = np.asarray(lobe.eval(wi, wo, mat.n_channels, mat.wavelengths_nm), dtype=float)

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import warnings
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -56,7 +55,6 @@ FILE_SIZE = 12 + 3 * N_CELLS * 8  # 34,992,012 bytes
 _HEADER = np.array([N_TH, N_TD, N_PD], dtype="<i4").tobytes()
 
 __all__ = ["SHAPE", "N_CELLS", "FILE_SIZE", "SCALES", "MerlError", "MerlWarning", "MAX_CELL_VALUE", "read", "write",
-           "read_lobe_table",
            "theta_h_index", "theta_d_index", "phi_d_index", "cell_angles", "cell_to_dirs", "dirs_to_cell",
            "valid_mask", "cell_cosines", "lookup", "brdf_of", "lookup_cells", "tabulate"]
 
@@ -175,38 +173,6 @@ def read(path: str | Path, max_value: float | None = MAX_CELL_VALUE) -> Array:
         warnings.warn(MerlWarning(f"{path}: {int(odd.sum())} negative cell(s) other than the invalid marker -1 "
                                   "read as invalid (NaN)"), stacklevel=2)
     return t
-
-
-def read_lobe_table(lobe: Any, where: str, record: bool = True) -> list[str]:
-    """Read now the MERL table of a material's ``tabulated`` lobe (:class:`reconstruction.core.models.Tabulated`;
-    other lobes: nothing), so that a bench file whose table cannot be read is refused before anything starts, as
-    both bench-file readers do. ``where`` names the lobe (``"[material].lobes[0]"``): a table that cannot be read
-    raises :class:`MerlError` ``"WHERE.path: why"``; with ``record`` the reader's warnings are returned as
-    ``"WHERE.path: text"`` instead of warned.
-
-    >>> from reconstruction.core.models import Material
-    >>> read_lobe_table(Material.from_dict({"lobes": [{"type": "lambert", "albedo": 0.5}]}).lobes[0], "[material]")
-    []
-    >>> import tempfile
-    >>> short = Path(tempfile.mkdtemp()) / "short.binary"
-    >>> _ = short.write_bytes(b"not a table")
-    >>> lobe = Material.from_dict({"lobes": [{"type": "tabulated", "path": str(short)}]}).lobes[0]
-    >>> read_lobe_table(lobe, "[material].lobes[0]")  # doctest: +ELLIPSIS
-    Traceback (most recent call last):
-    reconstruction.core.merltable.MerlError: [material].lobes[0].path: .../short.binary: 11 bytes, too short ...
-    """
-    if getattr(lobe, "type_name", "") != "tabulated":
-        return []
-    try:
-        if not record:
-            lobe.table = read(lobe.path)
-            return []
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            lobe.table = read(lobe.path)
-    except MerlError as e:
-        raise MerlError(f"{where}.path: {e}") from None
-    return [f"{where}.path: {w.message}" for w in caught]
 
 
 def _register_reader() -> None:

@@ -101,14 +101,14 @@ def load_material(cfg: BenchConfig) -> BRDF:
     """The ground-truth material of the config's ``[material]`` table; the tables of ``tabulated`` lobes are read
     now (a simulator that cannot load its material refuses the config before serving, rather than answering
     ``error:1`` to a reading later). Raises ValueError naming the lobe."""
-    from reconstruction.core.models import Material
-    from reconstruction.formats import merl
+    from reconstruction.core.merltable import MerlError
+    from reconstruction.core.models import Material, read_lobe_table
 
     mat = Material.from_dict(cfg.material, cfg.base_dir)
     for i, lobe in enumerate(mat.lobes):
         try:
-            merl.read_lobe_table(lobe, f"[material].lobes[{i}]", record=False)
-        except merl.MerlError as e:
+            read_lobe_table(lobe, f"[material].lobes[{i}]", record=False)
+        except MerlError as e:
             raise ValueError(str(e)) from None
     return mat
 
