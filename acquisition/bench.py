@@ -1,4 +1,5 @@
-"""The bench: motion (Dynamixel or stepper arms) plus the detector, built from a validated config.
+"""The bench: motion (Dynamixel or stepper arms) plus the detector, opened from a validated config through the
+drivers its types name (:mod:`acquisition.devices.registry`).
 
 ``transport = "simulated"`` starts ``gonio-sim serve --config FILE`` as a child process (its own session, so a
 Ctrl-C in the terminal reaches only the capture, which then parks the arms through the still-running simulator;
@@ -33,22 +34,18 @@ import warnings
 from pathlib import Path
 from typing import IO, Any
 
-from acquisition.autorange import AutoRanger
 from acquisition.calibration import Reading
 from acquisition.config import BenchConfig, load_config
-from acquisition.devices.dynamixel import DynamixelAxes
-from acquisition.devices.external import external_detector, external_library
-from acquisition.devices.grbl import GrblAxes
+from acquisition.devices.autorange import AutoRanger
+from acquisition.devices.driver import Driver, Opening, port_value
 from acquisition.devices.protocols import Devices, MoveStatus
-from acquisition.devices.serial_link import SerialAxes, SerialDetector, SerialLink
+from acquisition.devices.registry import driver_for
+from acquisition.devices.serial_link import SerialLink
 from acquisition.errors import CommError, ConfigError, DeviceError, PortError, SaturationWarning
 from acquisition.plans.plan import Geometry, Plan, PlanCheck, Point, Reason, load_scene
 from acquisition.ports import name_the_key
 
 log = logging.getLogger("acquisition.bench")
-#: The adapter latency (ms) a simulated Dynamixel bus is given in the SDK's reply deadline (16 ms on hardware):
-#: the simulator is a process of its own, which a loaded 2-core machine may not schedule within the SDK's 34 ms.
-SIMULATED_DXL_LATENCY_MS = 100.0
 
 __all__ = ["Bench", "SimulatorProcess", "SimulatorCheck", "check_simulator_config"]
 
@@ -222,6 +219,10 @@ class SimulatorProcess:
         return self.proc.returncode
 
 
+#: How a message names a simulated bench's port.
+_PORT_NAMES = {"dynamixel": "Dynamixel", "grbl": "GRBL"}
+
+
 class Bench:
     """A gonioreflectometer: ``motion`` (arms) and ``detector``, opened from a :class:`BenchConfig`.
 
@@ -238,7 +239,9 @@ class Bench:
         #: test hook (docs/detectors.md): a function of the simulator's ports returning the stand-in of the
         #: detector's library (seabreeze.spectrometers, pyvisa.ResourceManager); None: the real library
         self.detector_library: Any = None
-        self.motion: DynamixelAxes | SerialAxes | GrblAxes | None = None
+        self.motion: Any = None  # the arms, from the driver of [bench].motion (acquisition.devices.registry)
+        #: the drivers that opened the arms and the detector (motion, detector)
+        self.drivers: tuple[Driver, Driver] | None = None
         #: extra arguments of ``gonio-sim serve`` (the engine passes ``--attempt N`` on a resumed capture)
         self.sim_args: tuple[str, ...] = ()
         self._opened = False
@@ -270,49 +273,31 @@ class Bench:
         return self._opened
 
     def open(self) -> Bench:
-        """Connect (starting the simulator for a simulated bench) and initialise every device."""
+        """Connect (starting the simulator for a simulated bench) and initialise every device: the arms and the
+        detector through the drivers of their types (:mod:`acquisition.devices.registry`)."""
         if self._opened:
             return self
         cfg = self.cfg
         b = cfg.bench
         try:
-            dxl_port, ser_port = b.dynamixel_port, b.serial_port
-            if b.transport == "simulated":
-                self.sim = SimulatorProcess(cfg.path, b.simulator_command, self.simulator_log,
-                                            extra_args=self.sim_args)
-                ports = self.sim.start()
-                if b.motion == "dynamixel" and not ports.get("dynamixel"):
-                    raise CommError("simulated bench: the simulator offers no Dynamixel port (is [bench].motion "
-                                    "consistent?)")
-                dxl_port, ser_port = ports.get("dynamixel") or "", ports.get("serial") or ""
-                grbl_port = ports.get("grbl") or ""
-            else:
-                grbl_port = cfg.motion.grbl.port if cfg.motion.grbl is not None else ""
-            if not cfg.detector.on_board:  # seabreeze, pm100 (acquisition.devices.external): the library first
+            motion_drv = driver_for("motion", b.motion, cfg.path)
+            det_drv = driver_for("detector", cfg.detector.type, cfg.path)
+            self.drivers = (motion_drv, det_drv)
+            ports = self._ports(motion_drv, det_drv)
+            lib = None
+            if det_drv.library is not None:  # an external detector's library first, before any port is opened
                 lib = self.detector_library(self.sim.ports if self.sim else {}) if self.detector_library else \
-                    external_library(cfg, simulated=self.sim is not None)
-            self.link = SerialLink(ser_port, b.serial_baudrate, b.serial_timeout_s, cfg.motion.retries) \
-                if ser_port or cfg.detector.on_board else None
-            if not cfg.detector.on_board:
-                self.detector = external_detector(cfg, self.link, lib)
-            else:
-                self.detector = SerialDetector(self.link, cfg.detector.type, cfg.detector.integration_time_s,
-                                               cfg.detector.saturation, cfg.detector.gains,
-                                               start_gain=max(cfg.detector.gains) if cfg.detector.gains
-                                               and cfg.detector.auto_range else None)
-                self.detector.chop = cfg.detector.chop
+                    det_drv.library(cfg, self.sim is not None)
+            on_link = [p for d in self.drivers for p in d.ports if p.name == "serial"]
+            if any(p.required for p in on_link) or (on_link and ports.get("serial")):
+                self.link = SerialLink(ports.get("serial") or "", b.serial_baudrate, b.serial_timeout_s,
+                                       cfg.motion.retries)
+            opening = Opening(cfg, ports, self.link, self.sim is not None, lib)
+            self.detector = det_drv.open(opening)
             if sys.stdin is not None and sys.stdin.isatty():
                 self.detector.manual_swap = _prompt_swap
             self.detector.connect()
-            if b.motion == "dynamixel":
-                # a simulated bus answers from another process: a deadline a loaded machine can keep
-                self.motion = DynamixelAxes(dxl_port, b.dynamixel_baudrate, cfg.axes, cfg.motion,
-                                            latency_ms=SIMULATED_DXL_LATENCY_MS if self.sim is not None else None)
-            elif b.motion == "grbl":
-                self.motion = GrblAxes(grbl_port, cfg.axes, cfg.motion)
-            else:
-                self.motion = SerialAxes(self.link, cfg.axes, cfg.motion.tolerance_deg, cfg.motion.timeout_s,
-                                         cfg.motion.retries, cfg.motion.poll_interval_s)
+            self.motion = motion_drv.open(opening)
             self.motion.connect()
             self._opened = True
             self._wall0 = time.monotonic()
@@ -326,12 +311,30 @@ class Bench:
             raise
         return self
 
+    def _ports(self, *drivers: Driver) -> dict[str, str]:
+        """The ports by name: a simulated bench's pseudo-terminals (the simulator started now), else the bench
+        file's keys that the drivers declare. A port a driver needs that the simulator does not offer is a
+        :class:`CommError`."""
+        cfg = self.cfg
+        if cfg.bench.transport != "simulated":
+            return {p.name: port_value(cfg, p.key) or "" for d in drivers for p in d.ports}
+        self.sim = SimulatorProcess(cfg.path, cfg.bench.simulator_command, self.simulator_log,
+                                    extra_args=self.sim_args)
+        ports = {k: v or "" for k, v in self.sim.start().items()}
+        for p in (p for d in drivers for p in d.ports if p.required and p.name != "serial"):
+            if not ports.get(p.name):
+                raise CommError(f"simulated bench: the simulator offers no {_PORT_NAMES.get(p.name, p.name)} port "
+                                "(is [bench].motion consistent?)")
+        return ports
+
     def close(self) -> None:
-        """Close ports and stop the simulator (does not move anything: see :meth:`shutdown`)."""
-        if self.motion is not None and isinstance(self.motion, (DynamixelAxes, GrblAxes)):
-            self.motion.close()
-        if self.detector is not None and hasattr(self.detector, "close"):
-            self.detector.close()
+        """Close ports and stop the simulator (does not move anything: see :meth:`shutdown`): each device through
+        the driver that opened it, then the serial link they share."""
+        motion_drv, det_drv = self.drivers if self.drivers is not None else (None, None)
+        if self.motion is not None and motion_drv is not None:
+            motion_drv.close(self.motion)
+        if self.detector is not None and det_drv is not None:
+            det_drv.close(self.detector)
         if self.link is not None:
             self.link.close()
         if self.sim is not None:
@@ -381,7 +384,7 @@ class Bench:
             self.close()
 
     # -- operations --------------------------------------------------------------------------------------------
-    def _need(self) -> tuple[DynamixelAxes | SerialAxes | GrblAxes, Any]:
+    def _need(self) -> tuple[Any, Any]:
         if self.motion is None or self.detector is None:
             raise DeviceError("the bench is not open: use `with Bench.from_config(...) as bench:` or bench.open()")
         return self.motion, self.detector

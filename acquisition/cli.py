@@ -226,8 +226,8 @@ def _print_check(args: argparse.Namespace, bench: Any, plan: Any, chk: Any, est:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from acquisition import grbl_settings
     from acquisition.bench import Bench, SimulatorCheck
+    from acquisition.devices import grbl_settings
     from acquisition.errors import CommError, ConfigError, PlanError
     from acquisition.run.dryrun import estimate
     from acquisition.run.lock import OutDirLocked
@@ -315,7 +315,7 @@ def _run(args: argparse.Namespace) -> int:
                          f"listed in {Path(args.out) / 'capture.log'}")
             ranged = ""
             if result.auto_ranged:
-                from acquisition.autorange import ranged_wording
+                from acquisition.devices.autorange import ranged_wording
 
                 settings = "; ".join(f"{k}{'' if 'gain' in k else ' s'}: {v}"
                                      for k, v in result.auto_range_settings.items())

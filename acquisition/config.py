@@ -19,23 +19,19 @@ import difflib
 import logging
 import math
 import sys
-import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from acquisition import grbl_settings
+from acquisition.devices import grbl_settings
 from acquisition.errors import ConfigError
 from acquisition.plans.planconfig import (
     MAX_PLAN_POINTS,
-    AdaptiveConfig,
-    PlanConfig,
     _Table,  # one reader of a table against its schema, errors as ConfigError
     read_plan,
     resolution_deg,
 )
-from acquisition.sections import AxisConfig, BenchSection, CalibrationConfig, DetectorConfig, MotionConfig
 from reconstruction.schema import SchemaError, files
 from reconstruction.schema import describe as _describe
 from reconstruction.schema.bench import (
@@ -44,11 +40,14 @@ from reconstruction.schema.bench import (
     DXL_MODELS,
     MAX_INTEGRATION_TIME_S,
     MIN_INTEGRATION_TIME_S,
+    Axis,
     AxisTable,
     BenchTable,
     CalibrationTable,
+    Detector,
     DetectorTable,
     MotionTable,
+    PlanTable,
 )
 
 if sys.version_info >= (3, 11):
@@ -57,13 +56,7 @@ else:  # pragma: no cover - Python 3.10 only
     import tomli as tomllib
 
 __all__ = [
-    "AxisConfig",
-    "BenchSection",
-    "MotionConfig",
-    "DetectorConfig",
     "CalibrationConfig",
-    "AdaptiveConfig",
-    "PlanConfig",
     "BenchConfig",
     "load_config",
     "config_from_dict",
@@ -94,17 +87,64 @@ MAX_MATERIAL_CHANNELS = 4096
 log = logging.getLogger("acquisition.config")
 
 
+class CalibrationConfig:
+    """``[calibration]`` as a capture uses it: a thin view of its table (every key read through, e.g. ``mode``,
+    ``reference_theta_i_deg``), whose ``reference_spectrum`` is the CSV's data, ``((wavelengths_nm, ...),
+    (reflectance, ...))`` or None; the file's own value, the CSV's path, is ``reference_spectrum_path``."""
+
+    __slots__ = ("table", "reference_spectrum")
+
+    def __init__(self, table: CalibrationTable,
+                 reference_spectrum: tuple[tuple[float, ...], tuple[float, ...]] | None = None) -> None:
+        self.table = table
+        self.reference_spectrum = reference_spectrum
+
+    def __getattr__(self, key: str) -> Any:
+        if key.startswith("_") or key in self.__slots__:  # not a key of the table (copy, pickle)
+            raise AttributeError(key)
+        return getattr(self.table, key)
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, CalibrationConfig) and (self.table, self.reference_spectrum) == (
+            other.table, other.reference_spectrum)
+
+    def __repr__(self) -> str:
+        return f"CalibrationConfig({self.table!r})"
+
+    @property
+    def reference_spectrum_path(self) -> str | None:
+        """``[calibration].reference_spectrum`` as the file gives it (the CSV's path), or None."""
+        return self.table.reference_spectrum
+
+    def to_meta(self) -> dict[str, Any]:
+        t = self.table
+        d: dict[str, Any] = {"mode": t.mode}
+        if t.mode == "relative":
+            if t.reference_spectrum:
+                d["reference_spectrum"] = t.reference_spectrum
+            else:
+                d["reference_reflectance"] = t.reference_reflectance
+            d["reference_theta_i_deg"] = t.reference_theta_i_deg
+            d["reference_theta_o_deg"] = t.reference_theta_o_deg
+        else:
+            d["source_power"] = t.source_power
+            d["detector_solid_angle_sr"] = t.detector_solid_angle_sr
+        return d
+
+
 @dataclass
 class BenchConfig:
-    """A validated bench file. ``raw`` is the parsed TOML, ``path`` the file, ``base_dir`` its directory."""
+    """A validated bench file: its tables as the schema's structs (:mod:`reconstruction.schema.bench`), the values
+    the reader resolves stored in their fields. ``raw`` is the parsed TOML, ``path`` the file, ``base_dir`` its
+    directory."""
 
     path: Path
-    bench: BenchSection
-    axes: dict[str, AxisConfig]
-    motion: MotionConfig
-    detector: DetectorConfig
+    bench: BenchTable
+    axes: dict[str, Axis]
+    motion: MotionTable
+    detector: Detector
     calibration: CalibrationConfig
-    plan: PlanConfig
+    plan: PlanTable
     material: dict[str, Any] | None
     raw: dict[str, Any] = field(default_factory=dict)
 
@@ -113,11 +153,11 @@ class BenchConfig:
         return self.path.resolve().parent
 
     @property
-    def light(self) -> AxisConfig:
+    def light(self) -> Axis:
         return self.axes["light"]
 
     @property
-    def det_axis(self) -> AxisConfig:
+    def det_axis(self) -> Axis:
         return self.axes["detector"]
 
     @property
@@ -132,7 +172,7 @@ class BenchConfig:
 # --- section readers -----------------------------------------------------------------------------------------
 
 
-def _read_bench(src: str, raw: Any, board_detector: bool = True, motion_type: Any = None) -> BenchSection:
+def _read_bench(src: str, raw: Any, board_detector: bool = True, motion_type: Any = None) -> BenchTable:
     t = _Table(src, "bench", raw, BenchTable)
     transport = t["transport"]
     motion = grbl_settings.motion_kind(src, t["motion"], motion_type, transport)
@@ -163,10 +203,10 @@ def _read_bench(src: str, raw: Any, board_detector: bool = True, motion_type: An
         given, missing = ("beam_diameter_mm", "sample_diameter_mm") if d is None else ("sample_diameter_mm",
                                                                                          "beam_diameter_mm")
         raise t.error(missing, f"missing: {given} is given; the footprint needs both diameters (mm)")
-    return BenchSection(**{**t.values, "transport": transport, "motion": motion})
+    return t.build(transport=transport, motion=motion)
 
 
-def _read_axis(src: str, name: str, raw: Any, motion: str) -> AxisConfig:
+def _read_axis(src: str, name: str, raw: Any, motion: str) -> Axis:
     sec = f"axes.{name}"
     t = _Table(src, sec, raw, AxisTable)
     ax_id = t["id"]
@@ -192,7 +232,7 @@ def _read_axis(src: str, name: str, raw: Any, motion: str) -> AxisConfig:
         raise t.error(key, f"the {name} arm must stay within [-90, 90] degrees of the normal, got {t[key]:g}")
     if not lo <= t["park_deg"] <= hi:
         raise t.error("park_deg", f"{t['park_deg']:g} is outside the soft limits [{lo:g}, {hi:g}] (min_deg, max_deg)")
-    ax = AxisConfig(name=name, **t.values)
+    ax = Axis(name=name, **t.values)
     u = sorted((ax.deg_to_units(lo), ax.deg_to_units(hi)))
     if motion == "dynamixel":
         if u[0] < DXL_POSITION_RANGE[0] - 0.5 or u[1] > DXL_POSITION_RANGE[1] + 0.5:
@@ -208,7 +248,7 @@ def _read_axis(src: str, name: str, raw: Any, motion: str) -> AxisConfig:
     return ax
 
 
-def _read_motion(src: str, raw: Any, motion: str) -> MotionConfig:
+def _read_motion(src: str, raw: Any, motion: str) -> MotionTable:
     t = _Table(src, "motion", raw, MotionTable, skip=("grbl",))  # [motion.grbl]: grbl_settings.read_grbl
     if t.given("grbl") and motion != "grbl":
         raise t.error("grbl", f'is for a GRBL bench ([motion].type = "grbl"); this bench\'s motion is {motion!r}')
@@ -220,11 +260,10 @@ def _read_motion(src: str, raw: Any, motion: str) -> MotionConfig:
                 raise t.error(k, "missing key: a Dynamixel bench needs the profile (0 = unlimited)")
     if t["tolerance_deg"] > 5:
         raise t.error("tolerance_deg", f"{t['tolerance_deg']:g} deg is not a position tolerance (max 5)")
-    return MotionConfig(**{**t.values, "profile_velocity": t["profile_velocity"] or 0,
-                           "profile_acceleration": t["profile_acceleration"] or 0})
+    return t.build(profile_velocity=t["profile_velocity"] or 0, profile_acceleration=t["profile_acceleration"] or 0)
 
 
-def _read_detector(src: str, raw: Any, base_dir: Path, source_spectrum: str, sim_raw: Any) -> DetectorConfig:
+def _read_detector(src: str, raw: Any, base_dir: Path, source_spectrum: str, sim_raw: Any) -> Detector:
     from reconstruction.schema.optics import band_weights, spectrum_of
 
     t = _Table(src, "detector", raw, DetectorTable)
@@ -262,7 +301,7 @@ def _read_detector(src: str, raw: Any, base_dir: Path, source_spectrum: str, sim
         log.info("%s: [detector].gains: a spectrometer ranges over integration time only; the gains (a photodiode "
                  "amplifier's) are not used", src)
         gains = None
-    return DetectorConfig(**{**values, "gains": gains, "band_weights": weights})
+    return Detector(**{**values, "gains": gains, "band_weights": weights})
 
 
 def read_spectrum_csv(path: Path, where: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
@@ -297,12 +336,10 @@ def _read_calibration(src: str, raw: Any, base_dir: Path) -> CalibrationConfig:
             if t[k] is None:
                 raise t.error(k, "missing key: absolute calibration needs source_power (counts per "
                                  "1/sr * sr at the configured integration time) and detector_solid_angle_sr")
-    return CalibrationConfig(mode, t["reference_reflectance"], spectrum, t["reference_spectrum"],
-                             t["reference_theta_i_deg"] if t["reference_theta_i_deg"] is not None else 0.0,
-                             t["reference_theta_o_deg"] if t["reference_theta_o_deg"] is not None else 10.0,
-                             t["reference_repeats"], t["source_power"], t["detector_solid_angle_sr"],
-                             t["gain_ratios"], t["warmup_readings"], t["warmup_interval_s"], t["warmup_max_drift"],
-                             t["warmup_timeout_s"])
+    return CalibrationConfig(t.build(reference_theta_i_deg=t["reference_theta_i_deg"] if t["reference_theta_i_deg"]
+                               is not None else 0.0,
+                               reference_theta_o_deg=t["reference_theta_o_deg"] if t["reference_theta_o_deg"]
+                               is not None else 10.0), spectrum)
 
 
 # --- whole file --------------------------------------------------------------------------------------------------
@@ -375,9 +412,9 @@ def _check_material(src: str, mat: Any, raw: Mapping[str, Any]) -> None:
     :data:`MAX_MATERIAL_BRDF` over the in-plane geometries a capture can measure."""
     import numpy as np
 
-    from reconstruction.core import merltable
     from reconstruction.core.geometry import inplane_to_dirs
-    from reconstruction.formats import merl
+    from reconstruction.core.merltable import MerlError
+    from reconstruction.core.models import read_lobe_table
 
     lobes_raw = raw.get("lobes", [])
     if mat.n_channels > MAX_MATERIAL_CHANNELS:
@@ -388,15 +425,11 @@ def _check_material(src: str, mat: Any, raw: Mapping[str, Any]) -> None:
     for i, lobe in enumerate(mat.lobes):
         keys = [k for k in lobes_raw[i] if k != "type"] if isinstance(lobes_raw[i], Mapping) else []
         where = f"{src}: [material].lobes[{i}]"
-        if getattr(lobe, "type_name", "") == "tabulated":
-            with warnings.catch_warnings(record=True) as caught:
-                warnings.simplefilter("always")
-                try:
-                    lobe.table = merl.read(lobe.path)
-                except merltable.MerlError as e:
-                    raise ConfigError(f"{where}.path: {e}") from None
-            for w in caught:
-                log.warning("%s.path: %s", where, w.message)
+        try:
+            for note in read_lobe_table(lobe, where):
+                log.warning("%s", note)
+        except MerlError as e:
+            raise ConfigError(str(e)) from None
         with np.errstate(all="ignore"):
             f = np.asarray(lobe.eval(wi, wo, mat.n_channels, mat.wavelengths_nm), dtype=float)
         peak = float(np.max(np.abs(f))) if f.size and np.all(np.isfinite(f)) else math.inf

@@ -9,6 +9,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from acquisition.config import BenchConfig
+from acquisition.devices.driver import Port, port_value
+from acquisition.devices.registry import driver_for
 from acquisition.devices.serial_link import probe_port
 from acquisition.errors import PortError
 
@@ -27,20 +29,30 @@ class PortUse:
 
 
 def configured_ports(cfg: BenchConfig) -> list[PortUse]:
-    """The ports a capture on this bench opens, in the order it opens them (none for a simulated bench)."""
+    """The ports a capture on this bench opens, in the order it opens them (none for a simulated bench): those
+    the drivers of its detector and its arms declare (:mod:`acquisition.devices.registry`) that the file gives."""
     b = cfg.bench
     if b.transport == "simulated":
         return []
-    serial_device = "detector and stepper controller" if b.motion == "serial" else "detector controller"
-    # a bench whose detector is a USB instrument may have no board (docs/detectors.md): no serial port then
-    uses = [PortUse("[bench].serial_port", serial_device, b.serial_port, b.serial_baudrate)] if b.serial_port else []
-    if b.motion == "dynamixel":
-        uses.append(PortUse("[bench].dynamixel_port", "Dynamixel bus (U2D2)", b.dynamixel_port,
-                            b.dynamixel_baudrate))
-    grbl = cfg.motion.grbl
-    if b.motion == "grbl" and grbl is not None:
-        uses.append(PortUse("[motion.grbl].port", "GRBL controller (the arms)", grbl.port, grbl.baudrate))
+    drivers = (driver_for("detector", cfg.detector.type, cfg.path), driver_for("motion", b.motion, cfg.path))
+    by_name: dict[str, list[Port]] = {}
+    for p in (p for d in drivers for p in d.ports):
+        by_name.setdefault(p.name, []).append(p)
+    uses = []
+    for same in by_name.values():  # a bench whose detector is a USB instrument may have no board: no port then
+        port = port_value(cfg, same[0].key)
+        if port:
+            uses.append(PortUse(same[0].key, _together([p.device for p in same]), port,
+                                port_value(cfg, same[0].baudrate_key)))
     return uses
+
+
+def _together(devices: list[str]) -> str:
+    """Devices on one port as a message names them: "detector and stepper controller"."""
+    devices = list(dict.fromkeys(devices))
+    if len(devices) > 1 and all(d.endswith(" controller") for d in devices):
+        return " and ".join(d[:-len(" controller")] for d in devices) + " controller"
+    return " and ".join(devices)
 
 
 def name_the_key(e: PortError, cfg: BenchConfig) -> PortError:

@@ -75,18 +75,20 @@ def main() -> int:
         print(f"bench_grbl: cannot run: {why}", file=sys.stderr)
         return 2
     cfg = load_config(REPO / "configs" / "grbl-bench.toml")
-    axes = {n: type(a)(**{**a.__dict__, "zero_offset": 0.0}) for n, a in cfg.axes.items()}
     import dataclasses
+
+    import msgspec
 
     from reconstruction.schema.bench import GrblTable
 
-    motion = dataclasses.replace(cfg.motion, grbl=GrblTable(boot_s=0.3), poll_interval_s=0.02, timeout_s=120.0)
+    axes = {n: msgspec.structs.replace(a, zero_offset=0.0) for n, a in cfg.axes.items()}
+    motion = msgspec.structs.replace(cfg.motion, grbl=GrblTable(boot_s=0.3), poll_interval_s=0.02, timeout_s=120.0)
     geom = dataclasses.replace(Geometry.from_config(cfg), light=axes["light"], detector=axes["detector"], arrive_s=0.0,
                                poll_s=0.0, host_s=0.0)
     demo = load_config(REPO / "configs" / "simulated.toml").plan
     plan = Plan.from_config(demo, REPO / "configs")
     if args.short:
-        plan = Plan.from_config(dataclasses.replace(demo, theta_i_deg=(30.0, 60.0), theta_o_step_deg=10.0),
+        plan = Plan.from_config(msgspec.structs.replace(demo, theta_i_deg=(30.0, 60.0), theta_o_step_deg=10.0),
                                 REPO / "configs")
     pts = order_points(plan.check(geom).measurable, geom)
     goals = [geom.park, *pts, geom.park]

@@ -95,8 +95,8 @@ def gains_figure(out: Path) -> dict[str, float]:
     4 repeats): from its noise floor (the dark's std of the mean) to its saturation (80 % headroom)."""
     import matplotlib.pyplot as plt
 
-    from acquisition.autorange import HEADROOM, settings_ladder
     from acquisition.config import load_config
+    from acquisition.devices.autorange import HEADROOM, settings_ladder
     from simulator.config import load_config as sim_config
 
     cfg = load_config(ROOT / "configs" / "simulated.toml")

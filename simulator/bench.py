@@ -79,7 +79,7 @@ class VirtualBench:
         )
         #: the detector that is not the board's (seabreeze, pm100), on its own port for its stand-in
         self.usb = UsbDetector(cfg, self.clock, self.physics, self.arm_angles) \
-            if cfg.detector.device in ("seabreeze", "pm100") else None
+            if cfg.detector.type in ("seabreeze", "pm100") else None
 
     # -- geometry --------------------------------------------------------------------------------------------
     def collides(self, goals_deg: dict[str, float]) -> bool:
@@ -88,7 +88,7 @@ class VirtualBench:
         to = goals_deg.get("detector")
         if ti is None or to is None:
             return False
-        return abs(ti + to) < self.cfg.min_separation_deg
+        return abs(ti + to) < self.cfg.bench.min_separation_deg
 
     def arm_angles(self, t: float | None = None) -> tuple[float, float]:
         """Physical (theta_i, theta_o) in degrees at simulated time ``t`` (default: now)."""

@@ -269,8 +269,8 @@ def _serve(args: argparse.Namespace) -> int:
         paths["serial"] = board.port
     try:
         print(json.dumps(paths), flush=True)
-        log.info("serving %s: %s (motion=%s, detector=%s%s, seed=%d, attempt=%d, time_scale=%g)", cfg.name,
-                 paths, cfg.motion, cfg.detector.type, f" on the firmware {args.detector_firmware}" if board else "",
+        log.info("serving %s: %s (motion=%s, detector=%s%s, seed=%d, attempt=%d, time_scale=%g)", cfg.bench.name,
+                 paths, cfg.motion, cfg.detector.kind, f" on the firmware {args.detector_firmware}" if board else "",
                  cfg.sim.seed, args.attempt, cfg.sim.time_scale)
         parent = os.getppid()
         while not stop.wait(0.2):

@@ -16,6 +16,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import msgspec
+
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover - exercised on 3.10 only
@@ -23,99 +25,52 @@ else:  # pragma: no cover - exercised on 3.10 only
 
 from reconstruction.schema import SchemaError, Table
 from reconstruction.schema import describe as _describe
-from reconstruction.schema.bench import AXIS_LETTERS, DXL_MODELS, AxisTable, BenchTable, DetectorTable
+from reconstruction.schema.bench import AXIS_LETTERS, Axis, AxisTable, BenchTable, Detector, DetectorTable, GrblTable
 from reconstruction.schema.files import UserFileError, read_user_text
 from reconstruction.schema.simulator import FaultsSection, MisalignmentSection, SimulatorSection, SpectrometerSection
 
-#: Dynamixel model names -> model numbers (Protocol 2.0 ping reply).
-MODEL_NUMBERS = DXL_MODELS
 #: Largest bench file read (bytes), as gonio-capture's limit.
 MAX_CONFIG_BYTES = 512 * 1024
 
 
 @dataclass
-class AxisConfig:
-    """One rotary axis: ``units = zero_offset + direction * units_per_deg * deg`` (controller units)."""
-
-    name: str
-    id: int | str
-    model: str = "XM430-W350"
-    units_per_deg: float = 4096 / 360
-    zero_offset: float = 2048
-    direction: int = 1
-    min_deg: float = -180.0
-    max_deg: float = 180.0
-    park_deg: float = 0.0
-
-    @property
-    def letter(self) -> str:
-        """Axis letter on the serial text protocol (``id`` when it is a string, else L/D/S by name)."""
-        if isinstance(self.id, str) and self.id:
-            return self.id.upper()
-        return AXIS_LETTERS.get(self.name, self.name[:1].upper())
-
-    @property
-    def model_number(self) -> int:
-        try:
-            return MODEL_NUMBERS[self.model]
-        except KeyError:
-            raise ValueError(f"axis {self.name}: unknown Dynamixel model {self.model!r}") from None
-
-    def deg_to_units(self, deg: float) -> float:
-        return self.zero_offset + self.direction * self.units_per_deg * deg
-
-    def units_to_deg(self, units: float) -> float:
-        return (units - self.zero_offset) / (self.direction * self.units_per_deg)
-
-
-#: ``[simulator.faults]``, ``[simulator.spectrometer]`` and ``[simulator]``: the schema's structs themselves
-#: (reconstruction.schema.simulator), so their keys, defaults and bounds are declared once.
-FaultConfig = FaultsSection
-SpectrometerConfig = SpectrometerSection
-SimulatorConfig = SimulatorSection
-
-
-@dataclass
-class DetectorConfig:
-    """``[detector]`` as the simulator reads it; ``solid_angle_sr`` is the detector cone (sr), ``gains`` the
-    amplifier's (None: any gain ``GAIN`` sets), ``band_weights`` the photodiode band on
-    :data:`reconstruction.schema.optics.BAND_NM`."""
-
-    type: str = "photodiode"
-    integration_time_s: float = 0.01
-    repeats: int = 4
-    saturation: float = 65535
-    solid_angle_sr: float = 1.0e-3
-    gains: tuple[float, ...] | None = None
-    responsivity: str = "silicon"
-    band_weights: Any = field(default=None, repr=False)
-    #: the bench file's [detector].type: "seabreeze" (simulated as a spectrometer) and "pm100" (as a photodiode
-    #: head) are served on the "usb" port (simulator.devices.usb_detectors) to their stand-ins
-    device: str = "photodiode"
-
-
-@dataclass
 class BenchConfig:
-    """Everything the virtual bench needs, plus the raw TOML dict (``raw``) and its directory (``base_dir``)."""
+    """Everything the virtual bench needs, as the schema's structs (:mod:`reconstruction.schema.bench`): ``bench``
+    (``[bench]``, its ``motion`` resolved with ``[motion].type``), ``axes`` (:class:`~reconstruction.schema.bench.Axis`
+    by name), ``detector`` (:class:`~reconstruction.schema.bench.Detector`: ``saturation``, ``solid_angle_sr`` and
+    ``gains`` resolved as the simulator reads them; ``kind`` is what it measures), ``sim`` (``[simulator]``),
+    ``grbl`` (``[motion.grbl]``), the ``[material]`` table, the raw TOML dict (``raw``) and its directory
+    (``base_dir``)."""
 
-    name: str = "simulated bench"
-    motion: str = "dynamixel"
-    min_separation_deg: float = 6.0
-    blind_spot_half_width_deg: float = 4.0
-    axes: dict[str, AxisConfig] = field(default_factory=dict)
-    detector: DetectorConfig = field(default_factory=DetectorConfig)
-    sim: SimulatorConfig = field(default_factory=SimulatorConfig)
+    bench: BenchTable
+    axes: dict[str, Axis]
+    detector: Detector
+    sim: SimulatorSection = field(default_factory=SimulatorSection)
+    #: ``[motion.grbl]`` (a GRBL bench's controller; ``homing`` defaults to ``[simulator].homing_required``)
+    grbl: GrblTable = field(default_factory=GrblTable)
     material: dict[str, Any] = field(default_factory=dict)
-    reference_reflectance: float = 0.99
-    reference_spectrum: str | None = None
-    source_divergence_deg: float = 0.0
-    beam_diameter_mm: float | None = None
-    sample_diameter_mm: float | None = None
-    source_spectrum: str = "halogen-3000K"
-    #: [bench].detector_distance_mm: the detector's aperture from the axis (the misalignment's geometry)
-    detector_distance_mm: float | None = None
     raw: dict[str, Any] = field(default_factory=dict)
     base_dir: Path = field(default_factory=Path.cwd)
+
+    @property
+    def motion(self) -> str:
+        """The motion hardware: ``"dynamixel"``, ``"serial"`` or ``"grbl"`` (``[bench].motion`` resolved)."""
+        return str(self.bench.motion)
+
+    @motion.setter
+    def motion(self, value: str) -> None:
+        self.bench = msgspec.structs.replace(self.bench, motion=value)
+
+    @property
+    def reference_reflectance(self) -> float:
+        """The white reference's ``[calibration].reference_reflectance`` (0.99 when not a number)."""
+        ref = _table("", "calibration", self.raw.get("calibration")).get("reference_reflectance", 0.99)
+        return float(ref) if isinstance(ref, (int, float)) else 0.99
+
+    @property
+    def reference_spectrum(self) -> str | None:
+        """The white reference's ``[calibration].reference_spectrum`` (a CSV path), or None."""
+        return _table("", "calibration", self.raw.get("calibration")).get("reference_spectrum")
 
 
 class ConfigError(ValueError):
@@ -164,7 +119,7 @@ def config_from_dict(raw: dict[str, Any], base_dir: Path | None = None, source: 
         if not isinstance(a, dict):
             continue
         t = _read(src, f"axes.{name}", a, AxisTable, defaults={"id": AXIS_LETTERS.get(name, name), **_AXIS_DEFAULTS})
-        axes[name] = AxisConfig(name=name, **t.values)
+        axes[name] = Axis(name=name, **t.values)
     for req in ("light", "detector"):
         if req not in axes:
             raise ConfigError(f"{src}: [axes.{req}]: missing table (required)")
@@ -208,38 +163,29 @@ def config_from_dict(raw: dict[str, Any], base_dir: Path | None = None, source: 
                                                f"{src}: [bench].source_spectrum"))
         except SchemaError as e:
             raise ConfigError(str(e)) from None
-    cal = _table(src, "calibration", raw.get("calibration"))
-    ref = cal.get("reference_reflectance", 0.99)
+    _table(src, "calibration", raw.get("calibration"))
     motion_raw = raw.get("motion")
     motion_type = motion_raw.get("type") if isinstance(motion_raw, dict) else None
+    grbl_raw = motion_raw.get("grbl") if isinstance(motion_raw, dict) else None
+    grbl = _read(src, "motion.grbl", grbl_raw if isinstance(grbl_raw, dict) else {}, GrblTable)
     cfg = BenchConfig(
-        name=bench["name"],
-        motion=motion_type if motion_type in ("dynamixel", "serial", "grbl") else bench["motion"],
-        min_separation_deg=bench["min_separation_deg"],
-        blind_spot_half_width_deg=bench["blind_spot_half_width_deg"],
+        bench=bench.build(motion=motion_type if motion_type in ("dynamixel", "serial", "grbl") else bench["motion"]),
         axes=axes,
-        detector=DetectorConfig(**{k: det[k] for k in ("integration_time_s", "repeats", "responsivity")},
-                                type=kind, saturation=saturation, solid_angle_sr=solid,
-                                gains=tuple(sorted(det["gains"])) if det["gains"] and device == "photodiode"
-                                else None, band_weights=weights, device=device),
+        detector=Detector(**{**det.values, "saturation": saturation, "solid_angle_sr": solid,
+                             "gains": tuple(sorted(det["gains"])) if det["gains"] and device == "photodiode" else None,
+                             "band_weights": weights}),
         sim=sim,
+        grbl=grbl.build(homing=grbl["homing"] if grbl.given("homing") else sim.homing_required),
         material=dict(_table(src, "material", raw.get("material"))),
-        reference_reflectance=float(ref) if isinstance(ref, (int, float)) else 0.99,
-        reference_spectrum=cal.get("reference_spectrum"),
-        source_divergence_deg=bench["source_divergence_deg"],
-        beam_diameter_mm=bench["beam_diameter_mm"],
-        sample_diameter_mm=bench["sample_diameter_mm"],
-        source_spectrum=bench["source_spectrum"],
-        detector_distance_mm=bench["detector_distance_mm"],
         raw=raw,
         base_dir=base,
     )
     if cfg.motion not in ("dynamixel", "serial", "grbl"):
         raise ConfigError(f"{src}: [bench].motion: must be \"dynamixel\", \"serial\" or \"grbl\", got "
                           f"{_describe(cfg.motion)}")
-    if cfg.detector.type not in ("photodiode", "spectrometer"):  # pragma: no cover - the schema's choices
+    if cfg.detector.kind not in ("photodiode", "spectrometer"):  # pragma: no cover - the schema's choices
         raise ConfigError(f"{src}: [detector].type: must be \"photodiode\" or \"spectrometer\", got "
-                          f"{_describe(cfg.detector.type)}")
+                          f"{_describe(cfg.detector.kind)}")
     return cfg
 
 

@@ -13,9 +13,9 @@ import time
 import numpy as np
 import pytest
 
-from acquisition.autorange import AutoRanger, ladder
 from acquisition.calibration import Reading
 from acquisition.cli import main
+from acquisition.devices.autorange import AutoRanger, ladder
 from acquisition.errors import DeviceError
 from tests.test_acq_support import (
     integration_times,
@@ -186,7 +186,7 @@ def test_a_guessed_setting_is_probed_with_a_few_repeats_and_the_rest_pooled():
     """The white reference (32 repeats, no neighbour to predict it) saturates at the reference setting: the
     search reads 4 repeats per setting, then the other 28 at the setting found, pooled with its probe; only the
     clipped probe was extra integration."""
-    from acquisition.autorange import PROBE_REPEATS
+    from acquisition.devices.autorange import PROBE_REPEATS
 
     det = FakeDetector(dark_current=0.0)
     r = ranger_for(det)

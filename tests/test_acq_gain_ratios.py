@@ -10,9 +10,9 @@ import json
 import numpy as np
 import pytest
 
-from acquisition.autorange import AutoRanger
 from acquisition.calibration import Reading, measure_gain_factors
 from acquisition.cli import main
+from acquisition.devices.autorange import AutoRanger
 from tests.test_acq_support import ground_truth, integration_times, make_raw, read, write_config
 
 #: the real gains: 1 -> 0.96, 10 -> 1.03, 100 -> exact (the white reference is read there), 1000 -> 1.01

@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acquisition.autorange import read_clean
 from acquisition.calibration import Reading, pool
 from acquisition.cli import main
+from acquisition.devices.autorange import read_clean
 from acquisition.devices.serial_link import SerialDetector
 from acquisition.errors import CommError
 from acquisition.run.lock import LOCK_NAME

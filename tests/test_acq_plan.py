@@ -149,7 +149,7 @@ def test_scene_without_ranges_keeps_the_whole_hemisphere():
 
 
 def test_scene_sets_adaptive_tolerance():
-    from acquisition.plans.planconfig import AdaptiveConfig
+    from reconstruction.schema.bench import AdaptiveTable as AdaptiveConfig
 
     plan = Plan.grid([20.0], -80, 80, 2, adaptive=AdaptiveConfig(True, 8.0, 2.0, 0.1, 0.0, 0, 6))
     p = plan.restrict(load_scene(REPO / "configs" / "scenes" / "glossy-product.toml"))

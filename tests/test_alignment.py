@@ -113,7 +113,7 @@ def test_the_misalignment_table_is_validated(tmp_path):
     cfg = load_config(REPO / "configs" / "mirror-misaligned.toml")
     m = cfg.sim.misalignment
     assert (m.light_zero_deg, m.detector_zero_deg, m.sample_tilt_deg, m.surface_offset_mm) == (0.3, -0.2, 0.15, 0.3)
-    assert cfg.detector_distance_mm == 70.0
+    assert cfg.bench.detector_distance_mm == 70.0
     for what in ("sample_tilt = 0.15", "sample_tilt_deg = 45.0"):
         p = tmp_path / "bad.toml"
         p.write_text(text.replace("sample_tilt_deg = 0.15", what))

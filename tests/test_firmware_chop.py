@@ -160,7 +160,7 @@ def test_clip_at_the_op_amps_swing_and_settle(rig):
 def test_the_driver_chops_reads_the_saturation_after_int_and_knows_a_dc_amplifier(rig):
     """acquisition's SerialDetector on the board: [detector].chop sends CHOP ON; the saturation is the board's for
     the integration time set (read again after INT), and amplifier=dc makes auto-ranging use the gains only."""
-    from acquisition.autorange import AutoRanger
+    from acquisition.devices.autorange import AutoRanger
     from acquisition.devices.serial_link import SerialDetector, SerialLink
 
     physics, board, port = rig

@@ -27,6 +27,7 @@ import threading
 import time
 from pathlib import Path
 
+import msgspec
 import pytest
 import tomli_w
 
@@ -45,8 +46,7 @@ if _MISSING is not None:
 
 from acquisition.devices.grbl import GrblAxes  # noqa: E402
 from acquisition.errors import DeviceError, HardwareError  # noqa: E402
-from acquisition.sections import AxisConfig, MotionConfig  # noqa: E402
-from reconstruction.schema.bench import GrblTable  # noqa: E402
+from reconstruction.schema.bench import Axis, GrblTable, MotionTable  # noqa: E402
 
 UPD = 10.0  # steps per degree: few steps, so grbl-sim (CPU-bound) keeps near real time
 # the bench without switches (our build's defaults home and limit: off here, and unlocked)
@@ -55,11 +55,12 @@ FAST = {100: UPD, 101: UPD, 110: 36000.0, 111: 36000.0, 120: 4000.0, 121: 4000.0
 HOMING = {**FAST, 20: 1, 21: 0, 22: 1, 23: 0, 24: 600.0, 25: 6000.0, 26: 10, 27: 1.0, 130: 80.0, 131: 170.0}
 SWITCHES = "x=-150,y=-200"  # the arms start 15 and 20 deg below their switches
 POLL_S = 0.05
-AXES = {"light": AxisConfig("light", "X", None, UPD, 0.0, 1, 0.0, 80.0, 0.0),
-        "detector": AxisConfig("detector", "Y", None, UPD, 0.0, 1, -85.0, 85.0, 0.0)}
+AXES = {"light": Axis(name="light", id="X", units_per_deg=UPD, zero_offset=0.0, direction=1, min_deg=0.0,
+                      max_deg=80.0, park_deg=0.0),
+        "detector": Axis(name="detector", id="Y", units_per_deg=UPD, zero_offset=0.0, direction=1, min_deg=-85.0,
+                         max_deg=85.0, park_deg=0.0)}
 # machine 0 (the switch) at max_deg, as docs/build-a-bench.md sets zero_offset
-HOMED_AXES = {n: AxisConfig(n, a.id, None, UPD, -UPD * a.max_deg, 1, a.min_deg, a.max_deg, a.park_deg)
-              for n, a in AXES.items()}
+HOMED_AXES = {n: msgspec.structs.replace(a, zero_offset=-UPD * a.max_deg) for n, a in AXES.items()}
 
 
 # slow moves (20 deg/s, 100 deg/s^2) for the tests that act while an arm moves: seconds of simulated time, so a
@@ -67,12 +68,14 @@ HOMED_AXES = {n: AxisConfig(n, a.id, None, UPD, -UPD * a.max_deg, 1, a.min_deg, 
 SLOW = {**FAST, 110: 1200.0, 111: 1200.0, 120: 100.0, 121: 100.0}
 
 
-def motion(acc: float = FAST[120], vel: float = FAST[110] / 60, **grbl) -> MotionConfig:
+def motion(acc: float = FAST[120], vel: float = FAST[110] / 60, **grbl) -> MotionTable:
     # retries 30: a status report may wait on grbl-sim (CPU-bound) for seconds on a loaded machine
-    return MotionConfig(0, 0, vel, acc, 0.05, 0.0, 60.0, 30, POLL_S, "grbl", GrblTable(boot_s=0.3, **grbl))
+    return MotionTable(profile_velocity=0, profile_acceleration=0, velocity_deg_s=vel, acceleration_deg_s2=acc,
+                       tolerance_deg=0.05, settle_s=0.0, timeout_s=60.0, retries=30, poll_interval_s=POLL_S,
+                       type="grbl", grbl=GrblTable(boot_s=0.3, **grbl))
 
 
-def slow_motion(**grbl) -> MotionConfig:
+def slow_motion(**grbl) -> MotionTable:
     return motion(SLOW[120], SLOW[110] / 60, **grbl)
 
 
@@ -528,7 +531,7 @@ def test_conformance_homing_the_hex_a_lab_flashes_leaves_z_out(tmp_path):
 def test_conformance_error_and_alarm_sentences_cover_grbls_own_code_tables():
     import csv
 
-    from acquisition import grbl_settings
+    from acquisition.devices import grbl_settings
 
     tables = (("error_codes_en_US.csv", grbl_settings.ERRORS), ("alarm_codes_en_US.csv", grbl_settings.ALARMS))
     for name, table in tables:

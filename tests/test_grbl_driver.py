@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import tomli_w
 
-from acquisition import grbl_settings
 from acquisition.config import load_config
+from acquisition.devices import grbl_settings
 from acquisition.devices.grbl import GrblAxes, GrblError, parse_status
 from acquisition.errors import ConfigError, DeviceError, HardwareError
 from reconstruction.bench.timing import AxisTiming, MoveTiming, line_durations, trapezoid_duration

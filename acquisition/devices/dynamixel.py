@@ -28,8 +28,9 @@ from dynamixel_sdk import (
     PortHandler,
 )
 
-from acquisition.config import DXL_MODELS, AxisConfig, MotionConfig
+from acquisition.devices.driver import Driver, Opening, Port
 from acquisition.errors import PORT_ERRORS, CommError, DeviceError, HardwareError, PortError, port_reason
+from reconstruction.schema.bench import DXL_MODELS, Axis, MotionTable
 
 log = logging.getLogger("acquisition.dynamixel")
 
@@ -72,7 +73,7 @@ def _s32(b: bytes | list[int]) -> int:
 class DynamixelAxes:
     """The arms on one Dynamixel bus; angles in degrees, positions in servo units (0.088 deg)."""
 
-    def __init__(self, port: str, baudrate: int, axes: dict[str, AxisConfig], motion: MotionConfig,
+    def __init__(self, port: str, baudrate: int, axes: dict[str, Axis], motion: MotionTable,
                  latency_ms: float | None = None) -> None:
         self.port_name = port
         #: the adapter's latency (ms) in the SDK's reply deadline, 2 x latency + 2 ms + the bytes' time; None: the
@@ -380,3 +381,20 @@ class _LatentPort(PortHandler):
     def setPacketTimeout(self, packet_length: int) -> None:  # noqa: N802 (the SDK's name)
         self.packet_start_time = self.getCurrentTime()
         self.packet_timeout = self.tx_time_per_byte * packet_length + 2.0 * self.latency_ms + 2.0
+
+
+#: The adapter latency (ms) a simulated Dynamixel bus is given in the SDK's reply deadline (16 ms on hardware):
+#: the simulator is a process of its own, which a loaded 2-core machine may not schedule within the SDK's 34 ms.
+SIMULATED_DXL_LATENCY_MS = 100.0
+
+
+def _open(o: Opening) -> DynamixelAxes:
+    """The arms on the Dynamixel bus of ``o`` (a simulated bus with a deadline a loaded machine can keep)."""
+    return DynamixelAxes(o.ports["dynamixel"], o.cfg.bench.dynamixel_baudrate, o.cfg.axes, o.cfg.motion,
+                         latency_ms=SIMULATED_DXL_LATENCY_MS if o.simulated else None)
+
+
+#: ``[bench].motion = "dynamixel"``: servo arms on a Dynamixel bus (:mod:`acquisition.devices.registry`).
+DRIVER = Driver("dynamixel", "motion", MotionTable,
+                (Port("dynamixel", "[bench].dynamixel_port", "[bench].dynamixel_baudrate", "Dynamixel bus (U2D2)"),),
+                _open)

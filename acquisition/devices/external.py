@@ -1,7 +1,8 @@
 """The detectors that are not the board's, built from the bench file: ``[detector] type = "seabreeze"``
 (:mod:`acquisition.devices.seabreeze`) and ``type = "pm100"`` (:mod:`acquisition.devices.pm100`).
 
-:func:`external_detector` is what :meth:`acquisition.bench.Bench.open` calls. ``library`` is the detector's
+:func:`external_detector` is what their drivers (:data:`SEABREEZE_DRIVER`, :data:`PM100_DRIVER`, registered in
+:mod:`acquisition.devices.registry`) open. ``library`` is the detector's
 library: None for the real one (imported now, with one line naming what to install when it is missing), or a
 stand-in that a test passes through ``Bench.detector_library`` (docs/detectors.md: the simulator's stand-ins
 read the simulated world; nothing in acquisition imports them).
@@ -12,12 +13,15 @@ from __future__ import annotations
 from typing import Any
 
 from acquisition.config import BenchConfig
+from acquisition.devices.driver import Driver, Opening, Port
 from acquisition.devices.pm100 import Pm100Detector, band_centroid_nm, import_pyvisa
 from acquisition.devices.seabreeze import SeabreezeDetector, import_seabreeze
 from acquisition.devices.serial_link import SerialLink
 from acquisition.errors import ConfigError, DeviceError
+from reconstruction.schema.bench import DetectorTable
 
-__all__ = ["EXTERNAL_TYPES", "external_detector", "external_library", "check_external_library"]
+__all__ = ["EXTERNAL_TYPES", "external_detector", "external_library", "check_external_library", "SEABREEZE_DRIVER",
+           "PM100_DRIVER"]
 
 #: ``[detector].type`` values whose detector is not the board's.
 EXTERNAL_TYPES = ("seabreeze", "pm100")
@@ -75,3 +79,15 @@ def external_detector(cfg: BenchConfig, link: SerialLink | None, library: Any) -
                              nm, d.gains, start_gain=max(d.gains) if d.gains and d.auto_range else None, link=link,
                              source_off=d.source_off)
     raise DeviceError(f"{cfg.path}: [detector].type = {d.type!r} is the board's detector, not an external one")
+
+
+def _open(o: Opening) -> SeabreezeDetector | Pm100Detector:
+    return external_detector(o.cfg, o.link, o.library)
+
+
+#: The board beside a USB detector: its clock, sample changer and source pin when the file gives its port.
+_BOARD = Port("serial", "[bench].serial_port", "[bench].serial_baudrate", "detector controller", required=False)
+#: ``[detector].type = "seabreeze"`` and ``"pm100"`` (:mod:`acquisition.devices.registry`): a USB instrument through
+#: its library, beside the detector board when there is one.
+SEABREEZE_DRIVER = Driver("seabreeze", "detector", DetectorTable, (_BOARD,), _open, library=external_library)
+PM100_DRIVER = Driver("pm100", "detector", DetectorTable, (_BOARD,), _open, library=external_library)

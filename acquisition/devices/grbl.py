@@ -4,7 +4,7 @@ GRBL's interface (gnea/grbl ``doc/markdown/interface.md``): one line of G-code o
 ``ok`` or ``error:N``; push messages (``ALARM:N``, ``[MSG:...]``, the welcome line ``Grbl 1.1h ['$' for help]``)
 at any time; single realtime bytes that are never buffered: ``?`` (a status report ``<Idle|MPos:x,y,z|FS:f,s>``),
 ``!`` (feed hold), ``~`` (resume) and 0x18 (soft reset). X is the light arm, Y the detector arm, GRBL's "mm" are
-degrees of the machine coordinate (:mod:`acquisition.grbl_settings`).
+degrees of the machine coordinate (:mod:`acquisition.devices.grbl_settings`).
 
 :class:`GrblAxes` (the axes of :class:`acquisition.bench.Bench`, like ``SerialAxes``):
 
@@ -22,7 +22,7 @@ degrees of the machine coordinate (:mod:`acquisition.grbl_settings`).
 * ``stop`` (an abort): feed hold ``!``, wait for the hold to complete (``Hold:0``), then a soft reset (0x18)
   which empties the planner; a reset after a completed hold keeps the position (GRBL raises ``ALARM:3`` only for
   a reset *in* motion, which this driver falls back to if the hold does not complete).
-* every ``error:N`` / ``ALARM:N`` becomes one sentence (:func:`~acquisition.grbl_settings.error_text`), and the
+* every ``error:N`` / ``ALARM:N`` becomes one sentence (:func:`~acquisition.devices.grbl_settings.error_text`), and the
   advice after it is the command that works: ``--resume`` when the bench homes (``$H`` first), ``--resume
   --unlock`` when it has no switches (:attr:`GrblAxes.resume_flags`), never a repeat of what just failed.
 """
@@ -37,9 +37,8 @@ from dataclasses import dataclass
 
 import serial
 
-from acquisition.devices.lines import next_line
-from acquisition.errors import PORT_ERRORS, CommError, DeviceError, HardwareError, PortError, port_reason
-from acquisition.grbl_settings import (
+from acquisition.devices.driver import Driver, Opening, Port
+from acquisition.devices.grbl_settings import (
     AXIS_LETTER,
     LOST_POSITION_ALARMS,
     SETTING_NAMES,
@@ -48,9 +47,10 @@ from acquisition.grbl_settings import (
     expected_settings,
     machine_deg,
 )
-from acquisition.sections import AxisConfig, MotionConfig
+from acquisition.devices.lines import next_line
+from acquisition.errors import PORT_ERRORS, CommError, DeviceError, HardwareError, PortError, port_reason
 from reconstruction.bench.timing import line_durations
-from reconstruction.schema.bench import GrblTable
+from reconstruction.schema.bench import Axis, GrblTable, MotionTable
 
 log = logging.getLogger("acquisition.grbl")
 
@@ -116,7 +116,7 @@ def parse_status(line: str) -> GrblStatus | None:
 class GrblAxes:
     """The light (X) and detector (Y) arms on GRBL; angles in degrees, times in seconds."""
 
-    def __init__(self, port: str, axes: Mapping[str, AxisConfig], motion: MotionConfig,
+    def __init__(self, port: str, axes: Mapping[str, Axis], motion: MotionTable,
                  serial_factory: Callable[..., serial.Serial] = serial.Serial) -> None:
         self.port = port
         self.axes = {n: axes[n] for n in AXIS_LETTER}
@@ -591,3 +591,14 @@ class GrblAxes:
             self.ser.close()
         except Exception:  # pragma: no cover - closing a vanished port
             pass
+
+
+def _open(o: Opening) -> GrblAxes:
+    """The arms on the GRBL controller of ``o``."""
+    return GrblAxes(o.ports["grbl"], o.cfg.axes, o.cfg.motion)
+
+
+#: ``[motion].type = "grbl"``: stepper arms on a GRBL 1.1 controller, ``[motion.grbl]``
+#: (:mod:`acquisition.devices.registry`).
+DRIVER = Driver("grbl", "motion", GrblTable,
+                (Port("grbl", "[motion.grbl].port", "[motion.grbl].baudrate", "GRBL controller (the arms)"),), _open)

@@ -22,9 +22,10 @@ import numpy as np
 import serial
 
 from acquisition.calibration import Reading, pool
-from acquisition.config import AxisConfig
+from acquisition.devices.driver import Driver, Opening, Port
 from acquisition.devices.lines import next_line
 from acquisition.errors import PORT_ERRORS, CommError, DeviceError, HardwareError, PortError, port_reason
+from reconstruction.schema.bench import Axis, DetectorTable, MotionTable
 
 log = logging.getLogger("acquisition.serial")
 
@@ -464,7 +465,7 @@ def _check_detector(reply: Reply) -> None:
 class SerialAxes:
     """Light and detector arms (and an optional stage) on the stepper controller; angles in degrees."""
 
-    def __init__(self, link: SerialLink, axes: dict[str, AxisConfig], tolerance_deg: float, timeout_s: float,
+    def __init__(self, link: SerialLink, axes: dict[str, Axis], tolerance_deg: float, timeout_s: float,
                  retries: int, poll_interval_s: float = 0.01) -> None:
         self.link = link
         self.axes = axes
@@ -599,3 +600,35 @@ class SerialAxes:
             return False
         return st["state"] != "Alarm" and not int(st.get("alarm", "0"))
 
+
+
+def _open_axes(o: Opening) -> SerialAxes:
+    """The stepper arms on the serial controller's link (which the bench opens and closes)."""
+    assert o.link is not None
+    m = o.cfg.motion
+    return SerialAxes(o.link, o.cfg.axes, m.tolerance_deg, m.timeout_s, m.retries, m.poll_interval_s)
+
+
+def _open_detector(o: Opening) -> SerialDetector:
+    """The detector board's photodiode or spectrometer on its link (auto-ranging starts at the highest gain)."""
+    assert o.link is not None
+    d = o.cfg.detector
+    det = SerialDetector(o.link, d.type, d.integration_time_s, d.saturation, d.gains,
+                         start_gain=max(d.gains) if d.gains and d.auto_range else None)
+    det.chop = d.chop
+    return det
+
+
+def _leave_to_the_link(device: Any) -> None:
+    """A device on the shared link: the bench closes the link itself."""
+
+
+_BOARD = "[bench].serial_port", "[bench].serial_baudrate"
+#: The drivers of the serial text protocol (:mod:`acquisition.devices.registry`): ``[bench].motion = "serial"``
+#: (stepper arms on the controller that also reads the detector), and the detector board's ``[detector].type``
+#: ``"photodiode"`` and ``"spectrometer"``.
+AXES_DRIVER = Driver("serial", "motion", MotionTable, (Port("serial", *_BOARD, "stepper controller"),), _open_axes,
+                     _leave_to_the_link)
+_DETECTOR_PORT = Port("serial", *_BOARD, "detector controller")
+PHOTODIODE_DRIVER = Driver("photodiode", "detector", DetectorTable, (_DETECTOR_PORT,), _open_detector)
+SPECTROMETER_DRIVER = Driver("spectrometer", "detector", DetectorTable, (_DETECTOR_PORT,), _open_detector)

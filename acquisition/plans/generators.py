@@ -46,9 +46,9 @@ from acquisition.plans.messages import (
     Where,
 )
 from acquisition.plans.ordering import TWO_OPT_MAX_EVALUATIONS, order_points, path_time
-from acquisition.plans.planconfig import AdaptiveConfig
 from acquisition.plans.reference import check_reference
 from acquisition.plans.refine import refine_points
+from reconstruction.schema.bench import AdaptiveTable
 
 log = logging.getLogger("acquisition.plans")
 
@@ -77,7 +77,7 @@ class PlanSpec(Protocol):
     repeats: int
     order: str
     dark_at_end: bool
-    adaptive: AdaptiveConfig | None
+    adaptive: AdaptiveTable | None
 
     def check(self, geom: Geometry) -> Any: ...
 

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from acquisition.config import AxisConfig, BenchConfig
+from acquisition.config import BenchConfig
 from reconstruction.bench.timing import (
     DXL_ACC_UNIT_REV_S2,
     DXL_UNITS_PER_REV,
@@ -22,6 +22,7 @@ from reconstruction.bench.timing import (
     MoveTiming,
     trapezoid_duration,
 )
+from reconstruction.schema.bench import Axis
 from reconstruction.schema.simulator import SimulatorSection
 
 __all__ = ["Point", "Reason", "Why", "point_key", "Geometry", "DXL_VEL_UNIT_REV_S", "DXL_ACC_UNIT_REV_S2",
@@ -89,8 +90,8 @@ class Geometry:
     poll after it. ``settle_s`` is ``[motion].settle_s``, the wait before each reading; ``host_s`` the software's
     own bench time per reading (its queries, the slice written and synced; 0 when simulated time jumps)."""
 
-    light: AxisConfig
-    detector: AxisConfig
+    light: Axis
+    detector: Axis
     min_separation_deg: float
     blind_spot_half_width_deg: float
     light_speed: tuple[float, float] = (math.inf, math.inf)
@@ -130,7 +131,7 @@ class Geometry:
     @cached_property
     def timing(self) -> MoveTiming:
         """The shared move-time model of the two arms (:class:`reconstruction.bench.timing.MoveTiming`)."""
-        def axis(ax: AxisConfig, speed: tuple[float, float]) -> AxisTiming:
+        def axis(ax: Axis, speed: tuple[float, float]) -> AxisTiming:
             upd = abs(ax.units_per_deg)
             return AxisTiming(ax.units_per_deg, ax.zero_offset, ax.direction, speed[0] * upd, speed[1] * upd)
 
@@ -188,7 +189,7 @@ class Geometry:
         return out
 
     @staticmethod
-    def quantise(ax: AxisConfig, deg: float) -> float:
+    def quantise(ax: Axis, deg: float) -> float:
         """The angle the axis is actually sent to: ``deg`` rounded to whole controller units."""
         return ax.units_to_deg(round(ax.deg_to_units(deg)))
 

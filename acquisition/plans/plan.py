@@ -23,22 +23,17 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import numpy as np
 
 from acquisition.errors import ConfigError, PlanError
 from acquisition.plans.geometry import Geometry, Point, Reason, Why, point_key
 from acquisition.plans.ordering import TWO_OPT_MAX_EVALUATIONS, order_points, path_time
-from acquisition.plans.planconfig import (
-    MAX_PLAN_POINTS,
-    AdaptiveConfig,
-    PlanConfig,
-    _count,
-    _frange,
-    resolution_deg,
-)
+from acquisition.plans.planconfig import MAX_PLAN_POINTS, _count, _frange, resolution_deg
 from acquisition.plans.refine import refine_points
 from reconstruction.core.scene import CAPTURE_DEFAULT_RANGE_DEG, Scene, SceneError
 from reconstruction.core.scene import load_scene as _load_scene
+from reconstruction.schema.bench import AdaptiveTable, PlanTable
 from reconstruction.schema.files import UserFileError, check_user_file
 
 __all__ = ["Point", "Geometry", "Plan", "PlanCheck", "Reason", "Why", "Scene", "load_scene", "order_points",
@@ -194,7 +189,7 @@ class Plan:
     dark_at_end: bool = True
     order: str = "optimized"
     strict: bool = False
-    adaptive: AdaptiveConfig | None = None
+    adaptive: AdaptiveTable | None = None
     scene: str | None = None
 
     @classmethod
@@ -215,7 +210,7 @@ class Plan:
         return cls(explicit=[(float(p[0]), float(p[1])) for p in points], **kw)
 
     @classmethod
-    def from_config(cls, pc: PlanConfig, base_dir: Path | str = ".") -> Plan:
+    def from_config(cls, pc: PlanTable, base_dir: Path | str = ".") -> Plan:
         """The ``[plan]`` of a bench file; a ``scene`` key there is applied with :meth:`restrict`."""
         kw = dict(repeats=pc.repeats, dark_at_end=pc.dark_at_end, order=pc.order, strict=pc.strict,
                   adaptive=pc.adaptive)
@@ -265,7 +260,7 @@ class Plan:
         adaptive = self.adaptive
         if adaptive is not None:
             res = scene.angular_resolution_deg
-            adaptive = replace(
+            adaptive = msgspec.structs.replace(
                 adaptive,
                 tolerance=scene.relative_rmse if scene.relative_rmse is not None else adaptive.tolerance,
                 min_step_deg=min(adaptive.min_step_deg, res) if res else adaptive.min_step_deg,

@@ -8,15 +8,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
 from typing import Any
 
 from acquisition.errors import ConfigError
-from acquisition.sections import AxisConfig, DetectorConfig
 from reconstruction.schema import SchemaError, Table
-from reconstruction.schema.bench import AdaptiveTable, PlanTable
+from reconstruction.schema.bench import AdaptiveTable, Axis, DetectorTable, PlanTable
 
-__all__ = ["MAX_PLAN_POINTS", "AdaptiveConfig", "PlanConfig", "read_plan", "resolution_deg"]
+__all__ = ["MAX_PLAN_POINTS", "read_plan", "resolution_deg"]
 
 #: A plan may hold at most this many points (incidences x outgoing angles, or the adaptive refinement's worst
 #: case): bigger plans are a config error, not a capture of days. That is more than a full 1 x 1 degree in-plane
@@ -39,38 +37,7 @@ class _Table(Table):
         return ConfigError(f"{self.source}: [{self.section}].{key}: {text}")
 
 
-@dataclass(frozen=True)
-class AdaptiveConfig:
-    """``[plan.adaptive]``: coarse pass at ``coarse_step_deg``, then midpoints where the slice changes fast."""
-
-    enabled: bool
-    coarse_step_deg: float
-    min_step_deg: float
-    tolerance: float
-    time_budget_s: float
-    max_points: int
-    max_rounds: int
-
-
-@dataclass(frozen=True)
-class PlanConfig:
-    """``[plan]``: incidence angles, outgoing range and step, repeats, options."""
-
-    theta_i_deg: tuple[float, ...]
-    theta_o_min_deg: float | None
-    theta_o_max_deg: float | None
-    theta_o_step_deg: float | None
-    points: tuple[tuple[float, float], ...] | None
-    repeats: int
-    dark_at_end: bool
-    order: str
-    strict: bool
-    scene: str | None
-    sample_name: str | None
-    adaptive: AdaptiveConfig | None
-
-
-def resolution_deg(ax: AxisConfig) -> float:
+def resolution_deg(ax: Axis) -> float:
     """The smallest angle step (deg) an axis can make: one controller unit."""
     return 1.0 / ax.units_per_deg
 
@@ -81,7 +48,7 @@ def _count(lo: float, hi: float, step: float) -> float:
     return math.floor((hi - lo) / step + 1e-9) + 2.0
 
 
-def _finer_than_axis(src: str, section: str, key: str, step: float, ax: AxisConfig) -> None:
+def _finer_than_axis(src: str, section: str, key: str, step: float, ax: Axis) -> None:
     res = resolution_deg(ax)
     if step < res * (1 - 1e-9):
         raise ConfigError(f"{src}: [{section}].{key}: {step:g} deg is finer than the {ax.name} axis resolution of "
@@ -89,17 +56,20 @@ def _finer_than_axis(src: str, section: str, key: str, step: float, ax: AxisConf
                           "position between two controller units can be reached")
 
 
-def _read_adaptive(src: str, raw: Any, step: float | None) -> AdaptiveConfig:
+def _read_adaptive(src: str, raw: Any, step: float | None) -> AdaptiveTable:
     t = _Table(src, "plan.adaptive", raw, AdaptiveTable)
     coarse = t["coarse_step_deg"] if t["coarse_step_deg"] is not None else (4 * step if step else None)
     if coarse is None:
         raise t.error("coarse_step_deg", "missing key (no theta_o_step_deg to derive it from)")
     if t["min_step_deg"] > coarse:
         raise t.error("min_step_deg", f"{t['min_step_deg']:g} is larger than coarse_step_deg {coarse:g}")
-    return AdaptiveConfig(**{**t.values, "coarse_step_deg": coarse})
+    return t.build(coarse_step_deg=coarse)
 
 
-def read_plan(src: str, raw: Any, det: DetectorConfig, axes: Mapping[str, AxisConfig]) -> PlanConfig:
+def read_plan(src: str, raw: Any, det: DetectorTable, axes: Mapping[str, Axis]) -> PlanTable:
+    """``[plan]`` (and ``[plan.adaptive]``) read and bounded: the struct with ``theta_i_deg`` resolved (from the
+    list, or from theta_i_min/max/step), ``repeats`` defaulting to ``[detector].repeats`` and ``adaptive`` None when
+    left out or disabled (its ``coarse_step_deg`` resolved)."""
     adaptive_raw = raw.get("adaptive") if isinstance(raw, Mapping) else None
     t = _Table(src, "plan", raw, PlanTable, defaults={"repeats": det.repeats}, skip=("adaptive",))
     ti: list[float] = []
@@ -163,9 +133,8 @@ def read_plan(src: str, raw: Any, det: DetectorConfig, axes: Mapping[str, AxisCo
                               "not an explicit points list")
         if not adaptive.enabled:
             adaptive = None
-    return PlanConfig(tuple(ti), t["theta_o_min_deg"], t["theta_o_max_deg"], t["theta_o_step_deg"],
-                      tuple(t["points"]) if t["points"] is not None else None, t["repeats"], t["dark_at_end"],
-                      t["order"], t["strict"], t["scene"], t["sample_name"], adaptive)
+    return t.build(theta_i_deg=tuple(ti), points=tuple(t["points"]) if t["points"] is not None else None,
+                   adaptive=adaptive)
 
 
 def _frange(lo: float, hi: float, step: float) -> list[float]:

@@ -7,10 +7,11 @@ simulator's axes move, plus the polling delay; ``[motion].settle_s`` per point; 
 time per reading), so the estimate and the capture cannot disagree about what the plan does. Nothing is opened or
 moved. Auto-ranging: the darks at every gain are part of the calibration plan, so they are counted; every reading
 is counted on the setting it needs, which the capture's first reading of a point predicts from its neighbours
-(:meth:`acquisition.autorange.AutoRanger.predict`); what the estimate cannot foresee, the sample being unknown, is
-the readings of a mispredicted setting (the white reference's probe, the first point of an incidence, a peak's
-edge: ``auto_range_overhead_s`` of the result, about 0.5 % of the demo's bench time) and the shorter integration
-times of a sample brighter than the lowest gain holds (counted at the configured time: the estimate is then long).
+(:meth:`acquisition.devices.autorange.AutoRanger.predict`); what the estimate cannot foresee, the sample being
+unknown, is the readings of a mispredicted setting (the white reference's probe, the first point of an incidence, a
+peak's edge: ``auto_range_overhead_s`` of the result, about 0.5 % of the demo's bench time) and the shorter
+integration times of a sample brighter than the lowest gain holds (counted at the configured time: the estimate is
+then long).
 Adaptive refinement's rounds are estimated as they are planned.
 """
 

@@ -2,7 +2,7 @@
 :mod:`acquisition.devices.protocols`, and knows nothing of Dynamixel servos, serial controllers or simulators.
 
 For each message it does one thing and sends the plan its reply: move (and account the motion time), settle,
-read (auto-ranged when ``[detector].auto_range``: :mod:`acquisition.autorange`; saturated repeats are read
+read (auto-ranged when ``[detector].auto_range``: :mod:`acquisition.devices.autorange`; saturated repeats are read
 again), read the dark level, select the sample, convert with a calibration, save a sample (f_r appended to the
 slice through the sink, the auto-ranged setting recorded in the run record first), stop at a checkpoint when
 Ctrl-C / SIGTERM asked, tell where the arms are and what time it is. An exception raised while carrying out a
@@ -22,8 +22,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from acquisition.autorange import AutoRanger, ranged_wording, read_clean
 from acquisition.calibration import Calibration, Reading
+from acquisition.devices.autorange import AutoRanger, ranged_wording, read_clean
 from acquisition.devices.protocols import Devices
 from acquisition.errors import DeviceError
 from acquisition.plans.messages import (

@@ -20,8 +20,8 @@ from enum import Enum
 from pathlib import Path
 from typing import Any
 
-from acquisition.autorange import setting_key
 from acquisition.calibration import Reading
+from acquisition.devices.autorange import setting_key
 from reconstruction.atomic import atomic_open
 
 log = logging.getLogger("acquisition.record")
@@ -133,7 +133,7 @@ def _parse_point(key: str) -> tuple[float, float]:
 
 @dataclass
 class AutoRangeRecord:
-    """``auto_range`` of the run record: the darks per setting (key :func:`~acquisition.autorange.setting_key`)
+    """``auto_range`` of the run record: the darks per setting (key :func:`~acquisition.devices.autorange.setting_key`)
     and the integration time of every ranged point (key ``"theta_i,theta_o"`` with repr floats)."""
 
     darks: dict[str, dict[str, Any]] = field(default_factory=dict)

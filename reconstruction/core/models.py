@@ -377,6 +377,31 @@ class Tabulated(Lobe):
         return {"path": self.path}
 
 
+def read_lobe_table(lobe: Lobe, where: str, record: bool = True) -> list[str]:
+    """Read now the MERL table of a ``tabulated`` lobe (other lobes: nothing), not when it is first evaluated, so
+    that a bench file whose table cannot be read is refused before anything starts, as both bench-file readers do.
+    ``where`` names the lobe (``"[material].lobes[0]"``): a table that cannot be read raises
+    :class:`~reconstruction.core.merltable.MerlError` ``"WHERE.path: why"``; with ``record`` the reader's warnings
+    are returned as ``"WHERE.path: text"`` instead of warned."""
+    import warnings
+
+    from reconstruction.core.merltable import MerlError
+
+    if not isinstance(lobe, Tabulated):
+        return []
+    assert TABLE_READER is not None, "importing reconstruction registers the MERL reader"
+    try:
+        if not record:
+            lobe.table = TABLE_READER(lobe.path)
+            return []
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            lobe.table = TABLE_READER(lobe.path)
+    except MerlError as e:
+        raise MerlError(f"{where}.path: {e}") from None
+    return [f"{where}.path: {w.message}" for w in caught]
+
+
 NBRDF_SUFFIXES = ("fc1", "b1", "fc2", "b2", "fc3", "b3")
 _NBRDF_SHAPES = {"fc1": (6, 21), "b1": (21,), "fc2": (21, 21), "b2": (21,), "fc3": (21, 3), "b3": (3,)}
 

@@ -1,7 +1,14 @@
 """The bench file (``configs/*.toml``), declared once: every section, key, type, default, bound and choice that
-``gonio-capture`` (:mod:`acquisition.config`) and ``gonio-sim`` (:mod:`simulator.config`) read. Checks that need
-several keys (a port for the transport, the soft limits against the servo's range, the reference geometry
+``gonio-capture`` (:mod:`acquisition.config`) and ``gonio-sim`` (:mod:`simulator.config`) read. Both readers hand
+on these structs themselves (no field is copied into a class of their own; ``tests/test_bench_model.py``): the
+values they resolve (a default another key implies, the motion hardware, sorted gains) are stored in the fields,
+and what a table implies without being a key of it is added by the two views here, :class:`Axis` (an
+``[axes.NAME]`` table with its name) and :class:`Detector` (``[detector]`` with its photodiode band). Checks that
+need several keys (a port for the transport, the soft limits against the servo's range, the reference geometry
 against the collision zone...) live with the readers. Angles in degrees, times in seconds.
+
+The schema lives here, in the base package, because all three packages read the file and the reconstruction may
+import neither of the others.
 """
 
 
@@ -15,7 +22,7 @@ from reconstruction.schema.simulator import SimulatorSection
 
 __all__ = ["DXL_MODELS", "DXL_BAUDRATES", "AXIS_LETTERS", "MIN_INTEGRATION_TIME_S", "MAX_INTEGRATION_TIME_S",
            "BenchTable", "AxisTable", "GrblTable", "MotionTable", "DetectorTable", "CalibrationTable", "AdaptiveTable",
-           "PlanTable", "AxesTables", "BenchFile"]
+           "PlanTable", "AxesTables", "BenchFile", "Axis", "Detector"]
 
 #: Dynamixel model names accepted in ``[axes.*].model`` -> model number answered to a ping.
 DXL_MODELS = {"XM430-W350": 1020, "XL430-W250": 1060}
@@ -47,7 +54,7 @@ Angle = Annotated[float, _num(-180.0, 180.0, description="degrees")]
 Positive = Annotated[float, _num(gt=0.0)]
 
 
-class BenchTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
+class BenchTable(msgspec.Struct, kw_only=True, frozen=True, forbid_unknown_fields=True):
     """``[bench]``: transport, ports and the geometry constraints of the arms."""
 
     name: Annotated[str, Meta(description="name of the bench (logs, slice metadata)")] = "bench"
@@ -87,7 +94,7 @@ def _units_per_deg(v: float) -> str | None:
     return None if 1e-2 <= v <= 1e6 else f"must lie in [0.01, 1e+06] units per degree, got {v:g}"
 
 
-class AxisTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
+class AxisTable(msgspec.Struct, kw_only=True, frozen=True, forbid_unknown_fields=True):
     """``[axes.light]``, ``[axes.detector]``, ``[axes.stage]``: controller units = zero_offset + direction *
     units_per_deg * degrees."""
 
@@ -101,8 +108,20 @@ class AxisTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     max_deg: Annotated[float, _num(-180.0, 180.0, description="soft limit (degrees)")]
     park_deg: Annotated[float, _num(-180.0, 180.0, description="park position (degrees)")]
 
+    def deg_to_units(self, deg: float) -> float:
+        """Axis angle (deg) -> controller units (not rounded)."""
+        return self.zero_offset + self.direction * self.units_per_deg * deg
 
-class GrblTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
+    def units_to_deg(self, units: float) -> float:
+        """Controller units -> axis angle (deg)."""
+        return (units - self.zero_offset) / (self.direction * self.units_per_deg)
+
+    def within(self, deg: float, eps: float = 1e-9) -> bool:
+        """``deg`` within the soft limits ``[min_deg, max_deg]`` (to ``eps``)."""
+        return self.min_deg - eps <= deg <= self.max_deg + eps
+
+
+class GrblTable(msgspec.Struct, kw_only=True, frozen=True, forbid_unknown_fields=True):
     """``[motion.grbl]``: the GRBL 1.1 controller of a stepper bench (X = light arm, Y = detector arm; GRBL's
     "mm" are degrees: ``$100``/``$101`` = ``[axes.*].units_per_deg`` steps per degree, ``$110``/``$111`` =
     60 x ``[motion].velocity_deg_s`` deg/min, ``$120``/``$121`` = ``[motion].acceleration_deg_s2``)."""
@@ -119,7 +138,7 @@ class GrblTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
                                                          "(an Uno resets when its port opens)")] = 2.5
 
 
-class MotionTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
+class MotionTable(msgspec.Struct, kw_only=True, frozen=True, forbid_unknown_fields=True):
     """``[motion]``: profiles (Dynamixel units), stepper speeds, tolerance, settling, timeouts, retries."""
 
     type: Annotated[Literal["dynamixel", "serial", "grbl"] | None, Meta(
@@ -140,7 +159,7 @@ class MotionTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     poll_interval_s: Annotated[float, _num(0.0, 10.0)] = 0.01
 
 
-def _gains_check(v: list[float]) -> str | None:
+def _gains_check(v: tuple[float, ...]) -> str | None:
     if not 1 <= len(v) <= 12:
         return f"expected 1 to 12 gains, got {len(v)}"
     if any(not 1e-3 <= g <= 1e7 for g in v):
@@ -150,7 +169,7 @@ def _gains_check(v: list[float]) -> str | None:
     return None
 
 
-class DetectorTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
+class DetectorTable(msgspec.Struct, kw_only=True, frozen=True, forbid_unknown_fields=True):
     """``[detector]``: type, integration time per repeat, repeats, saturation, dark repeats, auto-ranging."""
 
     type: Annotated[Literal["photodiode", "spectrometer", "seabreeze", "pm100"], Meta(
@@ -175,7 +194,7 @@ class DetectorTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
                                        ] | None = None
     responsivity: Annotated[str, Meta(description='photodiode band: "silicon" (built in) or a '
                                                   "wavelength_nm,responsivity CSV")] = "silicon"
-    gains: Annotated[list[float] | None, Meta(description="the amplifier's switchable gains, e.g. [1, 10, 100, "
+    gains: Annotated[tuple[float, ...] | None, Meta(description="the amplifier's switchable gains, e.g. [1, 10, 100, "
                                                           "1000, 10000] (GAIN n); auto-ranging uses them all",
                                               extra={"check": _gains_check})] = None
     chop: Annotated[bool, Meta(description="the detector board chops the source (CHOP ON): readings are on-minus-off "
@@ -198,8 +217,23 @@ class DetectorTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
                                                                      "of the source seen by the sensor's band")
                              ] | None = None
 
+    @property
+    def on_board(self) -> bool:
+        """True for the detector board's own detectors (photodiode, spectrometer: the serial protocol)."""
+        return self.type in ("photodiode", "spectrometer")
 
-class CalibrationTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
+    @property
+    def acceptance_sr(self) -> float:
+        """The detector cone's solid angle (sr): ``solid_angle_sr``, or from ``aperture_half_angle_deg``, or 0 (a
+        point detector: not given)."""
+        if self.solid_angle_sr is not None:
+            return self.solid_angle_sr
+        if self.aperture_half_angle_deg is not None:
+            return 2 * math.pi * (1 - math.cos(math.radians(self.aperture_half_angle_deg)))
+        return 0.0
+
+
+class CalibrationTable(msgspec.Struct, kw_only=True, frozen=True, forbid_unknown_fields=True):
     """``[calibration]``: relative (a white reference) or absolute (source power x detector solid angle)."""
 
     mode: Literal["relative", "absolute"]
@@ -228,7 +262,7 @@ class CalibrationTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True)
                                                           check=_pos_within(1e-12, 2 * math.pi))] | None = None
 
 
-class AdaptiveTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
+class AdaptiveTable(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """``[plan.adaptive]``: a coarse pass, then midpoints where the slice changes fast."""
 
     enabled: bool = True
@@ -240,17 +274,17 @@ class AdaptiveTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     max_rounds: Annotated[int, _num(1, 50)] = 6
 
 
-class PlanTable(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
+class PlanTable(msgspec.Struct, kw_only=True, frozen=True, forbid_unknown_fields=True):
     """``[plan]``: incidences, the outgoing range and step (or explicit points), repeats, options."""
 
-    theta_i_deg: Annotated[list[float] | None, Meta(description="incidence angles (degrees)")] = None
+    theta_i_deg: Annotated[tuple[float, ...] | None, Meta(description="incidence angles (degrees)")] = None
     theta_i_min_deg: float | None = None
     theta_i_max_deg: float | None = None
     theta_i_step_deg: Annotated[float, _num(gt=0.0)] | None = None
     theta_o_min_deg: Annotated[float, _num(-90.0, 90.0)] | None = None
     theta_o_max_deg: Annotated[float, _num(-90.0, 90.0)] | None = None
     theta_o_step_deg: Annotated[float, _num(gt=0.0)] | None = None
-    points: Annotated[list[tuple[float, float]] | None, Meta(description="explicit [theta_i_deg, theta_o_deg] "
+    points: Annotated[tuple[tuple[float, float], ...] | None, Meta(description="explicit [theta_i_deg, theta_o_deg] "
                                                                          "pairs instead of a grid")] = None
     repeats: Annotated[int, _num(1, 1000, description="default: [detector].repeats")] | None = None
     dark_at_end: bool = True
@@ -282,3 +316,41 @@ class BenchFile(msgspec.Struct, forbid_unknown_fields=True):
         description="the simulated sample (a simulated bench needs it): see docs/schema/material.json")] = None
     simulator: SimulatorSection | None = None
 
+
+
+# --- what a table implies, as both readers hand it on -------------------------------------------------------------
+
+
+class Axis(AxisTable, kw_only=True):
+    """An ``[axes.NAME]`` table with its name (``"light"``, ``"detector"``, ``"stage"``): the axis both readers
+    hand to the drivers. ``controller units = zero_offset + direction * units_per_deg * degrees``."""
+
+    name: str
+
+    @property
+    def letter(self) -> str:
+        """Axis letter on the serial text protocol: ``id`` when it is a string, else L/D/S by axis name."""
+        if isinstance(self.id, str) and self.id:
+            return self.id.upper()
+        return AXIS_LETTERS.get(self.name, self.name[:1].upper())
+
+    @property
+    def model_number(self) -> int:
+        """The Dynamixel model number a servo of ``model`` answers to a ping (ValueError for another model)."""
+        try:
+            return DXL_MODELS[self.model or ""]
+        except KeyError:
+            raise ValueError(f"axis {self.name}: unknown Dynamixel model {self.model!r}") from None
+
+
+class Detector(DetectorTable, kw_only=True):
+    """``[detector]`` with what its keys imply: ``band_weights``, the photodiode band (``responsivity`` x
+    ``[bench].source_spectrum``) on :data:`reconstruction.schema.optics.BAND_NM` (None: not a photodiode)."""
+
+    band_weights: Any = None
+
+    @property
+    def kind(self) -> str:
+        """What the detector measures: ``"spectrometer"`` (the board's or a seabreeze) or ``"photodiode"`` (the
+        board's or a pm100 head)."""
+        return {"seabreeze": "spectrometer", "pm100": "photodiode"}.get(self.type, self.type)

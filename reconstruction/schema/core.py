@@ -123,7 +123,7 @@ def convert(t: Any, v: Any) -> tuple[Any, str | None]:
                 break
         else:
             return None, f"expected {expected or ' or '.join(type(m).__name__ for m in t.types)}, got {describe(v)}"
-    elif isinstance(t, mi.ListType):
+    elif isinstance(t, (mi.ListType, mi.VarTupleType)):
         item, _ = _unwrap(t.item_type)
         if isinstance(item, mi.TupleType):  # points: pairs of numbers
             what = expected or "[theta_i_deg, theta_o_deg] pairs"
@@ -133,12 +133,16 @@ def convert(t: Any, v: Any) -> tuple[Any, str | None]:
                 if not (isinstance(p, list) and len(p) == len(item.item_types) and all(_finite_num(x) for x in p)):
                     return None, f"expected {what}, got {describe(p)}"
             out = [tuple(float(x) for x in p) for p in v]
+            if isinstance(t, mi.VarTupleType):
+                out = tuple(out)
         elif isinstance(item, mi.FloatType):
             if not isinstance(v, list) or not v:
                 return None, f"expected {expected or 'a non-empty list of numbers'}, got {describe(v)}"
             if not all(_finite_num(x) for x in v):
                 return None, f"expected a list of numbers, got {describe(v)}"
             out = [float(x) for x in v]
+            if isinstance(t, mi.VarTupleType):
+                out = tuple(out)
         else:
             if not isinstance(v, list):
                 return None, f"expected {expected or 'a list'}, got {describe(v)}"

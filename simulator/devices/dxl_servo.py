@@ -11,7 +11,7 @@ import struct
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from simulator.config import AxisConfig
+from reconstruction.schema.bench import Axis
 from simulator.devices import dxl_codec as c
 from simulator.world.clock import SimClock
 from simulator.world.faults import FaultInjector
@@ -121,7 +121,7 @@ class Servo:
     """One X-series servo: control table + motion of the arm it drives (units = raw encoder units)."""
 
     def __init__(self, dxl_id: int, model_number: int, clock: SimClock, faults: FaultInjector,
-                 axis: AxisConfig | None = None, position: float = 2048.0, *, backlash_units: float = 0.0,
+                 axis: Axis | None = None, position: float = 2048.0, *, backlash_units: float = 0.0,
                  ringing_units: float = 0.0, settle_time: float = 0.0, stall_overload_s: float = 1.0) -> None:
         self.clock = clock
         self.faults = faults

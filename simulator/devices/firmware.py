@@ -485,7 +485,7 @@ def start_firmware_detector(bench, elf: Path, build_dir: Path | None = None, dit
                          '([bench].motion = "dynamixel")')
     if not bench.clock.fast:
         raise ValueError("the emulated board runs in simulated fast time only ([simulator].time_scale = 0)")
-    if cfg.detector.type != "photodiode":
+    if cfg.detector.kind != "photodiode":
         raise ValueError("the detector board reads a photodiode ([detector].type = \"photodiode\")")
     problem = toolchain_problem()
     if problem:

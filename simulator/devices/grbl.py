@@ -55,13 +55,11 @@ COAST_FRACTION = 0.1
 def default_settings(cfg: BenchConfig) -> dict[int, float]:
     """GRBL 1.1h's defaults with the bench file's axes: ``$100/$101`` from ``[axes.*].units_per_deg``,
     ``$110/$111`` and ``$120/$121`` from ``[simulator].stepper_velocity_deg_s`` / ``_acceleration_deg_s2``, and
-    ``[simulator].homing_required`` as ``$22`` (the arms have switches)."""
+    ``[motion.grbl].homing`` (default ``[simulator].homing_required``) as ``$22`` (the arms have switches) and its
+    ``soft_limits`` as ``$20``."""
     s = cfg.sim
-    motion = cfg.raw.get("motion")
-    g = motion.get("grbl") if isinstance(motion, dict) else None
-    g = g if isinstance(g, dict) else {}
-    homing = bool(g.get("homing", s.homing_required))
-    soft = bool(g.get("soft_limits", False)) and homing
+    homing = cfg.grbl.homing
+    soft = cfg.grbl.soft_limits and homing
     out = {0: 10, 1: 25, 2: 0, 3: 0, 4: 0, 5: 0, 6: 0, 10: 1, 11: 0.010, 12: 0.002, 13: 0, 20: float(soft), 21: 0,
            22: float(homing), 23: 0, 24: 25.0, 25: 500.0, 26: 250, 27: 1.0, 30: 1000, 31: 0, 32: 0,
            102: 250.0, 112: 500.0, 122: 10.0, 132: 200.0}

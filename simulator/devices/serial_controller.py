@@ -14,7 +14,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from simulator.config import AxisConfig, BenchConfig
+from reconstruction.schema.bench import Axis
+from simulator.config import BenchConfig
 from simulator.world.clock import Paced, SimClock
 from simulator.world.faults import FaultInjector
 from simulator.world.motion import AxisMotion
@@ -65,7 +66,7 @@ ERROR_TEXT = {
 class StepperAxis:
     """One open-loop stepper axis with stall detection; positions in steps."""
 
-    def __init__(self, cfg: AxisConfig, sim_cfg, clock: SimClock) -> None:
+    def __init__(self, cfg: Axis, sim_cfg, clock: SimClock) -> None:
         self.cfg = cfg
         self.clock = clock
         upd = abs(cfg.units_per_deg)

@@ -63,7 +63,7 @@ class UsbDetector(Paced):
     def __init__(self, cfg: BenchConfig, clock: SimClock, physics: BenchPhysics,
                  arm_angles: Callable[[float | None], tuple[float, float]]) -> None:
         self.cfg = cfg
-        self.kind = cfg.detector.device
+        self.kind = cfg.detector.type
         self.clock = clock
         self.physics = physics
         self.arm_angles = arm_angles

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from simulator.config import FaultConfig
+from reconstruction.schema.simulator import FaultsSection
 
 
 class FaultInjector:
@@ -13,7 +13,7 @@ class FaultInjector:
     ``comm``: apply reply drops and byte corruption (false for a port the faults do not target).
     """
 
-    def __init__(self, cfg: FaultConfig, rng: np.random.Generator, comm: bool = True) -> None:
+    def __init__(self, cfg: FaultsSection, rng: np.random.Generator, comm: bool = True) -> None:
         self.cfg = cfg
         self.rng = rng
         self.comm = comm

@@ -101,17 +101,15 @@ def load_material(cfg: BenchConfig) -> BRDF:
     """The ground-truth material of the config's ``[material]`` table; the tables of ``tabulated`` lobes are read
     now (a simulator that cannot load its material refuses the config before serving, rather than answering
     ``error:1`` to a reading later). Raises ValueError naming the lobe."""
-    from reconstruction.core import merltable
-    from reconstruction.core.models import Material
-    from reconstruction.formats import merl
+    from reconstruction.core.merltable import MerlError
+    from reconstruction.core.models import Material, read_lobe_table
 
     mat = Material.from_dict(cfg.material, cfg.base_dir)
     for i, lobe in enumerate(mat.lobes):
-        if getattr(lobe, "type_name", "") == "tabulated":
-            try:
-                lobe.table = merl.read(lobe.path)  # type: ignore[attr-defined]
-            except merltable.MerlError as e:
-                raise ValueError(f"[material].lobes[{i}].path: {e}") from None
+        try:
+            read_lobe_table(lobe, f"[material].lobes[{i}]", record=False)
+        except MerlError as e:
+            raise ValueError(str(e)) from None
     return mat
 
 
@@ -172,9 +170,9 @@ class BenchPhysics:
         self.source_on = True
         #: how often the source was switched (a spectrometer's scan running at a switch sees both states)
         self.source_switches = 0
-        wl = s.spectrometer.grid() if cfg.detector.type == "spectrometer" else None
+        wl = s.spectrometer.grid() if cfg.detector.kind == "spectrometer" else None
         self.detector = Detector(
-            type=cfg.detector.type,
+            type=cfg.detector.kind,
             integration_time_s=float(cfg.detector.integration_time_s),
             ref_integration_time_s=float(cfg.detector.integration_time_s),
             gain=float(s.gain),
@@ -190,7 +188,7 @@ class BenchPhysics:
         self.input_offset = float(s.input_offset)
         self.electrons_per_count = float(s.electrons_per_count)
         self.shot_noise = bool(s.shot_noise)
-        self.blind_half_width = float(cfg.blind_spot_half_width_deg)
+        self.blind_half_width = float(cfg.bench.blind_spot_half_width_deg)
         self.ambient = float(s.ambient)
         self.flicker_depth = float(s.flicker_depth)
         self.flicker_hz = float(s.flicker_hz)
@@ -203,8 +201,9 @@ class BenchPhysics:
         self.gains = cfg.detector.gains
         from reconstruction.bench.instrument import Instrument
 
-        self.instrument = Instrument(self.solid_angle, float(cfg.source_divergence_deg), cfg.beam_diameter_mm,
-                                     cfg.sample_diameter_mm)
+        b = cfg.bench
+        self.instrument = Instrument(self.solid_angle, float(b.source_divergence_deg), b.beam_diameter_mm,
+                                     b.sample_diameter_mm)
         #: the amplifier's circuit (:class:`simulator.world.frontend.FrontEnd`) or None: the formula above
         self.frontend = None
         if getattr(s, "frontend", "ideal") == "netlist":
@@ -313,7 +312,7 @@ class BenchPhysics:
         else:
             tilt = -m.sample_tilt_deg if m.sample_turned else m.sample_tilt_deg
         return true_angles(theta_i_deg, theta_o_deg, m.light_zero_deg, m.detector_zero_deg, tilt,
-                           m.surface_offset_mm, self.cfg.detector_distance_mm or 70.0)
+                           m.surface_offset_mm, self.cfg.bench.detector_distance_mm or 70.0)
 
     def source_scale(self, t_s) -> np.ndarray:
         """The source's power relative to nominal at bench times ``t_s`` (s): its drift and its warm-up,
@@ -345,7 +344,7 @@ class BenchPhysics:
         from reconstruction.schema.optics import footprint_fraction
 
         s = self.source_power * fc * self.solid_angle * (t_int / self.detector.ref_integration_time_s)
-        s = s * footprint_fraction(ti, self.cfg.beam_diameter_mm, self.cfg.sample_diameter_mm)[..., None]
+        s = s * footprint_fraction(ti, self.cfg.bench.beam_diameter_mm, self.cfg.bench.sample_diameter_mm)[..., None]
         blind = np.abs(arm_ti + arm_to) < self.blind_half_width
         s = np.where(blind[..., None], 0.0, s)
         if t_s is not None and (self.source_drift_per_h or self.source_warmup_depth):

@@ -19,16 +19,14 @@ GRBL is copied or read at run time.
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Mapping
 from typing import Any
 
 import msgspec
 
 from acquisition.errors import ConfigError
-from acquisition.sections import AxisConfig, MotionConfig
 from reconstruction.schema import SchemaError, Table
-from reconstruction.schema.bench import GrblTable
+from reconstruction.schema.bench import Axis, GrblTable, MotionTable
 
 __all__ = ["ERRORS", "ALARMS", "LOST_POSITION_ALARMS", "MAX_STEP_RATE", "AXIS_LETTER", "error_text", "alarm_text",
            "motion_kind", "read_grbl", "unlocked", "machine_deg", "expected_settings", "SETTING_NAMES"]
@@ -133,13 +131,13 @@ def motion_kind(src: str, bench_motion: Any, motion_type: Any, transport: str) -
     return bench_motion
 
 
-def machine_deg(ax: AxisConfig, deg: float) -> float:
+def machine_deg(ax: Axis, deg: float) -> float:
     """GRBL's machine coordinate (its "mm": degrees of the motor side) of the arm angle ``deg``."""
     return ax.deg_to_units(deg) / ax.units_per_deg
 
 
-def read_grbl(src: str, raw_motion: Mapping[str, Any], motion: MotionConfig, axes: Mapping[str, AxisConfig],
-              transport: str) -> MotionConfig:
+def read_grbl(src: str, raw_motion: Mapping[str, Any], motion: MotionTable, axes: Mapping[str, Axis],
+              transport: str) -> MotionTable:
     """``[motion.grbl]`` checked against the arms: returns ``motion`` with its :class:`GrblTable` (defaults when
     the table is left out). Raises :class:`ConfigError` naming the file and key."""
     sec = "motion.grbl"
@@ -174,19 +172,19 @@ def read_grbl(src: str, raw_motion: Mapping[str, Any], motion: MotionConfig, axe
                                   f"run from -$13{'01'[name == 'detector']} to 0 (0 at the home switch), but "
                                   f"[{ax.min_deg:g}, {ax.max_deg:g}] deg map to [{lo:.3f}, {hi:.3f}]; put the "
                                   "switch end of the travel at machine 0")
-    return dataclasses.replace(motion, type="grbl", grbl=g)
+    return msgspec.structs.replace(motion, type="grbl", grbl=g)
 
 
-def unlocked(cfg: Any) -> MotionConfig:
+def unlocked(cfg: Any) -> MotionTable:
     """``cfg.motion`` with ``[motion.grbl].unlock`` set (``gonio-capture --unlock``); a bench that is not on GRBL
     raises :class:`ConfigError`."""
     if cfg.motion.type != "grbl" or cfg.motion.grbl is None:
         raise ConfigError(f'{cfg.path}: --unlock is for a GRBL bench ([motion] type = "grbl"); this bench\'s motion '
                           f"is {cfg.bench.motion!r}")
-    return dataclasses.replace(cfg.motion, grbl=msgspec.structs.replace(cfg.motion.grbl, unlock=True))
+    return msgspec.structs.replace(cfg.motion, grbl=msgspec.structs.replace(cfg.motion.grbl, unlock=True))
 
 
-def expected_settings(axes: Mapping[str, AxisConfig], motion: MotionConfig) -> dict[int, float]:
+def expected_settings(axes: Mapping[str, Axis], motion: MotionTable) -> dict[int, float]:
     """The ``$N`` values the bench file implies (GRBL units: deg for mm), keyed by setting number."""
     g = motion.grbl if motion.grbl is not None else GrblTable()
     out: dict[int, float] = {22: float(g.homing), 20: float(g.soft_limits)}

@@ -60,7 +60,7 @@ import numpy as np
 from acquisition.calibration import Reading, pool
 from acquisition.errors import DeviceError
 
-log = logging.getLogger("acquisition.autorange")
+log = logging.getLogger("acquisition.devices.autorange")
 
 __all__ = ["AutoRanger", "Ranged", "ladder", "settings_ladder", "setting_key", "read_clean", "HEADROOM",
            "RUNG_RATIO", "PROBE_REPEATS", "PREDICTION_BAND", "ranged_wording"]
