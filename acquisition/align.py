@@ -3,7 +3,7 @@
 With a first-surface mirror as the sample, short detector sweeps find the specular peak at several incidences;
 a sweep over the white reference at normal incidence finds the detector arm's zero; the mirror turned 180 deg about
 its normal (a second run, ``--turned``) separates the light arm's zero from the mirror's tilt. The fit and what it
-can and cannot tell apart: :mod:`reconstruction.bench.alignment`; the procedure: docs/build-a-bench.md, Alignment.
+can and cannot tell apart: :mod:`reconstruction.instrument.alignment`; the procedure: docs/build-a-bench.md, Alignment.
 
     gonio-align --config my-bench.toml --save align1.json     # mirror + white reference
     # turn the mirror 180 deg about its normal in the holder, then
@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from reconstruction.bench.alignment import (
+from reconstruction.instrument.alignment import (
     Alignment,
     AlignmentError,
     SpecularFit,

@@ -1,5 +1,5 @@
 """The bench's optics as a capture records and checks them: the instrument of the slice metadata (``instrument``,
-:class:`reconstruction.bench.instrument.Instrument`), the photodiode's band, and the footprint (the illuminated spot,
+:class:`reconstruction.instrument.response.Instrument`), the photodiode's band, and the footprint (the illuminated spot,
 growing as 1 / cos theta_i, overfilling the sample at grazing incidence: the plan check warns, the calibration
 corrects). Angles in degrees, lengths in mm.
 """
@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from acquisition.config import BenchConfig
-from reconstruction.bench.instrument import Instrument
+from reconstruction.instrument.response import Instrument
 from reconstruction.schema.optics import band_name, footprint_fraction, footprint_limit_deg
 
 __all__ = ["instrument_of", "band_of", "footprint_losses", "footprint_warning", "footprint_meta",
@@ -31,7 +31,7 @@ def band_of(cfg: BenchConfig) -> str:
 
 
 def instrument_of(cfg: BenchConfig) -> Instrument:
-    """The bench's :class:`~reconstruction.bench.instrument.Instrument` (detector cone, source divergence, beam and
+    """The bench's :class:`~reconstruction.instrument.response.Instrument` (detector cone, source divergence, beam and
     sample diameters, band)."""
     b = cfg.bench
     return Instrument(cfg.detector.acceptance_sr, b.source_divergence_deg, b.beam_diameter_mm, b.sample_diameter_mm,

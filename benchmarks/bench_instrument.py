@@ -1,5 +1,5 @@
 """What the physical instrument model costs a capture: the simulator's reading of a 500-point plan with the detector
-cone and the source's divergence integrated (reconstruction.bench.instrument.instrument_average) against the same
+cone and the source's divergence integrated (reconstruction.instrument.response.instrument_average) against the same
 readings at the cone's centre (a point instrument, today's model before issue 10), per sample, for a smooth
 material (the demo's blue plastic) and a mirror (ggx alpha 1e-3), and for the mirror's samples near its peak alone
 (where the lobe rule runs; a lobe whose peak lies beyond 6 cone radii is smooth over the cone); then a whole
@@ -32,7 +32,7 @@ else:  # pragma: no cover
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from reconstruction.bench.instrument import Instrument  # noqa: E402
+from reconstruction.instrument.response import Instrument  # noqa: E402
 from simulator.config import config_from_dict  # noqa: E402
 from simulator.world.physics import BenchPhysics  # noqa: E402
 

@@ -36,9 +36,9 @@ import tomli_w
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from reconstruction.bench.instrument import Instrument, instrument_average  # noqa: E402
 from reconstruction.core.models import Colour, Lambert, Material, Microfacet  # noqa: E402
 from reconstruction.core.slicedata import Slice  # noqa: E402
+from reconstruction.instrument.response import Instrument, instrument_average  # noqa: E402
 from reconstruction.methods.fit import reconstruct_fit  # noqa: E402
 
 

@@ -106,7 +106,7 @@ class Background:
     """A second thread for independent work when the machine has a second core (else the work runs when its result
     is asked for); ``submit`` returns a function that gives the result (or raises the work's exception). The
     work runs in submission order, in a copy of the caller's context (the shared cone integrals of
-    :func:`reconstruction.bench.instrument.shared_cone_averages` included): auto's cross-validation of the methods
+    :func:`reconstruction.instrument.response.shared_cone_averages` included): auto's cross-validation of the methods
     that do not wait for fit, and the pipeline's uncertainty and HTML page beside the main thread."""
 
     def __init__(self, enabled: bool = True) -> None:

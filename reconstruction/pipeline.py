@@ -110,7 +110,7 @@ def run(job: Job, progress: Progress | None = None) -> dict[str, Any]:
     Returns the report. Raises :class:`ImplausibleError` (nothing written) for a table that fails a plausibility
     check unless ``job.allow_implausible``; bad input is a :class:`ReconstructionError` (or a reader's error)
     naming the file, checked output paths before any work. The job's fits (auto's folds, the HTML report's other
-    methods) share their cone integrals (:func:`reconstruction.bench.instrument.shared_cone_averages`). With the
+    methods) share their cone integrals (:func:`reconstruction.instrument.response.shared_cone_averages`). With the
     uncertainty or the HTML page asked and a second core, what they need that does not wait for the main thread
     runs beside it (:class:`reconstruction.workers.Workers`): the built-in family's posterior (the samples' alone)
     while the samples are reconstructed, matplotlib's imports while the table is tabulated, checked and written;

@@ -14,8 +14,8 @@ from typing import Any, TypeVar
 
 from threadpoolctl import threadpool_limits
 
-from reconstruction.bench.instrument import seed_shared_cone_averages, shared_cone_averages
 from reconstruction.executor import Background, Forked, SpareCore
+from reconstruction.instrument.response import seed_shared_cone_averages, shared_cone_averages
 from reconstruction.job import Job
 from reconstruction.methods.auto import KEEP_BUILDS, import_methods, start_child
 from reconstruction.report.figures import Drawer

@@ -2,7 +2,7 @@
 (configs/simulated.toml) and the simulator's own physics:
 
 - ``instrument-aperture.png``: a sharp ggx lobe read through the detector's cone (the reading the simulator
-  gives, :func:`reconstruction.bench.instrument.instrument_average`) against f at the cone's centre;
+  gives, :func:`reconstruction.instrument.response.instrument_average`) against f at the cone's centre;
 - ``instrument-footprint.png``: the fraction of the beam that falls on the sample against theta_i (the light a
   real bench loses at grazing incidence, and what the calibration corrects);
 - ``instrument-gains.png``: the gain ranging ladder: the signal range each setting (gain, integration time)
@@ -24,9 +24,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from reconstruction.bench.instrument import Instrument, instrument_average  # noqa: E402
 from reconstruction.core.geometry import inplane_to_dirs  # noqa: E402
 from reconstruction.core.models import Material  # noqa: E402
+from reconstruction.instrument.response import Instrument, instrument_average  # noqa: E402
 from reconstruction.schema.optics import footprint_fraction, footprint_limit_deg  # noqa: E402
 
 

@@ -4,7 +4,7 @@ A mirror-like material (lambert 0.02 + ggx, specular 0.95) at theta_i = 30 deg, 
 1e-3 sr (half angle 1.02 deg), for alpha = 0.005 and 1e-3. Each panel shows, against theta_o - theta_i:
 
 * f at the cone's centre (what a point detector would see, and what the simulator gave with aperture_samples = 1);
-* the instrument's reading (reconstruction.bench.instrument.instrument_average: f cos averaged over the cone);
+* the instrument's reading (reconstruction.instrument.response.instrument_average: f cos averaged over the cone);
 * the samples of a 2 deg capture (the reading, 1 % noise), which fit is given with the instrument in their metadata;
 * the lobe the fit recovers (f of the fitted material) and its reading through the same cone.
 
@@ -24,10 +24,10 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from reconstruction.bench.instrument import Instrument, instrument_average  # noqa: E402
 from reconstruction.core.geometry import inplane_to_dirs  # noqa: E402
 from reconstruction.core.models import Colour, Lambert, Material, Microfacet  # noqa: E402
 from reconstruction.core.slicedata import Slice  # noqa: E402
+from reconstruction.instrument.response import Instrument, instrument_average  # noqa: E402
 from reconstruction.methods.fit import reconstruct_fit  # noqa: E402
 
 THETA_I = 30.0

@@ -98,17 +98,18 @@ def build_parser() -> argparse.ArgumentParser:
     )
     c.add_argument("--config", required=True, help="bench config TOML (e.g. configs/simulated.toml)")
     b = sub.add_parser(
-        "bench",
-        help="run the speed/accuracy study: simulated captures x reconstruction methods",
+        "study", aliases=["bench"],
+        help="run the speed/accuracy study: simulated captures x reconstruction methods ('bench' is its old name, "
+             "still accepted)",
         description="Run simulated captures (gonio-capture against gonio-sim serve, simulated time as fast as "
                     "possible) over a grid of outgoing step, number of incidence slices, repeats, uniform vs "
                     "adaptive plans and noise, for several materials, reconstruct each with every method, and "
                     "write OUT/NAME.csv (every row), OUT/NAME-pareto.png and the NAME section of the study page "
                     "OUT/study.md (Pareto fronts, recommendations per error budget; the rest of the page is kept).",
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog="examples:\n  gonio-sim bench --quick\n  gonio-sim bench --workers 2\n"
-               "  gonio-sim bench --scheduler tcp://10.0.0.5:8786   # run the cases on a Dask cluster\n"
-               "  gonio-sim bench --materials sharp-ggx,mirror --merge docs/study.csv --out docs",
+        epilog="examples:\n  gonio-sim study --quick\n  gonio-sim study --workers 2\n"
+               "  gonio-sim study --scheduler tcp://10.0.0.5:8786   # run the cases on a Dask cluster\n"
+               "  gonio-sim study --materials sharp-ggx,mirror --merge docs/study.csv --out docs",
     )
     b.add_argument("--quick", action="store_true", help="a small grid (4 settings x 6 materials), ~3-4 min")
     b.add_argument("--config", default="configs/simulated.toml",
@@ -147,19 +148,19 @@ def _bench(args: argparse.Namespace) -> int:
     from simulator.study import MATERIALS, grid, materials_from_dir, run_study
 
     if not Path(args.config).is_file():
-        print(f"gonio-sim bench: --config {args.config}: no such file", file=sys.stderr)
+        print(f"gonio-sim study: --config {args.config}: no such file", file=sys.stderr)
         return 2
     catalogue = MATERIALS
     if args.material_dir:
         try:
             catalogue = materials_from_dir(args.material_dir)
         except ValueError as e:
-            print(f"gonio-sim bench: --material-dir: {e}", file=sys.stderr)
+            print(f"gonio-sim study: --material-dir: {e}", file=sys.stderr)
             return 2
     try:
         cases = grid(args.quick, args.materials.split(",") if args.materials else None, catalogue, args.reduced)
     except ValueError as e:
-        print(f"gonio-sim bench: --materials: {e}", file=sys.stderr)
+        print(f"gonio-sim study: --materials: {e}", file=sys.stderr)
         return 2
     merge: list = []
     if args.merge:
@@ -168,17 +169,17 @@ def _bench(args: argparse.Namespace) -> int:
         try:
             merge = read_rows(args.merge)
         except ValueError as e:
-            print(f"gonio-sim bench: --merge: {e}", file=sys.stderr)
+            print(f"gonio-sim study: --merge: {e}", file=sys.stderr)
             return 2
     name = args.name or ("study-quick" if args.quick else "study")
-    command = "gonio-sim bench" + (" --quick" if args.quick else "") + (" --reduced" if args.reduced else "") + (
+    command = "gonio-sim study" + (" --quick" if args.quick else "") + (" --reduced" if args.reduced else "") + (
         f" --material-dir {args.material_dir}" if args.material_dir else "") + (
         f" --materials {args.materials}" if args.materials else "") + (f" --merge {args.merge}" if args.merge else "")
     from simulator.study import METHODS, estimate_seconds
 
     workers = args.workers or (os.cpu_count() or 1)
     est = estimate_seconds(cases, 1 if args.scheduler else workers)
-    print(f"gonio-sim bench: {len(cases)} captures x {len(METHODS)} methods; estimated "
+    print(f"gonio-sim study: {len(cases)} captures x {len(METHODS)} methods; estimated "
           f"{est / 60:.0f} min" + ("" if args.scheduler else f" on {workers} local worker(s)")
           + f"; results to {args.out}", file=sys.stderr)
     t0 = time.perf_counter()
@@ -188,10 +189,10 @@ def _bench(args: argparse.Namespace) -> int:
                          metric="rmse80" if args.material_dir else "rel_rmse_cos", merge=merge,
                          merge_source=args.merge or "")
     except RuntimeError as e:
-        print(f"gonio-sim bench: {e}", file=sys.stderr)
+        print(f"gonio-sim study: {e}", file=sys.stderr)
         return 2
     failed = sum(r.get("status") != "ok" for r in rows)
-    print(f"gonio-sim bench: {len(cases)} captures, {len(rows)} results ({failed} failed) in "
+    print(f"gonio-sim study: {len(cases)} captures, {len(rows)} results ({failed} failed) in "
           f"{time.perf_counter() - t0:.0f} s; wrote {args.out}/{name}.csv, {name}-pareto.png and the {name} section of "
           "study.md")
     return 1 if failed == len(rows) else 0
@@ -294,7 +295,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 2
-    if args.command == "bench":
+    if args.command in ("study", "bench"):
         logging.basicConfig(level=logging.WARNING, stream=sys.stderr)
         return _bench(args)
     if args.command == "check":

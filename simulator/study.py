@@ -1,11 +1,11 @@
-"""The speed/accuracy trade study behind ``gonio-sim bench``.
+"""The speed/accuracy trade study behind ``gonio-sim study``.
 
 Every case is a real simulated capture: a bench config is derived from the base config (material, plan,
 noise), ``gonio-capture`` runs it as a child process against ``gonio-sim serve`` (bytes on pseudo-terminals,
 simulated time as fast as possible), and every reconstruction method is run on the captured slice. A case
 records the capture time (``capture_time_s``: the time model's estimate, what ``gonio-capture --check`` tells
 for that plan, with adaptive refinement's rounds as they were planned; the study chooses plans by it), the
-simulated bench time it took (``bench_time_s``; the two are one model, :mod:`reconstruction.bench.timing`, and a
+simulated bench time it took (``bench_time_s``; the two are one model, :mod:`reconstruction.instrument.timing`, and a
 case where they differ by more than 5 % is logged), the reconstruction time and the errors of the full table
 against the material's own table (``reconstruction.core.metrics.table_errors``).
 
@@ -389,12 +389,12 @@ def write_csv(path: Path, rows: Sequence[dict[str, Any]]) -> None:
             w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
 
 
-#: The one study page in OUT: every study (``--name``) is a section of it, between markers that ``gonio-sim bench``
+#: The one study page in OUT: every study (``--name``) is a section of it, between markers that ``gonio-sim study``
 #: rewrites; the text outside them (the page's introduction, how to rerun) is kept. Every row is in ``OUT/NAME.csv``.
 STUDY_PAGE = "study.md"
 #: The section titles of the studies committed in docs/ (another name is its own title).
 TITLES = {"study": "The full grid", "study-quick": "The quick grid", "study-real-materials": "The measured materials"}
-_INTRO = ["# Speed/accuracy study", "", "Figures on this page come from `gonio-sim bench` (each section names its "
+_INTRO = ["# Speed/accuracy study", "", "Figures on this page come from `gonio-sim study` (each section names its "
           "command). Capture time is simulated bench time (motion, settling, integration, dark "
           "and white-reference readings); errors are against the material's own table: relative RMSE of f "
           "cos(theta_i) cos(theta_o) over all valid cells, RMSE of its logarithm, relative error of the rendered "
@@ -403,7 +403,7 @@ _INTRO = ["# Speed/accuracy study", "", "Figures on this page come from `gonio-s
 
 
 def _markers(name: str) -> tuple[str, str]:
-    return (f"<!-- study {name}: written by gonio-sim bench, edits between these markers are lost -->",
+    return (f"<!-- study {name}: written by gonio-sim study, edits between these markers are lost -->",
             f"<!-- end of study {name} -->")
 
 

@@ -92,7 +92,7 @@ def band_vector(n_channels: int, wl: Any = None) -> np.ndarray:
 
 
 def _instrument(raw: dict[str, Any]) -> Any:
-    from reconstruction.bench.instrument import Instrument
+    from reconstruction.instrument.response import Instrument
 
     det, b, sim = raw["detector"], raw["bench"], raw.get("simulator", {})
     omega = det.get("solid_angle_sr", sim.get("detector_solid_angle_sr", 1e-3))
@@ -101,9 +101,9 @@ def _instrument(raw: dict[str, Any]) -> Any:
 
 def ground_truth(raw: dict[str, Any], s: Slice) -> np.ndarray:
     """f_r on the slice's channels from the config's [material], as the simulator's detector sees it: averaged
-    over the detector's cone and the source's divergence (reconstruction.bench.instrument, tested on its own against a
-    brute-force integral), the photodiode's band, and the footprint (the calibration corrects for it)."""
-    from reconstruction.bench.instrument import instrument_average
+    over the detector's cone and the source's divergence (reconstruction.instrument.response, tested on its own
+    against a brute-force integral), the photodiode's band, and the footprint (the calibration corrects for it)."""
+    from reconstruction.instrument.response import instrument_average
 
     mat = Material.from_dict(raw["material"])
     ti = quantised(raw, "light", s.theta_i_deg)

@@ -1,4 +1,4 @@
-"""gonio-align: the alignment's geometry and fit (reconstruction.bench.alignment), the simulator's
+"""gonio-align: the alignment's geometry and fit (reconstruction.instrument.alignment), the simulator's
 [simulator.misalignment], and the command recovering an injected misalignment on the simulated bench."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import pytest
 import tomllib
 from scipy.optimize import brentq
 
-from reconstruction.bench.alignment import (
+from reconstruction.instrument.alignment import (
     AlignmentError,
     combine,
     fit_diffuse_zero,

@@ -194,11 +194,12 @@ def test_the_cycle_finder_finds_a_cycle(tmp_path, monkeypatch):
 # --- the layers of reconstruction/ ----------------------------------------------------------------------------------
 
 #: Each layer of reconstruction/ (docs/architecture.md) and what it may import besides its own layer and the ones
-#: below it: the base (core, formats, bench, schema and the small shared modules), methods, then assess and report,
+#: below it: the base (core, formats, instrument, schema and the small shared modules), methods, then assess and report,
 #: then pipeline and the command line. formats.exports writes a reconstruction's outputs (a method's parameters, a
 #: preview), so it sits with the report.
 LAYERS = [
-    ("base", ("core", "formats", "bench", "schema", "base", "atomic", "cache", "cliutil", "synthetic", "executor")),
+    ("base", ("core", "formats", "instrument", "schema", "base", "atomic", "cache", "cliutil", "synthetic",
+              "executor")),
     ("methods", ("methods",)),
     ("assess and report", ("assess", "report", "principled", "formats.exports")),
     ("pipeline and cli", ("pipeline", "job", "workers", "cli")),
@@ -237,7 +238,7 @@ def test_reconstruction_imports_only_downwards():
 def test_reconstruction_has_at_most_15_modules_at_its_top():
     top = sorted(p.name for p in (REPO / "reconstruction").glob("*.py"))
     assert len(top) <= 15, top
-    for pkg in ("formats", "methods", "report", "core", "bench", "assess"):
+    for pkg in ("formats", "methods", "report", "core", "instrument", "assess"):
         assert (REPO / "reconstruction" / pkg / "__init__.py").is_file(), pkg
     assert (REPO / "reconstruction" / "methods" / "auto.py").is_file()
 

@@ -132,8 +132,8 @@ def test_a_large_input_is_cross_validated_on_a_bounded_subsample():
 @pytest.mark.slow
 def test_one_slice_through_a_finite_cone_prefers_microfacet_or_an_explaining_fit():
     from reconstruction import pipeline
-    from reconstruction.bench.instrument import Instrument, instrument_average
     from reconstruction.core.models import Colour, Lambert, Material, Microfacet
+    from reconstruction.instrument.response import Instrument, instrument_average
     from reconstruction.methods.crossval import CVScore
 
     methods = ["fit", "microfacet", "bivariate", "revolve"]
@@ -328,8 +328,8 @@ def test_one_glossy_slice_through_a_cone_chooses_fit():
     the held-out blocks alike, but microfacet's Fresnel index trades against its tabulated distribution (its table
     was 71 % off where fit's was 0.7 %): auto must choose fit."""
     from reconstruction import pipeline
-    from reconstruction.bench.instrument import Instrument, instrument_average
     from reconstruction.core.models import Colour, Lambert, Material, Microfacet
+    from reconstruction.instrument.response import Instrument, instrument_average
 
     mat = Material("glossy-ggx", [Lambert(Colour(np.array([0.2]))),
                                   Microfacet(Colour(np.array([0.8])), alpha=0.15, f0=0.04)])

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from reconstruction.bench.instrument import Instrument, instrument_average
 from reconstruction.core.energy import microfacet_albedo
 from reconstruction.core.models import Colour, Lambert, Material, Microfacet
 from reconstruction.core.slicedata import Slice
+from reconstruction.instrument.response import Instrument, instrument_average
 from reconstruction.methods.fit import reconstruct_fit
 
 

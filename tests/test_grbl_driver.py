@@ -15,7 +15,7 @@ from acquisition.config import load_config
 from acquisition.devices import grbl_settings
 from acquisition.devices.grbl import GrblAxes, GrblError, parse_status
 from acquisition.errors import ConfigError, DeviceError, HardwareError
-from reconstruction.bench.timing import AxisTiming, MoveTiming, line_durations, trapezoid_duration
+from reconstruction.instrument.timing import AxisTiming, MoveTiming, line_durations, trapezoid_duration
 from simulator.bench import VirtualBench
 from simulator.config import load_config as sim_load_config
 from simulator.ports.transports import PtyServer

@@ -1,13 +1,14 @@
-"""The instrument's angular response (reconstruction.bench.instrument): readings against a brute-force cone integral."""
+"""The instrument's angular response (reconstruction.instrument.response): readings against a brute-force cone
+integral."""
 
 import math
 
 import numpy as np
 import pytest
 
-from reconstruction.bench.instrument import Instrument, InstrumentError, instrument_average
 from reconstruction.core.geometry import inplane_to_dirs
 from reconstruction.core.models import Colour, Lambert, Material, Microfacet
+from reconstruction.instrument.response import Instrument, InstrumentError, instrument_average
 
 
 def _mat(*lobes) -> Material:
@@ -164,7 +165,7 @@ def _near_mirror_pairs():
 def test_unit_lobe_averages_equal_one_lobe_at_a_time(kind):
     """The fits' tables (the cheaper peak rule, TABLE_RULE) are the simulator's readings of each lobe alone to
     within 1e-3 of the lobe's largest reading; one distribution alone or two in one pass give the same numbers."""
-    from reconstruction.bench.instrument import instrument_average_dirs, unit_lobe_averages, unit_lobe_tables
+    from reconstruction.instrument.response import instrument_average_dirs, unit_lobe_averages, unit_lobe_tables
 
     wi, wo = _near_mirror_pairs()
     inst = Instrument(detector_solid_angle_sr=1e-3, source_divergence_deg=0.25)
@@ -182,7 +183,7 @@ def test_unit_lobe_averages_equal_one_lobe_at_a_time(kind):
 
 
 def test_shared_cone_averages_compute_each_direction_pair_once(monkeypatch):
-    from reconstruction.bench import instrument as ins
+    from reconstruction.instrument import response as ins
 
     wi, wo = _near_mirror_pairs()
     inst = Instrument.from_half_angle(1.0)
@@ -214,7 +215,7 @@ def test_shared_cone_averages_compute_each_direction_pair_once(monkeypatch):
 def test_two_distributions_that_know_different_pairs_each_keep_the_pairs_once():
     """A table of ggx and beckmann where ggx knows some pairs already: both come out whole (ggx's known rows as they
     were), and each distribution's memory holds every pair once (the pass computes the union for both)."""
-    from reconstruction.bench import instrument as ins
+    from reconstruction.instrument import response as ins
 
     wi, wo = _near_mirror_pairs()
     inst = Instrument.from_half_angle(1.0)
@@ -236,8 +237,8 @@ def test_fit_tables_prefetched_in_another_process_seed_the_shared_cone_averages(
     """aperture.prefetch_tables computes fit's cone tables of a slice's near-mirror samples as fit does; seeded into
     a shared_cone_averages block (as auto's forked child's answer is), fit's tables are then looked up, not
     computed, with the same values. A point instrument has none to prefetch."""
-    from reconstruction.bench import instrument as ins
     from reconstruction.core.slicedata import Slice
+    from reconstruction.instrument import response as ins
     from reconstruction.methods.fit.aperture import Blur, prefetch_tables
 
     ti = np.repeat([20.0, 45.0], 9)

@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 
 from reconstruction import pipeline
-from reconstruction.bench.instrument import Instrument, instrument_average
 from reconstruction.core import merlgrid, merltable
 from reconstruction.core.checks import ALBEDO_TOLERANCE, plausibility
 from reconstruction.core.energy import microfacet_albedo
@@ -24,6 +23,7 @@ from reconstruction.core.models import Colour, Lambert, Material, Microfacet
 from reconstruction.core.slicedata import Slice
 from reconstruction.formats import merl
 from reconstruction.formats.slicefile import write_slice
+from reconstruction.instrument.response import Instrument, instrument_average
 
 THETA_I_DEG = np.array([0.0, 30.0, 60.0, 70.0, 80.0])
 CONE = Instrument.from_half_angle(1.025)  # the simulated bench's detector: 1e-3 sr

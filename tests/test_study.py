@@ -105,9 +105,9 @@ def test_the_same_cases_run_on_a_dask_cluster(tmp_path):
 def test_cli_rejects_unknown_materials_and_missing_config(capsys):
     from simulator.cli import main
 
-    assert main(["bench", "--materials", "velvet"]) == 2
+    assert main(["study", "--materials", "velvet"]) == 2
     assert "unknown material" in capsys.readouterr().err
-    assert main(["bench", "--config", "nowhere.toml"]) == 2
+    assert main(["bench", "--config", "nowhere.toml"]) == 2  # the command's old name still runs it
     assert "no such file" in capsys.readouterr().err
 
 
@@ -173,7 +173,7 @@ def test_cli_material_dir_errors_are_one_line(capsys, tmp_path):
 def test_the_study_writes_to_out_by_default_and_estimates_its_duration():
     from simulator.cli import build_parser
 
-    args = build_parser().parse_args(["bench", "--quick"])
+    args = build_parser().parse_args(["study", "--quick"])
     assert args.out == "out/study"  # a user's run never rewrites the committed docs/
     quick = study.grid(quick=True)
     est1, est2 = study.estimate_seconds(quick, 1), study.estimate_seconds(quick, 2)
@@ -216,7 +216,7 @@ def test_merge_keeps_an_earlier_runs_rows_for_the_materials_not_rerun(tmp_path, 
 
 
 def test_the_committed_quick_study_has_the_shape_its_command_makes():
-    """Issue 41: docs/study-quick.* held 20 captures of 5 materials where `gonio-sim bench --quick` makes 24 of 6.
+    """Issue 41: docs/study-quick.* held 20 captures of 5 materials where `gonio-sim study --quick` makes 24 of 6.
     The committed study must hold the materials and the captures the command it names would make (from the
     command's own configuration: simulator.study.grid; nothing is run)."""
     import csv
@@ -228,7 +228,7 @@ def test_the_committed_quick_study_has_the_shape_its_command_makes():
     docs = Path(__file__).resolve().parents[1] / "docs"
     md = study.study_section((docs / "study.md").read_text(encoding="utf-8"), "study-quick")
     command = re.search(r"Produced by `([^`]+)`", md).group(1)
-    assert command.split()[:3] == ["gonio-sim", "bench", "--quick"]
+    assert command.split()[:3] == ["gonio-sim", "study", "--quick"]
     materials = re.search(r"--materials (\S+)", command)
     cases = grid(True, materials.group(1).split(",") if materials else None)
     with open(docs / "study-quick.csv", newline="", encoding="utf-8") as fh:
@@ -248,16 +248,16 @@ def test_a_study_rewrites_its_own_section_of_the_one_study_page_and_keeps_the_re
     rows = [{**row(10, 0.5, material="diffuse"), "step_deg": 5}, row(20, 0.01, material="diffuse"),
             {**row(30, 0.2, "auto", "mirror"), "status": "method failed"}]
     page = tmp_path / study.STUDY_PAGE
-    study.write_markdown(page, rows, "a", "gonio-sim bench --quick")
+    study.write_markdown(page, rows, "a", "gonio-sim study --quick")
     assert page.read_text().startswith("# Speed/accuracy study\n")  # a new page gets its introduction
     page.write_text(page.read_text().replace("# Speed/accuracy study", "# My study\n\nMy own words."))
-    study.write_markdown(page, rows[:1], "b", "gonio-sim bench --name b")
-    study.write_markdown(page, rows, "a", "gonio-sim bench --quick --materials diffuse")  # a again: replaced
+    study.write_markdown(page, rows[:1], "b", "gonio-sim study --name b")
+    study.write_markdown(page, rows, "a", "gonio-sim study --quick --materials diffuse")  # a again: replaced
     text = page.read_text()
     assert text.startswith("# My study\n\nMy own words.") and text.count("\n## a\n") == 1
     a, b = study.study_section(text, "a"), study.study_section(text, "b")
     assert text.index(a) < text.index(b)  # rewritten where it was
-    assert "Produced by `gonio-sim bench --quick --materials diffuse`." in a
+    assert "Produced by `gonio-sim study --quick --materials diffuse`." in a
     assert "3 rows (3 captures), 1 failed: [a.csv](a.csv)." in a
     assert "| diffuse | 20.0 s: fit, step 1 deg, 1 slice(s), 1 repeat(s), uniform, low noise (1.00%) | the same |" in a
     assert "| mirror | not reached (best inf%) |" in a  # its only row failed
@@ -267,7 +267,7 @@ def test_a_study_rewrites_its_own_section_of_the_one_study_page_and_keeps_the_re
 
 def test_the_committed_study_page_is_short_and_is_what_its_csvs_make():
     """Issue 51: docs/study.md was 4,273 lines, mostly a table that repeated docs/study.csv. Now one page under
-    500 lines whose three sections are exactly what `gonio-sim bench` writes from the committed CSVs (each
+    500 lines whose three sections are exactly what `gonio-sim study` writes from the committed CSVs (each
     section's command and --merge sentence read from the section itself), with each study's plot beside it."""
     import re
     from pathlib import Path

@@ -3,13 +3,13 @@
 import numpy as np
 import pytest
 
-from reconstruction.bench.instrument import Instrument, instrument_average
 from reconstruction.core import merltable
 from reconstruction.core.energy import microfacet_albedo
 from reconstruction.core.metrics import halfvector_albedo
 from reconstruction.core.models import Colour, Lambert, Material, Microfacet
 from reconstruction.core.slicedata import Slice
 from reconstruction.formats import merl
+from reconstruction.instrument.response import Instrument, instrument_average
 from reconstruction.methods.bivariate import reconstruct_bivariate
 
 THETA_I = np.radians([0.0, 30.0, 60.0, 80.0])

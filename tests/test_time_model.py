@@ -1,4 +1,4 @@
-"""One time model for the simulator and the planner (reconstruction.bench.timing): the estimate of `gonio-capture
+"""One time model for the simulator and the planner (reconstruction.instrument.timing): the estimate of `gonio-capture
 --check` and of a capture (adaptive rounds estimated as they are planned) is within 5 % of the simulated bench time
 the capture takes, on the Dynamixel and the stepper benches; the capture orders its points once."""
 
@@ -14,7 +14,7 @@ import pytest
 import tomli_w
 
 from acquisition import Bench
-from reconstruction.bench.timing import AxisTiming, MoveTiming, dxl_profile_units, trapezoid_duration
+from reconstruction.instrument.timing import AxisTiming, MoveTiming, dxl_profile_units, trapezoid_duration
 from simulator.world.motion import AxisMotion, TrapezoidProfile
 
 if sys.version_info >= (3, 11):

@@ -49,7 +49,7 @@ from acquisition.devices.grbl_settings import (
 )
 from acquisition.devices.lines import next_line
 from acquisition.errors import PORT_ERRORS, CommError, DeviceError, HardwareError, PortError, port_reason
-from reconstruction.bench.timing import line_durations
+from reconstruction.instrument.timing import line_durations
 from reconstruction.schema.bench import Axis, GrblTable, MotionTable
 
 log = logging.getLogger("acquisition.grbl")

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from acquisition.config import BenchConfig
-from reconstruction.bench.timing import (
+from reconstruction.instrument.timing import (
     DXL_ACC_UNIT_REV_S2,
     DXL_UNITS_PER_REV,
     DXL_VEL_UNIT_REV_S,
@@ -83,7 +83,8 @@ def point_key(p: Point) -> tuple[float, float]:
 class Geometry:
     """What the bench can reach and how fast; angles in degrees, speeds in deg/s, accelerations in deg/s^2.
 
-    Move times are the shared time model (:mod:`reconstruction.bench.timing`, the one the simulator's axes move by):
+    Move times are the shared time model (:mod:`reconstruction.instrument.timing`, the one the simulator's axes move
+    by):
     trapezoidal profiles of both arms at once between whole controller units, plus ``arrive_s`` during which the
     arms still report moving; the drivers poll for that every ``poll_s`` (bench time: ``[motion].poll_interval_s``
     plus a query, times the simulator's time scale; 0 when simulated time jumps), so a move is over at the first
@@ -100,7 +101,7 @@ class Geometry:
     arrive_s: float = 0.0
     poll_s: float = 0.0
     host_s: float = 0.0
-    coordinated: bool = False  # both arms on one straight line (GRBL), see reconstruction.bench.timing
+    coordinated: bool = False  # both arms on one straight line (GRBL), see reconstruction.instrument.timing
     units: str = "controller units"  # what a whole unit of the arms is called: "servo units", "steps"
 
     @classmethod
@@ -130,7 +131,7 @@ class Geometry:
 
     @cached_property
     def timing(self) -> MoveTiming:
-        """The shared move-time model of the two arms (:class:`reconstruction.bench.timing.MoveTiming`)."""
+        """The shared move-time model of the two arms (:class:`reconstruction.instrument.timing.MoveTiming`)."""
         def axis(ax: Axis, speed: tuple[float, float]) -> AxisTiming:
             upd = abs(ax.units_per_deg)
             return AxisTiming(ax.units_per_deg, ax.zero_offset, ax.direction, speed[0] * upd, speed[1] * upd)

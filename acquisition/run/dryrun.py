@@ -2,7 +2,7 @@
 logs before it starts. The very plan of the capture (:func:`acquisition.plans.capture`: the dark level and the
 white reference, the points in the capture's order from where the capture starts them, the final dark) runs on it
 through the same engine, which accounts its times as in a capture: every move is checked against the limits and
-the time model accumulates (the shared move-time model of :mod:`reconstruction.bench.timing`, by which the
+the time model accumulates (the shared move-time model of :mod:`reconstruction.instrument.timing`, by which the
 simulator's axes move, plus the polling delay; ``[motion].settle_s`` per point; ``repeats`` x the integration
 time per reading), so the estimate and the capture cannot disagree about what the plan does. Nothing is opened or
 moved. Auto-ranging: the darks at every gain are part of the calibration plan, so they are counted; every reading

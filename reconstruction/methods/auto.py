@@ -196,7 +196,7 @@ def rank(scores: list[CVScore], preferred: list[str], margin: float, noise: floa
 
 def _finite_aperture(s: Slice) -> bool:
     """True when the slice's readings are averages over a finite detector cone or source divergence."""
-    from reconstruction.bench.instrument import Instrument, InstrumentError
+    from reconstruction.instrument.response import Instrument, InstrumentError
 
     try:
         return not Instrument.from_meta(s.meta.get("instrument")).is_point
@@ -209,7 +209,7 @@ def reconstruct_auto(s: Slice, opts: Options,
     """Cross-validate every usable method on ``s`` (sorted, checked) and build the chosen one on all samples;
     returns (reconstruction, choice) as :func:`reconstruction.pipeline.reconstruct` does. The folds' fits and the
     final one share their cone integrals (a finite aperture's readings of unit lobes, computed once per sample)."""
-    from reconstruction.bench.instrument import shared_cone_averages
+    from reconstruction.instrument.response import shared_cone_averages
 
     with shared_cone_averages():
         return _reconstruct_auto(s, opts, progress)
@@ -423,7 +423,7 @@ def _cross_validate_methods(s: Slice, names: list[str], opts: Options, masks: li
                             inside: NDArray[np.bool_] | None) -> dict[str, CVScore]:
     """{method: its cross-validation} of the registered methods ``names`` (auto's background methods), their cone
     integrals shared: what the run's forked child computes (:class:`reconstruction.executor.Forked`)."""
-    from reconstruction.bench.instrument import shared_cone_averages
+    from reconstruction.instrument.response import shared_cone_averages
 
     with shared_cone_averages():
         return {name: cross_validate(s, name, lambda tr, m=REGISTRY[name]: m.build(tr, opts, None), masks, inside)
@@ -458,7 +458,7 @@ def start_child(child: Any, inputs: tuple[str, ...], quantity: str | None, colum
     """Give auto's forked child (:class:`reconstruction.executor.Forked`, forked before scipy's import) its first
     work while the run imports the methods: fit's cone tables of the samples
     (:func:`reconstruction.methods.fit.aperture.prefetch_tables`), then the same imports. Returns the tables' getter
-    (entries for :func:`reconstruction.bench.instrument.seed_shared_cone_averages`), or None when the inputs are
+    (entries for :func:`reconstruction.instrument.response.seed_shared_cone_averages`), or None when the inputs are
     not slice files (.csv) or cannot be read quietly here (the run reads them again and says what is wrong)."""
     from reconstruction.formats import inputs as readers
     from reconstruction.methods.fit.aperture import prefetch_tables

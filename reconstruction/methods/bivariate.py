@@ -40,10 +40,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from reconstruction.base import ReconstructionError
-from reconstruction.bench.instrument import Instrument, InstrumentError
 from reconstruction.core import merlgrid, merltable
 from reconstruction.core.geometry import half_diff_from_dirs, inplane_to_dirs
 from reconstruction.core.slicedata import Slice
+from reconstruction.instrument.response import Instrument, InstrumentError
 
 Array = NDArray[np.float64]
 

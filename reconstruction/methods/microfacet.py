@@ -38,11 +38,11 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import minimize, minimize_scalar, nnls
 
 from reconstruction.base import ReconstructionError
-from reconstruction.bench.instrument import Instrument, InstrumentError, unit_lobe_averages
 from reconstruction.core.geometry import normalize
 from reconstruction.core.models import ggx_d, ggx_g1_over_cos
 from reconstruction.core.samples import sample_directions
 from reconstruction.core.slicedata import Slice
+from reconstruction.instrument.response import Instrument, InstrumentError, unit_lobe_averages
 
 Array = NDArray[np.float64]
 

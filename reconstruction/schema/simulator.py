@@ -73,7 +73,7 @@ class SpectrometerSection(msgspec.Struct, kw_only=True, forbid_unknown_fields=Tr
 
 class MisalignmentSection(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     """``[simulator.misalignment]``: a bench out of alignment, for ``gonio-align`` to find
-    (:mod:`reconstruction.bench.alignment`; docs/build-a-bench.md, Alignment). Degrees and mm."""
+    (:mod:`reconstruction.instrument.alignment`; docs/build-a-bench.md, Alignment). Degrees and mm."""
 
     light_zero_deg: Annotated[float, _m(-10.0, 10.0, _within(-10, 10), description="the light arm stands this far "
                                                                                    "past its reading")] = 0.0

@@ -15,13 +15,13 @@ FORMAT_VERSION = 1
 QUANTITIES = ("brdf", "reflectance_factor", "brdf_cos")
 
 
-#: the keys of the ``instrument`` object (reconstruction.bench.instrument.Instrument.to_meta())
+#: the keys of the ``instrument`` object (reconstruction.instrument.response.Instrument.to_meta())
 INSTRUMENT_KEYS = ("detector_solid_angle_sr", "source_divergence_deg", "beam_diameter_mm", "sample_diameter_mm",
                    "band")
 
 
 class InstrumentMeta(msgspec.Struct):
-    """The instrument's optics (reconstruction.bench.instrument.Instrument); no ``instrument``: a point one."""
+    """The instrument's optics (reconstruction.instrument.response.Instrument); no ``instrument``: a point one."""
 
     detector_solid_angle_sr: Annotated[float, Meta(ge=0.0, le=2 * math.pi, description="the detector cone's "
                                                    "acceptance, sr (0 = a point detector)")] = 0.0

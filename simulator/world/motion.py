@@ -1,7 +1,7 @@
 """Motion of one axis in simulated time: trapezoidal profile, stall, settling and backlash.
 
 Units are the axis' controller units (Dynamixel position units or stepper steps) and simulated seconds. A
-profile's duration and the settling after it are the shared time model (:mod:`reconstruction.bench.timing`), the
+profile's duration and the settling after it are the shared time model (:mod:`reconstruction.instrument.timing`), the
 one the planner's estimate adds up.
 """
 
@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from reconstruction.bench.timing import dxl_profile_units, trapezoid_duration
+from reconstruction.instrument.timing import dxl_profile_units, trapezoid_duration
 
 #: Dynamixel X-series unit conversions.
 DXL_DEG_PER_UNIT = 360.0 / 4096.0            # 0.088 deg per position unit
@@ -42,7 +42,7 @@ class TrapezoidProfile:
         self._sign = 1.0 if self.x1 >= self.x0 else -1.0
         self._d = d
         v, a = self.v_max, self.a_max
-        self.duration = float(trapezoid_duration(d, v, a))  # the shared model's (reconstruction.bench.timing)
+        self.duration = float(trapezoid_duration(d, v, a))  # the shared model's (reconstruction.instrument.timing)
         if d == 0 or (math.isinf(v) and math.isinf(a)):
             self._t_acc, self._t_flat, self._v_peak = 0.0, 0.0, math.inf
             self.duration = 0.0

@@ -6,8 +6,8 @@ Signal model (counts at gain 1, before noise)::
 
 with ``Omega_d`` the detector cone (``[detector].solid_angle_sr``), ``t_int_ref`` = ``[detector].integration_time_s``
 (so ``source_power`` is "counts per (1/sr * sr) at gain 1 and the configured integration time"). ``R`` is the
-physical reading (:func:`reconstruction.bench.instrument.instrument_average`): the integral of f cos(theta_o) over the
-detector's cone and the source's divergence (``[bench].source_divergence_deg``), over ``Omega_d cos(theta_o)``,
+physical reading (:func:`reconstruction.instrument.response.instrument_average`): the integral of f cos(theta_o)
+over the detector's cone and the source's divergence (``[bench].source_divergence_deg``), over ``Omega_d cos(theta_o)``,
 so f at the centre for a smooth BRDF and the lobe's energy for a mirror. ``frac`` is the part of the illuminated
 spot that falls on the sample (:func:`reconstruction.schema.optics.footprint_fraction`): the light lost where
 the spot, growing as 1 / cos theta_i, overfills it.
@@ -199,7 +199,7 @@ class BenchPhysics:
         self.gain_factors = {float(g): 1.0 + float(e) for g, e in zip(sorted(cfg.detector.gains or ()),
                                                                        s.gain_errors, strict=False)}
         self.gains = cfg.detector.gains
-        from reconstruction.bench.instrument import Instrument
+        from reconstruction.instrument.response import Instrument
 
         b = cfg.bench
         self.instrument = Instrument(self.solid_angle, float(b.source_divergence_deg), b.beam_diameter_mm,
@@ -276,7 +276,7 @@ class BenchPhysics:
         """The physical reading R(theta_i, theta_o) * cos(theta_o) (1/sr; see the module docstring) on the
         detector channels: (..., n_det). Angles in degrees; each angle pair is integrated once and remembered
         (the arms stop at whole controller units, so a capture reads the same pairs again)."""
-        from reconstruction.bench.instrument import instrument_average
+        from reconstruction.instrument.response import instrument_average
 
         mat = mat if mat is not None else self.active_material
         ti, to = np.broadcast_arrays(np.asarray(theta_i_deg, dtype=float), np.asarray(theta_o_deg, dtype=float))
@@ -300,12 +300,12 @@ class BenchPhysics:
         """The angles (degrees) against the normal of the sample in the beam for the arms' angles: the arms' own
         with no ``[simulator.misalignment]``, else through its zero offsets, the sample's (or the white
         reference's) tilt and the surface's offset from the axis
-        (:func:`reconstruction.bench.alignment.true_angles`; the detector at ``[bench].detector_distance_mm``,
+        (:func:`reconstruction.instrument.alignment.true_angles`; the detector at ``[bench].detector_distance_mm``,
         70 mm when not given)."""
         m = self.cfg.sim.misalignment
         if not m.active:
             return theta_i_deg, theta_o_deg
-        from reconstruction.bench.alignment import true_angles
+        from reconstruction.instrument.alignment import true_angles
 
         if self.sample == "REF":
             tilt = m.reference_tilt_deg

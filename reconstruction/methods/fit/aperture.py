@@ -1,6 +1,6 @@
 """The fit with the instrument's angular response: microfacet columns averaged over the detector cone.
 
-A sample's reading is the model averaged over the instrument's cone (:mod:`reconstruction.bench.instrument`), not the
+A sample's reading is the model averaged over the instrument's cone (:mod:`reconstruction.instrument.response`), not the
 model at the cone's centre. The fit's columns (one lobe of unit amplitude) are linear in the amplitudes, so each
 microfacet column is replaced by its cone average where that differs from the point value: at the samples near
 the lobe's mirror direction (within :data:`NEAR_CONES` cone half angles, or 3 deg). The averages of a unit lobe
@@ -25,9 +25,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from reconstruction.bench.instrument import Instrument, instrument_average_dirs, unit_lobe_tables
 from reconstruction.core.models import Material, schlick
 from reconstruction.core.slicedata import Slice
+from reconstruction.instrument.response import Instrument, instrument_average_dirs, unit_lobe_tables
 
 Array = NDArray[np.float64]
 
@@ -118,10 +118,10 @@ class Blur:
 def prefetch_tables(s: Slice) -> dict[Any, tuple[Array, Array]]:
     """fit's cone tables of the samples of ``s`` near a mirror direction (both distributions), computed as fit
     computes them, as entries of the shared cone averages
-    (:func:`reconstruction.bench.instrument.seed_shared_cone_averages`): what auto's forked child computes while
+    (:func:`reconstruction.instrument.response.seed_shared_cone_averages`): what auto's forked child computes while
     the run imports scipy. Empty for a point instrument (or malformed metadata: fit reports it)."""
-    from reconstruction.bench.instrument import InstrumentError, shared_cone_averages, shared_cone_entries
     from reconstruction.core.samples import sample_directions
+    from reconstruction.instrument.response import InstrumentError, shared_cone_averages, shared_cone_entries
 
     try:
         inst = Instrument.from_meta(s.meta.get("instrument"))

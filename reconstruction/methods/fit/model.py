@@ -17,12 +17,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from reconstruction.base import ReconstructionError
-from reconstruction.bench.instrument import Instrument, InstrumentError
 from reconstruction.core.energy import microfacet_albedo, retro_albedo
 from reconstruction.core.geometry import normalize
 from reconstruction.core.models import Colour, Lambert, Lobe, Material, Microfacet, Retro
 from reconstruction.core.samples import sample_directions
 from reconstruction.core.slicedata import Slice
+from reconstruction.instrument.response import Instrument, InstrumentError
 from reconstruction.methods.fit.aperture import ALPHA_FLOOR, Blur
 
 Array = NDArray[np.float64]

@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 
 from reconstruction.base import ReconstructionError
-from reconstruction.bench.instrument import Instrument, InstrumentError
 from reconstruction.core.slicedata import Slice
+from reconstruction.instrument.response import Instrument, InstrumentError
 
 __all__ = ["hold_peaks_over_cone", "PLATEAU_RATIO"]
 
