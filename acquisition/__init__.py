@@ -23,7 +23,9 @@ from acquisition.errors import (
     PlanError,
     SaturationWarning,
 )
-from acquisition.plans.plan import Geometry, Plan, PlanCheck, Reason, Scene, load_scene, order_points, path_time
+from acquisition.plans.geometry import Geometry, Reason
+from acquisition.plans.ordering import order_points, path_time
+from acquisition.plans.plan import Plan, PlanCheck, load_scene
 
 __all__ = [
     "AcquisitionError",
@@ -45,7 +47,6 @@ __all__ = [
     "Reason",
     "RunEngine",
     "SaturationWarning",
-    "Scene",
     "SimulatorProcess",
     "Stop",
     "config_from_dict",

@@ -28,7 +28,6 @@ import numpy as np
 from reconstruction.instrument.alignment import (
     Alignment,
     AlignmentError,
-    SpecularFit,
     combine,
     fit_diffuse_zero,
     fit_specular,
@@ -273,7 +272,7 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-__all__ = ["main", "measure", "analyse", "report", "write_zero_offsets", "SpecularFit"]
+__all__ = ["main", "measure", "analyse", "report", "write_zero_offsets"]
 
 if __name__ == "__main__":
     sys.exit(main())

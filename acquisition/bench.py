@@ -42,7 +42,8 @@ from acquisition.devices.protocols import Devices, MoveStatus
 from acquisition.devices.registry import driver_for
 from acquisition.devices.serial_link import SerialLink
 from acquisition.errors import CommError, ConfigError, DeviceError, PortError, SaturationWarning
-from acquisition.plans.plan import Geometry, Plan, PlanCheck, Point, Reason, load_scene
+from acquisition.plans.geometry import Geometry, Point, Reason
+from acquisition.plans.plan import Plan, PlanCheck, load_scene
 from acquisition.ports import name_the_key
 
 log = logging.getLogger("acquisition.bench")

@@ -27,19 +27,13 @@ from typing import Any
 from acquisition.devices import grbl_settings
 from acquisition.errors import ConfigError
 from acquisition.plans.planconfig import (
-    MAX_PLAN_POINTS,
     _Table,  # one reader of a table against its schema, errors as ConfigError
     read_plan,
-    resolution_deg,
 )
 from reconstruction.schema import SchemaError, files
 from reconstruction.schema import describe as _describe
 from reconstruction.schema.bench import (
-    AXIS_LETTERS,
-    DXL_BAUDRATES,
     DXL_MODELS,
-    MAX_INTEGRATION_TIME_S,
-    MIN_INTEGRATION_TIME_S,
     Axis,
     AxisTable,
     BenchTable,
@@ -55,19 +49,7 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover - Python 3.10 only
     import tomli as tomllib
 
-__all__ = [
-    "CalibrationConfig",
-    "BenchConfig",
-    "load_config",
-    "config_from_dict",
-    "DXL_MODELS",
-    "DXL_BAUDRATES",
-    "MAX_PLAN_POINTS",
-    "MIN_INTEGRATION_TIME_S",
-    "MAX_INTEGRATION_TIME_S",
-    "AXIS_LETTERS",
-    "resolution_deg",
-]
+__all__ = ["CalibrationConfig", "BenchConfig", "load_config", "config_from_dict"]
 
 TRANSPORTS = ("dynamixel", "serial", "simulated")
 DXL_POSITION_RANGE = (0, 4095)  # position mode (operating mode 3), one turn

@@ -13,7 +13,8 @@ from __future__ import annotations
 import sys
 
 from acquisition import Bench, plans
-from acquisition.plans.plan import order_points, point_key
+from acquisition.plans.geometry import point_key
+from acquisition.plans.ordering import order_points
 
 
 def reference_every(n: int) -> plans.PointsPlan:

@@ -13,9 +13,10 @@ from hypothesis import strategies as st
 from acquisition import ConfigError, Plan, PlanError
 from acquisition.calibration import Calibration, Reading, reference_rho
 from acquisition.config import config_from_dict
-from acquisition.plans.geometry import _trapezoid_time
-from acquisition.plans.plan import Geometry, order_points, path_time, refine_points
+from acquisition.plans.geometry import Geometry, _trapezoid_time
+from acquisition.plans.ordering import order_points, path_time
 from acquisition.plans.plan import load_scene as acq_load_scene
+from acquisition.plans.refine import refine_points
 from reconstruction.core.scene import Scene, load_scene
 from tests.test_acq_support import REPO, make_raw
 

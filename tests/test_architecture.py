@@ -314,17 +314,9 @@ def test_no_function_is_longer_than_120_lines():
 
 # --- no re-exports: every name is imported from the module that defines it (issue 51 item 4) ---------------------
 
-#: Modules whose ``__all__`` still names what another module defines, each with why. acquisition/, the methods and
-#: the command line are reworked by issue 51's items 1-3 (the bench-file model, the drivers' registry, methods as
-#: plugins) in parallel with this rule: their re-exports go with that work, and each entry is removed as it lands
-#: (the test fails on an entry that no longer re-exports anything).
-REEXPORTS_PENDING = {
-    "acquisition/align.py": "issue 51 items 1/3 (acquisition/)",
-    "acquisition/config.py": "issue 51 item 1 (one bench-file model)",
-    "acquisition/plans/geometry.py": "issue 51 items 1/3 (acquisition/)",
-    "acquisition/plans/plan.py": "issue 51 items 1/3 (acquisition/)",
-    "acquisition/run/capture.py": "issue 51 items 1/3 (acquisition/)",
-}
+#: Modules whose ``__all__`` may still name what another module defines, each with why: none today. An entry that
+#: no longer re-exports anything fails the test, so the list cannot go stale.
+REEXPORTS_PENDING: dict[str, str] = {}
 
 
 def _exported_elsewhere(path: Path) -> list[str]:

@@ -94,8 +94,8 @@ def point(theta_i_deg: float, theta_o_deg: float, repeats: int) -> PlanGen:
 def measure(points: Sequence[Point], geometry: Geometry, repeats: int,
             done: dict[tuple[float, float], Sample] | None, order: str = "optimized",
             max_evaluations: int = TWO_OPT_MAX_EVALUATIONS) -> PlanGen:
-    """Measure the points not yet in ``done`` (keys :func:`~acquisition.plans.plan.point_key`), ordered for short arm
-    travel from where the arms are (``order = "optimized"``); every sample is added to ``done`` (None: nothing
+    """Measure the points not yet in ``done`` (keys :func:`~acquisition.plans.geometry.point_key`), ordered for short
+    arm travel from where the arms are (``order = "optimized"``); every sample is added to ``done`` (None: nothing
     was measured before and nothing needs the samples, as in an estimate)."""
     todo = [p for p in points if point_key(p) not in done] if done else list(points)
     n_done = len(done) if done else 0
@@ -283,7 +283,7 @@ def _gain_factors(at_gains: dict[float, tuple[Reading, Reading]], ranged: Any, c
 
 def adaptive(ctx: CaptureContext, t_start: float) -> PlanGen:
     """Adaptive refinement: rounds of midpoints where the measured slice changes fast
-    (:func:`~acquisition.plans.plan.refine_points`), measured by the context's points plan and sent back through
+    (:func:`~acquisition.plans.refine.refine_points`), measured by the context's points plan and sent back through
     ``ctx.done``, until it converges, the point limit or the time budget (bench seconds since ``t_start``) is
     reached."""
     a, geometry, done = ctx.plan.adaptive, ctx.geometry, ctx.done

@@ -25,8 +25,7 @@ from reconstruction.instrument.timing import (
 from reconstruction.schema.bench import Axis
 from reconstruction.schema.simulator import SimulatorSection
 
-__all__ = ["Point", "Reason", "Why", "point_key", "Geometry", "DXL_VEL_UNIT_REV_S", "DXL_ACC_UNIT_REV_S2",
-           "DXL_UNITS_PER_REV"]
+__all__ = ["Point", "Reason", "Why", "point_key", "Geometry"]
 
 Point = tuple[float, float]
 

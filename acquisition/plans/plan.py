@@ -27,17 +27,15 @@ import msgspec
 import numpy as np
 
 from acquisition.errors import ConfigError, PlanError
-from acquisition.plans.geometry import Geometry, Point, Reason, Why, point_key
-from acquisition.plans.ordering import TWO_OPT_MAX_EVALUATIONS, order_points, path_time
+from acquisition.plans.geometry import Geometry, Point, point_key
+from acquisition.plans.ordering import TWO_OPT_MAX_EVALUATIONS
 from acquisition.plans.planconfig import MAX_PLAN_POINTS, _count, _frange, resolution_deg
-from acquisition.plans.refine import refine_points
 from reconstruction.core.scene import CAPTURE_DEFAULT_RANGE_DEG, Scene, SceneError
 from reconstruction.core.scene import load_scene as _load_scene
 from reconstruction.schema.bench import AdaptiveTable, PlanTable
 from reconstruction.schema.files import UserFileError, check_user_file
 
-__all__ = ["Point", "Geometry", "Plan", "PlanCheck", "Reason", "Why", "Scene", "load_scene", "order_points",
-           "path_time", "refine_points", "point_key", "TWO_OPT_MAX_EVALUATIONS"]
+__all__ = ["Plan", "PlanCheck", "load_scene"]
 
 # --- scenes ----------------------------------------------------------------------------------------------------
 
@@ -308,7 +306,7 @@ class Plan:
 
     def check_size(self, geom: Geometry) -> None:
         """Raise :class:`PlanError` for a step finer than the detector axis can make or for a plan larger than
-        :data:`~acquisition.config.MAX_PLAN_POINTS`; runs before any point is built."""
+        :data:`~acquisition.plans.planconfig.MAX_PLAN_POINTS`; runs before any point is built."""
         res = resolution_deg(geom.detector)
         steps = [("theta_o step", s.step) for s in self.sweeps]
         if self.adaptive is not None:

@@ -54,7 +54,8 @@ from acquisition.plans.generators import (
     last_recorded,
     measure_points,
 )
-from acquisition.plans.plan import Plan, point_key
+from acquisition.plans.geometry import point_key
+from acquisition.plans.plan import Plan
 from acquisition.run.dryrun import estimate, estimate_points
 from acquisition.run.engine import Engine
 from acquisition.run.fingerprint import describe_differences, fingerprint, settings
@@ -67,7 +68,6 @@ from acquisition.run.outdir import (
     check_resume,
     check_writable,
     make_out_dir,
-    out_dir_problem,
 )
 from acquisition.run.progress import PROGRESS_NAME, ProgressFile
 from acquisition.run.record import (
@@ -77,7 +77,6 @@ from acquisition.run.record import (
     RunRecord,
     Stop,
     exit_status,
-    result_dict,
 )
 from acquisition.run.sliceout import SliceOutput
 from reconstruction.atomic import is_no_space
@@ -85,8 +84,7 @@ from reconstruction.core.slicedata import Slice
 
 log = logging.getLogger("acquisition.engine")
 
-__all__ = ["RunEngine", "CaptureResult", "SLICE_NAME", "SIDECAR_NAME", "LOG_NAME", "SIM_LOG_NAME",
-           "out_dir_problem", "result_dict"]
+__all__ = ["RunEngine"]
 
 
 class _LogFile(logging.FileHandler):
