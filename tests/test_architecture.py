@@ -360,6 +360,56 @@ def test_a_module_exports_only_what_it_defines():
     assert sorted(set(REEXPORTS_PENDING) - set(found)) == [], "no longer re-exports: remove from REEXPORTS_PENDING"
 
 
+def _defined_and_imported(module: str) -> tuple[set[str], dict[str, str]] | None:
+    """Top-level names a project module defines, and those it imports (name -> module); None if not a module."""
+    import ast
+
+    base = REPO.joinpath(*module.split("."))
+    path = base / "__init__.py" if base.is_dir() else base.with_suffix(".py")
+    if not path.is_file():
+        return None
+    defined: set[str] = set()
+    imported: dict[str, str] = {}
+    for n in ast.parse(path.read_text(encoding="utf-8")).body:
+        if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            defined.add(n.name)
+        elif isinstance(n, (ast.Assign, ast.AnnAssign)):
+            targets = n.targets if isinstance(n, ast.Assign) else [n.target]
+            defined.update(x.id for t in targets for x in ast.walk(t) if isinstance(x, ast.Name))
+        elif isinstance(n, ast.ImportFrom) and n.module:
+            imported.update({a.asname or a.name: n.module for a in n.names})
+        elif isinstance(n, ast.Import):
+            imported.update({a.asname or a.name.split(".")[0]: a.name for a in n.names})
+    if path.name == "__init__.py":  # a package's face serves its own modules' names
+        defined |= {k for k, v in imported.items() if v.startswith(module + ".")}
+    return defined, imported
+
+
+def test_every_name_is_imported_from_the_module_that_defines_it():
+    """Code, tests, benchmarks, scripts and examples import a project name from where it is defined, not from a
+    module that merely imports it too (which works by accident and breaks when that module's imports change)."""
+    import ast
+
+    roots = [*PACKAGES, "tests", "benchmarks", "scripts", "examples", "hardware"]
+    cache: dict[str, tuple[set[str], dict[str, str]] | None] = {}
+    bad: list[str] = []
+    for p in sorted(f for r in roots for f in (REPO / r).rglob("*.py") if ".venv" not in f.parts):
+        for n in ast.walk(ast.parse(p.read_text(encoding="utf-8"))):
+            if not (isinstance(n, ast.ImportFrom) and n.module and n.level == 0
+                    and n.module.split(".")[0] in PACKAGES):
+                continue
+            if n.module not in cache:
+                cache[n.module] = _defined_and_imported(n.module)
+            known = cache[n.module]
+            if known is None:
+                continue
+            defined, imported = known
+            bad += [f"{p.relative_to(REPO)}:{n.lineno}: {a.name} from {n.module} (defined in {imported[a.name]})"
+                    for a in n.names if a.name in imported and a.name not in defined
+                    and not imported[a.name].startswith(n.module + ".")]
+    assert bad == [], "import these from the module that defines them:\n" + "\n".join(bad)
+
+
 def test_the_re_export_check_sees_a_facade():
     """The check above finds a module that re-exports a name (the facade formats.merl once was), and lets a
     package's face name its own modules' names."""

@@ -16,8 +16,8 @@ import pytest
 from reconstruction import cli, methods, pipeline
 from reconstruction.base import ReconstructionError
 from reconstruction.core.models import Material
+from reconstruction.core.slicedata import Slice
 from reconstruction.formats import exports, merl
-from reconstruction.formats.slicefile import Slice
 from reconstruction.methods.registry import Context
 from tests.test_cli_reconstruct import slice_file
 

@@ -33,7 +33,7 @@ from msgspec import Meta
 
 from reconstruction.base import Reconstruction, ReconstructionError
 from reconstruction.core.scene import Scene
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 
 __all__ = ["Method", "Context", "Options", "OptionSpec", "NoOptions", "option", "REGISTRY", "register", "get",
            "names", "option_specs", "options_schema", "DEFAULT_FLAG"]

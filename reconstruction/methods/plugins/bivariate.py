@@ -9,7 +9,7 @@ from typing import Annotated
 import msgspec
 
 from reconstruction.base import Reconstruction
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 from reconstruction.methods.plugins.revolve import Fill
 from reconstruction.methods.plugins.used import with_samples_used
 from reconstruction.methods.registry import Context, Method, option

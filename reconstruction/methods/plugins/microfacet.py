@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 from reconstruction.base import Reconstruction
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 from reconstruction.methods.plugins.used import with_samples_used
 from reconstruction.methods.registry import Context, Method, NoOptions
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from reconstruction.base import Reconstruction
-from reconstruction.formats.slicefile import Slice
+from reconstruction.core.slicedata import Slice
 
 __all__ = ["with_samples_used"]
 
