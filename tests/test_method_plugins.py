@@ -18,6 +18,7 @@ from reconstruction.base import ReconstructionError
 from reconstruction.core.models import Material
 from reconstruction.core.slicedata import Slice
 from reconstruction.formats import exports, merl
+from reconstruction.job import Job
 from reconstruction.methods.registry import Context
 from tests.test_cli_reconstruct import slice_file
 
@@ -118,9 +119,9 @@ def test_a_reconstruction_through_the_toy_method_runs_and_exports(toy, tmp_path)
     table = merl.read(out)
     np.testing.assert_allclose(np.nanmedian(table.reshape(3, -1), axis=1), 1.5 * np.array([0.2, 0.3, 0.4]) / np.pi,
                                rtol=1e-4)
-    # the same through the library: pipeline.Job carries the option in its ``options``
-    rep2 = pipeline.run(pipeline.Job(inputs=(str(src),), out=str(tmp_path / "m2.binary"), method="toy",
-                                     options={"toy_gain": 0.5}))
+    # the same through the library: a Job carries the option in its ``options``
+    rep2 = pipeline.run(Job(inputs=(str(src),), out=str(tmp_path / "m2.binary"), method="toy",
+                            options={"toy_gain": 0.5}))
     assert rep2["method"] == "toy"
     np.testing.assert_allclose(np.nanmedian(merl.read(tmp_path / "m2.binary").reshape(3, -1), axis=1),
                                0.5 * np.array([0.2, 0.3, 0.4]) / np.pi, rtol=1e-4)
