@@ -16,6 +16,7 @@ import argparse
 import errno
 import os
 import sys
+import textwrap
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -46,8 +47,6 @@ the retro blind spot are missing data and are interpolated, not taken as zero.
 
 Methods (each declared by its module in reconstruction/methods/plugins/):
 {methods}
-  auto: the method that best predicts held-out samples (leave-one-incidence-out, or held-out blocks of theta_o
-        with one slice; the report says which and why).
 Spectral data are converted to linear sRGB (CIE 1931 2 degree observer, --illuminant); grey data give a grey table.
 
 A table that fails a plausibility check (negative or missing cells, directional albedo above 1, a
@@ -61,8 +60,12 @@ def _description() -> str:
     """The command's description, its list of methods from the registry (a new method's summary appears here)."""
     from reconstruction.methods import REGISTRY
 
-    width = max(len(n) for n in REGISTRY)
-    return DESCRIPTION.format(methods="\n".join(f"  {n + ':':<{width + 1}} {m.summary}" for n, m in REGISTRY.items()))
+    auto = ("the method that best predicts held-out samples (leave-one-incidence-out, or held-out blocks of "
+            "theta_o with one slice; the report says which and why)")
+    width = max(len(n) for n in REGISTRY) + 1
+    lines = [f"  {n + ':':<{width}} {m.summary}" for n, m in REGISTRY.items()]
+    lines += textwrap.wrap(auto, 116, initial_indent=f"  {'auto:':<{width}} ", subsequent_indent=" " * (width + 3))
+    return DESCRIPTION.format(methods="\n".join(lines))
 
 
 def _supersample(text: str) -> tuple[int, int, int] | str:
