@@ -121,6 +121,7 @@ def lookup_cells(wi: ArrayLike, wo: ArrayLike, interpolate: bool = True) -> tupl
 
     Examples
     --------
+    >>> from reconstruction.core.merlgrid import cell_to_dirs
     >>> wi, wo = cell_to_dirs(np.array([10]), np.array([30]), np.array([90]))  # a bin centre: its own cell
     >>> idx, w = lookup_cells(wi, wo)
     >>> idx.shape, float(w.sum().round(12)), int(idx[0, np.argmax(w[0])]) == (10 * 90 + 30) * 180 + 90

@@ -307,10 +307,15 @@ static void ads_attach(void)
     avr_connect_irq(avr_io_getirq(avr, AVR_IOCTL_TWI_GETIRQ(0), TWI_IRQ_OUTPUT), ads_irq + TWI_IRQ_OUTPUT);
 }
 
+static void report_pins(void);
+
+/* reported at once, stamped with the cycle the firmware wrote the port at (a report after the run's burst would
+ * carry a later time: a sleeping core jumps ahead by whole timer periods within a burst) */
 static void pin_changed(struct avr_irq_t *irq, uint32_t value, void *param)
 {
     (void)irq; (void)value; (void)param;
     pins_dirty = 1;
+    report_pins();
 }
 
 static void led_changed(struct avr_irq_t *irq, uint32_t value, void *param)
