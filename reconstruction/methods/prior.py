@@ -521,8 +521,8 @@ def reconstruct_prior(s: Slice, prior: PriorSet | str | Path, exclude: tuple[str
 #: SIGMA_KAPPA x the misfit at the samples squared). Calibrated leave-one-out on the 141 real materials
 #: (benchmarks/bench_uncertainty.py: the share of uniform direction pairs within 1 and 2 sigma). SIGMA_TAU 0.75 ->
 #: 0.72 with the misfit's covariance in the coefficients' posterior (reconstruction.methods.priorfit, issue 50): the
-#: tables came nearer the truth and 40/70 deg's share within 1 sigma rose to 76.8 % (every 6th material; sigma x 0.96
-#: interpolated from ``--scales 0.9,0.95,1``: 72.9-75.5 % within 1 sigma, 90.5-91.9 % within 2).
+#: tables came nearer the truth and 40/70 deg's share within 1 sigma rose to 76.8 % (every 6th material; with 0.72:
+#: 73.0-75.5 % within 1 sigma, 90.5-91.9 % within 2).
 SIGMA_COMPONENTS, SIGMA_LAM, SIGMA_TAU, SIGMA_KAPPA = 20, 0.03, 0.72, 1.0
 #: sigma of ln f is at most this (a factor e^5 = 148): where f is 0 the log is undefined.
 SIGMA_LN_MAX = 5.0
