@@ -33,13 +33,14 @@ NOISE_SCALE = 0.3
 class NoiseModel:
     """The misfit's covariance beyond ``k`` components at the samples: ``E30`` (T, n), the rows' part beyond every
     component of the basis; ``coef`` (T, Kmax) the rows' coefficients; ``sb`` (n, Kmax) the components at the
-    samples. :meth:`solve_parts` gives N^-1 X for any ``lam`` from one eigendecomposition per ``k``."""
+    samples; ``scale`` the weight of that covariance (:data:`NOISE_SCALE`). :meth:`inverse_times` gives N^-1 x for
+    any ``lam`` from one eigendecomposition per ``k``."""
 
     def __init__(self, e_all: Array, coef: Array, sb: Array, k: int, sig: Array, scale: float | None = None) -> None:
-        t = max(e_all.shape[0] - 1, 1) / (NOISE_SCALE if scale is None else scale)
+        w = (NOISE_SCALE if scale is None else scale) / max(e_all.shape[0] - 1, 1)  # 0: independent misfit
         beyond = np.nonzero(_held(sig))[0]
         beyond = beyond[beyond >= k]  # the components after k that hold anything (others are round-off)
-        u = (e_all + coef[:, beyond] @ sb[:, beyond].T).T / np.sqrt(t)  # (n, T): the rows' misfit beyond k
+        u = (e_all + coef[:, beyond] @ sb[:, beyond].T).T * np.sqrt(w)  # (n, T): the rows' misfit beyond k
         d, v = np.linalg.eigh(u.T @ u)  # (T,), (T, T)
         self.uv = u @ v  # (n, T)
         self.d = np.maximum(d, 0.0)
