@@ -138,6 +138,7 @@ def summarise(records: list[dict[str, Any]], modes: list[str]) -> list[str]:
     lines = []
     for mode in modes:
         by = {(r["material"], r["capture"]): r.get("psnr_db", np.nan) for r in records if r["mode"] == mode}
+        used = {(r["material"], r["capture"]): r.get("used") for r in records if r["mode"] == mode}
         mats = sorted({m for m, _ in by})
         lines.append(f"{'with the prior (leave-one-out)' if mode == 'prior' else 'without a prior'} "
                      f"[{len(mats)} materials]:")
@@ -156,6 +157,12 @@ def summarise(records: list[dict[str, Any]], modes: list[str]) -> list[str]:
             lines.append(f"  {a:>12s} -> {b:20s} {np.nanmedian(d):+5.2f} / {d[k]:+6.2f} dB ({mats[k]}); "
                          f"{int(np.sum(d[ok] < -0.5))} ({np.mean(d[ok] < -0.5):.0%}), {int(np.sum(d[ok] < -2.0))} "
                          f"of {int(ok.sum())}")
+            worse = [(d[j], mats[j]) for j in np.nonzero(ok & (d < -2.0))[0]]
+            switched = sum(used.get((m, a)) != used.get((m, b)) for _, m in worse)
+            if worse:  # which method lost it: auto switching (A's method -> B's) or the same method
+                lines.append(f"      worse by > 2 dB ({switched} of {len(worse)} with another method on B): "
+                             + ", ".join(f"{m} {x:+.1f} [{used.get((m, a))} -> {used.get((m, b))}]"
+                                         for x, m in sorted(worse)))
         lines.append("  at equal bench time, from the sweeps taken: + one in-plane incidence / + one tilted sweep "
                      "(median PSNR; median of tilted - in-plane; tilted better by > 0.5 dB / worse by > 0.5 dB)")
         for base, inpl, tilt in TILT_QUESTION:

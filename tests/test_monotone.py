@@ -65,3 +65,37 @@ def test_a_second_incidence_does_not_make_the_table_worse(truth):
     a, _ = psnr(synthetic_slice(PHONG, (40.0,)), truth)
     b, used = psnr(synthetic_slice(PHONG, (40.0, 70.0)), truth)
     assert b >= a - 0.5, (a, b, used)
+
+
+def test_the_prior_counts_a_misfit_its_materials_share_once_not_per_sample():
+    """The prior's posterior (reconstruction.methods.priorfit): its materials' misfit beyond the components, read at
+    the samples, is correlated along a sweep. A material with that misfit strongly on a second sweep of 60 samples
+    bends coefficients fitted as if each sample's misfit were independent; with the materials' covariance the
+    coefficients stay near the truth, and without any misfit in the materials it is the independent posterior."""
+    from reconstruction.methods.priorfit import NoiseModel, posterior_coefficients
+
+    rng = np.random.default_rng(3)
+    x = np.linspace(0.0, 1.0, 120)
+    sb = np.stack([np.ones_like(x), np.cos(np.pi * x), np.cos(2 * np.pi * x)], axis=1)  # (n, K) at the samples
+    sig = np.array([1.0, 0.5, 0.3])
+    v = np.where(x > 0.5, np.sin(6 * np.pi * x) + 0.8, 0.0)  # what the basis cannot follow, on the second sweep
+    t = 60
+    rows_coef = rng.normal(size=(t, 3)) * sig
+    e_all = rng.normal(size=(t, 1)) * v[None, :] + 0.01 * rng.normal(size=(t, x.size))  # (T, n) beyond the basis
+    c_true = np.array([0.4, -0.3, 0.2])
+    y = (sb @ c_true + 2.0 * v + 0.01 * rng.normal(size=x.size))[:, None]
+    lam = 0.01
+    independent = posterior_coefficients(sb, y, sig, 3, lam)[:, 0]
+    correlated = posterior_coefficients(sb, y, sig, 3, lam, NoiseModel(e_all, rows_coef, sb, 3, sig))[:, 0]
+    assert np.linalg.norm(correlated - c_true) < 0.3 * np.linalg.norm(independent - c_true), (correlated, independent)
+    # every sweep adds: from the first sweep alone (no misfit there) the truth is further than from both with the
+    # materials' covariance, and nearer than from both with independent misfit
+    first = x <= 0.5
+    alone = posterior_coefficients(sb[first], y[first], sig, 3, lam,
+                                   NoiseModel(e_all[:, first], rows_coef, sb[first], 3, sig))[:, 0]
+    err = {k: float(np.linalg.norm(c - c_true)) for k, c in
+           (("alone", alone), ("correlated", correlated), ("independent", independent))}
+    assert err["correlated"] <= err["alone"] < err["independent"], err
+    # materials without misfit: the independent posterior, exactly
+    none = NoiseModel(np.zeros_like(e_all), rows_coef, sb, 3, sig)
+    np.testing.assert_allclose(posterior_coefficients(sb, y, sig, 3, lam, none), independent[:, None], rtol=1e-9)

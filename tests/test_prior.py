@@ -326,7 +326,7 @@ def test_a_basis_of_every_material_is_the_same_made_once_or_from_the_kept_produc
     b = kept.basis(idx, w, residual=True)
     for x, y in zip(a, b, strict=True):
         np.testing.assert_array_equal(x, y)
-    mu, comps, _, resvar = a
+    mu, comps, _, resvar, at_samples, rows_coef = a
     fc = tables.reshape(-1, m) * g["cos"][g["train"]].astype(np.float32)
     at = np.einsum("nj,tnj->tn", w, fc[:, idx])
     y = np.log(fc / prior.channel_scales(at.reshape(n, 3, -1)).reshape(-1, 1).astype(np.float32)
@@ -336,3 +336,6 @@ def test_a_basis_of_every_material_is_the_same_made_once_or_from_the_kept_produc
     ref = np.einsum("tm,tm->m", whole, whole, dtype=np.float64) / dof
     assert ref.min() > 0.01  # a real residual, not round-off
     np.testing.assert_allclose(resvar, ref, rtol=1e-4)
+    # the rows' residual at the samples and their coefficients (the prior's correlated misfit, methods.priorfit)
+    np.testing.assert_allclose(at_samples, np.einsum("nj,tnj->tn", w, whole[:, idx]), rtol=1e-3, atol=1e-4)
+    np.testing.assert_allclose(rows_coef, y @ comps.T.astype(np.float32), rtol=1e-3, atol=1e-3)
