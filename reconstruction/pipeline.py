@@ -41,7 +41,6 @@ from reconstruction.principled.outputs import write_outputs as write_principled
 from reconstruction.report import html as htmlreport
 from reconstruction.report import preview, summary
 from reconstruction.report.spheres import sphere_images
-from reconstruction.schema.files import UserFileError, check_user_file
 from reconstruction.schema.scene import LOBE_KINDS
 from reconstruction.workers import Workers
 
@@ -212,12 +211,7 @@ def _read_scene(sp: Path) -> Any:
     """The scene file of ``--scene`` (:func:`reconstruction.core.scene.load_scene`), its errors worded for the
     flag."""
     try:
-        check_user_file(sp, "a scene file (TOML)")
-    except UserFileError as e:
-        if e.kind in ("directory", "special"):  # a device or a pipe would block the read
-            raise ReconstructionError(f"--scene {sp}: not a regular file, expected a scene file (TOML)") from None
-    try:
-        return load_scene(sp)
+        return load_scene(sp)  # the one user-file check (type, size, UTF-8) is inside it
     except RecursionError:
         raise ReconstructionError(f"--scene {sp}: invalid TOML: nested too deeply") from None
 

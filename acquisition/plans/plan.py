@@ -33,7 +33,6 @@ from acquisition.plans.planconfig import MAX_PLAN_POINTS, _count, _frange, resol
 from reconstruction.core.scene import CAPTURE_DEFAULT_RANGE_DEG, Scene, SceneError
 from reconstruction.core.scene import load_scene as _load_scene
 from reconstruction.schema.bench import AdaptiveTable, PlanTable
-from reconstruction.schema.files import UserFileError, check_user_file
 
 __all__ = ["Plan", "PlanCheck", "load_scene"]
 
@@ -47,18 +46,10 @@ SCENE_DEFAULT_RANGE_DEG = CAPTURE_DEFAULT_RANGE_DEG
 def load_scene(path: str | Path) -> Scene:
     """Read and validate a scene file (:func:`reconstruction.core.scene.load_scene`); errors are :class:`ConfigError`
     (the message names the file and the key), as for bench configs."""
-    p = Path(path)
     try:
-        check_user_file(p, "a scene file (TOML)")
-    except UserFileError as e:
-        if e.kind in ("directory", "special"):  # a device or a pipe would block the read
-            raise ConfigError(f"{p}: not a regular file, expected a scene file (TOML)") from None
-    try:
-        return _load_scene(path)
+        return _load_scene(path)  # the one user-file check (type, size, UTF-8) is inside it
     except SceneError as e:
         raise ConfigError(str(e)) from None
-    except IsADirectoryError:
-        raise ConfigError(f"{path}: is a directory, expected a scene file (TOML)") from None
     except OSError as e:
         raise ConfigError(f"{path}: cannot read the scene file ({e.strerror or e})") from None
     except RecursionError:
