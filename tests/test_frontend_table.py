@@ -138,3 +138,21 @@ def test_extra_photocurrent_adds_before_the_circuit_and_clips_with_it():
     assert more[0] - base[0] == pytest.approx(80 * 1e-7 * 1e6 / fe.ADC_LSB_V, rel=0.01)  # 0.1 V a conversion
     top = FE.reading_counts(np.array([10.0]), 2, 0.01, extra_a=1e-3)
     assert top[0] == pytest.approx(80 * FE.output_v(1.0, 2) / fe.ADC_LSB_V)
+
+
+def test_the_dynamic_range_figure_models_the_ads1115_as_the_firmware_configures_it():
+    """hardware/frontend/simulate.py's ADS1115 (docs/build-a-bench.md's decades) is the one the firmware sets up:
+    its config word's PGA, data rate and multiplexer (firmware/detector/src/ads1115.h, datasheet SBAS444 table 8)."""
+    import re
+    from pathlib import Path
+
+    from hardware.frontend.simulate import ADCS
+
+    header = (Path(__file__).resolve().parents[1] / "firmware" / "detector" / "src" / "ads1115.h").read_text()
+    word = int(re.search(r"#define ADS1115_CONFIG_START (0x[0-9A-Fa-f]+)u", header).group(1), 16)
+    fsr_v = {0: 6.144, 1: 4.096, 2: 2.048, 3: 1.024, 4: 0.512}.get((word >> 9) & 0b111, 0.256)
+    rate_sps = (8, 16, 32, 64, 128, 250, 475, 860)[(word >> 5) & 0b111]
+    adc = ADCS["ADS1115 16-bit"]
+    assert adc["top_v"] == fsr_v and adc["lsb_v"] == pytest.approx(fsr_v / 32768)
+    assert adc["band_hz"] == pytest.approx(rate_sps / 2)  # one conversion's sinc filter
+    assert adc.get("differential") is ((word >> 12) & 0b111 == 0)  # MUX 000: AIN0 - AIN1 (out - Vref)

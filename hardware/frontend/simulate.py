@@ -48,13 +48,14 @@ MONITOR_RF = 1e6
 SAMPLE_PERIOD_S = 125e-6
 NCONV = 80
 #: ADCs for the dynamic range. ATmega328P: 10 bits on AVcc = 5 V, LSB 4.89 mV; its datasheet gives no rms noise
-#: (absolute accuracy +-2 LSB), so its floor is the quantisation, LSB / sqrt(12). ADS1115 (TI SBAS444): 16 bits,
-#: FSR +-6.144 V (the range that takes 0..5 V, differential out - Vref), LSB 187.5 uV; its noise table gives one
-#: LSB (187.5 uV rms) at every data rate up to 128 SPS, taken here at 128 SPS (its sinc filter: 64 Hz of the
-#: amplifier's noise).
+#: (absolute accuracy +-2 LSB), so its floor is the quantisation, LSB / sqrt(12). ADS1115 (TI SBAS444) as the
+#: firmware sets it (firmware/detector/src/ads1115.h: PGA +-4.096 V, 860 samples/s, differential AIN0 = out -
+#: AIN1 = the amplifier's reference): 16 bits, LSB 125 uV; its noise table gives one LSB (125 uV rms) at +-4.096 V
+#: at every data rate, 860 SPS included; one conversion passes about DR / 2 = 430 Hz of the amplifier's noise (its
+#: sinc filter). Its top is the reference plus 4.096 V (``differential``), below the op-amp's swing or at it.
 ADCS = {
     "ATmega328P 10-bit": {"lsb_v": 5.0 / 1024, "noise_v": 5.0 / 1024 / math.sqrt(12), "top_v": 5.0 * 1023 / 1024},
-    "ADS1115 16-bit": {"lsb_v": 187.5e-6, "noise_v": 187.5e-6, "top_v": 6.144, "band_hz": 64.0},
+    "ADS1115 16-bit": {"lsb_v": 125e-6, "noise_v": 125e-6, "top_v": 4.096, "band_hz": 430.0, "differential": True},
 }
 
 
@@ -263,7 +264,7 @@ def figures(c: Circuit, table: dict | None = None) -> dict:
         for name, adc in ADCS.items():
             amp = ads if "band_hz" in adc else reading
             floor_v = math.hypot(amp, adc["noise_v"])
-            top = min(rt["v_max"], adc["top_v"]) - rt["offset_v"]
+            top = min(rt["v_max"], adc["top_v"] + (rt["offset_v"] if adc.get("differential") else 0.0)) - rt["offset_v"]
             floors[name].append((top / rt["slope_v_per_a"], floor_v / rt["slope_v_per_a"]))
             row[f"decades_{name.split()[0]}"] = math.log10(top / floor_v)
         rows.append(row)
