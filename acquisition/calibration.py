@@ -10,13 +10,19 @@ reference of reflectance rho_ref measured at the reference geometry (theta_i_ref
 
     f_r = (S - S_dark) / (S_ref - S_dark) * rho_ref / pi * cos(theta_o_ref) / cos(theta_o)
 
-(the cosine correction is 1 when the sample is measured at the reference geometry). Where the illuminated spot
-overfills the sample (``footprint``: a beam of diameter D lights D / cos theta_i of a sample of diameter d) only
-the fraction frac(theta_i) of the light reaches it (:func:`reconstruction.schema.optics.footprint_fraction`); the
-reading is then divided by frac(theta_i) / frac(theta_i_ref), where frac(theta_i) is at least the footprint's
-smallest correctable fraction (below it, the sample is left uncorrected). The uncertainty kept per
-sample is the standard deviation of the mean of the repeats, propagated through the same factor; the
-reference and dark uncertainties are common to the whole slice and are stored in the metadata instead.
+(the cosine correction is 1 when the sample is measured at the reference geometry). A **ratio reading**
+(``[detector].monitor``: a monitor photodiode sees the source itself, the board reports its sum beside every
+reading) divides each net signal by the source's power at that moment: ``S - S_dark`` is multiplied by
+``M_ref / M``, the monitor's rate (counts a second of integration) during the white reference over the one during
+the reading, so that the source's drift and warm-up between the calibration and the point divide out.
+
+Where the illuminated spot overfills the sample (``footprint``: a beam of diameter D lights D / cos theta_i of a
+sample of diameter d) only the fraction frac(theta_i) of the light reaches it
+(:func:`reconstruction.schema.optics.footprint_fraction`); the reading is then divided by frac(theta_i) /
+frac(theta_i_ref), where frac(theta_i) is at least the footprint's smallest correctable fraction (below it, the
+sample is left uncorrected). The uncertainty kept per sample is the standard deviation of the mean of the repeats,
+propagated through the same factor; the reference and dark uncertainties are common to the whole slice and are
+stored in the metadata instead.
 """
 
 from __future__ import annotations
@@ -45,32 +51,40 @@ Array = NDArray[np.float64]
 @dataclass(frozen=True)
 class Reading:
     """A detector reading: ``mean`` and ``std`` (sample standard deviation over the repeats) per channel in raw
-    counts, ``n`` repeats, ``saturated`` = how many repeats clipped."""
+    counts, ``n`` repeats, ``saturated`` = how many repeats clipped; ``monitor``: the source monitor's rate during
+    the reading (the board's ``monitor=`` sum over one repeat's integration time, divided by it: counts/s), None
+    when the detector reports none."""
 
     mean: Array
     std: Array
     n: int
     saturated: int = 0
+    monitor: float | None = None
 
     @property
     def std_of_mean(self) -> Array:
         return self.std / math.sqrt(max(self.n, 1))
 
     def to_meta(self) -> dict[str, Any]:
-        return {"mean": [float(x) for x in self.mean], "std": [float(x) for x in self.std], "n": self.n}
+        return {"mean": [float(x) for x in self.mean], "std": [float(x) for x in self.std], "n": self.n,
+                **({"monitor_per_s": self.monitor} if self.monitor is not None else {})}
 
     @classmethod
     def from_meta(cls, d: dict[str, Any]) -> Reading:
-        return cls(np.asarray(d["mean"], dtype=float), np.asarray(d["std"], dtype=float), int(d["n"]))
+        mon = d.get("monitor_per_s")
+        return cls(np.asarray(d["mean"], dtype=float), np.asarray(d["std"], dtype=float), int(d["n"]),
+                   monitor=None if mon is None else float(mon))
 
 
 def pool(a: Reading, b: Reading) -> Reading:
     """One reading of ``a.n + b.n`` repeats from two readings of the same quantity (mean and sample standard
-    deviation pooled exactly; saturated repeats added)."""
+    deviation pooled exactly; saturated repeats added; the monitor's rates weighted by repeats, when both have
+    one)."""
     n = a.n + b.n
     mean = (a.n * a.mean + b.n * b.mean) / n
     ss = (a.n - 1) * a.std ** 2 + (b.n - 1) * b.std ** 2 + a.n * b.n / n * (a.mean - b.mean) ** 2
-    return Reading(mean, np.sqrt(np.maximum(ss, 0.0) / max(n - 1, 1)), n, a.saturated + b.saturated)
+    mon = None if a.monitor is None or b.monitor is None else (a.n * a.monitor + b.n * b.monitor) / n
+    return Reading(mean, np.sqrt(np.maximum(ss, 0.0) / max(n - 1, 1)), n, a.saturated + b.saturated, mon)
 
 
 def reference_rho(reflectance: float | None, spectrum: tuple[Sequence[float], Sequence[float]] | None,
@@ -113,6 +127,9 @@ class Calibration:
     #: (:func:`measure_gain_factors`); auto-ranging converts with them. None: the nominal gains
     gain_factors: dict[float, float] | None = None
     gain_factors_measured: tuple[float, ...] = ()
+    #: ratio readings (``[detector].monitor``, relative mode): every net signal times the reference's monitor rate
+    #: over the reading's (module doc)
+    monitor: bool = False
 
     def footprint_factor(self, theta_i_deg: float | Array | None) -> Array | float:
         """The footprint correction at ``theta_i_deg``: frac(theta_i_ref) / frac(theta_i) (absolute: 1 /
@@ -144,9 +161,25 @@ class Calibration:
     def brdf(self, reading: Reading, theta_o_deg: float, theta_i_deg: float | None = None) -> tuple[Array, Array]:
         """(f_r, std of the mean of f_r) per channel for a reading at ``theta_o_deg`` (footprint-corrected at
         ``theta_i_deg`` when given)."""
-        k = self.scale(theta_o_deg) * self.footprint_factor(theta_i_deg)
+        k = self.scale(theta_o_deg) * self.footprint_factor(theta_i_deg) * self.monitor_factor(reading)
         f = (reading.mean - self.dark.mean) * k
         return f, reading.std_of_mean * np.abs(k)
+
+    def monitor_factor(self, reading: Reading) -> float:
+        """The ratio reading's factor for ``reading``: the white reference's monitor rate over the reading's (1
+        without :attr:`monitor`). Raises ValueError when either has no monitor rate above 0 (a board built without
+        MONITOR=1, or no monitor photodiode on A1)."""
+        if not self.monitor:
+            return 1.0
+        ref = self.reference.monitor if self.reference is not None else None
+        for what, m in (("the white reference", ref), ("the reading", reading.monitor)):
+            if m is None or not m > 0:
+                raise ValueError(f"[detector].monitor = true, but {what} has "
+                                 + ("no monitor= field (firmware built without MONITOR=1?)" if m is None else
+                                    f"a monitor reading of {m:g} counts/s (no monitor photodiode on A1, or it sees "
+                                    "no light from the source?)"))
+        assert ref is not None and reading.monitor is not None
+        return ref / reading.monitor
 
     def relative_uncertainty(self) -> Array:
         """Relative standard uncertainty common to all samples (reference and dark means), per channel."""
@@ -165,6 +198,8 @@ class Calibration:
         if self.k_counts is not None:
             d["k_counts"] = self.k_counts
         d["common_relative_uncertainty"] = [float(x) for x in self.relative_uncertainty()]
+        if self.monitor:
+            d["monitor_ratio"] = True
         if self.gain_factors is not None:
             d["gain_factors"] = {f"{g:g}": float(f) for g, f in sorted(self.gain_factors.items())}
             d["gain_factors_measured"] = [float(g) for g in self.gain_factors_measured]

@@ -441,6 +441,11 @@ def _check_cross(cfg: BenchConfig) -> None:
     if park_sep < cfg.bench.min_separation_deg:
         raise ConfigError(f"{src}: [axes.detector].park_deg: parked arms would be {park_sep:g} deg apart, "
                           f"closer than min_separation_deg = {cfg.bench.min_separation_deg:g}")
+    if cfg.detector.monitor and (c.mode != "relative" or not cfg.detector.on_board):
+        why = "[calibration].mode = \"relative\"" if c.mode != "relative" else \
+            "the detector board (type photodiode or spectrometer)"
+        raise ConfigError(f"{src}: [detector].monitor: ratio readings need {why}: the monitor's rate is compared "
+                          "with the white reference's, which the board reports")
     if cfg.detector.saturation is not None and cfg.detector.saturation <= 0:  # pragma: no cover - the field
         raise ConfigError(f"{src}: [detector].saturation: must be > 0")
 

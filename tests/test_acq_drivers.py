@@ -200,3 +200,17 @@ def test_a_corrupt_list_in_the_detector_reply_is_a_corrupt_reply_read_again():
     bad = Reply({**f, "gains": "1,1J0,100"}, [])
     with pytest.raises(ValueError):
         _check_detector(bad)
+
+
+def test_a_boards_monitor_field_becomes_the_readings_monitor_rate(pty_path):
+    """READ ... monitor=<sum> (firmware built with MONITOR=1): the sum over one repeat's integration time, kept as a
+    rate (counts/s) so that auto-ranging's other integration times compare; a reply without it has none."""
+    path, state = pty_path
+    replies = {"READ": [b"READ n=2 sat=0 t_int=0.01 mean=300.000 std=0.000 values=300,300 monitor=41000\nok\n",
+                        b"READ n=2 sat=0 t_int=0.01 mean=300.000 std=0.000 values=300,300\nok\n"]}
+    _scripted_peer(state, replies, [])
+    link = SerialLink(path, 115200, timeout_s=10.0, retries=2)
+    det = SerialDetector(link, "photodiode", 0.01, 65535)
+    assert det.read(2).monitor == pytest.approx(41000 / 0.01)
+    assert det.read(2).monitor is None
+    link.close()

@@ -48,10 +48,10 @@ class Rig:
     """A simulated Dynamixel bench with the emulated board as its detector, in a process of its own
     (tests/firmware_rig.py); ``fault`` strikes the board at the first repeat of its reading number ``at``."""
 
-    def __init__(self, tmp_path, built, fault: str, at: int = 16) -> None:
+    def __init__(self, tmp_path, built, fault: str, at: int = 16, *overs: dict) -> None:
         elf, build_dir = built
         self.tmp, self.runs = tmp_path, 0
-        self.raw = make_raw(PLAN)
+        self.raw = make_raw(PLAN, *overs)
         cfg = tmp_path / "rig.toml"
         cfg.write_text(tomli_w.dumps(self.raw))
         self.proc = subprocess.Popen([sys.executable, str(RIG), str(cfg), str(elf), str(build_dir), fault, str(at)],
@@ -95,12 +95,22 @@ class Rig:
             self.proc.wait()
 
 
+@pytest.fixture(scope="module")
+def built_monitor(tmp_path_factory):
+    """The board with a monitor photodiode on A1 (MONITOR=1): READ reports monitor=<sum>."""
+    d = tmp_path_factory.mktemp("firmware-monitor")
+    try:
+        return fw.build_firmware(d / "fw", sample_changer=True, monitor=True), d
+    except fw.FirmwareError as e:
+        pytest.skip(f"firmware tests skipped: {e}")
+
+
 @pytest.fixture
 def rig_factory(tmp_path, built):
     rigs = []
 
-    def make(fault: str, at: int = 16) -> Rig:
-        rigs.append(Rig(tmp_path, built, fault, at))
+    def make(fault: str, at: int = 16, *overs: dict, firmware=None) -> Rig:
+        rigs.append(Rig(tmp_path, firmware or built, fault, at, *overs))
         return rigs[-1]
 
     yield make
@@ -167,3 +177,30 @@ def test_capture_on_the_firmware_agrees_with_the_python_simulator(rig_factory, t
     z = (fw_slice.values[:, 0] - py_slice.values[:, 0]) / py_slice.std[:, 0]
     assert np.sqrt(np.mean(z ** 2)) < 1.0 and np.max(np.abs(z)) < 4.0, z
     assert np.any(z != 0)  # the board's own quantisation shows: not a copy of the Python controller's numbers
+
+
+def test_ratio_readings_divide_a_drifting_source_out_of_a_capture(rig_factory, built_monitor, tmp_path, capsys):
+    """A source whose power climbs 10 % an hour of bench time ([simulator].source_drift_per_h) under the board with
+    a monitor photodiode: with [detector].monitor = true every sample is the drift-free Python controller's within
+    its noise (the monitor's rate during each reading over the white reference's divides the drift out), and the
+    slice records the ratio; without it the same board's samples climb with the source, away from them."""
+    drift = {"simulator": {"source_drift_per_h": 10.0}}
+    cfg = tmp_path / "python.toml"  # the same sweep on the Python controller, the source steady
+    cfg.write_text(tomli_w.dumps({**make_raw(PLAN), "bench": {**make_raw(PLAN)["bench"], "transport": "simulated"}}))
+    assert main(["--config", str(cfg), "--out", str(tmp_path / "py"), "--no-progress"]) == 0
+    steady = read(tmp_path / "py" / "slice.csv")
+
+    def z_against_steady(out, *overs) -> np.ndarray:
+        rig = rig_factory("none", 16, drift, *overs, firmware=built_monitor)
+        assert rig.capture(tmp_path / out) == 0, capsys.readouterr().err
+        s = read(tmp_path / out / "slice.csv")
+        assert keys(s) == keys(steady)
+        return s, (s.values[:, 0] - steady.values[:, 0]) / steady.std[:, 0]
+
+    ratio, z = z_against_steady("ratio", {"detector": {"monitor": True}})
+    assert ratio.meta["calibration"]["monitor_ratio"] is True
+    assert ratio.meta["calibration"]["reference_reading"]["monitor_per_s"] > 0
+    assert np.sqrt(np.mean(z ** 2)) < 1.5 and np.max(np.abs(z)) < 5.0, z
+    plain, z_plain = z_against_steady("plain")
+    assert "monitor_ratio" not in plain.meta["calibration"]
+    assert np.sqrt(np.mean(z_plain ** 2)) > 3.0 * max(np.sqrt(np.mean(z ** 2)), 0.5), (z_plain, z)

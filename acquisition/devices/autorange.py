@@ -459,7 +459,7 @@ class AutoRanger:
             spent += self.reference_dark().n * self.t_ref
         ref_dark = self.reference_dark()
         r = self.sensitivity(0) / self.sensitivity(i)
-        conv = Reading(ref_dark.mean + (rd.mean - dark.mean) * r, rd.std * r, rd.n, 0)
+        conv = Reading(ref_dark.mean + (rd.mean - dark.mean) * r, rd.std * r, rd.n, 0, rd.monitor)
         self._rung = i
         if point is not None:
             self._remember(point, conv, i)

@@ -379,7 +379,8 @@ class SerialDetector:
             if n > 1 and abs(vals.std(ddof=1) - std[0]) > 0.0051:
                 raise ValueError("values disagree with std")
             sat = max(sat, int(np.sum(vals >= self.saturation)))
-        return Reading(mean, std, n, sat)
+        mon = float(f["monitor"]) / self.integration_time_s if "monitor" in f else None  # a rate: counts/s
+        return Reading(mean, std, n, sat, mon)
 
     def _read(self, word: str, n: int) -> Reading:
         """``word n`` (READ or DARK); if its reply keeps failing (the longer the reply, the likelier a corrupt

@@ -241,12 +241,13 @@ def calibrate(cfg: BenchConfig, rho_ref: np.ndarray) -> PlanGen:
                 if ranged.dark is not None:  # the dark it was converted with: its uncertainty is the reference's
                     d = ranged.dark
                     ref = Reading(ref.mean, np.sqrt(ref.std ** 2 + ref.n * d.std_of_mean ** 2), ref.n,
-                                  ref.saturated)
+                                  ref.saturated, ref.monitor)
         cal = Calibration("relative", dark, ref, rho_ref, c.reference_theta_o_deg, footprint=footprint_of(cfg),
                           reference_theta_i_deg=c.reference_theta_i_deg, gain_factors=factors[0],
-                          gain_factors_measured=factors[1])
+                          gain_factors_measured=factors[1], monitor=cfg.detector.monitor)
         try:
             cal.scale(c.reference_theta_o_deg)  # raises if the reference reads no signal
+            cal.monitor_factor(ref)  # ... or, for ratio readings, its monitor none
         except ValueError as e:
             raise DeviceError(f"white reference at ({c.reference_theta_i_deg:g}, {c.reference_theta_o_deg:g}): "
                               f"{e} (reference {ref.mean.tolist()[:4]}, dark {dark.mean.tolist()[:4]} counts)"

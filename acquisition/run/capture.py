@@ -358,7 +358,8 @@ class RunEngine:
                           np.asarray(m["rho_ref"]) if "rho_ref" in m else None,
                           float(m.get("reference_theta_o_deg", c.reference_theta_o_deg)), m.get("k_counts"),
                           footprint_of(self.cfg) if "footprint" in m else None,
-                          float(m.get("reference_theta_i_deg", c.reference_theta_i_deg)), *gain_factors_of(m))
+                          float(m.get("reference_theta_i_deg", c.reference_theta_i_deg)), *gain_factors_of(m),
+                          monitor=bool(m.get("monitor_ratio", False)))
         done: dict[tuple[float, float], Sample] = {}
         for ti, to, v, s in zip(existing.theta_i_deg, existing.theta_o_deg, existing.values.mean(axis=1),
                                 existing.std.mean(axis=1), strict=True):

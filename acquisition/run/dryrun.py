@@ -57,8 +57,8 @@ class DryRunBench:
         self.moves: list[Point] = []
         self.motion_s = self.settle_s = self.read_s = 0.0
         self._pos = self.start
-        self._one = Reading(np.ones(1), np.zeros(1), 1)
-        self._zero = Reading(np.zeros(1), np.zeros(1), 1)
+        self._one = Reading(np.ones(1), np.zeros(1), 1, monitor=1.0)  # a monitor too: ratio readings' plans
+        self._zero = Reading(np.zeros(1), np.zeros(1), 1, monitor=1.0)
         self._status = MoveStatus(True, True, self.start)
 
     # -- Axes ----------------------------------------------------------------------------------------------------

@@ -323,7 +323,7 @@ class Engine:
             if self.bar is not None:
                 self.bar.advance()
             return (ti, to, 0.0, 0.0)
-        f, fs = self.calibration.brdf(m.reading, to, ti)
+        f, fs = self._brdf(m.reading, to, ti)
         rg = m.ranged
         rec = self.record.auto_range if self.record is not None else None
         if rg is not None and rec is not None:
@@ -351,8 +351,17 @@ class Engine:
             self._account()
         if self.calibration is None or not self.convert:  # a dry run
             return (ti, to, 0.0, 0.0)
-        f, fs = self.calibration.brdf(m.reading, to, ti)
+        f, fs = self._brdf(m.reading, to, ti)
         return (ti, to, float(np.mean(f)), float(np.mean(fs)))
+
+    def _brdf(self, reading: Reading, theta_o_deg: float, theta_i_deg: float) -> tuple[Any, Any]:
+        """The calibration's f_r of a point's reading; a reading it cannot convert (a ratio reading without the
+        monitor's) is the detector's fault, named with the point."""
+        assert self.calibration is not None
+        try:
+            return self.calibration.brdf(reading, theta_o_deg, theta_i_deg)
+        except ValueError as e:
+            raise DeviceError(f"point ({theta_i_deg:g}, {theta_o_deg:g}): {e}") from None
 
     def _account(self) -> None:
         """A point saved: its move (since the last point or the calibration), settle and reading times."""

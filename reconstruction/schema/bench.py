@@ -200,6 +200,11 @@ class DetectorTable(msgspec.Struct, kw_only=True, frozen=True, forbid_unknown_fi
     chop: Annotated[bool, Meta(description="the detector board chops the source (CHOP ON): readings are on-minus-off "
                                            "sums in which room light, its flicker and the amplifier's offset "
                                            "cancel (docs/serial-protocol.md; an LED source)")] = False
+    monitor: Annotated[bool, Meta(description="ratio readings: the detector board reports its monitor photodiode "
+                                              "(firmware built with MONITOR=1, a photodiode on A1 seeing the "
+                                              "source) and every net signal is divided by the source's power then "
+                                              "relative to the white reference's (its drift divides out; relative "
+                                              "calibration)")] = False
     serial_number: Annotated[str, Meta(description='seabreeze: the spectrometer\'s serial number (default: the '
                                                    "first one found)")] | None = None
     correct_dark_counts: Annotated[bool, Meta(description="seabreeze: subtract the electrical dark pixels' level "
