@@ -50,3 +50,21 @@ def test_a_source_that_does_not_settle_stops_with_one_line(tmp_path, capsys):
     assert "the source has not warmed up: its white-reference reading still drifts" in err
     assert "[calibration].warmup_max_drift = 0.2 %" in err and "warmup_timeout_s = 60" in err
     assert "Traceback" not in err
+
+
+def test_ratio_readings_take_the_lamps_warm_up_out_without_waiting(tmp_path, capsys):
+    """A lamp 10 % dim at power-up warming with a 60 s time constant, read at once: with [detector].monitor = true
+    (gonio-sim's controller sends the monitor's sum as the board built with MONITOR=1 does: after the repeats, so a
+    lamp brightening during a 1 s reading leaves its rise over half a reading) the slice is the steady lamp's within
+    0.2 % at every point; without it, the later the point the brighter (as in the test above)."""
+    lamp = {"simulator": {"source_warmup_depth": 0.1, "source_warmup_s": 60.0}}
+    runs = {}
+    for name, overs in (("steady", ()), ("ratio", (lamp, {"detector": {"monitor": True}})), ("plain", (lamp,))):
+        cfg = write_config(tmp_path / f"{name}.toml", make_raw(PLAN, *overs))
+        assert main(["--config", str(cfg), "--out", str(tmp_path / name), "--no-progress"]) == 0, \
+            capsys.readouterr().err
+        runs[name] = read(tmp_path / name / "slice.csv").values[:, 0]
+    ratio, plain = runs["ratio"] / runs["steady"], runs["plain"] / runs["steady"]
+    assert abs(ratio - 1).max() < 0.002, ratio
+    assert plain[-1] > 1.015 and plain[-1] - plain[0] > 0.01, plain
+    assert read(tmp_path / "ratio" / "slice.csv").meta["calibration"]["monitor_ratio"] is True

@@ -23,6 +23,10 @@ from simulator.world.physics import BenchPhysics
 
 log = logging.getLogger("simulator.serial")
 
+#: the board's monitor (MONITOR=1): the ATmega's 10-bit ADC on 5 V, one conversion every 125 us
+MONITOR_CODES_PER_MV = 1023 / 5000.0
+MONITOR_CONVERSION_S = 125e-6
+
 VERSION = "0.1.0"
 MAX_LINE = 256
 MAX_REPEATS = 1000
@@ -368,7 +372,19 @@ class SerialController(Paced):
                        "values=" + ",".join(str(int(v)) for v in codes[:, 0])]
         else:
             fields += ["mean=" + ",".join(f"{v:.2f}" for v in mean), "std=" + ",".join(f"{v:.2f}" for v in std)]
+        if self.cfg.detector.monitor:  # as the board built with MONITOR=1: its monitor photodiode after the repeats
+            fields.append(f"monitor={self._monitor_sum(source_on and self.physics.source_on, t_int)}")
         return [tag + " " + " ".join(fields), "ok"]
+
+    def _monitor_sum(self, source_on: bool, t_int: float) -> int:
+        """The monitor photodiode's ``monitor=`` field, as firmware/detector sends it: its amplifier's output
+        (``[simulator].monitor_mv`` at the source's nominal power, times the source's drift now; 0 with the source
+        off) in the ATmega's ADC codes, summed over one repeat's conversions (every 125 us), which take that time."""
+        per_conversion = (self.physics.cfg.sim.monitor_mv * float(self.physics.source_scale(self.clock.now()))
+                          if source_on else 0.0) * MONITOR_CODES_PER_MV
+        conversions = max(1, round(t_int / MONITOR_CONVERSION_S))
+        self._advance(t_int)
+        return int(round(min(per_conversion, 1023.0) * conversions))
 
     def _cmd_read(self, args: list[str]) -> list[str]:
         return self._read_common(args, True)
