@@ -163,6 +163,35 @@ def summarise(records: list[dict[str, Any]], modes: list[str]) -> list[str]:
     return lines
 
 
+def replay(records: list[dict[str, Any]], mode: str, method: str, margin: float) -> list[str]:
+    """Another choice rule on the recorded scores (``--prefer METHOD:MARGIN``): from several slices, ``method``
+    unless another candidate's held-out image error is ``margin`` times lower; from one slice, the lowest. Lines:
+    the PSNR medians per capture and the pairs' materials worse by > 0.5 / 2 dB, beside the same replay without the
+    preference (the plain lowest error; it may differ from auto's recorded choice where auto refused a table)."""
+    rs = [r for r in records if r["mode"] == mode and "candidates" in r]
+    by = {(r["material"], r["capture"]): r for r in rs}
+    mats = sorted({r["material"] for r in rs})
+    caps = [c for c in BM.CAPTURES if any(r["capture"] == c for r in rs)]
+    lines = []
+    for name, m, k in (("lowest held-out error", method, 1.0), (f"{method} unless {margin:g}x", method, margin)):
+        def chosen(r: dict[str, Any], m: str = m, k: float = k) -> float:
+            single = "/" not in r["capture"].split("+")[0] and "+" not in r["capture"]
+            ok = {lab: v for lab, v in r["candidates"].items() if "psnr_db" in v and v["image_error"] is not None}
+            lab = min(ok, key=lambda cand: ok[cand]["image_error"] * (1.0 if single or cand == m else k))
+            return float(ok[lab]["psnr_db"])
+
+        ps = {key: chosen(r) for key, r in by.items()}
+        meds = " / ".join(f"{np.median([ps[x, c] for x in mats if (x, c) in ps]):.1f}" for c in caps)
+        pairs = []
+        for a, b in BM.PAIRS:
+            d = np.array([ps[x, b] - ps[x, a] for x in mats if (x, a) in ps and (x, b) in ps])
+            if d.size:
+                pairs.append(f"{a} -> {b} {int(np.sum(d < -0.5))}/{int(np.sum(d < -2))}")
+        lines.append(f"  replay, {name}: medians {meds} dB ({', '.join(caps)}); worse by > 0.5 / 2 dB: "
+                     + ", ".join(pairs))
+    return lines
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", default=str(ROOT.parent / "shared" / "realdata"))
@@ -176,11 +205,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache", default=str(ROOT / "out" / "real-materials-cache"))
     ap.add_argument("--jsonl", default=str(ROOT / "out" / "choice.jsonl"))
     ap.add_argument("--from-jsonl", metavar="FILE", help="summarise the records of FILE; run nothing")
+    ap.add_argument("--prefer", metavar="METHOD:MARGIN", help="with --from-jsonl: replay a preference for METHOD "
+                    "from several slices on the recorded scores (e.g. bivariate:1.5)")
     args = ap.parse_args(argv)
     modes = [m for m in args.modes.split(",") if m]
     if args.from_jsonl:
         recs = [json.loads(x) for x in Path(args.from_jsonl).read_text().splitlines() if x.strip()]
         print("\n".join(summarise(recs, [m for m in modes if any(r["mode"] == m for r in recs)])))
+        if args.prefer:
+            method, _, margin = args.prefer.partition(":")
+            for m in modes:
+                print("\n".join(replay(recs, m, method, float(margin or 1.0))))
         return 0
     data = Path(args.data)
     folders = [data / f for f in BR.FOLDERS if (data / f).is_dir()]
