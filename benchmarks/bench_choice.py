@@ -22,11 +22,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
 import warnings
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
@@ -192,19 +190,18 @@ def replay(records: list[dict[str, Any]], mode: str, method: str, margin: float)
     return lines
 
 
+def _line(r: dict[str, Any]) -> str:
+    """A record as it arrives: auto's PSNR and choice, the best candidate's."""
+    best = max(((v.get("psnr_db", -np.inf), k) for k, v in r.get("candidates", {}).items()), default=(np.nan, "-"))
+    return (f"{r['material']:34s} {r['mode']:5s} {r['capture']:12s} "
+            + (f"auto {r['psnr_db']:5.1f} dB [{r['used']}], best {best[0]:5.1f} [{best[1]}] {r['total_seconds']:.0f} s"
+               if "psnr_db" in r else f"FAILED: {r['error']}"))
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--data", default=str(ROOT.parent / "shared" / "realdata"))
-    ap.add_argument("--every", type=int, default=3, help="every N-th material of the 141 by name (1: all)")
-    ap.add_argument("--offset", type=int, default=0)
-    ap.add_argument("--materials", help="comma-separated names instead")
-    ap.add_argument("--captures", default="40,40/70,20/40/60", help="comma-separated captures (bench_monotone.py)")
-    ap.add_argument("--modes", default="prior", help="prior (auto with the prior), none (auto without)")
-    ap.add_argument("--workers", type=int, default=1)
-    ap.add_argument("--size", type=int, default=128, help="the renders' size (pixels)")
-    ap.add_argument("--cache", default=str(ROOT / "out" / "real-materials-cache"))
-    ap.add_argument("--jsonl", default=str(ROOT / "out" / "choice.jsonl"))
-    ap.add_argument("--from-jsonl", metavar="FILE", help="summarise the records of FILE; run nothing")
+    BM.material_arguments(ap, every=3, captures="40,40/70,20/40/60", modes="prior", size=128,
+                          jsonl=ROOT / "out" / "choice.jsonl")
     ap.add_argument("--prefer", metavar="METHOD:MARGIN", help="with --from-jsonl: replay a preference for METHOD "
                     "from several slices on the recorded scores (e.g. bivariate:1.5)")
     args = ap.parse_args(argv)
@@ -217,36 +214,13 @@ def main(argv: list[str] | None = None) -> int:
             for m in modes:
                 print("\n".join(replay(recs, m, method, float(margin or 1.0))))
         return 0
-    data = Path(args.data)
-    folders = [data / f for f in BR.FOLDERS if (data / f).is_dir()]
-    if not folders:
-        print(f"bench_choice: {data}/nbrdf-merl not found (see ../shared/realdata/README.md)", file=sys.stderr)
+    jobs = BM.material_jobs(args, modes, [c for c in args.captures.split(",") if c], "bench_choice")
+    if jobs is None:
         return 2
-    where = {n: str(f) for f in folders for n in BR.material_names(f)}
-    names = sorted(where)[args.offset:: args.every] if not args.materials else args.materials.split(",")
-    prior = os.pathsep.join(str(f) for f in folders)
-    if "prior" in modes:
-        from reconstruction.methods.prior import load_prior
-
-        load_prior(prior)  # tabulated once (and cached) before the workers start
-    jobs = [{"name": n, "folder": where[n], "captures": [c for c in args.captures.split(",") if c], "modes": modes,
-             "prior": prior, "cache": args.cache, "size": args.size} for n in names]
     t0 = time.perf_counter()
-    records: list[dict[str, Any]] = []
-    Path(args.jsonl).parent.mkdir(parents=True, exist_ok=True)
-    with open(args.jsonl, "w", encoding="utf-8") as log, ProcessPoolExecutor(max(1, args.workers)) as ex:
-        for fut in as_completed([ex.submit(run_material, j) for j in jobs]):
-            for r in fut.result():
-                records.append(r)
-                log.write(json.dumps(r) + "\n")
-                best = max(((v.get("psnr_db", -np.inf), k) for k, v in r.get("candidates", {}).items()),
-                           default=(np.nan, "-"))
-                print(f"{r['material']:34s} {r['mode']:5s} {r['capture']:12s} "
-                      + (f"auto {r['psnr_db']:5.1f} dB [{r['used']}], best {best[0]:5.1f} [{best[1]}] "
-                         f"{r['total_seconds']:.0f} s" if "psnr_db" in r else f"FAILED: {r['error']}"), flush=True)
-            log.flush()
+    records = BM.run_jobs(run_material, jobs, args.workers, args.jsonl, _line)
     print("\n".join(summarise(records, modes)))
-    print(f"{len(names)} materials, {len(records)} records, {time.perf_counter() - t0:.0f} s wall with "
+    print(f"{len(jobs)} materials, {len(records)} records, {time.perf_counter() - t0:.0f} s wall with "
           f"{args.workers} worker(s)")
     return 0
 

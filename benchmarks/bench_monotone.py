@@ -32,6 +32,7 @@ import os
 import sys
 import time
 import warnings
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
@@ -177,54 +178,79 @@ def summarise(records: list[dict[str, Any]], modes: list[str]) -> list[str]:
     return lines
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def material_arguments(ap: argparse.ArgumentParser, every: int, captures: str, modes: str, size: int,
+                       jsonl: Path) -> None:
+    """The options of a benchmark over the real materials (this one's and bench_choice.py's), with its defaults."""
     ap.add_argument("--data", default=str(ROOT.parent / "shared" / "realdata"))
-    ap.add_argument("--every", type=int, default=6, help="every N-th material of the 141 by name (1: all)")
+    ap.add_argument("--every", type=int, default=every, help="every N-th material of the 141 by name (1: all)")
     ap.add_argument("--offset", type=int, default=0)
     ap.add_argument("--materials", help="comma-separated names instead")
-    ap.add_argument("--captures", default=",".join(CAPTURES), help="comma-separated captures (module doc)")
-    ap.add_argument("--modes", default="prior,none", help="prior (auto with the prior), none (auto without)")
+    ap.add_argument("--captures", default=captures, help="comma-separated captures (bench_monotone.py's doc)")
+    ap.add_argument("--modes", default=modes, help="prior (auto with the prior), none (auto without)")
     ap.add_argument("--workers", type=int, default=1)
-    ap.add_argument("--size", type=int, default=64, help="the renders' size (pixels)")
+    ap.add_argument("--size", type=int, default=size, help="the renders' size (pixels)")
     ap.add_argument("--cache", default=str(ROOT / "out" / "real-materials-cache"))
-    ap.add_argument("--jsonl", default=str(ROOT / "out" / "monotone.jsonl"))
+    ap.add_argument("--jsonl", default=str(jsonl))
     ap.add_argument("--from-jsonl", metavar="FILE", help="summarise the records of FILE; run nothing")
-    args = ap.parse_args(argv)
-    modes = [m for m in args.modes.split(",") if m]
-    if args.from_jsonl:
-        recs = [json.loads(x) for x in Path(args.from_jsonl).read_text().splitlines() if x.strip()]
-        print("\n".join(summarise(recs, [m for m in modes if any(r["mode"] == m for r in recs)])))
-        return 0
+
+
+def material_jobs(args: argparse.Namespace, modes: list[str], captures: list[str], prog: str
+                  ) -> list[dict[str, Any]] | None:
+    """One job per material of ``args`` (``--data``, ``--every``, ``--offset``, ``--materials``, ``--cache``,
+    ``--size``): its name, folder, the captures and modes, the prior (every folder; tabulated and cached here, before
+    the workers start, when a mode uses it). None, said on stderr, when the real data is not there."""
     data = Path(args.data)
     folders = [data / f for f in BR.FOLDERS if (data / f).is_dir()]
     if not folders:
-        print(f"bench_monotone: {data}/nbrdf-merl not found (see ../shared/realdata/README.md)", file=sys.stderr)
-        return 2
+        print(f"{prog}: {data}/nbrdf-merl not found (see ../shared/realdata/README.md)", file=sys.stderr)
+        return None
     where = {n: str(f) for f in folders for n in BR.material_names(f)}
     names = sorted(where)[args.offset:: args.every] if not args.materials else args.materials.split(",")
     prior = os.pathsep.join(str(f) for f in folders)
     if "prior" in modes:
         from reconstruction.methods.prior import load_prior
 
-        load_prior(prior)  # tabulated once (and cached) before the workers start
-    captures = [c for c in args.captures.split(",") if c]
-    jobs = [{"name": n, "folder": where[n], "captures": captures, "modes": modes, "prior": prior,
+        load_prior(prior)
+    return [{"name": n, "folder": where[n], "captures": captures, "modes": modes, "prior": prior,
              "cache": args.cache, "size": args.size} for n in names]
-    t0 = time.perf_counter()
+
+
+def run_jobs(worker: Callable[[dict[str, Any]], list[dict[str, Any]]], jobs: list[dict[str, Any]], workers: int,
+             jsonl: str, line: Callable[[dict[str, Any]], str]) -> list[dict[str, Any]]:
+    """Every job's records by ``worker`` in ``workers`` processes, each written to ``jsonl`` (one JSON record a line)
+    and printed as ``line`` says as it arrives."""
     records: list[dict[str, Any]] = []
-    Path(args.jsonl).parent.mkdir(parents=True, exist_ok=True)
-    with open(args.jsonl, "w", encoding="utf-8") as log, ProcessPoolExecutor(max(1, args.workers)) as ex:
-        for fut in as_completed([ex.submit(run_material, j) for j in jobs]):
+    Path(jsonl).parent.mkdir(parents=True, exist_ok=True)
+    with open(jsonl, "w", encoding="utf-8") as log, ProcessPoolExecutor(max(1, workers)) as ex:
+        for fut in as_completed([ex.submit(worker, j) for j in jobs]):
             for r in fut.result():
                 records.append(r)
                 log.write(json.dumps(r) + "\n")
-                print(f"{r['material']:34s} {r['mode']:5s} {r['capture']:20s} "
-                      + (f"PSNR {r['psnr_db']:5.1f} dB [{r.get('used')}] {r['seconds']:.1f} s" if "psnr_db" in r
-                         else f"FAILED: {r['error']}"), flush=True)
+                print(line(r), flush=True)
             log.flush()
+    return records
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    material_arguments(ap, every=6, captures=",".join(CAPTURES), modes="prior,none", size=64,
+                       jsonl=ROOT / "out" / "monotone.jsonl")
+    args = ap.parse_args(argv)
+    modes = [m for m in args.modes.split(",") if m]
+    if args.from_jsonl:
+        recs = [json.loads(x) for x in Path(args.from_jsonl).read_text().splitlines() if x.strip()]
+        print("\n".join(summarise(recs, [m for m in modes if any(r["mode"] == m for r in recs)])))
+        return 0
+    jobs = material_jobs(args, modes, [c for c in args.captures.split(",") if c], "bench_monotone")
+    if jobs is None:
+        return 2
+    t0 = time.perf_counter()
+    records = run_jobs(run_material, jobs, args.workers, args.jsonl, lambda r: (
+        f"{r['material']:34s} {r['mode']:5s} {r['capture']:20s} "
+        + (f"PSNR {r['psnr_db']:5.1f} dB [{r.get('used')}] {r['seconds']:.1f} s" if "psnr_db" in r
+           else f"FAILED: {r['error']}")))
     print("\n".join(summarise(records, modes)))
-    print(f"{len(names)} materials, {len(records)} reconstructions, {time.perf_counter() - t0:.0f} s wall with "
+    print(f"{len(jobs)} materials, {len(records)} reconstructions, {time.perf_counter() - t0:.0f} s wall with "
           f"{args.workers} worker(s)")
     return 0
 

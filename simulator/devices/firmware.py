@@ -188,6 +188,18 @@ class EmulatedBoard:
                 pass
 
     def _read_control(self) -> None:
+        try:
+            self._control_lines()
+        except (ValueError, OSError):
+            if not self.proc.stdout or not self.proc.stdout.closed:  # a line it could not parse: said, as before
+                raise
+            # else the harness's stdout was closed under the read (the board reset or stopped): it is gone
+        finally:
+            with self._cond:
+                self.closed = True
+                self._cond.notify_all()
+
+    def _control_lines(self) -> None:
         for line in self.proc.stdout:  # type: ignore[union-attr]
             words = line.split()
             if not words:
@@ -205,9 +217,6 @@ class EmulatedBoard:
                     self._time_replies.append(float(f["t"]))
                 self.events.append(line.strip())
                 self._cond.notify_all()
-        with self._cond:
-            self.closed = True
-            self._cond.notify_all()
 
     def _sync(self, f: dict[str, str]) -> None:
         ev = SyncEvent(f["first"] == "1", int(f["n"]), int(f["nconv"]), int(f["gsel"]), f["source"] == "1",
