@@ -164,3 +164,22 @@ def test_a_slice_without_row_checks_still_resumes_and_gets_them(done, tmp_path, 
     assert len([c for c in checks if not c.startswith("#")]) == 28  # the 25 rows found, then the 3 new ones
     assert "# gonio-brdf slice" in (out / "slice.csv").read_text()  # the slice file itself is unchanged in form
     assert read(out / "slice.csv").channels == ["value"]
+
+
+def test_a_row_whose_check_value_a_kill_cut_off_is_the_captures_on_every_later_resume(done, tmp_path, capsys):
+    """kill -9 between a row's append (fsynced) and its check value's: the row is the capture's. The resume takes
+    it, and its check value is written then, so that a later resume, after this run appended rows with theirs,
+    does not call it a row the capture did not write (a failure of test_sigkill_at_random_moments_then_resume)."""
+    cfg, base = done
+    out = _copy(base, tmp_path / "o")
+    (out / "slice.crc").write_bytes((base / "slice.crc").read_bytes())
+    rows = (out / "slice.csv").read_text().splitlines(keepends=True)
+    (out / "slice.csv").write_text("".join(rows[:-3]))  # 25 rows on disk, three points still to measure
+    checks = (out / "slice.crc").read_text().splitlines(keepends=True)
+    (out / "slice.crc").write_text("".join(checks[:-4]))  # the 25th row's check value never written
+    assert main(["--config", str(cfg), "--out", str(out), "--resume", "--no-progress"]) == 0, capsys.readouterr().err
+    assert len([c for c in (out / "slice.crc").read_text().splitlines() if not c.startswith("#")]) == 28
+    rows = (out / "slice.csv").read_text().splitlines(keepends=True)
+    (out / "slice.csv").write_text("".join(rows[:-1]))  # the next resume finds the 25th row among checked ones
+    assert main(["--config", str(cfg), "--out", str(out), "--resume", "--no-progress"]) == 0, capsys.readouterr().err
+    assert len(read(out / "slice.csv")) == 28

@@ -78,17 +78,25 @@ class RowChecks:
     @classmethod
     def open(cls, slice_path: Path, columns: Sequence[str], new: bool = False) -> RowChecks | None:
         """The check file of ``slice_path`` (``new``: a new capture, started afresh). A resumed slice without one
-        gets one holding its present rows (they passed the resume's checks). None if it cannot be written (the
-        capture goes on without it; the slice is what counts)."""
+        gets one holding its present rows (they passed the resume's checks); one with it gets the values of the
+        rows after its last checked one: a capture killed between a row's append and its check value's (the row
+        is the capture's, fsynced; left out, the rows this run appends would make it look foreign). None if it
+        cannot be written (the capture goes on without it; the slice is what counts)."""
         side = slice_path.with_name(ROWCHECK_NAME)
         try:
             if new or not side.exists():
                 side.write_text(_HEADER, encoding="utf-8")
-                if not new:
-                    rows = [ln for ln in slice_path.read_text(encoding="utf-8-sig").splitlines(keepends=True)
-                            if ln[:1] not in ("#", "") and ln.endswith(("\n", "\r"))][1:]  # after the header
+            if not new:
+                rows = [ln for ln in slice_path.read_text(encoding="utf-8-sig").splitlines(keepends=True)
+                        if ln[:1] not in ("#", "") and ln.endswith(("\n", "\r"))][1:]  # after the header
+                values = [row_check(ln, columns) for ln in rows]
+                have = read_row_checks(slice_path) or {}
+                k = len(values)
+                while k > 0 and (values[k - 1][0], values[k - 1][1]) not in have:  # at most the rows of one kill
+                    k -= 1
+                if k < len(values):
                     with open(side, "a", encoding="utf-8", newline="\n") as fh:
-                        fh.writelines(",".join(row_check(ln, columns)) + "\n" for ln in rows)
+                        fh.writelines(",".join(v) + "\n" for v in values[k:])
             return cls(side, columns)
         except (OSError, ValueError, IndexError) as e:
             log.warning("cannot keep the row checks in %s (%s); the capture goes on without them", side, e)
