@@ -18,14 +18,11 @@ from reconstruction.schema.bench import Axis
 from simulator.config import BenchConfig
 from simulator.world.clock import Paced, SimClock
 from simulator.world.faults import FaultInjector
+from simulator.world.frontend import ADC_LSB_V, SAMPLE_PERIOD_S
 from simulator.world.motion import AxisMotion
 from simulator.world.physics import BenchPhysics
 
 log = logging.getLogger("simulator.serial")
-
-#: the board's monitor (MONITOR=1): the ATmega's 10-bit ADC on 5 V, one conversion every 125 us
-MONITOR_CODES_PER_MV = 1023 / 5000.0
-MONITOR_CONVERSION_S = 125e-6
 
 VERSION = "0.1.0"
 MAX_LINE = 256
@@ -380,11 +377,11 @@ class SerialController(Paced):
         """The monitor photodiode's ``monitor=`` field, as firmware/detector sends it: its amplifier's output
         (``[simulator].monitor_mv`` at the source's nominal power, times the source's drift now; 0 with the source
         off) in the ATmega's ADC codes, summed over one repeat's conversions (every 125 us), which take that time."""
-        per_conversion = (self.physics.cfg.sim.monitor_mv * float(self.physics.source_scale(self.clock.now()))
-                          if source_on else 0.0) * MONITOR_CODES_PER_MV
-        conversions = max(1, round(t_int / MONITOR_CONVERSION_S))
+        volts = (1e-3 * self.physics.cfg.sim.monitor_mv * float(self.physics.source_scale(self.clock.now()))
+                 if source_on else 0.0)
+        conversions = max(1, round(t_int / SAMPLE_PERIOD_S))
         self._advance(t_int)
-        return int(round(min(per_conversion, 1023.0) * conversions))
+        return int(round(min(volts / ADC_LSB_V, round(5.0 / ADC_LSB_V)) * conversions))
 
     def _cmd_read(self, args: list[str]) -> list[str]:
         return self._read_common(args, True)
